@@ -1,0 +1,16 @@
+"""corona — a wave-optics BSDF for layers of correlated scatterers.
+
+The model (DESIGN §3): the diffraction lobe of a layer is
+``F_a · T_a(d) · T_s(d)`` with ``T_a`` the normalised form factor of one
+scatterer and ``T_s`` the structure factor of their positions.
+"""
+from . import _environment  # noqa: F401  (must come first: sets DRJIT_LIBLLVM_PATH)
+from ._environment import default_variant, set_default_variant
+from ._validation import CoronaError
+from .shapes import Shape, Circle
+from .processes import Process, Poisson
+
+__version__ = "0.1.0"
+
+__all__ = ["CoronaError", "Shape", "Circle", "Process", "Poisson",
+           "default_variant", "set_default_variant"]

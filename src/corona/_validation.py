@@ -1,0 +1,53 @@
+"""Input checks at the public boundary: one clear error naming the parameter,
+the value and the allowed range."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class CoronaError(ValueError):
+    """A parameter outside its allowed range (subclass of ValueError)."""
+
+
+def check_positive(name: str, value, unit: str = "") -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise CoronaError(f"{name}={value!r} is not a number; expected a finite value > 0"
+                          + (f" {unit}" if unit else "")) from None
+    if not math.isfinite(v) or v <= 0.0:
+        raise CoronaError(f"{name}={value!r} is out of range; expected a finite value > 0"
+                          + (f" {unit}" if unit else ""))
+    return v
+
+
+def check_range(name: str, value, lo: float, hi: float, *, lo_open: bool = False,
+                hi_open: bool = False, unit: str = "") -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise CoronaError(f"{name}={value!r} is not a number") from None
+    ok = math.isfinite(v)
+    ok = ok and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
+    if not ok:
+        lb = "(" if lo_open else "["
+        rb = ")" if hi_open else "]"
+        raise CoronaError(f"{name}={value!r} is out of range; allowed {lb}{lo:g}, {hi:g}{rb}"
+                          + (f" {unit}" if unit else ""))
+    return v
+
+
+def check_choice(name: str, value, choices) -> str:
+    if value not in choices:
+        raise CoronaError(f"{name}={value!r} is not one of {', '.join(map(repr, choices))}")
+    return value
+
+
+def check_wavelength(wavelength) -> np.ndarray:
+    """Wavelengths in nm, finite and > 0 (broadcastable float64 array)."""
+    w = np.asarray(wavelength, dtype=np.float64)
+    if not np.all(np.isfinite(w)) or np.any(w <= 0):
+        raise CoronaError(f"wavelength={wavelength!r} is out of range; expected finite values > 0 nm")
+    return w
