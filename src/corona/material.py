@@ -1,0 +1,273 @@
+"""The reference material: the whole corona BSDF in numpy, float64 (DESIGN §3).
+
+This is the readable, exact model that the Mitsuba plugin is tested against.
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from . import tables
+from ._validation import CoronaError, check_choice, check_range, check_wavelength
+from .processes import Poisson, Process
+from .shapes import Shape
+
+MODES = ("aperture", "particle")
+
+
+class Material:
+    """A layer of scatterers: shape × point process, as apertures or particles.
+
+    Parameters
+    ----------
+    shape : corona.Shape
+        The scatterer (e.g. ``corona.Circle(radius=0.5)``, lengths in µm).
+    process : corona.Process, default ``corona.Poisson()``
+        The statistics of the scatterers' centres; it fixes the area
+        fraction ``F_a = n |A|``.
+    mode : {"aperture", "particle"}
+        Aperture: the scatterers transmit in an opaque screen,
+        ``t(x) = Σ A(x - s_j)``.  Particle: they block light in a clear
+        layer, ``t(x) = 1 - Σ A(x - s_j)``.
+    albedo : float in [0, 1], default 0
+        Diffuse (Lambertian) reflectance of the opaque part of the layer.
+    use_cache : bool, default True
+        Keep expensive tables in the on-disk cache (:mod:`corona.tables`).
+
+    Notes
+    -----
+    With ``d = (wo + wi).xy`` the projected offset and λ in nm (converted to
+    µm inside), the components are (DESIGN §3)
+
+    * coherent transmission along ``-wi`` with weight ``F_a²`` (aperture) or
+      ``(1 - F_a)²`` (particle);
+    * the diffraction lobe ``f = F_a T_a(d) T_s(d)``, no cosine factors,
+      where ``T_a T_s`` generalises, for random shapes, to the decoupling
+      rule ``[⟨|Â|²⟩ + |⟨Â⟩|² (S - 1)] / (⟨|A|⟩ λ²)``;
+    * diffuse reflection ``ρ/π`` of the opaque part, weight ``(1 - F_a)``
+      (aperture) or ``F_a`` (particle).
+
+    Energy policy: the lobe outside the propagating disk ``|wo.xy| <= 1`` is
+    evanescent and dropped (not renormalised).  For processes that allow
+    overlaps (Poisson) the lobe integrates to ``F_a`` instead of
+    ``F_a (1 - F_a)``; the reflected weight is then capped so that coherent
+    + lobe + reflection never exceeds 1.
+
+    References
+    ----------
+    R. Yang, J. Kim, A. Pediredla, W. Jarosz, "A wave-optics BSDF for
+    correlated scatterers", Computer Graphics Forum 44(4), 2025.
+    """
+
+    def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
+                 albedo: float = 0.0, use_cache: bool = True):
+        if not isinstance(shape, Shape):
+            raise CoronaError(f"shape={shape!r} is not a corona shape (e.g. corona.Circle(radius=0.5))")
+        if process is None:
+            process = Poisson()
+        if not isinstance(process, Process):
+            raise CoronaError(f"process={process!r} is not a corona point process (e.g. corona.Poisson())")
+        self.shape = shape
+        self.process = process
+        self.mode = check_choice("mode", mode, MODES)
+        self.albedo = check_range("albedo", albedo, 0.0, 1.0)
+        self.use_cache = bool(use_cache)
+        process.validate(shape)
+        fa = float(process.area_fraction(shape))
+        if not (0.0 < fa < 1.0):
+            raise CoronaError(f"area_fraction={fa:g} (from {process!r} with {shape!r}) is out of range; "
+                              "allowed (0, 1)")
+        self.area_fraction = fa
+
+    def __repr__(self):
+        return (f"Material({self.shape!r}, {self.process!r}, mode={self.mode!r}, "
+                f"albedo={self.albedo:g})")
+
+    # ------------------------------------------------------------------
+    # scalars
+    # ------------------------------------------------------------------
+    @property
+    def isotropic(self) -> bool:
+        """True when the lobe depends on |d| only (radial table)."""
+        return bool(self.shape.isotropic and self.process.isotropic)
+
+    @property
+    def length_scale(self) -> float:
+        """``R`` [µm] of the dimensionless ``u = 2π R |d| / λ``."""
+        return float(self.shape.length_scale)
+
+    @property
+    def coherent_transmittance(self) -> float:
+        """Weight of the delta transmission: ``F_a²`` (aperture), ``(1 - F_a)²`` (particle)."""
+        fa = self.area_fraction
+        return fa**2 if self.mode == "aperture" else (1.0 - fa) ** 2
+
+    @property
+    def opaque_fraction(self) -> float:
+        """Fraction of the layer that is opaque: ``1 - F_a`` (aperture), ``F_a`` (particle)."""
+        return 1.0 - self.area_fraction if self.mode == "aperture" else self.area_fraction
+
+    @property
+    def reflectance(self) -> float:
+        """Hemispherical reflectance ``ρ · opaque_fraction``, capped so the total stays <= 1."""
+        budget = 1.0 - self.coherent_transmittance - self.diffuse_transmittance()
+        return float(max(0.0, min(self.albedo * self.opaque_fraction, budget)))
+
+    # ------------------------------------------------------------------
+    # the exact lobe
+    # ------------------------------------------------------------------
+    def lobe_dimensionless(self, u) -> np.ndarray:
+        """Exact ``v(u) = [P + C (S - 1)] / R²`` at ``u`` (..., 2) (see :mod:`corona.tables`)."""
+        u = np.asarray(u, dtype=np.float64)
+        R = self.length_scale
+        q = u / R
+        P = self.shape.form_factor(q)
+        C = self.shape.coherent_form_factor(q)
+        S = self.process.structure_factor_at(q, self.shape)
+        return np.maximum(P + C * (S - 1.0), 0.0) / R**2
+
+    def lobe_dimensionless_radial(self, u) -> np.ndarray:
+        """Exact radial ``v(|u|)`` for isotropic materials."""
+        u = np.asarray(u, dtype=np.float64)
+        R = self.length_scale
+        q = u / R
+        P = self.shape.form_factor_radial(q)
+        C = self.shape.coherent_form_factor_radial(q)
+        S = self.process.structure_factor_radial(q, self.shape)
+        return np.maximum(P + C * (S - 1.0), 0.0) / R**2
+
+    def _u(self, d, wavelength):
+        d = np.asarray(d, dtype=np.float64)
+        if d.ndim == 0 or d.shape[-1] != 2:
+            raise CoronaError(f"d must have shape (..., 2), got {d.shape}")
+        lam = self._wavelength(wavelength)
+        scale = 2.0 * np.pi * self.length_scale / lam          # u = 2π R d / λ
+        return d * scale[..., None], lam
+
+    @staticmethod
+    def _wavelength(wavelength) -> np.ndarray:
+        lam = check_wavelength(wavelength)
+        if np.any(lam < tables.WAVELENGTH_MIN) or np.any(lam > tables.WAVELENGTH_MAX):
+            raise CoronaError(f"wavelength={wavelength!r} is out of range; allowed "
+                              f"[{tables.WAVELENGTH_MIN:g}, {tables.WAVELENGTH_MAX:g}] nm")
+        return lam * 1e-3  # nm -> µm
+
+    def lobe(self, d, wavelength) -> np.ndarray:
+        """Diffraction-lobe BSDF value ``F_a T_a(d) T_s(d)`` (no cosine factors).
+
+        Parameters
+        ----------
+        d : array (..., 2)
+            Projected offsets ``(wo + wi).xy``.
+        wavelength : float or array broadcastable to ``d.shape[:-1]``
+            Wavelength [nm].
+        """
+        u, lam = self._u(d, wavelength)
+        R = self.length_scale
+        if self.isotropic:
+            v = self.lobe_dimensionless_radial(np.hypot(u[..., 0], u[..., 1]))
+        else:
+            v = self.lobe_dimensionless(u)
+        return self.area_fraction * (R / lam) ** 2 * v      # F_a (R/λ)² v(u)
+
+    # ------------------------------------------------------------------
+    # the table (what the renderer evaluates and samples)
+    # ------------------------------------------------------------------
+    def table_params(self) -> dict:
+        return {"shape": self.shape.key(), "process": self.process.key(),
+                "isotropic": self.isotropic, "du": tables.RADIAL_DU,
+                "max_samples": tables.RADIAL_MAX_SAMPLES, "grid": tables.GRID2D_SIZE,
+                "wavelength_min": tables.WAVELENGTH_MIN}
+
+    @functools.cached_property
+    def table(self) -> tables.RadialTable | tables.GridTable:
+        """The dimensionless lobe table ``v(u)`` (cached on disk)."""
+        arrays = tables.cached(self.table_params(), self._build_table, use_cache=self.use_cache)
+        return tables.table_from_arrays(arrays)
+
+    def _build_table(self) -> dict:
+        u_max = tables.u_max_for(self.length_scale)
+        if self.isotropic:
+            n = int(np.ceil(u_max / tables.RADIAL_DU)) + 1
+            n = min(n, tables.RADIAL_MAX_SAMPLES)
+            du = u_max / (n - 1)
+            u = np.arange(n) * du
+            return tables.RadialTable(du, self.lobe_dimensionless_radial(u)).arrays()
+        n = tables.GRID2D_SIZE
+        u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
+        c = -u_range + (np.arange(n) + 0.5) * (2 * u_range / n)
+        ux, uy = np.meshgrid(c, c, indexing="xy")
+        return tables.GridTable(u_range, self.lobe_dimensionless(np.stack([ux, uy], -1))).arrays()
+
+    def lobe_tabulated(self, d, wavelength) -> np.ndarray:
+        """The lobe as the renderer evaluates it: interpolated from :attr:`table`."""
+        u, lam = self._u(d, wavelength)
+        t = self.table
+        v = t.eval(np.hypot(u[..., 0], u[..., 1])) if self.isotropic else t.eval(u)
+        return self.area_fraction * (self.length_scale / lam) ** 2 * v
+
+    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=None, phi_i=0.0) -> float | np.ndarray:
+        """Integral of the lobe (the diffuse transmittance).
+
+        With ``cos_theta_i=None``: over the whole d plane covered by the table,
+        ``F_a ∫ v d²u / (4π²)`` (wavelength-independent; ``F_a (1 - F_a)`` for
+        hard, non-overlapping scatterers).  With an incident direction
+        (``cos_theta_i``, azimuth ``phi_i`` [rad]): only over the propagating
+        directions ``|d - wi.xy| <= 1``, i.e. the energy the BSDF transmits
+        diffusely at that wavelength [nm].
+        """
+        t = self.table
+        fa = self.area_fraction
+        if cos_theta_i is None:
+            return fa * t.total / (4 * np.pi**2)
+        lam = self._wavelength(wavelength)
+        ct = check_range("cos_theta_i", cos_theta_i, 0.0, 1.0)
+        s = np.sqrt(max(0.0, 1.0 - ct * ct))
+        d_per_u = lam / (2 * np.pi * self.length_scale)   # |d| per unit u
+        if self.isotropic:
+            u = np.arange(t.values.size) * t.du
+            rho = u[None, :] * np.atleast_1d(d_per_u)[:, None]
+            frac = _arc_fraction_inside(rho, s)
+            integrand = 2 * np.pi * u[None, :] * t.values[None, :] * frac
+            val = np.trapezoid(integrand, u, axis=-1) * fa / (4 * np.pi**2)
+        else:
+            c = t.centres()
+            ux, uy = np.meshgrid(c, c, indexing="xy")
+            out = []
+            for dpu in np.atleast_1d(d_per_u):
+                dx, dy = ux * dpu - s * np.cos(phi_i), uy * dpu - s * np.sin(phi_i)
+                inside = dx * dx + dy * dy <= 1.0
+                out.append(np.sum(t.values * inside) * t.cell**2)
+            val = np.asarray(out) * fa / (4 * np.pi**2)
+        return float(val[0]) if np.ndim(wavelength) == 0 else val
+
+    def sample(self, xi, wavelength) -> np.ndarray:
+        """Importance-sample ``d`` (..., 2) from the lobe table by CDF inversion.
+
+        ``xi`` (..., 2) uniform in [0, 1)²; the density is :meth:`pdf`.
+        """
+        xi = np.asarray(xi, dtype=np.float64)
+        lam = self._wavelength(wavelength)
+        u = self.table.sample(xi)
+        return u * (lam / (2 * np.pi * self.length_scale))[..., None]
+
+    def pdf(self, d, wavelength) -> np.ndarray:
+        """Density of :meth:`sample` in the d plane: ``p_d = p_u (2π R / λ)²``."""
+        u, lam = self._u(d, wavelength)
+        t = self.table
+        pu = t.pdf(np.hypot(u[..., 0], u[..., 1])) if self.isotropic else t.pdf(u)
+        return pu * (2 * np.pi * self.length_scale / lam) ** 2
+
+
+def _arc_fraction_inside(rho, s):
+    """Fraction of the circle |d| = rho inside the unit disk centred at distance s."""
+    rho = np.asarray(rho, dtype=np.float64)
+    out = np.zeros_like(rho)
+    full = rho + s <= 1.0
+    out[full] = 1.0
+    part = ~full & (rho < 1.0 + s) & (rho > 0)
+    if s > 0:
+        c = (rho[part] ** 2 + s * s - 1.0) / (2 * rho[part] * s)
+        out[part] = np.arccos(np.clip(c, -1.0, 1.0)) / np.pi
+    return out

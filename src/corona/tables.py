@@ -1,0 +1,343 @@
+"""Dimensionless lobe tables, their sampling CDFs, and the on-disk cache.
+
+The lobe of a material is tabulated once in the dimensionless wave vector
+``u = q R = 2π R d / λ`` (DESIGN §3), where ``R`` is the shape's
+``length_scale``.  With
+
+    v(u) = [P(u) + C(u) (S(u) - 1)] / R²,
+
+``P`` the form factor, ``C`` the coherent form factor (decoupling rule; equal
+to ``P`` for one fixed shape) and ``S`` the structure factor, the lobe is
+
+    lobe(d, λ) = F_a · (R/λ)² · v(2π R d / λ)            [1/sr-equivalent]
+
+so one table serves every wavelength and the d-space pdf follows from the
+u-space pdf by ``p_d = p_u · (2π R / λ)²``.
+
+Radial tables (isotropic shape and process) sample ``u`` exactly from the
+piecewise-linear ``v``: the radial density ``2π u v(u)`` is a quadratic in
+each bin, its CDF a cubic, inverted by safeguarded Newton iterations.
+2D tables (anisotropic lobes) are sampled cell-wise (piecewise constant).
+
+Tables are cached under a content-addressed key (all parameters plus
+``FORMAT_VERSION``) in :func:`cache_dir`, written atomically (temporary file
++ ``os.replace``) under a file lock, with a checksum that detects damaged
+files, which are rebuilt.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+FORMAT_VERSION = 1
+
+#: Shortest and longest wavelength the tables are built for [nm].
+WAVELENGTH_MIN = 360.0
+WAVELENGTH_MAX = 830.0
+
+#: Largest projected offset reachable by two unit vectors: |(wo + wi).xy| <= 2.
+D_MAX = 2.0
+
+RADIAL_DU = 0.01           # target step in u for radial tables
+RADIAL_MAX_SAMPLES = 2**18  # cap; the step grows beyond it
+RADIAL_MIN_UMAX = 32.0
+GRID2D_SIZE = 512           # default N of an N×N table
+
+
+def u_max_for(length_scale: float, wavelength_min: float = WAVELENGTH_MIN) -> float:
+    """Largest u reachable for |d| <= 2 at the shortest wavelength [dimensionless]."""
+    return max(RADIAL_MIN_UMAX, 1.05 * 2.0 * np.pi * length_scale * D_MAX / (wavelength_min * 1e-3))
+
+
+# --------------------------------------------------------------------------
+# Radial table
+# --------------------------------------------------------------------------
+@dataclass
+class RadialTable:
+    """``v(u)`` on the uniform grid ``u_i = i·du`` (zero beyond the last node).
+
+    Attributes
+    ----------
+    du : float
+        Grid step in u.
+    values : ndarray (n,)
+        ``v(u_i) >= 0``.
+    bin_mass : ndarray (n-1,)
+        ``∫_{bin} 2π u v_lin(u) du`` of each bin (exact for linear ``v``).
+    cdf : ndarray (n,)
+        Cumulative ``bin_mass`` starting at 0; ``cdf[-1]`` is the total
+        ``∫ v d²u`` over the table.
+    """
+
+    du: float
+    values: np.ndarray
+    bin_mass: np.ndarray = field(init=False)
+    cdf: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        v = np.maximum(np.asarray(self.values, dtype=np.float64), 0.0)
+        self.values = v
+        n = v.size
+        u0 = np.arange(n - 1) * self.du
+        a, b = v[:-1], v[1:] - v[:-1]
+        # ∫_0^1 2π (u0 + t du)(a + b t) du dt
+        self.bin_mass = 2 * np.pi * self.du * (u0 * a + (u0 * b + self.du * a) / 2 + self.du * b / 3)
+        self.cdf = np.concatenate([[0.0], np.cumsum(self.bin_mass)])
+
+    @property
+    def u_max(self) -> float:
+        return (self.values.size - 1) * self.du
+
+    @property
+    def total(self) -> float:
+        """``∫ v(u) d²u`` over the table."""
+        return float(self.cdf[-1])
+
+    def eval(self, u) -> np.ndarray:
+        """Linear interpolation of ``v`` at ``|u|`` (0 beyond the table)."""
+        u = np.asarray(u, dtype=np.float64)
+        grid_u = np.arange(self.values.size) * self.du
+        return np.interp(u, grid_u, self.values, right=0.0)
+
+    def pdf(self, u) -> np.ndarray:
+        """Density in the u plane of :meth:`sample` at points of radius ``|u|``."""
+        return self.eval(u) / self.total
+
+    def sample_radius(self, xi) -> np.ndarray:
+        """Invert the radial CDF: ``xi`` in [0, 1) -> ``|u|``."""
+        xi = np.asarray(xi, dtype=np.float64)
+        target = xi * self.total
+        i = np.clip(np.searchsorted(self.cdf, target, side="right") - 1, 0, self.bin_mass.size - 1)
+        rest = target - self.cdf[i]
+        u0 = i * self.du
+        a = self.values[i]
+        b = self.values[i + 1] - a
+        du = self.du
+        # C(t) = 2π du [u0 a t + (u0 b + du a) t²/2 + du b t³/3]; solve C(t) = rest
+        c1 = 2 * np.pi * du * u0 * a
+        c2 = 2 * np.pi * du * (u0 * b + du * a) / 2
+        c3 = 2 * np.pi * du * du * b / 3
+        mass = np.maximum(self.bin_mass[i], 1e-300)
+        t = np.clip(rest / mass, 0.0, 1.0)
+        lo, hi = np.zeros_like(t), np.ones_like(t)
+        for _ in range(30):
+            f = ((c3 * t + c2) * t + c1) * t - rest
+            lo = np.where(f < 0, t, lo)
+            hi = np.where(f >= 0, t, hi)
+            df = (3 * c3 * t + 2 * c2) * t + c1
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t_new = t - f / df
+            bad = ~np.isfinite(t_new) | (t_new <= lo) | (t_new >= hi)
+            t = np.where(bad, 0.5 * (lo + hi), t_new)
+        return u0 + np.clip(t, 0.0, 1.0) * du
+
+    def sample(self, xi) -> np.ndarray:
+        """``xi`` (..., 2) in [0,1)² -> points ``u`` (..., 2) with density :meth:`pdf`."""
+        xi = np.asarray(xi, dtype=np.float64)
+        r = self.sample_radius(xi[..., 0])
+        phi = 2 * np.pi * xi[..., 1]
+        return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
+
+    def arrays(self) -> dict:
+        return {"kind": np.array("radial"), "du": np.array(self.du), "values": self.values}
+
+
+# --------------------------------------------------------------------------
+# 2D table
+# --------------------------------------------------------------------------
+@dataclass
+class GridTable:
+    """``v(u_x, u_y)`` on an N×N cell-centred grid covering ``[-U, U]²``.
+
+    Evaluation is bilinear between cell centres; sampling is piecewise
+    constant per cell (one discrete CDF over all cells, then a uniform point
+    in the cell) and :meth:`pdf` is the matching cell density.
+    """
+
+    u_range: float
+    values: np.ndarray  # (N, N), index [iy, ix]
+    cdf: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        v = np.maximum(np.asarray(self.values, dtype=np.float64), 0.0)
+        self.values = v
+        self.cdf = np.concatenate([[0.0], np.cumsum(v.ravel())])
+
+    @property
+    def n(self) -> int:
+        return self.values.shape[0]
+
+    @property
+    def cell(self) -> float:
+        return 2 * self.u_range / self.n
+
+    @property
+    def total(self) -> float:
+        """``∫ v d²u`` (midpoint rule over cells)."""
+        return float(self.cdf[-1] * self.cell**2)
+
+    def centres(self) -> np.ndarray:
+        return -self.u_range + (np.arange(self.n) + 0.5) * self.cell
+
+    def eval(self, u) -> np.ndarray:
+        """Bilinear interpolation at ``u`` (..., 2); 0 outside the grid."""
+        u = np.asarray(u, dtype=np.float64)
+        fx = (u[..., 0] + self.u_range) / self.cell - 0.5
+        fy = (u[..., 1] + self.u_range) / self.cell - 0.5
+        inside = (np.abs(u[..., 0]) <= self.u_range) & (np.abs(u[..., 1]) <= self.u_range)
+        x0 = np.clip(np.floor(fx).astype(np.int64), 0, self.n - 2)
+        y0 = np.clip(np.floor(fy).astype(np.int64), 0, self.n - 2)
+        tx = np.clip(fx - x0, 0.0, 1.0)
+        ty = np.clip(fy - y0, 0.0, 1.0)
+        v = self.values
+        out = ((1 - tx) * (1 - ty) * v[y0, x0] + tx * (1 - ty) * v[y0, x0 + 1]
+               + (1 - tx) * ty * v[y0 + 1, x0] + tx * ty * v[y0 + 1, x0 + 1])
+        return np.where(inside, out, 0.0)
+
+    def pdf(self, u) -> np.ndarray:
+        """Density in the u plane of :meth:`sample` (the value of the cell)."""
+        u = np.asarray(u, dtype=np.float64)
+        ix = np.floor((u[..., 0] + self.u_range) / self.cell).astype(np.int64)
+        iy = np.floor((u[..., 1] + self.u_range) / self.cell).astype(np.int64)
+        inside = (ix >= 0) & (ix < self.n) & (iy >= 0) & (iy < self.n)
+        ixc, iyc = np.clip(ix, 0, self.n - 1), np.clip(iy, 0, self.n - 1)
+        return np.where(inside, self.values[iyc, ixc] / self.total, 0.0)
+
+    def sample(self, xi) -> np.ndarray:
+        """``xi`` (..., 2) in [0,1)² -> ``u`` (..., 2) with density :meth:`pdf`."""
+        xi = np.asarray(xi, dtype=np.float64)
+        target = xi[..., 0] * self.cdf[-1]
+        k = np.clip(np.searchsorted(self.cdf, target, side="right") - 1, 0, self.values.size - 1)
+        mass = np.maximum(self.cdf[k + 1] - self.cdf[k], 1e-300)
+        fx = np.clip((target - self.cdf[k]) / mass, 0.0, 1.0)  # reuse the remainder of xi0
+        iy, ix = np.divmod(k, self.n)
+        ux = -self.u_range + (ix + fx) * self.cell
+        uy = -self.u_range + (iy + xi[..., 1]) * self.cell
+        return np.stack([ux, uy], axis=-1)
+
+    def arrays(self) -> dict:
+        return {"kind": np.array("grid"), "u_range": np.array(self.u_range), "values": self.values}
+
+
+def table_from_arrays(arrays) -> RadialTable | GridTable:
+    kind = str(arrays["kind"])
+    if kind == "radial":
+        return RadialTable(float(arrays["du"]), np.array(arrays["values"]))
+    if kind == "grid":
+        return GridTable(float(arrays["u_range"]), np.array(arrays["values"]))
+    raise ValueError(f"unknown table kind {kind!r}")
+
+
+# --------------------------------------------------------------------------
+# Cache
+# --------------------------------------------------------------------------
+def cache_dir() -> str:
+    """Folder of cached tables: ``$CORONA_CACHE_DIR`` or the user cache dir."""
+    path = os.environ.get("CORONA_CACHE_DIR")
+    if not path:
+        import platformdirs
+        path = platformdirs.user_cache_dir("corona")
+    os.makedirs(path, exist_ok=True)
+    return path
+
+
+def cache_key(params: dict) -> str:
+    """Content-addressed key of a table: sha256 of its parameters and the format version."""
+    blob = json.dumps({"format": FORMAT_VERSION, **params}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+
+def _checksum(arrays: dict) -> str:
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(name.encode())
+        h.update(str(a.dtype).encode())
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _read(path: str, key: str) -> dict | None:
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            data = {k: f[k] for k in f.files}
+        meta = json.loads(str(data.pop("__meta__")))
+        if meta.get("format") != FORMAT_VERSION or meta.get("key") != key:
+            return None
+        if meta.get("checksum") != _checksum(data):
+            return None
+        return data
+    except Exception:
+        return None
+
+
+def _write_atomic(path: str, key: str, arrays: dict) -> None:
+    meta = json.dumps({"format": FORMAT_VERSION, "key": key, "checksum": _checksum(arrays)})
+    folder = os.path.dirname(path)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, __meta__=np.array(meta), **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def cached(params: dict, build, *, use_cache: bool = True) -> dict:
+    """Return the arrays of the table ``params``, building them with ``build()`` on a miss.
+
+    Concurrent builders of one key serialise on a file lock; a damaged,
+    truncated or older-format file is detected by its checksum and rebuilt.
+    """
+    if not use_cache:
+        return build()
+    from filelock import FileLock
+    key = cache_key(params)
+    folder = cache_dir()
+    path = os.path.join(folder, f"{key}.npz")
+    data = _read(path, key) if os.path.exists(path) else None
+    if data is not None:
+        return data
+    with FileLock(path + ".lock", timeout=600):
+        data = _read(path, key) if os.path.exists(path) else None
+        if data is not None:
+            return data
+        arrays = build()
+        try:
+            _write_atomic(path, key, arrays)
+        except OSError as err:  # a read-only cache must not stop rendering
+            warnings.warn(f"corona: could not write table cache {path}: {err}", RuntimeWarning)
+        return arrays
+
+
+def cache_info() -> dict:
+    """Location, number of tables and total size [bytes] of the cache."""
+    folder = cache_dir()
+    files = [f for f in os.listdir(folder) if f.endswith(".npz") and not f.startswith(".tmp-")]
+    size = sum(os.path.getsize(os.path.join(folder, f)) for f in files)
+    return {"path": folder, "tables": len(files), "bytes": size, "format": FORMAT_VERSION}
+
+
+def cache_clear() -> int:
+    """Delete every cached table; return how many were removed."""
+    folder = cache_dir()
+    n = 0
+    for f in os.listdir(folder):
+        if f.endswith(".npz") or f.endswith(".lock"):
+            try:
+                os.unlink(os.path.join(folder, f))
+                n += f.endswith(".npz")
+            except FileNotFoundError:
+                pass
+    return n
