@@ -9,8 +9,15 @@ from ._environment import default_variant, set_default_variant
 from ._validation import CoronaError
 from .shapes import Shape, Circle
 from .processes import Process, Poisson
+from .material import Material
 
 __version__ = "0.1.0"
 
 __all__ = ["CoronaError", "Shape", "Circle", "Process", "Poisson",
-           "default_variant", "set_default_variant"]
+           "default_variant", "set_default_variant", "register", "Material"]
+
+
+def register() -> None:
+    """Register the ``corona`` BSDF plugin for the active Mitsuba variant (idempotent)."""
+    from .mitsuba_bsdf import register as _register
+    _register()

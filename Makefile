@@ -1,0 +1,39 @@
+# corona — two commands from a fresh clone:  make demo  /  make test
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-stamp
+PYTEST_ARGS ?=
+
+.PHONY: all demo test venv llvm bench gallery clean clean-cache
+
+all: test
+
+# The virtual environment, created and filled idempotently.
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	@touch $(STAMP)
+
+venv: $(STAMP) llvm
+
+# Dr.Jit's LLVM backend needs libLLVM >= 16; install Debian's libllvm19 if none.
+llvm:
+	@bash scripts/ensure_llvm.sh
+
+demo: venv
+	$(PY) -m corona.demo
+
+test: venv
+	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
+
+bench: venv
+	$(PY) benchmarks/run_all.py
+
+clean-cache: venv
+	$(PY) -m corona.cli tables clear
+
+clean:
+	rm -rf $(VENV) build src/*.egg-info .pytest_cache

@@ -1,0 +1,402 @@
+"""The ``corona`` BSDF plugin for Mitsuba 3 (Dr.Jit only inside eval/sample/pdf).
+
+A thin layer of scatterers (pores, droplets, grains) that transmits a
+coherent (delta) beam, a diffraction lobe ``F_a T_a T_s`` and optionally
+reflects diffusely from its opaque part (DESIGN §3).  Register it with
+:func:`corona.register` after ``mi.set_variant(...)``; then
+``<bsdf type="corona">`` and ``mi.load_dict({'type': 'corona', ...})`` work.
+
+Parameters (all optional; see :mod:`corona.parameters` for the full table):
+
+======================  ==========  ===========  =============================================
+name                    unit        default      meaning
+======================  ==========  ===========  =============================================
+shape                   —           circle       circle, ellipse, square, rectangle, polygon, mask
+radius                  µm          0.5          size of the scatterer (circle radius, half-width…)
+aspect / sides / angle  — / — / °   1 / 6 / 0    ellipse & rectangle aspect; polygon sides; rotation
+filename, pixel_size    — , µm      —            mask image (shape=mask) or point file (process=points)
+edge_width              µm          0            soft edge (Gaussian apodisation)
+orientation             —           fixed        fixed, random
+size_spread             —           0            relative std of the size (lognormal / schulz)
+area_fraction           —           0.3          F_a = n |A|
+process                 —           hard-disk    poisson, hard-disk, rsa, lattice-square, lattice-hex, points
+exclusion_diameter      µm          shape's      hard-core diameter σ
+jitter                  µm          0            lattice jitter (rms per axis)
+mode                    —           aperture     aperture, particle
+albedo                  —           0            diffuse reflectance of the opaque part
+======================  ==========  ===========  =============================================
+
+Components: 0 = coherent transmission (``DeltaTransmission``), 1 = diffraction
+lobe (``GlossyTransmission``), 2 = diffuse reflection (``DiffuseReflection``,
+only when the reflectance is > 0).  The layer is two-sided and symmetric.
+
+Spectral variants evaluate each of the lane's wavelengths.  Sampling draws
+``d`` for the lane's first (hero) wavelength and returns the pdf averaged over
+all the lane's wavelengths (a one-sample balance-heuristic mixture, hence
+unbiased).  RGB and mono variants evaluate each channel as the lobe averaged
+over that channel's spectral response (CIE 1931 → linear sRGB, negative lobes
+clipped; luminance ȳ for mono), using ``N_RESPONSE`` wavelengths per channel.
+
+Wavelengths are clamped to [360, 830] nm (the range the tables cover); a zero
+wavelength (as in a zero-initialised interaction) is clamped too, so no NaN.
+The lobe outside the propagating disk is evanescent and dropped, so the
+layer never transmits plus reflects more than it receives.
+"""
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from . import tables
+from ._validation import CoronaError
+from .parameters import DEFAULTS, material_from_parameters
+
+N_RESPONSE = 8
+NEWTON_STEPS = 10
+
+_FLOAT_PARAMS = {"radius", "aspect", "angle", "pixel_size", "edge_width", "size_spread",
+                 "area_fraction", "exclusion_diameter", "jitter", "albedo"}
+_INT_PARAMS = {"sides"}
+
+
+def _read_props(props) -> dict:
+    """Named parameters from a ``mi.Properties`` (unknown names are an error)."""
+    out = {}
+    for name in props.keys():
+        if name not in DEFAULTS:
+            raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(DEFAULTS))}")
+        value = props.get(name)
+        if name in _FLOAT_PARAMS or name in _INT_PARAMS:
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number") from None
+            if name in _INT_PARAMS:
+                value = int(value) if value == int(value) else value
+        else:
+            value = str(value)
+        out[name] = value
+    return out
+
+
+def _channel_response():
+    """(wavelengths [nm], weights (channels, N)) of the RGB / mono channels."""
+    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 4 * N_RESPONSE * 8)
+    xyz = np.array(mi.cie1931_xyz(mi.ScalarFloat(lam[0])))  # probe the call signature
+    xyz = np.stack([np.array(mi.cie1931_xyz(mi.ScalarFloat(float(x)))) for x in lam], axis=1)
+    if mi.is_monochromatic:
+        resp = xyz[1:2]
+    else:
+        m = np.array([[3.2404542, -1.5371385, -0.4985314],
+                      [-0.9692660, 1.8760108, 0.0415560],
+                      [0.0556434, -0.2040259, 1.0572252]])
+        resp = np.maximum(m @ xyz, 0.0)
+    chans = []
+    weights = []
+    for r in resp:
+        # N_RESPONSE wavelengths at equal-weight quantiles of the channel response
+        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
+        qs = (np.arange(N_RESPONSE) + 0.5) / N_RESPONSE * cdf[-1]
+        chans.append(np.interp(qs, cdf, lam))
+        weights.append(np.full(N_RESPONSE, 1.0 / N_RESPONSE))
+    return np.array(chans), np.array(weights)
+
+
+class CoronaBSDF(mi.BSDF):
+    """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring)."""
+
+    def __init__(self, props):
+        super().__init__(props)
+        params = _read_props(props)
+        material = material_from_parameters(**params)
+        self.material = material
+        table = material.table
+        self.isotropic = material.isotropic
+        self.R = float(material.length_scale)
+        fa = material.area_fraction
+
+        # --- component energies (wavelength-independent) ---------------------
+        self.w_coherent = float(material.coherent_transmittance)
+        self.w_lobe = float(material.diffuse_transmittance())      # F_a ∫v d²u / 4π²
+        self.lobe_scale = float(fa)                                  # f = F_a (R/λ)² v(u)
+        self.w_reflect = float(material.reflectance)                 # ρ · opaque fraction, capped
+        self.table_total = float(table.total)
+
+        # --- table in Dr.Jit arrays ------------------------------------------
+        if self.isotropic:
+            self.du = float(table.du)
+            self.n = int(table.values.size)
+            self.values = mi.Float(table.values.astype(np.float32))
+            self.cdf = mi.Float((table.cdf / table.cdf[-1]).astype(np.float32))
+        else:
+            self.n = int(table.n)
+            self.u_range = float(table.u_range)
+            self.cell = float(table.cell)
+            self.values = mi.Float(table.values.ravel().astype(np.float32))
+            self.cdf = mi.Float((table.cdf / table.cdf[-1]).astype(np.float32))
+
+        # --- wavelengths of RGB / mono channels -------------------------------
+        if not mi.is_spectral:
+            lam, w = _channel_response()
+            self.channel_lambdas = lam           # (channels, N) nm
+            self.channel_weights = w
+
+        # --- components and flags ----------------------------------------------
+        sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+        comps = [mi.BSDFFlags.DeltaTransmission | sides,
+                 mi.BSDFFlags.GlossyTransmission | sides]
+        if self.w_reflect > 0:
+            comps.append(mi.BSDFFlags.DiffuseReflection | sides)
+        if not self.isotropic:
+            comps[1] = comps[1] | mi.BSDFFlags.Anisotropic
+        self.m_components = [c for c in comps]
+        flags = mi.BSDFFlags.Empty
+        for c in comps:
+            flags = flags | c
+        self.m_flags = flags
+
+    # ------------------------------------------------------------------
+    # helpers (traced Dr.Jit code)
+    # ------------------------------------------------------------------
+    @staticmethod
+    def _lambda_um(lam):
+        # wavelength [nm] clamped to the table range, in µm
+        return dr.clip(lam, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+
+    def _table_value(self, ux, uy, active):
+        """v(u): linear in |u| (radial) or bilinear in (u_x, u_y) (grid)."""
+        if self.isotropic:
+            x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.du
+            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
+            t = x - mi.Float(i)
+            inside = active & (x <= self.n - 1)
+            v0 = dr.gather(mi.Float, self.values, i, inside)
+            v1 = dr.gather(mi.Float, self.values, i + 1, inside)
+            return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
+        fx = (ux + self.u_range) / self.cell - 0.5
+        fy = (uy + self.u_range) / self.cell - 0.5
+        inside = active & (dr.abs(ux) <= self.u_range) & (dr.abs(uy) <= self.u_range)
+        x0 = dr.clip(dr.floor(fx), 0, self.n - 2)
+        y0 = dr.clip(dr.floor(fy), 0, self.n - 2)
+        tx = dr.clip(fx - x0, 0.0, 1.0)
+        ty = dr.clip(fy - y0, 0.0, 1.0)
+        k = mi.UInt32(y0) * self.n + mi.UInt32(x0)
+        v00 = dr.gather(mi.Float, self.values, k, inside)
+        v01 = dr.gather(mi.Float, self.values, k + 1, inside)
+        v10 = dr.gather(mi.Float, self.values, k + self.n, inside)
+        v11 = dr.gather(mi.Float, self.values, k + self.n + 1, inside)
+        v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
+        return dr.select(inside, v, 0.0)
+
+    def _table_pdf_u(self, ux, uy, active):
+        """Density in the u plane of :meth:`_sample_u`."""
+        if self.isotropic:
+            return self._table_value(ux, uy, active) / self.table_total
+        ix = dr.floor((ux + self.u_range) / self.cell)
+        iy = dr.floor((uy + self.u_range) / self.cell)
+        inside = active & (ix >= 0) & (ix < self.n) & (iy >= 0) & (iy < self.n)
+        k = mi.UInt32(dr.clip(iy, 0, self.n - 1)) * self.n + mi.UInt32(dr.clip(ix, 0, self.n - 1))
+        v = dr.gather(mi.Float, self.values, k, inside)
+        return dr.select(inside, v / self.table_total, 0.0)
+
+    def _sample_u(self, s, active):
+        """Invert the table's CDF: s (Vector2f) -> u (Vector2f)."""
+        target = s.x
+        idx = dr.binary_search(1, self.n - 1 if self.isotropic else self.n * self.n,
+                               lambda i: dr.gather(mi.Float, self.cdf, i, active) <= target) - 1
+        c0 = dr.gather(mi.Float, self.cdf, idx, active)
+        c1 = dr.gather(mi.Float, self.cdf, idx + 1, active)
+        if not self.isotropic:
+            fx = dr.clip((target - c0) / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
+            iy = idx // self.n
+            ix = idx - iy * self.n
+            ux = -self.u_range + (mi.Float(ix) + fx) * self.cell
+            uy = -self.u_range + (mi.Float(iy) + s.y) * self.cell
+            return mi.Vector2f(ux, uy)
+        # radial: density 2π u v_lin(u) in the bin; its CDF is the cubic
+        # C(t) = c1 t + c2 t² + c3 t³ (normalised), solved by safeguarded Newton
+        du = self.du
+        u0 = mi.Float(idx) * du
+        a = dr.gather(mi.Float, self.values, idx, active)
+        b = dr.gather(mi.Float, self.values, idx + 1, active) - a
+        norm = 2.0 * dr.pi * du / self.table_total
+        k1 = norm * u0 * a
+        k2 = norm * (u0 * b + du * a) * 0.5
+        k3 = norm * du * b * (1.0 / 3.0)
+        rest = target - c0
+        t = dr.clip(rest / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
+        lo = mi.Float(0.0)
+        hi = mi.Float(1.0)
+        for _ in range(NEWTON_STEPS):
+            f = dr.fma(dr.fma(k3, t, k2), t, k1) * t - rest
+            lo = dr.select(f < 0, t, lo)
+            hi = dr.select(f >= 0, t, hi)
+            df = dr.fma(dr.fma(3.0 * k3, t, 2.0 * k2), t, k1)
+            t_new = t - f / df
+            bad = ~dr.isfinite(t_new) | (t_new <= lo) | (t_new >= hi)
+            t = dr.select(bad, 0.5 * (lo + hi), t_new)
+        r = u0 + dr.clip(t, 0.0, 1.0) * du
+        sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
+        return mi.Vector2f(r * cos_phi, r * sin_phi)
+
+    def _lobe_and_pdf(self, wi, wo, wavelengths, active):
+        """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths."""
+        dx = wo.x + wi.x
+        dy = wo.y + wi.y
+        lams, mix = self._wavelength_mixture(wavelengths)
+        values = []
+        pdf = mi.Float(0.0)
+        for lam_nm, m in zip(lams, mix):
+            lam = self._lambda_um(lam_nm)
+            k = 2.0 * dr.pi * self.R / lam                 # u = 2π R d / λ
+            ux, uy = dx * k, dy * k
+            v = self._table_value(ux, uy, active)
+            values.append(self.lobe_scale * dr.square(self.R / lam) * v)   # F_a (R/λ)² v
+            pdf += m * self._table_pdf_u(ux, uy, active) * dr.square(k)   # p_d = p_u k²
+        if mi.is_spectral:
+            f = mi.Spectrum(values)
+        else:
+            nc = self.channel_lambdas.shape[0]
+            per = self.channel_lambdas.shape[1]
+            chans = []
+            for c in range(nc):
+                acc = mi.Float(0.0)
+                for j in range(per):
+                    acc += float(self.channel_weights[c, j]) * values[c * per + j]
+                chans.append(acc)
+            f = mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)
+        return f, pdf
+
+    def _wavelength_mixture(self, wavelengths):
+        """The wavelengths [nm] evaluated per lane and their pdf mixture weights."""
+        if mi.is_spectral:
+            lams = [wavelengths[k] for k in range(dr.size_v(mi.Spectrum))]
+            return lams, [1.0 / len(lams)] * len(lams)
+        lams = [mi.Float(float(l)) for l in self.channel_lambdas.ravel()]
+        mix = (self.channel_weights / self.channel_weights.shape[0]).ravel()
+        return lams, [float(m) for m in mix]
+
+    def _pick_hero(self, wavelengths, s):
+        """One wavelength of the mixture, chosen with its mixture weight by ``s`` in [0, 1)."""
+        lams, mix = self._wavelength_mixture(wavelengths)
+        cum = np.cumsum(mix)
+        hero = mi.Float(lams[-1])
+        for k in range(len(lams) - 2, -1, -1):
+            hero = dr.select(s < float(cum[k]), lams[k], hero)
+        return hero
+
+    def _selection(self, ctx):
+        """Probabilities of (coherent, lobe, reflection) honouring the context."""
+        flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
+                 mi.BSDFFlags.DiffuseReflection)
+        energies = (self.w_coherent, self.w_lobe, self.w_reflect)
+        en = [w if (i < len(self.m_components) and ctx.is_enabled(fl, i)) else 0.0
+              for i, (w, fl) in enumerate(zip(energies, flags))]
+        total = sum(en)
+        return tuple(e / total if total > 0 else 0.0 for e in en)
+
+    # ------------------------------------------------------------------
+    # BSDF interface
+    # ------------------------------------------------------------------
+    def _eval_pdf(self, ctx, si, wo, active):
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        cos_o = mi.Frame3f.cos_theta(wo)
+        transmit = active & (cos_i * cos_o < 0)
+        reflect = active & (cos_i * cos_o > 0)
+        p_coh, p_lobe, p_refl = self._selection(ctx)
+        lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
+        refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2) if len(self.m_components) > 2 else False
+
+        f, pdf_d = self._lobe_and_pdf(wi, wo, si.wavelengths, transmit)
+        abs_cos_o = dr.abs(cos_o)
+        value = dr.select(transmit & lobe_on, f * abs_cos_o, 0.0)        # eval = f |cos θo|
+        pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
+        if self.w_reflect > 0:
+            value += dr.select(reflect & refl_on, self.w_reflect * dr.inv_pi * abs_cos_o, 0.0)
+            pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
+        return value, pdf
+
+    def eval(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)[0]
+
+    def pdf(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)[1]
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        active = mi.Bool(active) & (cos_i != 0)
+        p_coh, p_lobe, p_refl = self._selection(ctx)
+        pick_coh = active & (sample1 < p_coh)
+        pick_lobe = active & ~pick_coh & (sample1 < p_coh + p_lobe)
+        pick_refl = active & ~pick_coh & ~pick_lobe & (p_refl > 0)
+
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.eta = 1.0
+
+        # lobe: sample u for the hero wavelength, d = u λ / (2π R), wo.xy = d - wi.xy
+        # pick the hero wavelength with its mixture weight, reusing sample1
+        s_hero = dr.clip((sample1 - p_coh) / max(p_lobe, 1e-30), 0.0, 0.99999994)
+        lam = self._lambda_um(self._pick_hero(si.wavelengths, s_hero))
+        u = self._sample_u(sample2, pick_lobe)
+        d = u * (lam / (2.0 * dr.pi * self.R))
+        ox = d.x - wi.x
+        oy = d.y - wi.y
+        r2 = dr.fma(ox, ox, oy * oy)
+        oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
+        wo_lobe = mi.Vector3f(ox, oy, oz)
+        lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
+
+        wo_refl = mi.warp.square_to_cosine_hemisphere(sample2)
+        wo_refl = mi.Vector3f(wo_refl.x, wo_refl.y, dr.mulsign(wo_refl.z, cos_i))
+
+        bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))
+        bs.sampled_component = dr.select(pick_coh, mi.UInt32(0),
+                                         dr.select(pick_lobe, mi.UInt32(1), mi.UInt32(2)))
+        bs.sampled_type = dr.select(
+            pick_coh, mi.UInt32(+mi.BSDFFlags.DeltaTransmission),
+            dr.select(pick_lobe, mi.UInt32(+mi.BSDFFlags.GlossyTransmission),
+                      mi.UInt32(+mi.BSDFFlags.DiffuseReflection)))
+
+        value, pdf = self._eval_pdf(ctx, si, bs.wo, (lobe_valid | pick_refl))
+        bs.pdf = dr.select(pick_coh, p_coh, pdf)
+        weight = dr.select(pdf > 0, value / pdf, 0.0)
+        weight = dr.select(pick_coh, self.w_coherent / dr.maximum(p_coh, 1e-30), weight)
+        ok = pick_coh | ((lobe_valid | pick_refl) & (bs.pdf > 0))
+        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
+
+    def traverse(self, callback):
+        pass
+
+    def parameters_changed(self, keys):
+        pass
+
+    def to_string(self):
+        return f"CoronaBSDF[{self.material!r}]"
+
+
+_REGISTERED: set[str] = set()
+
+
+def register() -> None:
+    """Register the ``corona`` BSDF for the active Mitsuba variant (idempotent).
+
+    Call after ``mi.set_variant(...)``.  Polarized variants are not supported.
+    """
+    variant = mi.variant()
+    if variant is None:
+        raise CoronaError("corona.register(): call mi.set_variant(...) first "
+                          "(e.g. corona.set_default_variant())")
+    if "polarized" in variant:
+        raise CoronaError(f"variant={variant!r} is not supported; use a spectral, rgb or mono variant")
+    if variant in _REGISTERED:
+        return
+    mi.register_bsdf("corona", lambda props: CoronaBSDF(props))
+    _REGISTERED.add(variant)
