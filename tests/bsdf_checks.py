@@ -1,0 +1,46 @@
+"""Helpers that drive the plugin the way Mitsuba's own tests do."""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+
+def interaction(n, wi, wavelengths=(450.0, 520.0, 600.0, 700.0)):
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(*[float(x) for x in wi])
+    if mi.is_spectral:
+        si.wavelengths = mi.Spectrum(*wavelengths)
+    return si
+
+
+def chi2_test(params, theta_deg, ctx=None, wavelengths=(450.0, 520.0, 600.0, 700.0),
+              sample_count=1_000_000, res=101):
+    """Run mitsuba.chi2 on the corona BSDF with the given parameters.
+
+    Like ``mitsuba.chi2.BSDFAdapter`` but with chosen wavelengths (the
+    stock adapter leaves them zero).
+    """
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+    th = np.radians(theta_deg)
+    wi = (np.sin(th), 0.0, np.cos(th))
+    if ctx is None:
+        ctx = mi.BSDFContext()
+    bsdf = mi.load_dict({"type": "corona", **params})
+
+    def sample(s, *args):
+        bs, w = bsdf.sample(ctx, interaction(dr.width(s), wi, wavelengths), s[0], mi.Point2f(s[1], s[2]))
+        return bs.wo, dr.select(dr.all(w == 0), 0.0, 1.0)
+
+    def pdf(wo, *args):
+        return bsdf.pdf(ctx, interaction(dr.width(wo), wi, wavelengths), wo)
+
+    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf,
+                         sample_dim=3, sample_count=sample_count, res=res)
+    ok = test.run()
+    return ok, test
+
+
+def smooth_context():
+    """A context that leaves out the coherent delta (the chi-square test needs densities)."""
+    ctx = mi.BSDFContext()
+    ctx.type_mask = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection
+    return ctx
