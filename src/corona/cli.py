@@ -1,0 +1,192 @@
+"""The ``corona`` command line (click).
+
+    corona render SCENE.xml [--spp N] [--variant V] [--out DIR] [-D key=value ...]
+    corona lobe [material options] [--out FILE.png] [--json]
+    corona tables info | clear
+    corona doctor
+
+Errors are one line on stderr and exit code 2.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import click
+
+from ._validation import CoronaError
+from .parameters import DEFAULTS, PROCESSES, SHAPES
+
+
+class CoronaUsageError(click.ClickException):
+    exit_code = 2
+
+    def show(self, file=None):
+        click.echo(f"corona: error: {self.format_message()}", err=True, file=file)
+
+
+def _fail(err) -> None:
+    raise CoronaUsageError(str(err).strip().splitlines()[0] if str(err).strip() else repr(err))
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="corona")
+def main():
+    """corona: a wave-optics BSDF for layers of correlated scatterers."""
+
+
+# ----------------------------------------------------------------------
+# render
+# ----------------------------------------------------------------------
+@main.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--spp", type=click.IntRange(min=1), default=64, show_default=True, help="Samples per pixel.")
+@click.option("--variant", default=None, help="Mitsuba variant (default: cuda > llvm > scalar spectral).")
+@click.option("--out", "out_dir", default="out", show_default=True, help="Output folder.")
+@click.option("-D", "defines", multiple=True, metavar="KEY=VALUE", help="Scene parameter ($KEY in the XML).")
+@click.option("--seed", type=int, default=0, show_default=True)
+def render(scene, spp, variant, out_dir, defines, seed):
+    """Render SCENE.xml to EXR (linear) and PNG (sRGB)."""
+    if not os.path.isfile(scene):
+        _fail(f"scene file {scene!r} does not exist")
+    kv = {}
+    for d in defines:
+        if "=" not in d:
+            _fail(f"-D {d!r}: expected KEY=VALUE")
+        k, v = d.split("=", 1)
+        kv[k.strip()] = v.strip()
+    try:
+        from .render import render_to_files, setup_variant
+        v = setup_variant(variant)
+        click.echo(f"corona: rendering with variant {v}", err=True)
+        import mitsuba as mi
+        loaded = mi.load_file(scene, **kv)
+        name = os.path.splitext(os.path.basename(scene))[0]
+        res = render_to_files(loaded, out_dir, name, spp=spp, seed=seed)
+    except (CoronaError, RuntimeError, ValueError) as err:
+        _fail(err)
+    click.echo(f"{res['png']}  ({res['exr']}, {res['seconds']:.1f} s, {spp} spp, {res['variant']})")
+
+
+# ----------------------------------------------------------------------
+# lobe
+# ----------------------------------------------------------------------
+def material_options(f):
+    opts = [
+        click.option("--shape", type=click.Choice(SHAPES), default=DEFAULTS["shape"], show_default=True),
+        click.option("--radius", type=float, default=DEFAULTS["radius"], show_default=True, help="µm"),
+        click.option("--aspect", type=float, default=DEFAULTS["aspect"], show_default=True),
+        click.option("--sides", type=int, default=DEFAULTS["sides"], show_default=True),
+        click.option("--angle", type=float, default=DEFAULTS["angle"], show_default=True, help="degree"),
+        click.option("--filename", default=None, help="mask image or point file"),
+        click.option("--pixel-size", "pixel_size", type=float, default=None, help="µm (mask)"),
+        click.option("--edge-width", "edge_width", type=float, default=0.0, show_default=True, help="µm"),
+        click.option("--orientation", type=click.Choice(["fixed", "random"]), default="fixed", show_default=True),
+        click.option("--size-spread", "size_spread", type=float, default=0.0, show_default=True),
+        click.option("--area-fraction", "area_fraction", type=float, default=DEFAULTS["area_fraction"],
+                     show_default=True),
+        click.option("--process", type=click.Choice(PROCESSES), default=DEFAULTS["process"], show_default=True),
+        click.option("--exclusion-diameter", "exclusion_diameter", type=float, default=None, help="µm"),
+        click.option("--jitter", type=float, default=0.0, show_default=True, help="µm (lattices)"),
+        click.option("--mode", type=click.Choice(["aperture", "particle"]), default="aperture", show_default=True),
+        click.option("--albedo", type=float, default=0.0, show_default=True),
+    ]
+    for o in reversed(opts):
+        f = o(f)
+    return f
+
+
+@main.command()
+@material_options
+@click.option("--out", "out_path", default="lobe.png", show_default=True, help="PNG file to write.")
+@click.option("--json", "as_json", is_flag=True, help="Print the numbers as JSON instead of a picture.")
+@click.option("--wavelength", type=float, default=550.0, show_default=True, help="nm (for --json)")
+def lobe(out_path, as_json, wavelength, **params):
+    """Pictures (or numbers) of a material's form factor, structure factor, lobe and corona."""
+    import numpy as np
+    try:
+        from .parameters import material_from_parameters
+        m = material_from_parameters(**params)
+        if as_json:
+            R = m.length_scale
+            u = np.linspace(0, min(m.table.u_max, 40.0), 201)
+            q = np.stack([u / R, 0 * u], -1)
+            d = np.stack([u * wavelength * 1e-3 / (2 * np.pi * R), 0 * u], -1)
+            out = {
+                "material": repr(m), "area_fraction": m.area_fraction,
+                "coherent_transmittance": m.coherent_transmittance,
+                "diffuse_transmittance": m.diffuse_transmittance(),
+                "reflectance": m.reflectance, "length_scale_um": R, "wavelength_nm": wavelength,
+                "u": u.tolist(),
+                "form_factor_Ta": (m.shape.form_factor(q) / (wavelength * 1e-3) ** 2).tolist(),
+                "structure_factor_Ts": m.process.structure_factor_at(q, m.shape).tolist(),
+                "d": d[:, 0].tolist(), "lobe": m.lobe(d, wavelength).tolist(),
+            }
+            click.echo(json.dumps(out))
+            return
+        from .pictures import lobe_figure
+        path = lobe_figure(m, out_path)
+    except (CoronaError, ValueError, OSError) as err:
+        _fail(err)
+    click.echo(path)
+
+
+# ----------------------------------------------------------------------
+# tables
+# ----------------------------------------------------------------------
+@main.group()
+def tables():
+    """The on-disk table cache."""
+
+
+@tables.command("info")
+def tables_info():
+    """Show where the cache is, how many tables and how big."""
+    from . import tables as t
+    info = t.cache_info()
+    click.echo(f"cache: {info['path']}\ntables: {info['tables']}\nsize: {info['bytes'] / 1e6:.2f} MB\n"
+               f"format: {info['format']}")
+
+
+@tables.command("clear")
+def tables_clear():
+    """Delete every cached table."""
+    from . import tables as t
+    n = t.cache_clear()
+    click.echo(f"removed {n} table(s) from {t.cache_dir()}")
+
+
+# ----------------------------------------------------------------------
+# doctor
+# ----------------------------------------------------------------------
+@main.command()
+def doctor():
+    """Report the environment (for bug reports)."""
+    import platform
+
+    from . import __version__, _environment, tables as t
+    lines = [f"corona {__version__}", f"python {platform.python_version()} on {platform.platform()}"]
+    try:
+        import drjit as dr
+        import mitsuba as mi
+        lines.append(f"mitsuba {mi.__version__}, drjit {dr.__version__}")
+        lines.append(f"variants: {', '.join(mi.variants())}")
+    except Exception as err:  # pragma: no cover
+        lines.append(f"mitsuba: NOT importable ({err})")
+    lib = os.environ.get("DRJIT_LIBLLVM_PATH")
+    lines.append(f"libLLVM: {lib or 'not found (' + _environment.FIX_HINT + ')'}")
+    lines.append(f"LLVM backend usable: {_environment.has_llvm()}")
+    lines.append(f"GPU (CUDA backend): {_environment.has_cuda()}")
+    lines.append(f"default variant: {_environment.default_variant()}")
+    info = t.cache_info()
+    lines.append(f"table cache: {info['path']} ({info['tables']} tables, {info['bytes'] / 1e6:.2f} MB)")
+    click.echo("\n".join(lines))
+
+
+def run() -> int:  # pragma: no cover - console entry
+    return main(standalone_mode=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
