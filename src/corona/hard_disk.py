@@ -289,3 +289,67 @@ def _triangular_start(n_disks, eta, rng):
     sites = np.stack([x.ravel(), y.ravel()], axis=1) % L
     keep = rng.choice(len(sites), n_disks, replace=False)
     return np.ascontiguousarray(sites[np.sort(keep)]), L
+
+
+@nb.njit(cache=True)
+def _push_apart(pos, L, max_iter):
+    """Remove overlaps (pair distance < 1) by repeatedly moving both disks of
+    each overlapping pair apart along their centre line (a crude
+    steepest-descent relaxation of a soft repulsion).  Returns the number of
+    overlapping pairs left (0 on success)."""
+    N = pos.shape[0]
+    half = 0.5 * L
+    m = int(L / 1.0)
+    c = L / m
+    target = 1.0 + 1e-9
+    n_over = 0
+    for it in range(max_iter):
+        # cell list for this pass
+        head = np.full(m * m, -1, np.int64)
+        nxt = np.full(N, -1, np.int64)
+        for i in range(N):
+            k = _cell_coord(pos[i, 1], c, m) * m + _cell_coord(pos[i, 0], c, m)
+            nxt[i] = head[k]
+            head[k] = i
+        disp = np.zeros((N, 2))
+        n_over = 0
+        for i in range(N):
+            kx = _cell_coord(pos[i, 0], c, m)
+            ky = _cell_coord(pos[i, 1], c, m)
+            for ox in range(-1, 2):
+                for oy in range(-1, 2):
+                    j = head[((ky + oy) % m) * m + (kx + ox) % m]
+                    while j >= 0:
+                        if j > i:
+                            dx = pos[j, 0] - pos[i, 0]
+                            if dx > half:
+                                dx -= L
+                            elif dx < -half:
+                                dx += L
+                            dy = pos[j, 1] - pos[i, 1]
+                            if dy > half:
+                                dy -= L
+                            elif dy < -half:
+                                dy += L
+                            r2 = dx * dx + dy * dy
+                            if r2 < target * target:
+                                n_over += 1
+                                r = math.sqrt(r2)
+                                if r < 1e-12:
+                                    dx, dy, r = 1.0, 0.0, 1.0
+                                f = 0.5 * (target + 1e-6 - r) / r
+                                disp[i, 0] -= f * dx
+                                disp[i, 1] -= f * dy
+                                disp[j, 0] += f * dx
+                                disp[j, 1] += f * dy
+                        j = nxt[j]
+        if n_over == 0:
+            return 0
+        for i in range(N):
+            for a in range(2):
+                x = pos[i, a] + disp[i, a]
+                x = x % L
+                if x >= L:
+                    x -= L
+                pos[i, a] = x
+    return n_over

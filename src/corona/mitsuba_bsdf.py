@@ -55,7 +55,7 @@ from ._validation import CoronaError
 from .parameters import DEFAULTS, material_from_parameters
 
 N_RESPONSE = 8
-NEWTON_STEPS = 10
+NEWTON_STEPS = 5
 
 _FLOAT_PARAMS = {"radius", "aspect", "angle", "pixel_size", "edge_width", "size_spread",
                  "area_fraction", "exclusion_diameter", "jitter", "albedo"}
@@ -105,11 +105,16 @@ def _channel_response():
     return np.array(chans), np.array(weights)
 
 
-class CoronaBSDF(mi.BSDF):
-    """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring)."""
+class CoronaBSDFMixin:
+    """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring).
+
+    The methods live in this plain class; :func:`bsdf_class` copies them into a
+    subclass of the active variant's ``mi.BSDF`` (each variant has its own
+    base class, and nanobind types take a single base).
+    """
 
     def __init__(self, props):
-        super().__init__(props)
+        mi.BSDF.__init__(self, props)  # the active variant's base class
         params = _read_props(props)
         material = material_from_parameters(**params)
         self.material = material
@@ -130,13 +135,13 @@ class CoronaBSDF(mi.BSDF):
             self.du = float(table.du)
             self.n = int(table.values.size)
             self.values = mi.Float(table.values.astype(np.float32))
-            self.cdf = mi.Float((table.cdf / table.cdf[-1]).astype(np.float32))
+            self._set_cdf(table.cdf)
         else:
             self.n = int(table.n)
             self.u_range = float(table.u_range)
             self.cell = float(table.cell)
             self.values = mi.Float(table.values.ravel().astype(np.float32))
-            self.cdf = mi.Float((table.cdf / table.cdf[-1]).astype(np.float32))
+            self._set_cdf(table.cdf)
 
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
@@ -157,6 +162,26 @@ class CoronaBSDF(mi.BSDF):
         for c in comps:
             flags = flags | c
         self.m_flags = flags
+
+    def _set_cdf(self, cdf64):
+        """Normalised CDF (float32) plus a guide table that narrows each search.
+
+        ``guide[j]`` is the last bin whose CDF is <= j/G, so a target in
+        [j/G, (j+1)/G) lies in bins ``guide[j] .. guide[j+1]``; a fixed number
+        of bisection steps (the widest such range) then finds the bin.
+        """
+        cdf = np.asarray(cdf64, dtype=np.float64) / cdf64[-1]
+        cdf32 = cdf.astype(np.float32)
+        n_bins = cdf.size - 1
+        G = int(min(max(n_bins, 16), 1 << 16))
+        marks = np.arange(G + 1) / G
+        guide = np.clip(np.searchsorted(cdf32, marks.astype(np.float32), side="right") - 1, 0, n_bins - 1)
+        width = int(np.max(guide[1:] - guide[:-1])) + 1
+        self.guide_size = G
+        self.search_steps = max(1, int(np.ceil(np.log2(width + 1))))
+        self.n_bins = n_bins
+        self.cdf = mi.Float(cdf32)
+        self.guide = mi.UInt32(guide.astype(np.uint32))
 
     # ------------------------------------------------------------------
     # helpers (traced Dr.Jit code)
@@ -205,8 +230,16 @@ class CoronaBSDF(mi.BSDF):
     def _sample_u(self, s, active):
         """Invert the table's CDF: s (Vector2f) -> u (Vector2f)."""
         target = s.x
-        idx = dr.binary_search(1, self.n - 1 if self.isotropic else self.n * self.n,
-                               lambda i: dr.gather(mi.Float, self.cdf, i, active) <= target) - 1
+        # guide table, then bisection with cdf[lo] <= target < cdf[hi]
+        j = mi.UInt32(dr.minimum(target * self.guide_size, self.guide_size - 1))
+        lo = dr.gather(mi.UInt32, self.guide, j, active)
+        hi = dr.minimum(dr.gather(mi.UInt32, self.guide, j + 1, active) + 1, self.n_bins)
+        for _ in range(self.search_steps):
+            mid = (lo + hi) >> 1
+            go_right = dr.gather(mi.Float, self.cdf, mid, active) <= target
+            lo = dr.select(go_right, mid, lo)
+            hi = dr.select(go_right, hi, mid)
+        idx = dr.minimum(lo, self.n_bins - 1)
         c0 = dr.gather(mi.Float, self.cdf, idx, active)
         c1 = dr.gather(mi.Float, self.cdf, idx + 1, active)
         if not self.isotropic:
@@ -255,7 +288,9 @@ class CoronaBSDF(mi.BSDF):
             ux, uy = dx * k, dy * k
             v = self._table_value(ux, uy, active)
             values.append(self.lobe_scale * dr.square(self.R / lam) * v)   # F_a (R/λ)² v
-            pdf += m * self._table_pdf_u(ux, uy, active) * dr.square(k)   # p_d = p_u k²
+            # p_d = p_u k²; radial tables sample exactly ∝ v, so p_u = v / ∫v d²u
+            p_u = v * (1.0 / self.table_total) if self.isotropic else self._table_pdf_u(ux, uy, active)
+            pdf += m * p_u * dr.square(k)
         if mi.is_spectral:
             f = mi.Spectrum(values)
         else:
@@ -382,7 +417,18 @@ class CoronaBSDF(mi.BSDF):
         return f"CoronaBSDF[{self.material!r}]"
 
 
+_CLASSES: dict[str, type] = {}
 _REGISTERED: set[str] = set()
+
+
+def bsdf_class() -> type:
+    """The ``CoronaBSDF`` class of the active variant."""
+    variant = mi.variant()
+    if variant not in _CLASSES:
+        methods = {k: v for k, v in vars(CoronaBSDFMixin).items()
+                   if k not in ("__dict__", "__weakref__")}
+        _CLASSES[variant] = type("CoronaBSDF", (mi.BSDF,), methods)
+    return _CLASSES[variant]
 
 
 def register() -> None:
@@ -398,5 +444,6 @@ def register() -> None:
         raise CoronaError(f"variant={variant!r} is not supported; use a spectral, rgb or mono variant")
     if variant in _REGISTERED:
         return
-    mi.register_bsdf("corona", lambda props: CoronaBSDF(props))
+    cls = bsdf_class()
+    mi.register_bsdf("corona", lambda props: cls(props))
     _REGISTERED.add(variant)

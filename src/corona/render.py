@@ -13,12 +13,12 @@ def setup_variant(variant: str | None = None) -> str:
     """Activate ``variant`` (default: the fastest usable spectral one) and register the plugin."""
     import mitsuba as mi
     from . import _environment
-    from .mitsuba_bsdf import register
     if variant is None:
         variant = _environment.default_variant()
     if variant not in mi.variants():
         raise CoronaError(f"variant={variant!r} is not available; available: {', '.join(mi.variants())}")
     mi.set_variant(variant)
+    from .mitsuba_bsdf import register
     register()
     return variant
 
