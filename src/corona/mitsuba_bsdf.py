@@ -83,26 +83,39 @@ def _read_props(props) -> dict:
 
 
 def _channel_response():
-    """(wavelengths [nm], weights (channels, N)) of the RGB / mono channels."""
-    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 4 * N_RESPONSE * 8)
-    xyz = np.array(mi.cie1931_xyz(mi.ScalarFloat(lam[0])))  # probe the call signature
-    xyz = np.stack([np.array(mi.cie1931_xyz(mi.ScalarFloat(float(x)))) for x in lam], axis=1)
-    if mi.is_monochromatic:
-        resp = xyz[1:2]
-    else:
-        m = np.array([[3.2404542, -1.5371385, -0.4985314],
-                      [-0.9692660, 1.8760108, 0.0415560],
-                      [0.0556434, -0.2040259, 1.0572252]])
-        resp = np.maximum(m @ xyz, 0.0)
+    """(wavelengths [nm], weights) of the RGB / mono channels, each (channels, N_RESPONSE).
+
+    Each channel's response (CIE 1931 → linear sRGB, negative lobes clipped;
+    ȳ for mono) is represented by ``N_RESPONSE`` wavelengths at equal-weight
+    quantiles of the response, so the channel value is their mean.
+    """
+    from .color import XYZ_TO_SRGB, cie1931_xyz
+    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 2048)
+    xyz = cie1931_xyz(lam).T                                     # (3, n)
+    resp = xyz[1:2] if mi.is_monochromatic else np.maximum(XYZ_TO_SRGB @ xyz, 0.0)
     chans = []
-    weights = []
     for r in resp:
-        # N_RESPONSE wavelengths at equal-weight quantiles of the channel response
         cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
         qs = (np.arange(N_RESPONSE) + 0.5) / N_RESPONSE * cdf[-1]
         chans.append(np.interp(qs, cdf, lam))
-        weights.append(np.full(N_RESPONSE, 1.0 / N_RESPONSE))
-    return np.array(chans), np.array(weights)
+    chans = np.array(chans)
+    return chans, np.full(chans.shape, 1.0 / N_RESPONSE)
+
+
+def _array(dtype, values):
+    """A Dr.Jit array of ``values`` (float32 / uint32); a numpy array in scalar variants."""
+    if dtype is mi.UInt32:
+        a = np.asarray(values, dtype=np.uint32)
+    else:
+        a = np.asarray(values, dtype=np.float32)
+    return a if dr.is_array_v(dtype) is False else dtype(a)
+
+
+def _gather(dtype, source, index, active=True):
+    """``dr.gather`` that also works in scalar variants (Python scalars there)."""
+    if dr.is_array_v(dtype):
+        return dr.gather(dtype, source, index, active)
+    return dtype(source[int(index)]) if active else dtype(0)
 
 
 class CoronaBSDFMixin:
@@ -134,13 +147,13 @@ class CoronaBSDFMixin:
         if self.isotropic:
             self.du = float(table.du)
             self.n = int(table.values.size)
-            self.values = mi.Float(table.values.astype(np.float32))
+            self.values = _array(mi.Float, table.values)
             self._set_cdf(table.cdf)
         else:
             self.n = int(table.n)
             self.u_range = float(table.u_range)
             self.cell = float(table.cell)
-            self.values = mi.Float(table.values.ravel().astype(np.float32))
+            self.values = _array(mi.Float, table.values.ravel())
             self._set_cdf(table.cdf)
 
         # --- wavelengths of RGB / mono channels -------------------------------
@@ -180,8 +193,8 @@ class CoronaBSDFMixin:
         self.guide_size = G
         self.search_steps = max(1, int(np.ceil(np.log2(width + 1))))
         self.n_bins = n_bins
-        self.cdf = mi.Float(cdf32)
-        self.guide = mi.UInt32(guide.astype(np.uint32))
+        self.cdf = _array(mi.Float, cdf32)
+        self.guide = _array(mi.UInt32, guide)
 
     # ------------------------------------------------------------------
     # helpers (traced Dr.Jit code)
@@ -198,8 +211,8 @@ class CoronaBSDFMixin:
             i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
             t = x - mi.Float(i)
             inside = active & (x <= self.n - 1)
-            v0 = dr.gather(mi.Float, self.values, i, inside)
-            v1 = dr.gather(mi.Float, self.values, i + 1, inside)
+            v0 = _gather(mi.Float, self.values, i, inside)
+            v1 = _gather(mi.Float, self.values, i + 1, inside)
             return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
         fx = (ux + self.u_range) / self.cell - 0.5
         fy = (uy + self.u_range) / self.cell - 0.5
@@ -209,10 +222,10 @@ class CoronaBSDFMixin:
         tx = dr.clip(fx - x0, 0.0, 1.0)
         ty = dr.clip(fy - y0, 0.0, 1.0)
         k = mi.UInt32(y0) * self.n + mi.UInt32(x0)
-        v00 = dr.gather(mi.Float, self.values, k, inside)
-        v01 = dr.gather(mi.Float, self.values, k + 1, inside)
-        v10 = dr.gather(mi.Float, self.values, k + self.n, inside)
-        v11 = dr.gather(mi.Float, self.values, k + self.n + 1, inside)
+        v00 = _gather(mi.Float, self.values, k, inside)
+        v01 = _gather(mi.Float, self.values, k + 1, inside)
+        v10 = _gather(mi.Float, self.values, k + self.n, inside)
+        v11 = _gather(mi.Float, self.values, k + self.n + 1, inside)
         v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
         return dr.select(inside, v, 0.0)
 
@@ -224,7 +237,7 @@ class CoronaBSDFMixin:
         iy = dr.floor((uy + self.u_range) / self.cell)
         inside = active & (ix >= 0) & (ix < self.n) & (iy >= 0) & (iy < self.n)
         k = mi.UInt32(dr.clip(iy, 0, self.n - 1)) * self.n + mi.UInt32(dr.clip(ix, 0, self.n - 1))
-        v = dr.gather(mi.Float, self.values, k, inside)
+        v = _gather(mi.Float, self.values, k, inside)
         return dr.select(inside, v / self.table_total, 0.0)
 
     def _sample_u(self, s, active):
@@ -232,16 +245,16 @@ class CoronaBSDFMixin:
         target = s.x
         # guide table, then bisection with cdf[lo] <= target < cdf[hi]
         j = mi.UInt32(dr.minimum(target * self.guide_size, self.guide_size - 1))
-        lo = dr.gather(mi.UInt32, self.guide, j, active)
-        hi = dr.minimum(dr.gather(mi.UInt32, self.guide, j + 1, active) + 1, self.n_bins)
+        lo = _gather(mi.UInt32, self.guide, j, active)
+        hi = dr.minimum(_gather(mi.UInt32, self.guide, j + 1, active) + 1, self.n_bins)
         for _ in range(self.search_steps):
             mid = (lo + hi) >> 1
-            go_right = dr.gather(mi.Float, self.cdf, mid, active) <= target
+            go_right = _gather(mi.Float, self.cdf, mid, active) <= target
             lo = dr.select(go_right, mid, lo)
             hi = dr.select(go_right, hi, mid)
         idx = dr.minimum(lo, self.n_bins - 1)
-        c0 = dr.gather(mi.Float, self.cdf, idx, active)
-        c1 = dr.gather(mi.Float, self.cdf, idx + 1, active)
+        c0 = _gather(mi.Float, self.cdf, idx, active)
+        c1 = _gather(mi.Float, self.cdf, idx + 1, active)
         if not self.isotropic:
             fx = dr.clip((target - c0) / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
             iy = idx // self.n
@@ -253,8 +266,8 @@ class CoronaBSDFMixin:
         # C(t) = c1 t + c2 t² + c3 t³ (normalised), solved by safeguarded Newton
         du = self.du
         u0 = mi.Float(idx) * du
-        a = dr.gather(mi.Float, self.values, idx, active)
-        b = dr.gather(mi.Float, self.values, idx + 1, active) - a
+        a = _gather(mi.Float, self.values, idx, active)
+        b = _gather(mi.Float, self.values, idx + 1, active) - a
         norm = 2.0 * dr.pi * du / self.table_total
         k1 = norm * u0 * a
         k2 = norm * (u0 * b + du * a) * 0.5
@@ -268,8 +281,8 @@ class CoronaBSDFMixin:
             lo = dr.select(f < 0, t, lo)
             hi = dr.select(f >= 0, t, hi)
             df = dr.fma(dr.fma(3.0 * k3, t, 2.0 * k2), t, k1)
-            t_new = t - f / df
-            bad = ~dr.isfinite(t_new) | (t_new <= lo) | (t_new >= hi)
+            t_new = t - f / dr.maximum(df, 1e-30)            # df = density >= 0
+            bad = (t_new <= lo) | (t_new >= hi)
             t = dr.select(bad, 0.5 * (lo + hi), t_new)
         r = u0 + dr.clip(t, 0.0, 1.0) * du
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
@@ -370,8 +383,8 @@ class CoronaBSDFMixin:
         active = mi.Bool(active) & (cos_i != 0)
         p_coh, p_lobe, p_refl = self._selection(ctx)
         pick_coh = active & (sample1 < p_coh)
-        pick_lobe = active & ~pick_coh & (sample1 < p_coh + p_lobe)
-        pick_refl = active & ~pick_coh & ~pick_lobe & (p_refl > 0)
+        pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
+        pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
 
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
