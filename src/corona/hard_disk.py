@@ -15,7 +15,6 @@ import numpy as np
 # ==========================================================================
 # numba kernels (lengths in units of the disk diameter σ = 1)
 # ==========================================================================
-_CELL_CAP = 16
 
 
 @nb.njit(cache=True)
@@ -34,16 +33,16 @@ def _cell_coord(x, c, m):
 
 
 @nb.njit(cache=True)
-def _build_cells(pos, L, m):
+def _build_cells(pos, L, m, cap):
     N = pos.shape[0]
     c = L / m
     count = np.zeros(m * m, np.int64)
-    members = np.full((m * m, _CELL_CAP), -1, np.int64)
+    members = np.full((m * m, cap), -1, np.int64)
     cell_of = np.empty(N, np.int64)
     slot = np.empty(N, np.int64)
     for i in range(N):
         k = _cell_coord(pos[i, 1], c, m) * m + _cell_coord(pos[i, 0], c, m)
-        if count[k] >= _CELL_CAP:
+        if count[k] >= cap:
             return cell_of, slot, members, count, False
         members[k, count[k]] = i
         slot[i] = count[k]
@@ -65,7 +64,7 @@ def _relocate(i, pos, c, m, cell_of, slot, members, count):
     slot[last] = s
     members[k_old, count[k_old] - 1] = -1
     count[k_old] -= 1
-    if count[k_new] >= _CELL_CAP:
+    if count[k_new] >= members.shape[1]:
         return False
     members[k_new, count[k_new]] = i
     slot[i] = count[k_new]
@@ -162,9 +161,11 @@ def _ecmc(pos, L, m, cell_of, slot, members, count, n_events, chain_length, firs
 
 
 @nb.njit(cache=True)
-def _select_wave_vectors(n_max, L, q_max, bin_width, n_bins, cap):
-    """Half-plane box wave vectors ``2π(nx, ny)/L`` with ``0 < |k| <= q_max``,
-    at most ``cap`` per ``|k|`` bin (uniform reservoir sample)."""
+def _select_wave_vectors(n_max, L, q_max, bin_width, n_bins, cap_low, q_low, cap_high):
+    """Half-plane box wave vectors ``2π(nx, ny)/L`` with ``0 < |k| <= q_max``:
+    at most ``cap_low`` per ``|k|`` bin below ``q_low`` and ``cap_high``
+    above (a uniform reservoir sample where a bin holds more)."""
+    cap = max(cap_low, cap_high)
     seen = np.zeros(n_bins, np.int64)
     kept = np.zeros((n_bins, cap, 2), np.int64)
     two_pi_over_L = 2.0 * math.pi / L
@@ -177,55 +178,104 @@ def _select_wave_vectors(n_max, L, q_max, bin_width, n_bins, cap):
             b = int(q / bin_width)
             if b >= n_bins:
                 continue
-            if seen[b] < cap:
+            cb = cap_low if (b + 1) * bin_width <= q_low else cap_high
+            if seen[b] < cb:
                 kept[b, seen[b], 0] = nx
                 kept[b, seen[b], 1] = ny
             else:
                 r = np.random.randint(seen[b] + 1)
-                if r < cap:
+                if r < cb:
                     kept[b, r, 0] = nx
                     kept[b, r, 1] = ny
             seen[b] += 1
-    return kept, seen
+    counts = np.empty(n_bins, np.int64)
+    for b in range(n_bins):
+        cb = cap_low if (b + 1) * bin_width <= q_low else cap_high
+        counts[b] = min(seen[b], cb)
+    return kept, counts
 
 
-@nb.njit(cache=True)
-def _density_modes(pos, L, knx, kny, n_max):
-    """``|ρ_k|² / N`` with ``ρ_k = Σ_j exp(-i k·s_j)`` for each selected k."""
+@nb.njit(cache=True, fastmath=True)
+def _density_modes(pos, L, knx, kny, n_max, chunk=256):
+    """``|ρ_k|² / N`` with ``ρ_k = Σ_j exp(-i k·s_j)``, ``k = 2π(nx, ny)/L``,
+    for the selected ``(nx, ny)`` (``|nx|, ny <= n_max``).
+
+    ``exp(-i 2π n x/L)`` is built by recurrence over n for a chunk of disks at
+    a time, so each wave vector costs one complex multiply-add per disk.
+    """
     N = pos.shape[0]
     K = knx.size
     re = np.zeros(K)
     im = np.zeros(K)
-    ex = np.empty(n_max + 1, np.complex128)
-    ey = np.empty(n_max + 1, np.complex128)
     w = 2.0 * math.pi / L
-    for j in range(N):
-        phx = complex(math.cos(w * pos[j, 0]), -math.sin(w * pos[j, 0]))
-        phy = complex(math.cos(w * pos[j, 1]), -math.sin(w * pos[j, 1]))
-        ex[0] = 1.0
-        ey[0] = 1.0
+    cx = np.empty((2 * n_max + 1, chunk))
+    sx = np.empty((2 * n_max + 1, chunk))
+    cy = np.empty((n_max + 1, chunk))
+    sy = np.empty((n_max + 1, chunk))
+    c1 = np.empty(chunk)
+    s1 = np.empty(chunk)
+    c2 = np.empty(chunk)
+    s2 = np.empty(chunk)
+    for j0 in range(0, N, chunk):
+        nj = min(chunk, N - j0)
+        for jj in range(nj):
+            j = j0 + jj
+            c1[jj] = math.cos(w * pos[j, 0])
+            s1[jj] = -math.sin(w * pos[j, 0])
+            c2[jj] = math.cos(w * pos[j, 1])
+            s2[jj] = -math.sin(w * pos[j, 1])
+            cx[n_max, jj] = 1.0
+            sx[n_max, jj] = 0.0
+            cy[0, jj] = 1.0
+            sy[0, jj] = 0.0
         for n in range(1, n_max + 1):
-            ex[n] = ex[n - 1] * phx
-            ey[n] = ey[n - 1] * phy
+            for jj in range(nj):
+                a = cx[n_max + n - 1, jj]
+                b = sx[n_max + n - 1, jj]
+                cc = a * c1[jj] - b * s1[jj]
+                ss = a * s1[jj] + b * c1[jj]
+                cx[n_max + n, jj] = cc
+                sx[n_max + n, jj] = ss
+                cx[n_max - n, jj] = cc
+                sx[n_max - n, jj] = -ss
+                a = cy[n - 1, jj]
+                b = sy[n - 1, jj]
+                cy[n, jj] = a * c2[jj] - b * s2[jj]
+                sy[n, jj] = a * s2[jj] + b * c2[jj]
         for t in range(K):
-            nx = knx[t]
-            if nx >= 0:
-                a = ex[nx]
-            else:
-                a = ex[-nx].conjugate()
-            v = a * ey[kny[t]]
-            re[t] += v.real
-            im[t] += v.imag
+            ix = knx[t] + n_max
+            iy = kny[t]
+            r = 0.0
+            i_ = 0.0
+            for jj in range(nj):
+                a = cx[ix, jj]
+                b = sx[ix, jj]
+                c = cy[iy, jj]
+                d = sy[iy, jj]
+                r += a * c - b * d
+                i_ += a * d + b * c
+            re[t] += r
+            im[t] += i_
     return (re * re + im * im) / N
 
 
 @nb.njit(cache=True)
 def _pair_scan(pos, L, r_max, n_bins, r_bond):
-    """Pair-distance histogram up to ``r_max``, the smallest pair distance,
-    and the global bond-orientational order ``|⟨ψ6⟩|`` (bonds shorter than
-    ``r_bond``)."""
+    """Pair-distance histogram up to ``r_max`` (cell list), the smallest pair
+    distance, and the global bond-orientational order ``|⟨ψ6⟩|`` (bonds
+    shorter than ``r_bond`` <= ``r_max``)."""
     N = pos.shape[0]
     half = 0.5 * L
+    m = int(L / r_max)
+    if m < 3:
+        m = 1
+    c = L / m
+    head = np.full(m * m, -1, np.int64)
+    nxt = np.full(N, -1, np.int64)
+    for i in range(N):
+        k = _cell_coord(pos[i, 1], c, m) * m + _cell_coord(pos[i, 0], c, m)
+        nxt[i] = head[k]
+        head[k] = i
     hist = np.zeros(n_bins, np.int64)
     dr = r_max / n_bins
     r_max2 = r_max * r_max
@@ -234,37 +284,45 @@ def _pair_scan(pos, L, r_max, n_bins, r_bond):
     psi_re = np.zeros(N)
     psi_im = np.zeros(N)
     nb_count = np.zeros(N)
+    span = 1 if m >= 3 else 0
     for i in range(N):
         xi = pos[i, 0]
         yi = pos[i, 1]
-        for j in range(i + 1, N):
-            dx = pos[j, 0] - xi
-            if dx > half:
-                dx -= L
-            elif dx < -half:
-                dx += L
-            dy = pos[j, 1] - yi
-            if dy > half:
-                dy -= L
-            elif dy < -half:
-                dy += L
-            r2 = dx * dx + dy * dy
-            if r2 < d_min2:
-                d_min2 = r2
-            if r2 < r_max2:
-                b = int(math.sqrt(r2) / dr)
-                if b < n_bins:
-                    hist[b] += 1
-            if r2 < r_bond2:
-                th = 6.0 * math.atan2(dy, dx)
-                cr = math.cos(th)
-                sr = math.sin(th)
-                psi_re[i] += cr
-                psi_im[i] += sr
-                psi_re[j] += cr       # 6(θ+π) ≡ 6θ
-                psi_im[j] += sr
-                nb_count[i] += 1.0
-                nb_count[j] += 1.0
+        kx = _cell_coord(xi, c, m)
+        ky = _cell_coord(yi, c, m)
+        for ox in range(-span, span + 1):
+            for oy in range(-span, span + 1):
+                j = head[((ky + oy) % m) * m + (kx + ox) % m]
+                while j >= 0:
+                    if j > i:
+                        dx = pos[j, 0] - xi
+                        if dx > half:
+                            dx -= L
+                        elif dx < -half:
+                            dx += L
+                        dy = pos[j, 1] - yi
+                        if dy > half:
+                            dy -= L
+                        elif dy < -half:
+                            dy += L
+                        r2 = dx * dx + dy * dy
+                        if r2 < d_min2:
+                            d_min2 = r2
+                        if r2 < r_max2:
+                            b = int(math.sqrt(r2) / dr)
+                            if b < n_bins:
+                                hist[b] += 1
+                        if r2 < r_bond2:
+                            th = 6.0 * math.atan2(dy, dx)
+                            cr = math.cos(th)
+                            sr = math.sin(th)
+                            psi_re[i] += cr
+                            psi_im[i] += sr
+                            psi_re[j] += cr       # 6(θ+π) ≡ 6θ
+                            psi_im[j] += sr
+                            nb_count[i] += 1.0
+                            nb_count[j] += 1.0
+                    j = nxt[j]
     tr = 0.0
     ti = 0.0
     for i in range(N):
@@ -353,3 +411,375 @@ def _push_apart(pos, L, max_iter):
                     x -= L
                 pos[i, a] = x
     return n_over
+
+
+# ==========================================================================
+# Simulation driver
+# ==========================================================================
+def henderson_compressibility_factor(eta):
+    """Henderson's equation of state ``Z = βP/ρ = (1 + η²/8)/(1 - η)²``."""
+    eta = np.asarray(eta, dtype=np.float64)
+    return (1.0 + eta**2 / 8.0) / (1.0 - eta) ** 2
+
+
+def henderson_contact_value(eta):
+    """Contact value ``g(σ⁺) = (Z - 1)/(2η)`` from Henderson's equation of state."""
+    eta = np.asarray(eta, dtype=np.float64)
+    return (henderson_compressibility_factor(eta) - 1.0) / (2.0 * eta)
+
+
+def henderson_structure_factor_zero(eta):
+    """Compressibility limit ``S(0) = 1 / d(ηZ)/dη`` from Henderson's equation of state."""
+    eta = np.asarray(eta, dtype=np.float64)
+    d = ((1.0 + 3.0 * eta**2 / 8.0) * (1.0 - eta) + 2.0 * (eta + eta**3 / 8.0)) / (1.0 - eta) ** 3
+    return 1.0 / d
+
+
+@dataclass
+class HardDiskSimulation:
+    """Result of :func:`simulate_hard_disks` (lengths in units of σ).
+
+    Attributes
+    ----------
+    packing_fraction, n_disks, box_length, seed : the system (``L`` in σ).
+    n_sweeps, n_equilibration, sample_every, n_chains : the run; a *sweep*
+        is ``N`` event-chain displacement events (lifts and chain ends).
+    n_snapshots : snapshots measured (all chains).
+    q_sigma : (n,) mean ``|k|σ`` of the box wave vectors in each non-empty bin.
+    S, S_err : (n,) structure factor and its standard error (blocking).
+    n_vectors : (n,) wave vectors measured per bin (half plane, capped).
+    bin_width : width of the ``|k|σ`` bins.
+    r_sigma, g, g_err : pair correlation on bins of ``r/σ`` (bin centres).
+    contact_value, contact_value_err : ``g(σ⁺)`` extrapolated from ``g(r)``.
+    compressibility_factor, compressibility_factor_err : ``Z = βP/ρ`` from
+        the event-chain pressure estimator.
+    contact_value_pressure : ``(Z - 1)/(2η)``, the contact value implied by Z.
+    psi6, psi6_series : global bond-orientational order ``|⟨ψ6⟩|`` (mean,
+        and per snapshot for chain 0).
+    min_distance : smallest pair distance seen in any snapshot (≥ 1: no overlap).
+    positions : (n_chains, N, 2) final configurations.
+    snapshots : (k, N, 2) a few configurations spread over the production run.
+    events, cpu_seconds, wall_seconds : cost.
+    """
+
+    packing_fraction: float
+    n_disks: int
+    box_length: float
+    seed: int
+    n_sweeps: int
+    n_equilibration: int
+    sample_every: int
+    n_chains: int
+    n_snapshots: int
+    q_sigma: np.ndarray
+    S: np.ndarray
+    S_err: np.ndarray
+    n_vectors: np.ndarray
+    bin_width: float
+    r_sigma: np.ndarray
+    g: np.ndarray
+    g_err: np.ndarray
+    contact_value: float
+    contact_value_err: float
+    compressibility_factor: float
+    compressibility_factor_err: float
+    contact_value_pressure: float
+    psi6: float
+    psi6_series: np.ndarray
+    min_distance: float
+    positions: np.ndarray
+    snapshots: np.ndarray
+    events: int
+    cpu_seconds: float
+    wall_seconds: float
+    S_blocks: np.ndarray = field(repr=False, default=None)
+
+    def __repr__(self):
+        return (f"HardDiskSimulation(η={self.packing_fraction:g}, N={self.n_disks}, "
+                f"sweeps={self.n_sweeps}×{self.n_chains}, Z={self.compressibility_factor:.4f}"
+                f"±{self.compressibility_factor_err:.4f}, g(σ⁺)={self.contact_value:.4f}"
+                f"±{self.contact_value_err:.4f}, ψ6={self.psi6:.3f}, "
+                f"min distance={self.min_distance:.6f})")
+
+
+def _box_and_cells(n_disks, eta):
+    L = math.sqrt(n_disks * math.pi / (4.0 * eta))
+    rho = n_disks / L**2
+    c_target = max(1.0, 0.3 / rho)     # fastest measured: σ when dense, ~1.4 spacings at η=0.02
+    m = max(1, int(L / c_target))
+    c = L / m
+    cap = int(min(1.155 * (c + 1.0) ** 2 + 2, 64))
+    return L, m, cap
+
+
+def _chain_length(eta, L):
+    """Displacement per chain: about 200 lifts (from Henderson's Z), at most 4 L."""
+    lifts_per_sigma = (float(henderson_compressibility_factor(eta)) - 1.0) / (math.pi / 4.0)
+    return min(200.0 / max(lifts_per_sigma, 1e-12), 4.0 * L)
+
+
+def _run_chain(eta, n_disks, n_sweeps, n_equilibration, sample_every, seed,
+               q_max, bin_width, r_max, dr, n_blocks, n_keep, start, progress_cb=None):
+    """One independent Markov chain; returns raw accumulations."""
+    t_cpu = time.process_time()
+    ss = np.random.SeedSequence(seed)
+    rng = np.random.default_rng(ss.spawn(1)[0])
+    _seed(int(ss.generate_state(1)[0] % (2**31 - 1)))
+    L, m, cap = _box_and_cells(n_disks, eta)
+    if m < 7:
+        raise ValueError(f"box too small for the cell list (L = {L:.3g} σ): use more disks")
+    if start == "lattice":
+        pos, _ = _triangular_start(n_disks, eta, rng)
+    elif start == "compressed":
+        pos = _compressed_start(n_disks, eta, rng)
+    else:
+        raise ValueError(f"start={start!r}: expected 'lattice' or 'compressed'")
+    cells = _build_cells(pos, L, m, cap)
+    if not cells[4]:
+        raise RuntimeError("cell overflow in the start configuration")
+    cells = list(cells[:4])
+    ell = _chain_length(eta, L)
+    N = n_disks
+
+    def advance(n_sw, direction):
+        nonlocal cells
+        ev, ls, tl, nc, ok = _ecmc(pos, L, m, cells[0], cells[1], cells[2], cells[3],
+                                   n_sw * N, ell, direction)
+        while not ok:            # a crowded cell: rebuild with room to spare
+            c2 = _build_cells(pos, L, m, 2 * cells[2].shape[1])
+            cells = list(c2[:4])
+            ev2, ls2, tl2, nc2, ok = _ecmc(pos, L, m, cells[0], cells[1], cells[2], cells[3],
+                                           max(n_sw * N - ev, 1), ell, direction)
+            ev, ls, tl, nc = ev + ev2, ls + ls2, tl + tl2, nc + nc2
+        return ev, ls, tl
+
+    # equilibration
+    events = 0
+    step = max(1, sample_every)
+    done = 0
+    while done < n_equilibration:
+        k = min(step, n_equilibration - done)
+        ev, _, _ = advance(k, done % 2)
+        events += ev
+        done += k
+        if progress_cb:
+            progress_cb(k)
+    # wave vectors
+    n_bins = int(round(q_max / bin_width))
+    n_max = int(q_max * L / (2.0 * math.pi)) + 1
+    nsel = None
+    cap_low, q_low, cap_high = _VECTORS_PER_BIN
+    if eta < 0.6:
+        cap_low = cap_high
+    kept, nsel = _select_wave_vectors(n_max, L, q_max, bin_width, n_bins, cap_low, q_low, cap_high)
+    knx = np.concatenate([kept[b, :nsel[b], 0] for b in range(n_bins)])
+    kny = np.concatenate([kept[b, :nsel[b], 1] for b in range(n_bins)])
+    kbin = np.repeat(np.arange(n_bins), nsel)
+    kabs = 2.0 * math.pi / L * np.hypot(knx, kny)
+    n_r = int(round(r_max / dr))
+    r_bond = 1.5 * math.sqrt(0.9069 / eta) if eta > 0 else 1.5
+    n_snap = max(1, n_sweeps // sample_every)
+    S_snap = np.empty((n_snap, n_bins))
+    hist_snap = np.zeros((n_snap, n_r), np.int64)
+    psi = np.empty(n_snap)
+    lift = np.empty(n_snap)
+    length = np.empty(n_snap)
+    d_min = np.inf
+    keep_at = set(np.linspace(0, n_snap - 1, min(n_keep, n_snap)).astype(int).tolist())
+    snaps = []
+    cnt = np.bincount(kbin, minlength=n_bins).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for s in range(n_snap):
+            ev, ls, tl = advance(sample_every, s % 2)
+            events += ev
+            lift[s], length[s] = ls, tl
+            sk = _density_modes(pos, L, knx, kny, n_max)
+            S_snap[s] = np.bincount(kbin, weights=sk, minlength=n_bins) / cnt
+            h, dm, p6 = _pair_scan(pos, L, r_max, n_r, r_bond)
+            hist_snap[s] = h
+            psi[s] = p6
+            d_min = min(d_min, dm)
+            if s in keep_at:
+                snaps.append(pos.copy())
+            if progress_cb:
+                progress_cb(sample_every)
+    qmean = np.bincount(kbin, weights=kabs, minlength=n_bins) / np.maximum(cnt, 1)
+    return dict(L=L, S_snap=S_snap, hist=hist_snap, psi=psi, lift=lift, length=length,
+                d_min=d_min, positions=pos.copy(), snapshots=snaps, qmean=qmean, cnt=cnt,
+                events=events, cpu=time.process_time() - t_cpu, n_snap=n_snap)
+
+
+#: (cap below q_low, q_low, cap above): wave vectors kept per |k| bin.  Below
+#: qσ = 15 (first peaks) nearly all are kept at η ≥ 0.6 so that Bragg-like
+#: spots of ordered states at η ≳ 0.70 are not missed at random.
+_VECTORS_PER_BIN = (160, 15.0, 24)
+
+
+def _chain_worker(args):
+    return _run_chain(*args)
+
+
+def _blocks(x, n_blocks):
+    """Block means along axis 0 (equal blocks, remainder dropped)."""
+    n = x.shape[0]
+    nb_ = max(1, min(n_blocks, n))
+    b = n // nb_
+    return x[: nb_ * b].reshape((nb_, b) + x.shape[1:]).mean(axis=1)
+
+
+def _contact_fit(r, g, Z):
+    """``g(σ⁺)`` from a quadratic fit of ``ln g`` against ``r - σ`` over a
+    window ``[σ, σ + w]``, ``w = min(0.15, 1/Z) σ`` (the contact peak of
+    dense fluids decays over ~σ/Z)."""
+    w = min(0.15, 1.0 / max(Z, 1.0))
+    sel = (r > 1.0) & (r < 1.0 + w) & (g > 0)
+    x = r[sel] - 1.0
+    if sel.sum() < 4:
+        return float("nan")
+    coef = np.polyfit(x, np.log(g[sel]), 2)
+    return float(np.exp(coef[-1]))
+
+
+def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, progress=True, *,
+                        n_equilibration=None, sample_every=100, n_chains=1, jobs=1,
+                        q_sigma_max=42.0, bin_width=0.05, r_max=5.0, dr=0.005,
+                        n_blocks=10, n_keep=4, start="lattice"):
+    """Event-chain Monte Carlo of hard disks in a periodic square box.
+
+    Parameters
+    ----------
+    packing_fraction : float
+        ``η = N π σ² / (4 L²)`` in (0, 0.8).
+    n_disks : int
+        ``N`` (≥ 64; the wave-vector grid is ``2π/L``).
+    n_sweeps : int
+        Production sweeps per chain (a sweep is ``N`` displacement events).
+    seed : int
+        Seed of every random choice (start, chains, wave-vector subsets).
+    progress : bool
+        Show a tqdm progress bar.
+    n_equilibration : int, optional
+        Sweeps discarded first (default ``max(2000, n_sweeps // 4)``).
+    sample_every : int
+        Sweeps between snapshots (S(k), g(r), ψ6).
+    n_chains, jobs : int
+        Independent chains (different seeds from ``seed``), run in ``jobs``
+        processes.
+    q_sigma_max, bin_width : float
+        ``S(k)`` on the box wave vectors ``k = 2π(nx, ny)/L`` with
+        ``0 < |k|σ ≤ q_sigma_max``, averaged in ``|k|σ`` bins (at most
+        24 vectors of the half plane per bin; 160 below |k|σ = 15 when η ≥ 0.6,
+        chosen at random once).
+    r_max, dr : float
+        Range and bin of the ``g(r)`` histogram (units of σ).
+    start : {"lattice", "compressed"}
+        Start from a triangular lattice at η (with random vacancies), or from
+        a fluid at η = 0.55 compressed in steps of 0.01 (overlaps removed by
+        pushing pairs apart, a few hundred sweeps at each step).
+
+    Returns
+    -------
+    HardDiskSimulation
+    """
+    from ._validation import check_range
+    eta = check_range("packing_fraction", packing_fraction, 0.0, 0.8, lo_open=True)
+    n_disks = int(n_disks)
+    if n_disks < 64:
+        raise ValueError(f"n_disks={n_disks} is too small; expected >= 64")
+    n_sweeps = int(n_sweeps)
+    if n_equilibration is None:
+        n_equilibration = max(2000, n_sweeps // 4)
+    n_equilibration = int(n_equilibration)
+    sample_every = int(sample_every)
+    n_chains = max(1, int(n_chains))
+    jobs = max(1, min(int(jobs), n_chains))
+    seeds = [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(n_chains)]
+    args = [(eta, n_disks, n_sweeps, n_equilibration, sample_every, sd, q_sigma_max, bin_width,
+             r_max, dr, n_blocks, n_keep, start) for sd in seeds]
+    t0 = time.perf_counter()
+    total = n_chains * (n_equilibration + max(1, n_sweeps // sample_every) * sample_every)
+    from tqdm.auto import tqdm
+    bar = tqdm(total=total, unit="sweep", disable=not progress,
+               desc=f"hard disks η={eta:.3g} N={n_disks}")
+    try:
+        if jobs == 1:
+            runs = [_run_chain(*a, progress_cb=bar.update) for a in args]
+        else:
+            import concurrent.futures as cf
+            import multiprocessing as mp
+            ctx = mp.get_context("spawn" if os.name == "nt" else "fork")
+            with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as ex:
+                futs = [ex.submit(_chain_worker, a) for a in args]
+                for f in cf.as_completed(futs):
+                    bar.update(total // n_chains)
+                runs = [f.result() for f in futs]
+    finally:
+        bar.close()
+    wall = time.perf_counter() - t0
+    L = runs[0]["L"]
+    cnt = runs[0]["cnt"]
+    ok = cnt > 0
+    # blocks per chain, pooled
+    S_blocks = np.concatenate([_blocks(r["S_snap"][:, ok], n_blocks) for r in runs])
+    S = np.concatenate([r["S_snap"][:, ok] for r in runs]).mean(axis=0)
+    nbk = S_blocks.shape[0]
+    S_err = S_blocks.std(axis=0, ddof=1) / math.sqrt(nbk) if nbk > 1 else np.full_like(S, np.nan)
+    n_r = runs[0]["hist"].shape[1]
+    edges = np.arange(n_r + 1) * dr
+    rho = n_disks / L**2
+    norm = 0.5 * n_disks * rho * math.pi * (edges[1:] ** 2 - edges[:-1] ** 2)
+    g_blocks = np.concatenate([_blocks(r["hist"].astype(float), n_blocks) for r in runs]) / norm
+    g = np.concatenate([r["hist"] for r in runs]).mean(axis=0) / norm
+    g_err = g_blocks.std(axis=0, ddof=1) / math.sqrt(g_blocks.shape[0]) if g_blocks.shape[0] > 1 \
+        else np.full_like(g, np.nan)
+    r_c = 0.5 * (edges[1:] + edges[:-1])
+    lift = np.concatenate([r["lift"] for r in runs])
+    length = np.concatenate([r["length"] for r in runs])
+    Z = 1.0 + lift.sum() / length.sum()
+    Zb = np.concatenate([1.0 + _blocks(r["lift"], n_blocks) / _blocks(r["length"], n_blocks)
+                         for r in runs])
+    Z_err = Zb.std(ddof=1) / math.sqrt(len(Zb)) if len(Zb) > 1 else float("nan")
+    gc = _contact_fit(r_c, g, Z)
+    gcb = np.array([_contact_fit(r_c, gb, Z) for gb in g_blocks])
+    gc_err = float(np.nanstd(gcb, ddof=1) / math.sqrt(np.isfinite(gcb).sum())) if len(gcb) > 1 \
+        else float("nan")
+    snaps = [s for r in runs for s in r["snapshots"]]
+    return HardDiskSimulation(
+        packing_fraction=eta, n_disks=n_disks, box_length=L, seed=int(seed), n_sweeps=n_sweeps,
+        n_equilibration=n_equilibration, sample_every=sample_every, n_chains=n_chains,
+        n_snapshots=sum(r["n_snap"] for r in runs),
+        q_sigma=runs[0]["qmean"][ok], S=S, S_err=S_err, n_vectors=cnt[ok].astype(int),
+        bin_width=bin_width, r_sigma=r_c, g=g, g_err=g_err,
+        contact_value=gc, contact_value_err=gc_err,
+        compressibility_factor=float(Z), compressibility_factor_err=float(Z_err),
+        contact_value_pressure=float((Z - 1.0) / (2.0 * eta)),
+        psi6=float(np.mean(np.concatenate([r["psi"] for r in runs]))),
+        psi6_series=runs[0]["psi"], min_distance=float(min(r["d_min"] for r in runs)),
+        positions=np.stack([r["positions"] for r in runs]), snapshots=np.stack(snaps),
+        events=int(sum(r["events"] for r in runs)), cpu_seconds=float(sum(r["cpu"] for r in runs)),
+        wall_seconds=wall, S_blocks=S_blocks)
+
+
+def _compressed_start(n_disks, eta, rng, eta0=0.55, sweeps_per_step=300):
+    """A fluid configuration at ``eta``: melt a lattice at ``min(eta, eta0)``,
+    then compress in steps of 0.01 (rescale, push overlapping pairs apart,
+    run event chains)."""
+    e = min(eta, eta0)
+    pos, L = _triangular_start(n_disks, e, rng)
+    targets = list(np.arange(e, eta, 0.01)[1:]) + [eta] if eta > e else []
+    for k, e_new in enumerate([e] + targets):
+        if k > 0:
+            f = math.sqrt(e / e_new)
+            pos *= f
+            L *= f
+            pos %= L
+            if _push_apart(pos, L, 100000) != 0:
+                raise RuntimeError(f"could not remove overlaps at η = {e_new}")
+            e = e_new
+        Lb, m, cap = _box_and_cells(n_disks, e)
+        cells = _build_cells(pos, L, m, cap)
+        if not cells[4]:
+            raise RuntimeError("cell overflow during compression")
+        _ecmc(pos, L, m, cells[0], cells[1], cells[2], cells[3],
+              (2000 if k == 0 else sweeps_per_step) * n_disks, _chain_length(e, L), 0)
+    return pos

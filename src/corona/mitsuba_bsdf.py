@@ -151,10 +151,12 @@ class CoronaBSDFMixin:
             self._set_cdf(table.cdf)
         else:
             self.n = int(table.n)
-            self.u_range = float(table.u_range)
+            self.lo = float(table.lo)                 # first vertex [u]
             self.cell = float(table.cell)
+            self.span = float(table.cell * (table.n - 1))
             self.values = _array(mi.Float, table.values.ravel())
-            self._set_cdf(table.cdf)
+            # exact sampling of the bilinear density (marginal y, conditional x)
+            self.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(table.values, dtype=np.float32))
 
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
@@ -214,9 +216,9 @@ class CoronaBSDFMixin:
             v0 = _gather(mi.Float, self.values, i, inside)
             v1 = _gather(mi.Float, self.values, i + 1, inside)
             return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
-        fx = (ux + self.u_range) / self.cell - 0.5
-        fy = (uy + self.u_range) / self.cell - 0.5
-        inside = active & (dr.abs(ux) <= self.u_range) & (dr.abs(uy) <= self.u_range)
+        fx = (ux - self.lo) / self.cell
+        fy = (uy - self.lo) / self.cell
+        inside = active & (fx >= 0) & (fx <= self.n - 1) & (fy >= 0) & (fy <= self.n - 1)
         x0 = dr.clip(dr.floor(fx), 0, self.n - 2)
         y0 = dr.clip(dr.floor(fy), 0, self.n - 2)
         tx = dr.clip(fx - x0, 0.0, 1.0)
@@ -227,21 +229,13 @@ class CoronaBSDFMixin:
         v10 = _gather(mi.Float, self.values, k + self.n, inside)
         v11 = _gather(mi.Float, self.values, k + self.n + 1, inside)
         v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
-        return dr.select(inside, v, 0.0)
-
-    def _table_pdf_u(self, ux, uy, active):
-        """Density in the u plane of :meth:`_sample_u`."""
-        if self.isotropic:
-            return self._table_value(ux, uy, active) / self.table_total
-        ix = dr.floor((ux + self.u_range) / self.cell)
-        iy = dr.floor((uy + self.u_range) / self.cell)
-        inside = active & (ix >= 0) & (ix < self.n) & (iy >= 0) & (iy < self.n)
-        k = mi.UInt32(dr.clip(iy, 0, self.n - 1)) * self.n + mi.UInt32(dr.clip(ix, 0, self.n - 1))
-        v = _gather(mi.Float, self.values, k, inside)
-        return dr.select(inside, v / self.table_total, 0.0)
+        return dr.select(inside, dr.maximum(v, 0.0), 0.0)
 
     def _sample_u(self, s, active):
         """Invert the table's CDF: s (Vector2f) -> u (Vector2f)."""
+        if not self.isotropic:
+            p01, _ = self.distr.sample(s, active=active)
+            return mi.Vector2f(self.lo + p01.x * self.span, self.lo + p01.y * self.span)
         target = s.x
         # guide table, then bisection with cdf[lo] <= target < cdf[hi]
         j = mi.UInt32(dr.minimum(target * self.guide_size, self.guide_size - 1))
@@ -255,13 +249,6 @@ class CoronaBSDFMixin:
         idx = dr.minimum(lo, self.n_bins - 1)
         c0 = _gather(mi.Float, self.cdf, idx, active)
         c1 = _gather(mi.Float, self.cdf, idx + 1, active)
-        if not self.isotropic:
-            fx = dr.clip((target - c0) / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
-            iy = idx // self.n
-            ix = idx - iy * self.n
-            ux = -self.u_range + (mi.Float(ix) + fx) * self.cell
-            uy = -self.u_range + (mi.Float(iy) + s.y) * self.cell
-            return mi.Vector2f(ux, uy)
         # radial: density 2π u v_lin(u) in the bin; its CDF is the cubic
         # C(t) = c1 t + c2 t² + c3 t³ (normalised), solved by safeguarded Newton
         du = self.du
@@ -301,9 +288,8 @@ class CoronaBSDFMixin:
             ux, uy = dx * k, dy * k
             v = self._table_value(ux, uy, active)
             values.append(self.lobe_scale * dr.square(self.R / lam) * v)   # F_a (R/λ)² v
-            # p_d = p_u k²; radial tables sample exactly ∝ v, so p_u = v / ∫v d²u
-            p_u = v * (1.0 / self.table_total) if self.isotropic else self._table_pdf_u(ux, uy, active)
-            pdf += m * p_u * dr.square(k)
+            # p_d = p_u k²; the tables are sampled exactly ∝ v, so p_u = v / ∫v d²u
+            pdf += m * (v * (1.0 / self.table_total)) * dr.square(k)
         if mi.is_spectral:
             f = mi.Spectrum(values)
         else:

@@ -143,6 +143,12 @@ class Shape:
         return 2.0 * self.length_scale
 
     @property
+    def _support(self) -> float:
+        """Radius [µm] about the centroid holding (nearly) all of A: bounds the
+        angular bandwidth of Â (harmonics up to order ≈ |q| · _support)."""
+        return self.length_scale
+
+    @property
     def self_overlap(self) -> float:
         """``⟨∫A²⟩ / ⟨∫A⟩`` (dimensionless); 1 for binary shapes.
 
@@ -506,7 +512,11 @@ def _orient(ax, ay, bx, by, cx, cy):
 
 
 def _check_simple(v: np.ndarray) -> None:
-    """Raise CoronaError if the closed polygon ``v`` (n, 2) self-intersects."""
+    """Raise CoronaError if the closed polygon ``v`` (n, 2) self-intersects.
+
+    Edges are sorted by their smallest x; only pairs whose x and y extents
+    overlap get the exact orientation test (vectorised, in bounded chunks).
+    """
     n = len(v)
     a = v
     b = np.roll(v, -1, axis=0)
@@ -524,15 +534,42 @@ def _check_simple(v: np.ndarray) -> None:
                           "expected a simple polygon")
     if n <= 3:
         return
-    idx = np.arange(n)
-    chunk = max(1, 2_000_000 // n)
-    for s in range(0, n, chunk):
-        i = idx[s:s + chunk, None]
-        j = idx[None, :]
-        ax, ay = a[i, 0], a[i, 1]
-        bx, by = b[i, 0], b[i, 1]
-        cx, cy = a[j, 0], a[j, 1]
-        dx, dy = b[j, 0], b[j, 1]
+    tol = 1e-12 * scale
+    xlo = np.minimum(a[:, 0], b[:, 0]) - tol
+    xhi = np.maximum(a[:, 0], b[:, 0]) + tol
+    ylo = np.minimum(a[:, 1], b[:, 1]) - tol
+    yhi = np.maximum(a[:, 1], b[:, 1]) + tol
+    order = np.argsort(xlo, kind="stable")
+    xs = xlo[order]
+    hi = np.searchsorted(xs, xhi[order], side="right")
+    counts = np.maximum(hi - np.arange(n) - 1, 0)
+    budget = 4_000_000
+    start = 0
+    while start < n:
+        stop = start + 1
+        acc = counts[start]
+        while stop < n and acc + counts[stop] <= budget:
+            acc += counts[stop]
+            stop += 1
+        c = counts[start:stop]
+        tot = int(c.sum())
+        start_i = start
+        start = stop
+        if tot == 0:
+            continue
+        pos = np.repeat(np.arange(start_i, stop), c)
+        first = np.repeat(np.cumsum(c) - c, c)
+        pj = pos + 1 + (np.arange(tot) - first)
+        i = order[pos]
+        j = order[pj]
+        keep = (ylo[i] <= yhi[j]) & (ylo[j] <= yhi[i])
+        d = (j - i) % n
+        keep &= (d != 1) & (d != n - 1)
+        i, j = i[keep], j[keep]
+        if not len(i):
+            continue
+        ax, ay, bx, by = a[i, 0], a[i, 1], b[i, 0], b[i, 1]
+        cx, cy, dx, dy = a[j, 0], a[j, 1], b[j, 0], b[j, 1]
         o1 = _orient(ax, ay, bx, by, cx, cy)
         o2 = _orient(ax, ay, bx, by, dx, dy)
         o3 = _orient(cx, cy, dx, dy, ax, ay)
@@ -552,12 +589,11 @@ def _check_simple(v: np.ndarray) -> None:
             t2 = ((dx - ax) * ex + (dy - ay) * ey) / L2
             overlap = (np.maximum(t1, t2) >= 0) & (np.minimum(t1, t2) <= 1)
             cross = np.where(colin, overlap, cross)
-        adjacent = (j == i) | (j == (i + 1) % n) | (j == (i - 1) % n)
-        cross &= ~adjacent
         if np.any(cross):
-            ii, jj = np.nonzero(cross)
-            raise CoronaError(f"vertices: polygon is not simple (edges {int(ii[0] + s)} and "
-                              f"{int(jj[0])} intersect); expected a simple polygon")
+            k = int(np.argmax(cross))
+            e1, e2 = sorted((int(i[k]), int(j[k])))
+            raise CoronaError(f"vertices: polygon is not simple (edges {e1} and {e2} "
+                              "intersect); expected a simple polygon")
 
 
 class Polygon(Shape):
@@ -772,8 +808,12 @@ def _load_image(image) -> tuple[np.ndarray, str | None]:
         if os.path.getsize(source) == 0:
             raise CoronaError(f"image={source!r} is an empty file")
         try:
+            import warnings
+
             import imageio.v3 as iio
-            arr = np.asarray(iio.imread(source))
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DeprecationWarning)
+                arr = np.asarray(iio.imread(source))
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad file
             raise CoronaError(f"image={source!r} could not be read as an image ({exc})") from None
         if arr.ndim == 3 and arr.shape[-1] in (1, 2, 3, 4):
@@ -1020,6 +1060,10 @@ class SoftEdge(Shape):
         return self.shape._deterministic
 
     @property
+    def _support(self):
+        return self.shape._support
+
+    @property
     def area(self) -> float:
         return self.shape.area
 
@@ -1102,7 +1146,8 @@ class RandomOrientation(Shape):
     ``N = ⌈(2.2 |q| R + 24)/m⌉`` (rounded up to a multiple of 8) angles over one
     symmetry period ``2π/m`` are used, m the order of the shape's rotational
     symmetry (4 for a square, n for a regular n-gon, 2 for rectangles and
-    ellipses, 1 otherwise).
+    ellipses, 1 otherwise).  For size distributions R is the radius of the
+    1 - 1e-10 quantile of the ``s⁴``-weighted sizes.
 
     Parameters
     ----------
@@ -1147,6 +1192,10 @@ class RandomOrientation(Shape):
     def self_overlap(self) -> float:
         return self.shape.self_overlap
 
+    @property
+    def _support(self):
+        return self.shape._support
+
     def _blurred_overlap(self, w: float) -> float:
         return self.shape._blurred_overlap(w)
 
@@ -1160,7 +1209,7 @@ class RandomOrientation(Shape):
         inten = np.empty(flat.shape)
         amp = np.empty(flat.shape, dtype=np.complex128)
         m = max(int(base._symmetry), 1)
-        R = base.length_scale
+        R = base._support
         need = np.ceil((2.2 * flat * R + 24.0) / m / 8.0).astype(np.int64) * 8
         for N, idx in _groups(need):
             phi = (_TWO_PI / m) * np.arange(N) / N
@@ -1283,6 +1332,7 @@ class SizeDistribution(Shape):
         sp = self.spread
         if sp == 0.0:
             self._m2 = self._m4 = 1.0
+            self._s_big = 1.0
             return
         if self.distribution == "lognormal":
             s2 = math.log1p(sp * sp)
@@ -1293,6 +1343,7 @@ class SizeDistribution(Shape):
             self._y_lo = mu - z16 * sig
             self._y_hi = mu + 4 * s2 + z16 * sig
             self._s_top = math.exp(mu + s2 + 5.3 * sig)        # 1 - 1e-7 of s p(s)
+            self._s_big = math.exp(mu + 4 * s2 + 6.4 * sig)    # 1 - 1e-10 of s⁴ p(s)
             self._m2 = math.exp(2 * mu + 2 * s2)
             self._m4 = math.exp(4 * mu + 8 * s2)
             self._logpdf = lambda y: (-0.5 * ((y - mu) / sig) ** 2
@@ -1307,6 +1358,7 @@ class SizeDistribution(Shape):
             self._y_lo = math.log(g.ppf(1e-17))
             self._y_hi = math.log(g4.isf(1e-17))
             self._s_top = float(g1.isf(1e-7))
+            self._s_big = float(g4.isf(1e-10))
             self._m2 = (k + 1.0) / k
             self._m4 = (k + 1.0) * (k + 2.0) * (k + 3.0) / k**3
             lk = k * math.log(k) - math.lgamma(k)
@@ -1397,6 +1449,10 @@ class SizeDistribution(Shape):
         return self.shape._symmetry
 
     @property
+    def _support(self):
+        return self.shape._support * self._s_big
+
+    @property
     def area(self) -> float:
         return self.shape.area * self._m2
 
@@ -1416,6 +1472,10 @@ class SizeDistribution(Shape):
         w = float(w)
         if w <= 0.0:
             return self.self_overlap * self.area
+        if type(self.shape)._blurred_overlap is Shape._blurred_overlap:
+            # no closed form for the base: one Parseval integral of the average
+            return Shape._blurred_overlap(self, w)
+        # ∫(A_s * G_w)² = s² ∫(A * G_{w/s})²
         s, p = self._nodes(1.0 / self.shape.length_scale)
         return float(sum(pk * sk**2 * self.shape._blurred_overlap(w / sk) for sk, pk in zip(s, p)))
 
@@ -1510,6 +1570,10 @@ class Mixture(Shape):
         if not orders:
             return 0
         return max(1, reduce(math.gcd, orders))
+
+    @property
+    def _support(self):
+        return max(sh._support for sh, _ in self.components)
 
     @property
     def area(self) -> float:

@@ -17,7 +17,8 @@ u-space pdf by ``p_d = p_u · (2π R / λ)²``.
 Radial tables (isotropic shape and process) sample ``u`` exactly from the
 piecewise-linear ``v``: the radial density ``2π u v(u)`` is a quadratic in
 each bin, its CDF a cubic, inverted by safeguarded Newton iterations.
-2D tables (anisotropic lobes) are sampled cell-wise (piecewise constant).
+2D tables (anisotropic lobes) are bilinear and sampled exactly (marginal in
+y, conditional in x, each piecewise linear).
 
 Tables are cached under a content-addressed key (all parameters plus
 ``FORMAT_VERSION``) in :func:`cache_dir`, written atomically (temporary file
@@ -151,23 +152,40 @@ class RadialTable:
 # --------------------------------------------------------------------------
 # 2D table
 # --------------------------------------------------------------------------
+def _linear_segment_inverse(a, b, r):
+    """Solve ``a s + (b - a) s²/2 = r`` for s in [0, 1] (density a → b on a unit segment)."""
+    disc = np.maximum(a * a + 2.0 * (b - a) * r, 0.0)
+    denom = a + np.sqrt(disc)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(denom > 0, 2.0 * r / denom, 0.5)
+    return np.clip(s, 0.0, 1.0)
+
+
 @dataclass
 class GridTable:
-    """``v(u_x, u_y)`` on an N×N cell-centred grid covering ``[-U, U]²``.
+    """``v(u_x, u_y)`` at the vertices of an N×N grid, bilinear in between.
 
-    Evaluation is bilinear between cell centres; sampling is piecewise
-    constant per cell (one discrete CDF over all cells, then a uniform point
-    in the cell) and :meth:`pdf` is the matching cell density.
+    The vertices sit at ``-U + (i + ½)·cell`` (cell = 2U/N), so the lobe is
+    defined on the square spanned by the outer vertices and is 0 outside.
+    Sampling is exact for the bilinear density (marginal in y, conditional
+    in x, each piecewise linear, inverted in closed form), so
+    :meth:`pdf` ∝ :meth:`eval` — the same scheme as Mitsuba's
+    ``MarginalContinuous2D0`` that the plugin uses.
     """
 
     u_range: float
     values: np.ndarray  # (N, N), index [iy, ix]
-    cdf: np.ndarray = field(init=False)
+    row_cdf: np.ndarray = field(init=False)   # (N, N): ∫_0^{x_i} v(x, y_j) dx per vertex row
+    marg_cdf: np.ndarray = field(init=False)  # (N,): ∫_0^{y_j} m(y) dy
 
     def __post_init__(self):
         v = np.maximum(np.asarray(self.values, dtype=np.float64), 0.0)
         self.values = v
-        self.cdf = np.concatenate([[0.0], np.cumsum(v.ravel())])
+        h = self.cell
+        seg = 0.5 * h * (v[:, 1:] + v[:, :-1])                       # trapezoids along x
+        self.row_cdf = np.concatenate([np.zeros((v.shape[0], 1)), np.cumsum(seg, axis=1)], axis=1)
+        m = self.row_cdf[:, -1]                                       # m(y_j) = ∫ v dx
+        self.marg_cdf = np.concatenate([[0.0], np.cumsum(0.5 * h * (m[1:] + m[:-1]))])
 
     @property
     def n(self) -> int:
@@ -178,19 +196,24 @@ class GridTable:
         return 2 * self.u_range / self.n
 
     @property
+    def lo(self) -> float:
+        """Coordinate of the first vertex."""
+        return -self.u_range + 0.5 * self.cell
+
+    @property
     def total(self) -> float:
-        """``∫ v d²u`` (midpoint rule over cells)."""
-        return float(self.cdf[-1] * self.cell**2)
+        """``∫ v d²u`` of the bilinear interpolant."""
+        return float(self.marg_cdf[-1])
 
     def centres(self) -> np.ndarray:
-        return -self.u_range + (np.arange(self.n) + 0.5) * self.cell
+        return self.lo + np.arange(self.n) * self.cell
 
     def eval(self, u) -> np.ndarray:
-        """Bilinear interpolation at ``u`` (..., 2); 0 outside the grid."""
+        """Bilinear interpolation at ``u`` (..., 2); 0 outside the vertex square."""
         u = np.asarray(u, dtype=np.float64)
-        fx = (u[..., 0] + self.u_range) / self.cell - 0.5
-        fy = (u[..., 1] + self.u_range) / self.cell - 0.5
-        inside = (np.abs(u[..., 0]) <= self.u_range) & (np.abs(u[..., 1]) <= self.u_range)
+        fx = (u[..., 0] - self.lo) / self.cell
+        fy = (u[..., 1] - self.lo) / self.cell
+        inside = (fx >= 0) & (fx <= self.n - 1) & (fy >= 0) & (fy <= self.n - 1)
         x0 = np.clip(np.floor(fx).astype(np.int64), 0, self.n - 2)
         y0 = np.clip(np.floor(fy).astype(np.int64), 0, self.n - 2)
         tx = np.clip(fx - x0, 0.0, 1.0)
@@ -201,25 +224,35 @@ class GridTable:
         return np.where(inside, out, 0.0)
 
     def pdf(self, u) -> np.ndarray:
-        """Density in the u plane of :meth:`sample` (the value of the cell)."""
-        u = np.asarray(u, dtype=np.float64)
-        ix = np.floor((u[..., 0] + self.u_range) / self.cell).astype(np.int64)
-        iy = np.floor((u[..., 1] + self.u_range) / self.cell).astype(np.int64)
-        inside = (ix >= 0) & (ix < self.n) & (iy >= 0) & (iy < self.n)
-        ixc, iyc = np.clip(ix, 0, self.n - 1), np.clip(iy, 0, self.n - 1)
-        return np.where(inside, self.values[iyc, ixc] / self.total, 0.0)
+        """Density in the u plane of :meth:`sample`: ``eval / total``."""
+        return self.eval(u) / self.total
 
     def sample(self, xi) -> np.ndarray:
         """``xi`` (..., 2) in [0,1)² -> ``u`` (..., 2) with density :meth:`pdf`."""
         xi = np.asarray(xi, dtype=np.float64)
-        target = xi[..., 0] * self.cdf[-1]
-        k = np.clip(np.searchsorted(self.cdf, target, side="right") - 1, 0, self.values.size - 1)
-        mass = np.maximum(self.cdf[k + 1] - self.cdf[k], 1e-300)
-        fx = np.clip((target - self.cdf[k]) / mass, 0.0, 1.0)  # reuse the remainder of xi0
-        iy, ix = np.divmod(k, self.n)
-        ux = -self.u_range + (ix + fx) * self.cell
-        uy = -self.u_range + (iy + xi[..., 1]) * self.cell
-        return np.stack([ux, uy], axis=-1)
+        flat = xi.reshape(-1, 2)
+        chunk = 8192  # the conditional step holds (chunk, N) arrays
+        out = np.concatenate([self._sample(flat[k:k + chunk]) for k in range(0, len(flat), chunk)]
+                             or [np.zeros((0, 2))])
+        return out.reshape(xi.shape)
+
+    def _sample(self, xi) -> np.ndarray:
+        h, n = self.cell, self.n
+        m = self.row_cdf[:, -1]
+        # marginal in y: piecewise linear m(y) between vertex rows
+        target = xi[..., 0] * self.marg_cdf[-1]
+        j = np.clip(np.searchsorted(self.marg_cdf, target, side="right") - 1, 0, n - 2)
+        ty = _linear_segment_inverse(m[j] * h, m[j + 1] * h, target - self.marg_cdf[j])
+        # conditional in x: the row at y interpolates the rows' CDFs linearly
+        c0, c1 = self.row_cdf[j], self.row_cdf[j + 1]                 # (..., N)
+        crow = (1 - ty)[..., None] * c0 + ty[..., None] * c1
+        tx_target = xi[..., 1] * crow[..., -1]
+        i = np.clip((crow <= tx_target[..., None]).sum(axis=-1) - 1, 0, n - 2)
+        take = lambda a, k: np.take_along_axis(a, k[..., None], axis=-1)[..., 0]
+        vrow0 = (1 - ty) * self.values[j, i] + ty * self.values[j + 1, i]
+        vrow1 = (1 - ty) * self.values[j, i + 1] + ty * self.values[j + 1, i + 1]
+        tx = _linear_segment_inverse(vrow0 * h, vrow1 * h, tx_target - take(crow, i))
+        return np.stack([self.lo + (i + tx) * h, self.lo + (j + ty) * h], axis=-1)
 
     def arrays(self) -> dict:
         return {"kind": np.array("grid"), "u_range": np.array(self.u_range), "values": self.values}
