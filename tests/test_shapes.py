@@ -481,7 +481,8 @@ def test_soft_edge_self_overlap_against_real_space():
 
 def test_soft_edge_lobe_integrates_to_self_overlap():
     for sh in (SoftEdge(Circle(1.0), 0.1), SoftEdge(Square(1.0, 0.2), 0.05),
-               SoftEdge(Polygon(L_SHAPE), 0.1)):
+               SoftEdge(Polygon(L_SHAPE), 0.1),
+               SoftEdge(SizeDistribution(Circle(1.0), 0.2, "schulz"), 0.08)):
         val = integral_Ta(sh, u_max=120)          # Gaussian kills the tail
         assert val == pytest.approx(sh.self_overlap, abs=1e-4)
         assert 0.5 < sh.self_overlap < 1.0

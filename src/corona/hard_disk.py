@@ -783,3 +783,168 @@ def _compressed_start(n_disks, eta, rng, eta0=0.55, sweeps_per_step=300):
         _ecmc(pos, L, m, cells[0], cells[1], cells[2], cells[3],
               (2000 if k == 0 else sweeps_per_step) * n_disks, _chain_length(e, L), 0)
     return pos
+
+
+# ==========================================================================
+# Percus–Yevick closure of the Ornstein–Zernike equation in 2D
+# ==========================================================================
+def _gauss_legendre(n, a, b):
+    x, w = np.polynomial.legendre.leggauss(n)
+    return 0.5 * (b - a) * x + 0.5 * (b + a), 0.5 * (b - a) * w
+
+
+def _lagrange_matrix(nodes, x):
+    """Barycentric Lagrange interpolation matrix from values at ``nodes`` to ``x``."""
+    n = nodes.size
+    wts = np.array([1.0 / np.prod(nodes[j] - np.delete(nodes, j)) for j in range(n)])
+    d = x[:, None] - nodes[None, :]
+    exact = d == 0
+    d[exact] = 1.0
+    t = wts / d
+    M = t / t.sum(axis=1, keepdims=True)
+    rows = exact.any(axis=1)
+    M[rows] = exact[rows].astype(float)
+    return M
+
+
+class _PercusYevick2D:
+    """PY hard disks (σ = 1): unknown ``γ = h - c`` at Gauss–Legendre nodes in
+    the core, where the closure gives ``c = -1 - γ`` (``c = 0`` outside).
+
+    * ``ĉ(k) = 2π ∫_0^1 c(r) J0(kr) r dr`` by composite Gauss–Legendre on the
+      Lagrange interpolant of ``c`` (the jump at ``r = σ`` is a panel edge, so
+      the transform is exact up to quadrature error);
+    * OZ: ``γ̂ = ρ ĉ² / (1 - ρ ĉ)``;
+    * ``γ(r) = (2π)⁻¹ ∫ γ̂(k) J0(kr) k dk`` for ``r < σ``, with the slowly
+      decaying part ``ρ (2π c(σ⁻) J1(k)/k)²`` subtracted in k space and added
+      back in closed form, ``ρ c(σ⁻)² A(r)`` with ``A`` the overlap area of
+      two unit disks at distance ``r``; the remainder decays as ``k⁻³·⁵`` and
+      is integrated to ``k = 200/σ``.
+
+    The fixed point is found with MINPACK's hybrid Newton method
+    (``scipy.optimize.root``), continued in η from 0 in steps of 0.05.
+    Converged values agree to ~1e-7 with a grid twice as fine.
+    """
+
+    def __init__(self, n_r=32, k_max=200.0, per_panel=12, n_fine_panels=64):
+        from scipy import special
+        self.r, self.wr = _gauss_legendre(n_r, 0.0, 1.0)
+        edges = np.linspace(0.0, 1.0, n_fine_panels + 1)
+        parts = [_gauss_legendre(16, a, b) for a, b in zip(edges[:-1], edges[1:])]
+        rf = np.concatenate([p[0] for p in parts])
+        wf = np.concatenate([p[1] for p in parts])
+        self.rf, self.wf = rf, wf
+        self.Pf = _lagrange_matrix(self.r, rf)
+        self.P1 = _lagrange_matrix(self.r, np.array([1.0]))[0]
+        kedges = np.arange(0.0, k_max + 1e-9, 1.0)
+        parts = [_gauss_legendre(per_panel, a, b) for a, b in zip(kedges[:-1], kedges[1:])]
+        k = np.concatenate([p[0] for p in parts])
+        wk = np.concatenate([p[1] for p in parts])
+        self.F = 2.0 * np.pi * (special.j0(np.outer(k, rf)) * (wf * rf)) @ self.Pf
+        self.G = special.j0(np.outer(self.r, k)) * (wk * k) / (2.0 * np.pi)
+        self.asym = (2.0 * np.pi * special.j1(k) / k) ** 2
+        x = self.r
+        self.A = 2.0 * np.arccos(x / 2.0) - 0.5 * x * np.sqrt(4.0 - x * x)
+        self._cache = {}
+
+    def _T(self, gamma, rho):
+        c = -1.0 - gamma
+        ch = self.F @ c
+        c1 = self.P1 @ c
+        gh = rho * ch * ch / (1.0 - rho * ch)
+        return self.G @ (gh - rho * c1 * c1 * self.asym) + rho * c1 * c1 * self.A
+
+    def gamma(self, eta):
+        """``γ`` at the core nodes for packing fraction ``eta``."""
+        from scipy import optimize
+        key = round(float(eta), 12)
+        if key in self._cache:
+            return self._cache[key]
+        steps = list(np.arange(0.05, eta, 0.05)) + [eta]
+        g = np.zeros_like(self.r)
+        for e in steps:
+            ke = round(float(e), 12)
+            if ke in self._cache:
+                g = self._cache[ke]
+                continue
+            rho = 4.0 * e / np.pi
+            sol = optimize.root(lambda x: self._T(x, rho) - x, g, method="hybr",
+                                options=dict(xtol=1e-12))
+            if not sol.success or np.max(np.abs(self._T(sol.x, rho) - sol.x)) > 1e-8:
+                raise RuntimeError(f"Percus–Yevick iteration did not converge at η = {e}: "
+                                   f"{sol.message}")
+            g = sol.x
+            self._cache[ke] = g
+        return g
+
+    def c_hat(self, q, eta):
+        """``ĉ(q)`` (σ = 1) at ``q`` (any shape)."""
+        from scipy import special
+        q = np.abs(np.asarray(q, dtype=np.float64))
+        c = -1.0 - self.gamma(eta)
+        qmax = float(q.max()) if q.size else 0.0
+        n_pan = max(64, int(math.ceil(qmax / 8.0)))
+        if n_pan == 64:
+            rf, wf, cf = self.rf, self.wf, self.Pf @ c
+        else:
+            edges = np.linspace(0.0, 1.0, n_pan + 1)
+            parts = [_gauss_legendre(16, a, b) for a, b in zip(edges[:-1], edges[1:])]
+            rf = np.concatenate([p[0] for p in parts])
+            wf = np.concatenate([p[1] for p in parts])
+            cf = _lagrange_matrix(self.r, rf) @ c
+        wc = wf * rf * cf
+        flat = q.ravel()
+        out = np.empty(flat.size)
+        step = max(1, 2_000_000 // rf.size)
+        for s in range(0, flat.size, step):
+            out[s:s + step] = 2.0 * np.pi * (special.j0(np.outer(flat[s:s + step], rf)) @ wc)
+        return out.reshape(q.shape)
+
+    def contact_value(self, eta):
+        """``g(σ⁺) = -c(σ⁻)`` (γ is continuous at contact)."""
+        return float(-(self.P1 @ (-1.0 - self.gamma(eta))))
+
+
+_PY = None
+
+
+def _py():
+    global _PY
+    if _PY is None:
+        _PY = _PercusYevick2D()
+    return _PY
+
+
+def structure_factor_percus_yevick(q_sigma, eta):
+    """Hard-disk ``S(qσ)`` in the Percus–Yevick approximation (2D OZ + PY).
+
+    A fast analytic route for checks: accurate at low packing fraction, it
+    drifts at high η (PY underestimates the contact value: 2.94 vs 3.13 at
+    η = 0.5, and it knows nothing of the freezing transition near 0.70).  See
+    :class:`HardDisk` for its measured error against the simulation table.
+
+    Parameters
+    ----------
+    q_sigma : array_like
+        Dimensionless wave number ``qσ``.
+    eta : float
+        Packing fraction in [0, 0.8].
+    """
+    from ._validation import check_range
+    eta = check_range("eta", eta, 0.0, 0.8)
+    q = np.asarray(q_sigma, dtype=np.float64)
+    if eta == 0.0:
+        return np.ones_like(q)
+    rho = 4.0 * eta / np.pi
+    return 1.0 / (1.0 - rho * _py().c_hat(q, eta))
+
+
+#: Short alias (PY = Percus–Yevick).
+structure_factor_py = structure_factor_percus_yevick
+
+
+def contact_value_percus_yevick(eta) -> float:
+    """``g(σ⁺)`` of the Percus–Yevick solution."""
+    from ._validation import check_range
+    eta = check_range("eta", eta, 0.0, 0.8, lo_open=True)
+    return _py().contact_value(eta)

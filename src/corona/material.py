@@ -196,9 +196,21 @@ class Material:
             return tables.RadialTable(du, self.lobe_dimensionless_radial(u)).arrays()
         n = tables.GRID2D_SIZE
         u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
-        c = -u_range + (np.arange(n) + 0.5) * (2 * u_range / n)
+        cell = 2 * u_range / n
+        c = -u_range + (np.arange(n) + 0.5) * cell
         ux, uy = np.meshgrid(c, c, indexing="xy")
-        return tables.GridTable(u_range, self.lobe_dimensionless(np.stack([ux, uy], -1))).arrays()
+        u = np.stack([ux, uy], -1)
+        cell_mean = getattr(self.process, "structure_factor_cell_mean", None)
+        if cell_mean is None:
+            return tables.GridTable(u_range, self.lobe_dimensionless(u)).arrays()
+        # Bragg peaks narrower than a cell: use the cell mean of S, which keeps
+        # every peak's integrated weight (sampling S at the centre would not)
+        R = self.length_scale
+        q = u / R
+        P = self.shape.form_factor(q)
+        C = self.shape.coherent_form_factor(q)
+        S = cell_mean(q, cell / R, self.shape)
+        return tables.GridTable(u_range, np.maximum(P + C * (S - 1.0), 0.0) / R**2).arrays()
 
     def lobe_tabulated(self, d, wavelength) -> np.ndarray:
         """The lobe as the renderer evaluates it: interpolated from :attr:`table`."""

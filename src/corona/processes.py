@@ -10,8 +10,8 @@ A point process provides
 * ``validate(shape)`` — a :class:`~corona.CoronaError` naming the parameter,
   its value and the allowed range when the process cannot hold ``shape``;
 * ``key()`` — the parameters that identify it (for table caching);
-* ``sample(shape, box_size, seed)`` — one realisation of the centres in a
-  periodic box (for brute-force references), where the process can make one.
+* (:class:`SequentialAdsorption` only) ``sample(shape, box_size, seed)`` —
+  one realisation of the centres in a periodic box, for brute-force references.
 
 Processes defined here:
 
@@ -406,6 +406,21 @@ def _rsa_table():
     return _RSA_TABLE
 
 
+_RSA_DIGEST = None
+
+
+def _rsa_table_digest() -> str:
+    global _RSA_DIGEST
+    if _RSA_DIGEST is None:
+        import hashlib
+        try:
+            with open(_RSA_TABLE_PATH, "rb") as fh:
+                _RSA_DIGEST = hashlib.sha256(fh.read()).hexdigest()[:16]
+        except OSError:
+            _RSA_DIGEST = "missing"
+    return _RSA_DIGEST
+
+
 def rsa_structure_factor(q_sigma, packing_fraction) -> np.ndarray:
     """Structure factor of random sequential adsorption (RSA) of disks.
 
@@ -459,7 +474,8 @@ def rsa_configuration(box_size: float, packing_fraction: float | None = None, *,
     Returns
     -------
     numpy.ndarray
-        Centres (N, 2) in insertion order.
+        Centres (N, 2) in insertion order (fewer than requested if a small
+        box saturates first).
     """
     sigma = check_positive("sigma", sigma)
     box_size = check_positive("box_size", box_size)
@@ -568,6 +584,10 @@ class SequentialAdsorption(Process):
         s = self.sigma(shape)
         return rsa_structure_factor(np.asarray(q_abs, dtype=np.float64) * s,
                                     min(self.packing_fraction(shape), RSA_JAMMING_LIMIT))
+
+    def key(self) -> dict:
+        """Parameters plus a digest of the shipped table (so caches follow a regenerated table)."""
+        return {**super().key(), "table": _rsa_table_digest()}
 
     def sample(self, shape, box_size: float, seed=None) -> np.ndarray:
         """Centres [µm] (N, 2) of one RSA realisation in the periodic box
@@ -745,6 +765,61 @@ class Lattice(Process):
                 out = out + peak
         return out
 
+    def structure_factor_cell_mean(self, q, cell: float, shape=None) -> np.ndarray:
+        """Mean of ``S`` over square cells ``[q - cell/2, q + cell/2]²``.
+
+        The broadened Bragg peaks (rms width :attr:`peak_width`) are often
+        narrower than the cells of a 2-D table; sampling ``S`` at cell centres
+        then misses or overweights them.  The cell mean is exact here: the
+        peaks and the Debye–Waller factor are separable Gaussians, whose cell
+        means are differences of error functions.  Tables built from it keep
+        every peak's integrated weight.
+
+        Parameters
+        ----------
+        q : array_like (..., 2)
+            Cell centres [rad/µm] (axes of the layer frame).
+        cell : float
+            Cell side [rad/µm].
+        """
+        from scipy.special import erf
+        q = np.asarray(q, dtype=np.float64)
+        if q.ndim == 0 or q.shape[-1] != 2:
+            raise CoronaError(f"q must have shape (..., 2), got {q.shape}")
+        c = check_positive("cell", cell, "rad/µm")
+        if self.isotropic:
+            raise CoronaError("Lattice: structure_factor_cell_mean is for orientation='fixed'")
+        h = 0.5 * c
+        d = self.jitter
+
+        def mean_gauss_1d(x, centre, sig):  # cell mean of exp(-(x-centre)²/(2 sig²)) / (√(2π) sig)
+            s2 = np.sqrt(2.0) * sig
+            return 0.5 * (erf((x + h - centre) / s2) - erf((x - h - centre) / s2)) / c
+
+        if d > 0.0:
+            dw = np.ones(q.shape[:-1])
+            for i in range(2):
+                x = q[..., i]
+                dw = dw * np.sqrt(np.pi) / (2.0 * d * c) * (erf((x + h) * d) - erf((x - h) * d))
+        else:
+            dw = np.ones(q.shape[:-1])
+        out = 1.0 - dw
+        A = self.lattice_vectors
+        B = self.reciprocal_vectors
+        w = self.peak_width
+        wt = (2.0 * np.pi) ** 2 * self.number_density
+        f0 = np.rint(q @ A.T / (2.0 * np.pi))
+        m = max(1, int(np.ceil(0.5 + (6.0 * w + h * np.sqrt(2.0)) * self.spacing / (2.0 * np.pi))))
+        for dh in range(-m, m + 1):
+            for dk in range(-m, m + 1):
+                hk = f0 + np.array([dh, dk], dtype=np.float64)
+                G = hk @ B
+                G2 = G[..., 0] ** 2 + G[..., 1] ** 2
+                peak = (wt * np.exp(-G2 * d * d) * mean_gauss_1d(q[..., 0], G[..., 0], w)
+                        * mean_gauss_1d(q[..., 1], G[..., 1], w))
+                out = out + np.where((hk[..., 0] == 0) & (hk[..., 1] == 0), 0.0, peak)
+        return out
+
     def structure_factor_radial(self, q_abs, shape=None) -> np.ndarray:
         """Powder-averaged ``S(|q|)`` (only for ``orientation="random"``)."""
         if not self.isotropic:
@@ -805,8 +880,10 @@ class PointSet(Process):
     the forward (mean-density) peak.  The estimate is ``S`` convolved with
     ``|Ŵ|²/∫w²`` (resolution ≈ 4π/L), so values at ``|q| ≲ 4π/L`` are not
     meaningful; see Percival & Walden, *Spectral analysis for physical
-    applications* (1993), ch. 6, and Rajala, Olhede & Murrell (2023),
-    Int. Stat. Rev., "Spectral estimation for spatial point patterns".
+    applications* (1993), ch. 6, and T. Rajala, S. Olhede, J. Grainger,
+    D. Murrell, "What is the Fourier transform of a spatial point process?",
+    IEEE Trans. Inf. Theory (2023), arXiv:2009.01474 (tapering, isotropic
+    averages).
 
     With ``isotropic=True`` (default) ``S`` is the average over ``n_angles``
     directions of ``q`` (default 256, on a half circle since ``S(-q) = S(q)``),

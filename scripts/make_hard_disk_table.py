@@ -1,0 +1,231 @@
+#!/usr/bin/env python
+"""Regenerate the hard-disk fluid structure-factor table
+``src/corona/data/hard_disk_structure_factor.npz``.
+
+Every row ``η`` of the table is an event-chain Monte Carlo run of
+``corona.hard_disk.simulate_hard_disks`` (N = 2000 disks in a periodic square
+box, two independent chains, settings from :func:`row_settings`), seeded with
+``seed + round(1000 η)`` so that any single row can be regenerated bit for bit
+on its own.  The raw box-wave-vector data of each row are kept in the table
+file, and :func:`corona.hard_disk.smooth_structure_factor_row` turns them into
+the smooth row on the fixed ``qσ`` grid (documented there).
+
+Usage
+-----
+    python scripts/make_hard_disk_table.py                # all rows (long)
+    python scripts/make_hard_disk_table.py --jobs 2       # chains in parallel
+    python scripts/make_hard_disk_table.py --eta 0.72     # one row, others kept
+    python scripts/make_hard_disk_table.py --assemble-only   # re-smooth stored raw data
+
+Rows not simulated in this call are taken from ``--work-dir`` (raw files of
+earlier calls) or else from the existing table file.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "src"))
+
+from corona import hard_disk as hd  # noqa: E402
+
+DEFAULT_OUT = os.path.join(ROOT, "src", "corona", "data", "hard_disk_structure_factor.npz")
+DEFAULT_WORK = os.path.join(ROOT, "build", "hard_disk_rows")
+
+#: Rows: 0.05 steps up to 0.5 (S varies slowly and smoothly with η there),
+#: 0.02 steps to 0.6, 0.01 steps to 0.72 (fast growth of the peak, freezing).
+ETA_GRID = np.round(np.concatenate([np.arange(0.0, 0.5001, 0.05),
+                                    np.arange(0.52, 0.6001, 0.02),
+                                    np.arange(0.61, 0.7201, 0.01)]), 4)
+
+N_DISKS = 2000
+N_CHAINS = 2
+SEED = 20250
+Q_SIGMA_MAX = 42.0       # measured range; the table stops at 40 (spline margin)
+BIN_WIDTH = 0.05
+
+
+def row_settings(eta: float) -> dict:
+    """Monte Carlo settings of one row (sweeps per chain)."""
+    if eta <= 0.3 + 1e-9:     # fast decorrelation, costly sweeps (long free paths)
+        n_eq, n_sw, every = 2000, 12000, 100
+    elif eta <= 0.5 + 1e-9:
+        n_eq, n_sw, every = 3000, 20000, 150
+    elif eta < 0.685:
+        n_eq, n_sw, every = 8000, 50000, 200
+    else:       # coexistence / hexatic region: slow orientational relaxation
+        n_eq, n_sw, every = 15000, 55000, 200
+    return dict(n_disks=N_DISKS, n_sweeps=n_sw, n_equilibration=n_eq, sample_every=every,
+                n_chains=N_CHAINS, q_sigma_max=Q_SIGMA_MAX, bin_width=BIN_WIDTH,
+                seed=SEED + int(round(1000 * eta)))
+
+
+def row_file(work_dir: str, eta: float) -> str:
+    return os.path.join(work_dir, f"eta_{eta:.4f}.npz")
+
+
+def simulate_row(eta: float, jobs: int, work_dir: str, progress: bool = True) -> dict:
+    """Run one row and store its raw data in ``work_dir``."""
+    st = row_settings(eta)
+    res = hd.simulate_hard_disks(eta, jobs=jobs, progress=progress, **st)
+    n_bins = int(round(Q_SIGMA_MAX / BIN_WIDTH))
+    idx = np.minimum((res.q_sigma / BIN_WIDTH).astype(int), n_bins - 1)
+    raw = dict(eta=eta, q=np.full(n_bins, np.nan), S=np.full(n_bins, np.nan),
+               S_err=np.full(n_bins, np.nan), n_vectors=np.zeros(n_bins, np.int64),
+               Z=res.compressibility_factor, Z_err=res.compressibility_factor_err,
+               contact=res.contact_value, contact_err=res.contact_value_err,
+               psi6=res.psi6, min_distance=res.min_distance, cpu=res.cpu_seconds,
+               wall=res.wall_seconds, events=res.events, g=res.g, g_err=res.g_err,
+               r=res.r_sigma, box_length=res.box_length, n_snapshots=res.n_snapshots,
+               settings=json.dumps(st))
+    raw["q"][idx] = res.q_sigma
+    raw["S"][idx] = res.S
+    raw["S_err"][idx] = res.S_err
+    raw["n_vectors"][idx] = res.n_vectors
+    os.makedirs(work_dir, exist_ok=True)
+    np.savez(row_file(work_dir, eta), **raw)
+    print(f"η={eta:.4f}: Z={res.compressibility_factor:.4f}±{res.compressibility_factor_err:.4f} "
+          f"g(σ+)={res.contact_value:.4f}±{res.contact_value_err:.4f} ψ6={res.psi6:.3f} "
+          f"min d={res.min_distance:.6f} cpu={res.cpu_seconds:.1f}s wall={res.wall_seconds:.1f}s",
+          flush=True)
+    return raw
+
+
+def load_row(work_dir: str, eta: float, old: dict | None):
+    f = row_file(work_dir, eta)
+    if os.path.exists(f):
+        with np.load(f) as z:
+            return {k: z[k] for k in z.files}
+    if old is not None:
+        i = np.flatnonzero(np.isclose(old["eta"], eta))
+        if i.size:
+            i = int(i[0])
+            return dict(eta=eta, q=old["raw_q"][i].astype(float), S=old["raw_S"][i].astype(float),
+                        S_err=old["raw_S_err"][i].astype(float),
+                        n_vectors=old["raw_n_vectors"][i], Z=old["Z"][i], Z_err=old["Z_err"][i],
+                        contact=old["contact_value"][i], contact_err=old["contact_value_err"][i],
+                        psi6=old["psi6"][i], min_distance=old["min_distance"][i],
+                        cpu=old["cpu_seconds"][i], wall=old["wall_seconds"][i],
+                        events=old["events"][i], g=old["g"][i].astype(float),
+                        g_err=old["g_err"][i].astype(float), r=old["r_sigma"],
+                        box_length=old["box_length"][i], n_snapshots=old["n_snapshots"][i],
+                        settings=str(old["settings"][i]))
+    return None
+
+
+def assemble(work_dir: str, out: str, old: dict | None) -> None:
+    q_grid = hd.TABLE_Q_SIGMA
+    rows, missing = [], []
+    for eta in ETA_GRID:
+        if eta == 0.0:
+            rows.append(None)
+            continue
+        r = load_row(work_dir, float(eta), old)
+        if r is None:
+            missing.append(float(eta))
+        rows.append(r)
+    if missing:
+        raise SystemExit(f"no data for rows η = {missing}; simulate them (--eta ...)")
+    n_eta, n_q = len(ETA_GRID), q_grid.size
+    n_bins = int(round(Q_SIGMA_MAX / BIN_WIDTH))
+    S = np.ones((n_eta, n_q))
+    tail = np.zeros((n_eta, 3))
+    S0 = np.ones(n_eta)
+    out_d = {k: np.zeros(n_eta) for k in ("Z", "Z_err", "contact_value", "contact_value_err",
+                                          "psi6", "min_distance", "cpu_seconds", "wall_seconds",
+                                          "box_length")}
+    out_d["events"] = np.zeros(n_eta, np.int64)
+    out_d["n_snapshots"] = np.zeros(n_eta, np.int64)
+    raw_q = np.full((n_eta, n_bins), np.nan, np.float32)
+    raw_S = np.full((n_eta, n_bins), np.nan, np.float32)
+    raw_S_err = np.full((n_eta, n_bins), np.nan, np.float32)
+    raw_nv = np.zeros((n_eta, n_bins), np.int32)
+    r_sigma = None
+    g = None
+    settings = []
+    for i, (eta, r) in enumerate(zip(ETA_GRID, rows)):
+        if r is None:
+            out_d["Z"][i] = 1.0
+            out_d["contact_value"][i] = 1.0
+            out_d["min_distance"][i] = np.nan
+            settings.append("{}")
+            continue
+        ok = np.isfinite(r["S"])
+        row = hd.smooth_structure_factor_row(r["q"][ok], r["S"][ok], r["S_err"][ok], float(eta))
+        S[i] = row["S"]
+        tail[i] = row["tail"]
+        S0[i] = row["S0"]
+        out_d["Z"][i], out_d["Z_err"][i] = r["Z"], r["Z_err"]
+        out_d["contact_value"][i], out_d["contact_value_err"][i] = r["contact"], r["contact_err"]
+        for k_out, k_in in (("psi6", "psi6"), ("min_distance", "min_distance"),
+                            ("cpu_seconds", "cpu"), ("wall_seconds", "wall"), ("events", "events"),
+                            ("box_length", "box_length"), ("n_snapshots", "n_snapshots")):
+            out_d[k_out][i] = r[k_in]
+        raw_q[i], raw_S[i], raw_S_err[i], raw_nv[i] = r["q"], r["S"], r["S_err"], r["n_vectors"]
+        if g is None:
+            r_sigma = np.asarray(r["r"], float)
+            g = np.ones((n_eta, r_sigma.size), np.float32)
+            g_err = np.zeros((n_eta, r_sigma.size), np.float32)
+        g[i], g_err[i] = r["g"], r["g_err"]
+        settings.append(str(r["settings"]))
+    meta = dict(format_version=hd.TABLE_FORMAT_VERSION, n_disks=N_DISKS, n_chains=N_CHAINS,
+                seed=SEED, date=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                generator="scripts/make_hard_disk_table.py", method=hd.TABLE_METHOD,
+                python=platform.python_version(), numpy=np.__version__,
+                total_cpu_seconds=float(out_d["cpu_seconds"].sum()))
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    tmp = out + ".tmp.npz"
+    np.savez_compressed(tmp, eta=ETA_GRID, q_sigma=q_grid, S=S, S0=S0, tail=tail,
+                        raw_q=raw_q, raw_S=raw_S, raw_S_err=raw_S_err, raw_n_vectors=raw_nv,
+                        r_sigma=r_sigma, g=g, g_err=g_err, settings=np.array(settings),
+                        metadata=json.dumps(meta), **out_d)
+    os.replace(tmp, out)
+    print(f"wrote {out} ({os.path.getsize(out) / 1e6:.2f} MB); total CPU "
+          f"{meta['total_cpu_seconds'] / 60:.1f} min")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--eta", type=float, action="append",
+                    help="regenerate only this row (repeatable); must be on the grid")
+    ap.add_argument("--jobs", type=int, default=1, help="processes (chains run in parallel)")
+    ap.add_argument("--out", default=DEFAULT_OUT)
+    ap.add_argument("--work-dir", default=DEFAULT_WORK)
+    ap.add_argument("--assemble-only", action="store_true", help="re-smooth stored raw rows")
+    ap.add_argument("--no-assemble", action="store_true", help="simulate only")
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args(argv)
+    old = None
+    if os.path.exists(a.out):
+        with np.load(a.out) as z:
+            old = {k: z[k] for k in z.files}
+    if not a.assemble_only:
+        if a.eta:
+            etas = []
+            for e in a.eta:
+                i = np.flatnonzero(np.isclose(ETA_GRID, e, atol=1e-6))
+                if i.size == 0:
+                    raise SystemExit(f"--eta {e} is not a table row; rows: {ETA_GRID.tolist()}")
+                etas.append(float(ETA_GRID[i[0]]))
+        else:
+            etas = [float(e) for e in ETA_GRID if e > 0]
+        t0 = time.perf_counter()
+        for eta in etas:
+            if eta > 0:
+                simulate_row(eta, a.jobs, a.work_dir, progress=not a.quiet)
+        print(f"simulated {len(etas)} row(s) in {time.perf_counter() - t0:.1f} s wall", flush=True)
+    if not a.no_assemble:
+        assemble(a.work_dir, a.out, old)
+
+
+if __name__ == "__main__":
+    main()
