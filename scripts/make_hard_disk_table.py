@@ -159,12 +159,16 @@ def assemble(work_dir: str, out: str, old: dict | None) -> None:
             settings.append("{}")
             continue
         ok = np.isfinite(r["S"])
-        row = hd.smooth_structure_factor_row(r["q"][ok], r["S"][ok], r["S_err"][ok], float(eta))
+        row = hd.smooth_structure_factor_row(r["q"][ok], r["S"][ok], r["S_err"][ok], float(eta),
+                                              Z=float(r["Z"]))
         S[i] = row["S"]
         tail[i] = row["tail"]
         S0[i] = row["S0"]
         out_d["Z"][i], out_d["Z_err"][i] = r["Z"], r["Z_err"]
-        out_d["contact_value"][i], out_d["contact_value_err"][i] = r["contact"], r["contact_err"]
+        # contact value re-derived from the stored g(r) with the current fit
+        out_d["contact_value"][i] = hd._contact_fit(np.asarray(r["r"], float),
+                                                    np.asarray(r["g"], float), float(r["Z"]))
+        out_d["contact_value_err"][i] = r["contact_err"]
         for k_out, k_in in (("psi6", "psi6"), ("min_distance", "min_distance"),
                             ("cpu_seconds", "cpu"), ("wall_seconds", "wall"), ("events", "events"),
                             ("box_length", "box_length"), ("n_snapshots", "n_snapshots")):

@@ -27,6 +27,13 @@ A shape provides
 * ``self_overlap`` — ``⟨∫A²⟩ / ⟨∫A⟩`` (1 for binary shapes, < 1 for soft
   profiles): the value of ``∫ T_a d²d`` by Parseval.
 
+Shapes: :class:`Circle`, :class:`Ellipse`, :class:`Rectangle`, :class:`Square`,
+:class:`Polygon`, :class:`RegularPolygon` (closed-form transforms),
+:class:`Mask` (image, FFT); modifiers and ensembles: :class:`SoftEdge`
+(Gaussian-blurred edge), :class:`RandomOrientation`, :class:`SizeDistribution`,
+:class:`Mixture`.  Composites nest freely, e.g.
+``SizeDistribution(RandomOrientation(SoftEdge(Square(1.0), 0.05)), 0.2)``.
+
 The normalised form factor of DESIGN §3 is
 ``T_a(d) = form_factor(2π d/λ) / λ²``; it integrates to ``self_overlap``
 (= 1 for binary shapes) over the d plane.  ``table(u)`` / ``table_radial(u)``
@@ -501,8 +508,10 @@ class Rectangle(Shape):
 
         def one(L):
             t = L / s[pos]
-            return 2.0 * (L * (special.ndtr(t) - 0.5) - s[pos] * phi0 * (1.0 - np.exp(-0.5 * t * t)))
-        return float(np.sum(c[~pos]) * self.area + np.sum(c[pos] * one(self.width) * one(self.height)))
+            return 2.0 * (L * (special.ndtr(t) - 0.5)
+                          - s[pos] * phi0 * (1.0 - np.exp(-0.5 * t * t)))
+        blurred = np.sum(c[pos] * one(self.width) * one(self.height))
+        return float(np.sum(c[~pos]) * self.area + blurred)
 
 
 class Square(Rectangle):
@@ -677,7 +686,8 @@ class Polygon(Shape):
             keep = np.any(v != np.roll(v, -1, axis=0), axis=1)
             v = v[keep]
         if len(v) < 3:
-            raise CoronaError(f"vertices: a polygon needs at least 3 distinct vertices, got {len(v)}")
+            raise CoronaError("vertices: a polygon needs at least 3 distinct vertices, "
+                              f"got {len(v)}")
         return v
 
     def _set_vertices(self, v: np.ndarray) -> None:
@@ -838,13 +848,11 @@ def _load_image(image) -> tuple[np.ndarray, str | None]:
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad file
             raise CoronaError(f"image={source!r} could not be read as an image ({exc})") from None
         if arr.ndim == 3 and arr.shape[-1] in (1, 2, 3, 4):
-            kind = arr.dtype
             arr = _normalise_levels(arr, source)
             if arr.shape[-1] >= 3:        # RGB(A): Rec. 709 luminance, alpha ignored
                 arr = arr[..., :3] @ _LUMA
             else:                         # L or LA
                 arr = arr[..., 0]
-            del kind
         elif arr.ndim == 2:
             arr = _normalise_levels(arr, source)
         else:
@@ -972,7 +980,8 @@ class Mask(Shape):
         return sp_fft.fft2(arr, workers=1)
 
     def __repr__(self):
-        src = f"{self._source!r}" if self._source else f"<array {self.image.shape[0]}x{self.image.shape[1]}>"
+        ny, nx = self.image.shape
+        src = f"{self._source!r}" if self._source else f"<array {ny}x{nx}>"
         th = "" if self.threshold is None else f", threshold={self.threshold:g}"
         return f"Mask({src}, pixel_size={self.pixel_size:g}{th})"
 
@@ -1310,8 +1319,8 @@ class SizeDistribution(Shape):
     spectrally accurate for these smooth, rapidly decaying integrands (it is
     the Gauss rule's equal for Gaussian weights and, unlike a fixed Gauss
     rule, can be refined).  The step is smooth in y and resolves both the
-    distribution (``≤ σ_y/3``, σ_y the std of ln s) and the oscillation of
-    ``Â(s q)`` in s (``≤ π/(3 q R s)`` up to the 1 - 1e-7 quantile of ``s p(s)``,
+    distribution (``≤ σ_y/2.5``, σ_y the std of ln s) and the oscillation of
+    ``Â(s q)`` in s (``≤ π/(2.2 q R s)`` up to the 1 - 1e-7 quantile of ``s p(s)``,
     R = ``length_scale``), so the number of nodes grows with ``q R · spread``
     above the minimum ``n_nodes``.
 
@@ -1340,6 +1349,8 @@ class SizeDistribution(Shape):
 
     _deterministic = False
     _MAX_POINTS = 4_000_000
+    _RES_SIGMA = 2.5   # y step <= σ_y / _RES_SIGMA
+    _RES_OSC = 2.2     # y step <= π / (_RES_OSC q R s)
 
     def __init__(self, shape: Shape, spread: float, distribution: str = "lognormal",
                  n_nodes: int = 64):
@@ -1395,8 +1406,8 @@ class SizeDistribution(Shape):
         """Nodes s_j and weights (Σ = 1) resolving ``Â(s q)`` for ``|q| <= q_max``."""
         if self.spread == 0.0:
             return np.ones(1), np.ones(1)
-        h1 = self._sig_y / 3.0
-        c = 3.0 * q_max * self.shape.length_scale / np.pi
+        h1 = self._sig_y / self._RES_SIGMA
+        c = self._RES_OSC * q_max * self.shape._support / np.pi
         st = self._s_top
         # smooth map t(y) with dt/dy = 1/h1 + c·e^y s_top/(e^y + s_top); nodes at unit t steps
         def t_of(y):
