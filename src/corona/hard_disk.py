@@ -991,14 +991,16 @@ def tail_basis(q):
 
 def _discrepancy_spline(x, y, w):
     """Smoothing spline with the largest smoothing whose reduced chi-square
-    is still <= 1 (Morozov's discrepancy principle): no wiggles beyond the
-    noise."""
+    stays acceptable (Morozov's discrepancy principle): no wiggles beyond the
+    noise.  The target allows two standard deviations of the chi-square
+    distribution, ``1 + 2 sqrt(2/n)``."""
     from scipy.interpolate import make_smoothing_spline
     from scipy.optimize import brentq
+    target = 1.0 + 2.0 * math.sqrt(2.0 / x.size)
 
     def excess(loglam):
         sp = make_smoothing_spline(x, y, w=w, lam=10.0**loglam)
-        return float(np.mean(w * (y - sp(x)) ** 2)) - 1.0
+        return float(np.mean(w * (y - sp(x)) ** 2)) - target
 
     lo, hi = -8.0, 8.0
     if excess(hi) <= 0.0:
@@ -1033,8 +1035,8 @@ def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
     * beyond ``2.1 q_peak`` (``q_peak`` the PY first peak) the residual is
       a second smoothing spline fitted to the data beyond ``1.5 q_peak``
       alone, with the strongest smoothing that keeps the reduced chi-square
-      <= 1 (discrepancy principle; there is no sharp feature there to
-      protect), blended in over ``[1.7, 2.1] q_peak``;
+      <= 1 + 2 sqrt(2/n) (discrepancy principle; there is no sharp feature
+      there to protect), blended in over ``[1.7, 2.1] q_peak``;
     * below ``0.4 q_peak`` the residual is
       replaced by a weighted fit ``a + b q² + c q⁴`` of the same data,
       blended in over ``[0.24, 0.4] q_peak``, so that the few, noisy
