@@ -1036,7 +1036,8 @@ def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
       a second smoothing spline fitted to the data beyond ``1.5 q_peak``
       alone, with the strongest smoothing that keeps the reduced chi-square
       <= 1 + 2 sqrt(2/n) (discrepancy principle; there is no sharp feature
-      there to protect), blended in over ``[1.7, 2.1] q_peak``;
+      there to protect; errors scaled up where the scatter of neighbouring
+      bins shows them to be underestimated), blended in over ``[1.7, 2.1] q_peak``;
     * below ``0.4 q_peak`` the residual is
       replaced by a weighted fit ``a + b q² + c q⁴`` of the same data,
       blended in over ``[0.24, 0.4] q_peak``, so that the few, noisy
@@ -1082,7 +1083,11 @@ def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
     # set by the sharp first peak), blended in over [1.7, 2.1] q_peak
     q_hi = 2.1 * q_peak
     far = x >= 1.5 * q_peak
-    spl_far = _discrepancy_spline(x[far], y[far], w[far])
+    # noise scale of the far band from differences of neighbouring bins (the
+    # blocking errors are themselves uncertain by ~15 %)
+    rf, ef = r[q >= 1.5 * q_peak], e[q >= 1.5 * q_peak]
+    scale = max(1.0, float(np.std(np.diff(rf) / np.sqrt(ef[1:] ** 2 + ef[:-1] ** 2))))
+    spl_far = _discrepancy_spline(x[far], y[far], w[far] / scale**2)
 
     def blend_far(qq, res):
         t = np.clip((qq - 1.7 * q_peak) / (0.4 * q_peak), 0.0, 1.0)

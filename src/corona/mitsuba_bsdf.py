@@ -28,7 +28,9 @@ albedo                  —           0            diffuse reflectance of the op
 
 Components: 0 = coherent transmission (``DeltaTransmission``), 1 = diffraction
 lobe (``GlossyTransmission``), 2 = diffuse reflection (``DiffuseReflection``,
-only when the reflectance is > 0).  The layer is two-sided and symmetric.
+weight 0 when ``albedo`` is 0).  The layer is two-sided and symmetric.
+``mi.traverse`` exposes ``albedo``; the lobe's parameters fix its tables, so
+change them by loading a new BSDF.
 
 Spectral variants evaluate each of the lane's wavelengths.  Sampling draws
 ``d`` for the lane's first (hero) wavelength and returns the pdf averaged over
@@ -141,6 +143,7 @@ class CoronaBSDFMixin:
         self.w_lobe = float(material.diffuse_transmittance())      # F_a ∫v d²u / 4π²
         self.lobe_scale = float(fa)                                  # f = F_a (R/λ)² v(u)
         self.w_reflect = float(material.reflectance)                 # ρ · opaque fraction, capped
+        self.albedo = mi.Float(material.albedo)                      # exposed through mi.traverse
         self.table_total = float(table.total)
 
         # --- table in Dr.Jit arrays ------------------------------------------
@@ -168,8 +171,7 @@ class CoronaBSDFMixin:
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         comps = [mi.BSDFFlags.DeltaTransmission | sides,
                  mi.BSDFFlags.GlossyTransmission | sides]
-        if self.w_reflect > 0:
-            comps.append(mi.BSDFFlags.DiffuseReflection | sides)
+        comps.append(mi.BSDFFlags.DiffuseReflection | sides)   # weight 0 when albedo = 0
         if not self.isotropic:
             comps[1] = comps[1] | mi.BSDFFlags.Anisotropic
         self.m_components = [c for c in comps]
@@ -327,7 +329,7 @@ class CoronaBSDFMixin:
         flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
                  mi.BSDFFlags.DiffuseReflection)
         energies = (self.w_coherent, self.w_lobe, self.w_reflect)
-        en = [w if (i < len(self.m_components) and ctx.is_enabled(fl, i)) else 0.0
+        en = [w if ctx.is_enabled(fl, i) else 0.0
               for i, (w, fl) in enumerate(zip(energies, flags))]
         total = sum(en)
         return tuple(e / total if total > 0 else 0.0 for e in en)
@@ -343,7 +345,7 @@ class CoronaBSDFMixin:
         reflect = active & (cos_i * cos_o > 0)
         p_coh, p_lobe, p_refl = self._selection(ctx)
         lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
-        refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2) if len(self.m_components) > 2 else False
+        refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
 
         f, pdf_d = self._lobe_and_pdf(wi, wo, si.wavelengths, transmit)
         abs_cos_o = dr.abs(cos_o)
@@ -407,10 +409,16 @@ class CoronaBSDFMixin:
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
     def traverse(self, callback):
-        pass
+        # the albedo can change after loading; the lobe's parameters fix its tables
+        callback.put("albedo", self.albedo, mi.ParamFlags.NonDifferentiable)
 
     def parameters_changed(self, keys):
-        pass
+        if "albedo" in keys or not keys:
+            a = float(self.albedo[0]) if dr.is_array_v(self.albedo) else float(self.albedo)
+            if not (0.0 <= a <= 1.0):
+                raise CoronaError(f"corona BSDF: albedo={a!r} is out of range; allowed [0, 1]")
+            self.material.albedo = a
+            self.w_reflect = float(self.material.reflectance)
 
     def to_string(self):
         return f"CoronaBSDF[{self.material!r}]"
