@@ -61,8 +61,9 @@ def row_settings(eta: float) -> dict:
         n_eq, n_sw, every = 3000, 20000, 150
     elif eta < 0.685:
         n_eq, n_sw, every = 8000, 50000, 200
-    else:       # coexistence / hexatic region: slow orientational relaxation
-        n_eq, n_sw, every = 15000, 55000, 200
+    else:       # coexistence / hexatic region: slow orientational relaxation, so
+        # long runs; snapshots (all wave vectors below qσ = 15) less often
+        n_eq, n_sw, every = 15000, 55000, 400
     return dict(n_disks=N_DISKS, n_sweeps=n_sw, n_equilibration=n_eq, sample_every=every,
                 n_chains=N_CHAINS, q_sigma_max=Q_SIGMA_MAX, bin_width=BIN_WIDTH,
                 seed=SEED + int(round(1000 * eta)))
@@ -121,6 +122,13 @@ def load_row(work_dir: str, eta: float, old: dict | None):
     return None
 
 
+def smooth_row(r: dict) -> dict:
+    """The table row (``S`` on the fixed grid, ``tail``, ``S0``) from raw data."""
+    ok = np.isfinite(r["S"])
+    return hd.smooth_structure_factor_row(r["q"][ok], r["S"][ok], r["S_err"][ok],
+                                          float(r["eta"]), Z=float(r["Z"]))
+
+
 def assemble(work_dir: str, out: str, old: dict | None) -> None:
     q_grid = hd.TABLE_Q_SIGMA
     rows, missing = [], []
@@ -144,9 +152,9 @@ def assemble(work_dir: str, out: str, old: dict | None) -> None:
                                           "box_length")}
     out_d["events"] = np.zeros(n_eta, np.int64)
     out_d["n_snapshots"] = np.zeros(n_eta, np.int64)
-    raw_q = np.full((n_eta, n_bins), np.nan, np.float32)
-    raw_S = np.full((n_eta, n_bins), np.nan, np.float32)
-    raw_S_err = np.full((n_eta, n_bins), np.nan, np.float32)
+    raw_q = np.full((n_eta, n_bins), np.nan)
+    raw_S = np.full((n_eta, n_bins), np.nan)
+    raw_S_err = np.full((n_eta, n_bins), np.nan)
     raw_nv = np.zeros((n_eta, n_bins), np.int32)
     r_sigma = None
     g = None
@@ -158,9 +166,7 @@ def assemble(work_dir: str, out: str, old: dict | None) -> None:
             out_d["min_distance"][i] = np.nan
             settings.append("{}")
             continue
-        ok = np.isfinite(r["S"])
-        row = hd.smooth_structure_factor_row(r["q"][ok], r["S"][ok], r["S_err"][ok], float(eta),
-                                              Z=float(r["Z"]))
+        row = smooth_row(r)
         S[i] = row["S"]
         tail[i] = row["tail"]
         S0[i] = row["S0"]
@@ -176,7 +182,7 @@ def assemble(work_dir: str, out: str, old: dict | None) -> None:
         raw_q[i], raw_S[i], raw_S_err[i], raw_nv[i] = r["q"], r["S"], r["S_err"], r["n_vectors"]
         if g is None:
             r_sigma = np.asarray(r["r"], float)
-            g = np.ones((n_eta, r_sigma.size), np.float32)
+            g = np.ones((n_eta, r_sigma.size))
             g_err = np.zeros((n_eta, r_sigma.size), np.float32)
         g[i], g_err[i] = r["g"], r["g_err"]
         settings.append(str(r["settings"]))
@@ -206,11 +212,15 @@ def main(argv=None):
     ap.add_argument("--work-dir", default=DEFAULT_WORK)
     ap.add_argument("--assemble-only", action="store_true", help="re-smooth stored raw rows")
     ap.add_argument("--no-assemble", action="store_true", help="simulate only")
+    ap.add_argument("--base", default=None,
+                    help="table that provides the rows not simulated now (default: --out if it "
+                         "exists, else the shipped table)")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
     old = None
-    if os.path.exists(a.out):
-        with np.load(a.out) as z:
+    base = a.base or (a.out if os.path.exists(a.out) else DEFAULT_OUT)
+    if os.path.exists(base):
+        with np.load(base) as z:
             old = {k: z[k] for k in z.files}
     if not a.assemble_only:
         if a.eta:

@@ -1,6 +1,29 @@
 """Equilibrium hard-disk fluid: simulation, structure-factor table, process.
 
-(Module docstring completed below.)
+Three layers (lengths in units of the disk diameter σ unless stated):
+
+* :func:`simulate_hard_disks` — event-chain Monte Carlo (Bernard, Krauth &
+  Wilson 2009; straight chains alternately along +x and +y, cell lists,
+  compiled with numba) of N hard disks in a periodic square box, started
+  from a triangular lattice (or a compressed fluid), equilibrated, then
+  sampled: ``S(k) = N⁻¹ |Σ_j exp(-i k·s_j)|²`` on the box wave vectors
+  ``k = 2π(n_x, n_y)/L`` binned in ``|k|σ``, ``g(r)`` and its contact value,
+  the pressure ``Z = βP/ρ`` from the chains' lifting displacements (Michel,
+  Kapfer & Krauth 2014), and the bond-orientational order ``ψ6``; standard
+  errors by blocking.  Reproducible from ``seed``.
+* The shipped table ``data/hard_disk_structure_factor.npz`` (rows η = 0 …
+  0.72, ``qσ`` = 0 … 40), made by ``scripts/make_hard_disk_table.py`` from
+  such runs and smoothed by :func:`smooth_structure_factor_row`;
+  :func:`structure_factor_table` interpolates it and continues it beyond
+  ``qσ = 40`` with the asymptotic tail.
+* :func:`structure_factor_percus_yevick` — the Percus–Yevick closure of the
+  2D Ornstein–Zernike equation, solved numerically: the fast analytic route
+  for checks.
+
+:class:`HardDisk` is the point process (:class:`corona.processes.Process`)
+built on the table.  Henderson's equation of state
+(:func:`henderson_compressibility_factor`) gives the reference values of the
+checks.
 """
 from __future__ import annotations
 
@@ -569,7 +592,6 @@ def _run_chain(eta, n_disks, n_sweeps, n_equilibration, sample_every, seed,
     # wave vectors
     n_bins = int(round(q_max / bin_width))
     n_max = int(q_max * L / (2.0 * math.pi)) + 1
-    nsel = None
     cap_low, q_low, cap_high = _VECTORS_PER_BIN
     if eta < 0.6:
         cap_low = cap_high
@@ -674,6 +696,10 @@ def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, 
         chosen at random once).
     r_max, dr : float
         Range and bin of the ``g(r)`` histogram (units of σ).
+    n_blocks : int
+        Blocks per chain for the standard errors (blocking analysis).
+    n_keep : int
+        Configurations kept per chain in ``snapshots``.
     start : {"lattice", "compressed"}
         Start from a triangular lattice at η (with random vacancies), or from
         a fluid at η = 0.55 compressed in steps of 0.01 (overlaps removed by
@@ -709,7 +735,8 @@ def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, 
         else:
             import concurrent.futures as cf
             import multiprocessing as mp
-            ctx = mp.get_context("spawn" if os.name == "nt" else "fork")
+            import sys
+            ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
             with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as ex:
                 futs = [ex.submit(_chain_worker, a) for a in args]
                 for f in cf.as_completed(futs):
@@ -921,7 +948,7 @@ def structure_factor_percus_yevick(q_sigma, eta):
     """Hard-disk ``S(qσ)`` in the Percus–Yevick approximation (2D OZ + PY).
 
     A fast analytic route for checks: accurate at low packing fraction, it
-    drifts at high η (PY underestimates the contact value: 2.94 vs 3.13 at
+    drifts at high η (PY underestimates the contact value: 2.94 vs 3.11 at
     η = 0.5, and it knows nothing of the freezing transition near 0.70).  See
     :class:`HardDisk` for its measured error against the simulation table.
 
@@ -965,6 +992,13 @@ TABLE_Q_SIGMA = np.round(np.arange(0.0, 40.0 + 1e-9, 0.05), 10)
 ETA_PRIOR_MAX = 0.64
 #: Relative uncertainty given to that constraint.
 PRIOR_REL_ERR = 0.03
+#: Rows from this η on are (partly) ordered in the N = 2000 box (ψ6 ≳ 0.3):
+#: below the far band their residual is a Gaussian-kernel average (this
+#: width in qσ, uniform weights: it keeps the area of Bragg-like spikes).
+ETA_ORDERED = 0.70
+ORDERED_KERNEL = 0.1
+#: Far band of the row smoother (multiples of the first-peak position).
+F_DATA, F_BLEND0, F_BLEND1 = 2.1, 2.3, 2.7
 #: Raw data from this qσ on fix the large-q tail.
 TAIL_FIT_FROM = 20.0
 #: Decay length (in qσ) of the continuity correction beyond the table.
@@ -976,8 +1010,8 @@ TABLE_METHOD = (
     "each row = Percus-Yevick S_PY + cubic smoothing spline (GCV, weights 1/err^2) of the residual "
     "S - S_PY, data mirrored to negative q (S even in q) plus, for eta <= 0.64, the point "
     "S(0) = 1/(d(eta Z)/d eta) of Henderson's equation of state with 3% uncertainty; below 0.4 "
-    "q_peak the residual is a weighted fit a + b q^2 + c q^4 blended in, beyond 2.1 q_peak a second "
-    "spline (discrepancy-principle smoothing) fitted to the data beyond 1.5 q_peak; large-q tail "
+    "q_peak the residual is a weighted fit a + b q^2 + c q^4 blended in, beyond 2.7 q_peak a second "
+    "spline (discrepancy-principle smoothing) fitted to the data beyond 2.1 q_peak; large-q tail "
     "S-1 = -8 eta [g_c J1(q)/q + b J0(q)/q^2] with g_c=(Z-1)/(2 eta) from the measured pressure "
     "and b fitted to the data at q sigma >= 20.")
 
@@ -989,27 +1023,46 @@ def tail_basis(q):
     return special.j1(q) / q, special.j0(q) / q**2
 
 
-def _discrepancy_spline(x, y, w):
-    """Smoothing spline with the largest smoothing whose reduced chi-square
-    stays acceptable (Morozov's discrepancy principle): no wiggles beyond the
-    noise.  The target allows two standard deviations of the chi-square
-    distribution, ``1 + 2 sqrt(2/n)``."""
+def _discrepancy_spline(x, y, w, window=1.0, z_max=3.0):
+    """Smoothing spline with the strongest smoothing that still fits the data
+    (a discrepancy principle made local): the largest ``λ`` on a grid of
+    quarter decades whose reduced chi-square is <= ``1 + 2 sqrt(2/n)`` and
+    whose mean normalised residual in every ``window`` of x stays within
+    ``z_max`` standard errors (no bias where the signal has structure, no
+    wiggles where it has none)."""
     from scipy.interpolate import make_smoothing_spline
-    from scipy.optimize import brentq
     target = 1.0 + 2.0 * math.sqrt(2.0 / x.size)
+    sw = np.sqrt(w)
+    idx = np.floor((x - x.min()) / window).astype(int)
+    cnt = np.bincount(idx)
+    use = cnt >= 5
+    sp = None
+    for ll in np.arange(8.0, -4.01, -0.25):
+        sp = make_smoothing_spline(x, y, w=w, lam=10.0**ll)
+        z = (y - sp(x)) * sw
+        if np.mean(z * z) > target:
+            continue
+        zw = np.bincount(idx, weights=z)[use] / np.sqrt(cnt[use])
+        if np.max(np.abs(zw)) <= z_max:
+            return sp
+    return sp
 
-    def excess(loglam):
-        sp = make_smoothing_spline(x, y, w=w, lam=10.0**loglam)
-        return float(np.mean(w * (y - sp(x)) ** 2)) - target
 
-    lo, hi = -8.0, 8.0
-    if excess(hi) <= 0.0:
-        ll = hi
-    elif excess(lo) >= 0.0:
-        ll = lo
-    else:
-        ll = brentq(excess, lo, hi, xtol=0.02)
-    return make_smoothing_spline(x, y, w=w, lam=10.0**ll)
+def _peak_warp(q_peak, stretch=(4.0, 1.0), width=(0.6, 1.0)):
+    """Odd, increasing map ``t(q)`` with ``dt/dq = 1 + Σ a G((|q| - c)/w)``
+    (Gaussian bumps of height ``a`` at the first and second peak, ``c = q_peak,
+    2 q_peak``)."""
+    from scipy.special import erf
+
+    def t(q):
+        q = np.asarray(q, float)
+        out = q.copy()
+        for a, w, c in zip(stretch, width, (q_peak, 2.0 * q_peak)):
+            k = a * w * math.sqrt(math.pi / 2.0)
+            out = out + k * (erf((q - c) / (math.sqrt(2.0) * w)) + erf((q + c) / (math.sqrt(2.0) * w)))
+        return out
+
+    return t
 
 
 def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
@@ -1031,13 +1084,18 @@ def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
       q end is set by the data alone (smallest box wave vector ``qσ ≈ 0.13``);
     * a cubic smoothing spline (``scipy.interpolate.make_smoothing_spline``,
       smoothing by generalised cross-validation, weights ``1/err²``) through
-      the residual;
-    * beyond ``2.1 q_peak`` (``q_peak`` the PY first peak) the residual is
-      a second smoothing spline fitted to the data beyond ``1.5 q_peak``
+      the residual, in a warped coordinate ``t(q)`` that stretches the first
+      peak (up to ×5, width 0.6) and the second (up to ×2, width 1; the
+      stretch grows from none at η = 0.2 to full at η = 0.6): one smoothing
+      parameter, but weak smoothing where S changes fast and strong elsewhere;
+    * beyond ``2.7 q_peak`` (``q_peak`` the PY first peak; past the second
+      peak) the residual is a second smoothing spline fitted to the data
+      beyond ``2.1 q_peak``
       alone, with the strongest smoothing that keeps the reduced chi-square
-      <= 1 + 2 sqrt(2/n) (discrepancy principle; there is no sharp feature
-      there to protect; errors scaled up where the scatter of neighbouring
-      bins shows them to be underestimated), blended in over ``[1.7, 2.1] q_peak``;
+      <= 1 + 2 sqrt(2/n) and the mean residual of every qσ window of width 1
+      within 3 standard errors (a local discrepancy principle: no wiggles
+      where the signal is flat, no bias at the peaks; errors scaled up where
+      the scatter of neighbouring bins shows them to be underestimated), blended in over ``[2.3, 2.7] q_peak``;
     * below ``0.4 q_peak`` the residual is
       replaced by a weighted fit ``a + b q² + c q⁴`` of the same data,
       blended in over ``[0.24, 0.4] q_peak``, so that the few, noisy
@@ -1075,24 +1133,42 @@ def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
     x = np.concatenate(xs)
     y = np.concatenate(ys)
     w = 1.0 / np.concatenate(es) ** 2
-    spl = make_smoothing_spline(x, y, w=w)
-    res_g = spl(qg)
-    res_d = spl(q)
     q_peak = float(qg[np.argmax(base_g)])
-    # beyond the second peak: a separate spline (its own GCV smoothing, not
-    # set by the sharp first peak), blended in over [1.7, 2.1] q_peak
-    q_hi = 2.1 * q_peak
-    far = x >= 1.5 * q_peak
+    if eta >= ETA_ORDERED - 1e-9:
+        # Bragg-like spikes of the (partly) ordered finite system: a few box
+        # wave vectors carry most of a peak, with huge errors that would make
+        # a weighted fit ignore them.  Near band: an area-conserving Gaussian
+        # kernel average (uniform weights) of the residual instead.
+        xm = np.concatenate([-q[::-1], q])
+        rm = np.concatenate([r[::-1], r])
+
+        def nw(at):
+            K = np.exp(-0.5 * ((at[:, None] - xm[None, :]) / ORDERED_KERNEL) ** 2)
+            return (K @ rm) / K.sum(axis=1)
+
+        res_g, res_d = nw(qg), nw(q)
+    else:
+        # smoothing spline in a warped coordinate t(q) that stretches the
+        # first two peaks: one smoothing parameter (GCV), but effectively much
+        # weaker smoothing where S changes fast and stronger elsewhere
+        sharp = min(1.0, max(0.0, (eta - 0.2) / 0.4))      # peaks sharpen with η
+        warp = _peak_warp(q_peak, stretch=(4.0 * sharp, 1.0 * sharp))
+        spl = make_smoothing_spline(warp(x), y, w=w)
+        res_g = spl(warp(qg))
+        res_d = spl(warp(q))
+    # beyond the second peak: a separate, smoother spline, blended in over
+    # [F_BLEND0, F_BLEND1] q_peak
+    far = x >= F_DATA * q_peak
     # noise scale of the far band from differences of neighbouring bins (the
     # blocking errors are themselves uncertain by ~15 %)
-    rf, ef = r[q >= 1.5 * q_peak], e[q >= 1.5 * q_peak]
+    rf, ef = r[q >= F_DATA * q_peak], e[q >= F_DATA * q_peak]
     scale = max(1.0, float(np.std(np.diff(rf) / np.sqrt(ef[1:] ** 2 + ef[:-1] ** 2))))
     spl_far = _discrepancy_spline(x[far], y[far], w[far] / scale**2)
 
     def blend_far(qq, res):
-        t = np.clip((qq - 1.7 * q_peak) / (0.4 * q_peak), 0.0, 1.0)
+        t = np.clip((qq - F_BLEND0 * q_peak) / ((F_BLEND1 - F_BLEND0) * q_peak), 0.0, 1.0)
         t = t * t * (3.0 - 2.0 * t)
-        return (1.0 - t) * res + t * spl_far(np.maximum(qq, 1.5 * q_peak))
+        return (1.0 - t) * res + t * spl_far(np.maximum(qq, F_DATA * q_peak))
 
     res_g = blend_far(qg, res_g)
     res_d = blend_far(q, res_d)
@@ -1149,26 +1225,83 @@ def load_table() -> dict:
     return t
 
 
+def _pchip_slopes(x, y):
+    """Slopes of the monotone piecewise-cubic (PCHIP, Fritsch–Carlson as in
+    scipy) interpolant of ``y`` (n × m) over ``x`` (n,), along axis 0."""
+    h = np.diff(x)[:, None]
+    d = np.diff(y, axis=0) / h
+    m = np.zeros_like(y)
+    w1 = 2.0 * h[1:] + h[:-1]
+    w2 = h[1:] + 2.0 * h[:-1]
+    same = (np.sign(d[:-1]) * np.sign(d[1:])) > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m[1:-1] = np.where(same, (w1 + w2) / (w1 / d[:-1] + w2 / d[1:]), 0.0)
+
+    def edge(h0, h1, m0, m1):
+        e = ((2.0 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
+        e = np.where(np.sign(e) != np.sign(m0), 0.0, e)
+        big = (np.sign(m0) != np.sign(m1)) & (np.abs(e) > 3.0 * np.abs(m0))
+        return np.where(big, 3.0 * m0, e)
+
+    m[0] = edge(h[0], h[1], d[0], d[1])
+    m[-1] = edge(h[-1], h[-2], d[-1], d[-2])
+    return m
+
+
+def _hermite(y0, y1, m0, m1, h, t):
+    t2 = t * t
+    return ((1.0 + 2.0 * t) * (1.0 - t) ** 2 * y0 + t * (1.0 - t) ** 2 * h * m0
+            + t2 * (3.0 - 2.0 * t) * y1 + t2 * (t - 1.0) * h * m1)
+
+
 @functools_cache
-def _eta_interpolators():
-    from scipy.interpolate import PchipInterpolator
-    t = load_table()
-    return (PchipInterpolator(t["eta"], t["S"], axis=0),
-            PchipInterpolator(t["eta"], t["tail"], axis=0), t["q_sigma"])
+def _lookup_arrays():
+    """Only what a lookup needs (numpy only: no scipy.interpolate import),
+    with the PCHIP slopes in η precomputed."""
+    path = _table_path()
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"hard-disk table {path} is missing; run "
+                                "scripts/make_hard_disk_table.py")
+    with np.load(path, allow_pickle=False) as z:
+        eta, qg, S, tail = z["eta"], z["q_sigma"], z["S"], z["tail"]
+        import json
+        version = json.loads(str(z["metadata"])).get("format_version")
+    if version != TABLE_FORMAT_VERSION:
+        raise RuntimeError(f"{path}: format version {version} != {TABLE_FORMAT_VERSION}")
+    return eta, qg, S, _pchip_slopes(eta, S), tail, _pchip_slopes(eta, tail)
+
+
+@functools_cache
+def _table_id() -> str:
+    """``format_version:date`` of the shipped table."""
+    import json
+    with np.load(_table_path(), allow_pickle=False) as z:
+        m = json.loads(str(z["metadata"]))
+    return f"{m.get('format_version')}:{m.get('date')}"
 
 
 @functools.lru_cache(maxsize=128)
 def _row(eta: float):
-    """Cubic spline along qσ of the table interpolated to ``eta`` (PCHIP in η:
-    shape-preserving, no overshoot between rows), with ``S'(0) = 0``."""
-    from scipy.interpolate import CubicSpline
-    S_of_eta, tail_of_eta, qg = _eta_interpolators()
-    row = S_of_eta(eta)
-    spl = CubicSpline(qg, row, bc_type=((1, 0.0), "not-a-knot"))
-    A, B, _ = tail_of_eta(eta)
+    """The table at ``eta``: PCHIP in η between rows (shape-preserving, no
+    overshoot), then along qσ a cubic Hermite interpolant with fourth-order
+    finite-difference slopes (``S'(0) = 0``: S is even in q)."""
+    etas, qg, S, dS, tail, dtail = _lookup_arrays()
+    k = int(np.clip(np.searchsorted(etas, eta, side="right") - 1, 0, etas.size - 2))
+    h = etas[k + 1] - etas[k]
+    t = (eta - etas[k]) / h
+    row = _hermite(S[k], S[k + 1], dS[k], dS[k + 1], h, t)
+    A, B, _ = _hermite(tail[k], tail[k + 1], dtail[k], dtail[k + 1], h, t)
+    dq = qg[1] - qg[0]
+    ext = np.concatenate([row[2:0:-1], row])           # even extension to q < 0
+    slope = np.empty_like(row)
+    slope[:-2] = (ext[:-4] - 8.0 * ext[1:-3] + 8.0 * ext[3:-1] - ext[4:]) / (12.0 * dq)
+    slope[0] = 0.0
+    r = row
+    slope[-2] = (r[-5] - 6.0 * r[-4] + 18.0 * r[-3] - 10.0 * r[-2] - 3.0 * r[-1]) / (-12.0 * dq)
+    slope[-1] = (3.0 * r[-5] - 16.0 * r[-4] + 36.0 * r[-3] - 48.0 * r[-2] + 25.0 * r[-1]) / (12.0 * dq)
     b1, b2 = tail_basis(qg[-1])
     offset = float(row[-1] - (1.0 + A * b1 + B * b2))
-    return spl, float(qg[-1]), float(A), float(B), offset
+    return row, slope, float(dq), float(qg[-1]), float(A), float(B), offset
 
 
 def structure_factor_table(q_sigma, eta):
@@ -1186,10 +1319,12 @@ def structure_factor_table(q_sigma, eta):
     q = np.abs(np.asarray(q_sigma, dtype=np.float64))
     if e == 0.0:
         return np.ones_like(q)
-    spl, qmax, A, B, offset = _row(round(min(e, ETA_MAX), 12))
+    row, slope, dq, qmax, A, B, offset = _row(round(min(e, ETA_MAX), 12))
     out = np.empty_like(q)
     inside = q <= qmax
-    out[inside] = spl(q[inside])
+    qi = q[inside] / dq
+    i = np.minimum(qi.astype(np.int64), row.size - 2)
+    out[inside] = _hermite(row[i], row[i + 1], slope[i], slope[i + 1], dq, qi - i)
     qo = q[~inside]
     if qo.size:
         b1, b2 = tail_basis(qo)
@@ -1218,23 +1353,42 @@ class HardDisk(Process):
       two chains of 1.4·10⁴ – 7·10⁴ sweeps, S(k) on the box wave vectors
       binned in ``qσ`` (0.05), smoothed, ``qσ ∈ [0, 40]`` on a 0.05 grid;
     * between rows: monotone cubic (PCHIP) interpolation in η, then a
-      cubic spline in ``qσ`` with ``S'(0) = 0``;
+      cubic Hermite interpolant in ``qσ`` (fourth-order slopes, ``S'(0) = 0``);
     * beyond ``qσ = 40``: ``S - 1 = -8η [g(σ⁺) J1(qσ)/qσ + b J0(qσ)/(qσ)²]``
       with the measured contact value, joined continuously.
 
-    Checks (``tests/test_hard_disk.py``, ``benchmarks/bench_hard_disk.py``):
-    the pressure of every row matches Henderson's equation of state
-    ``Z = (1 + η²/8)/(1 - η)²`` up to η ≈ 0.6 (Henderson drifts above), the
-    table's ``S(0)`` matches ``1/(d(ηZ)/dη)``, and the sum rule
-    ``∫ T_a T_s d²d = 1 - F_a`` for circles holds to a fraction of a percent.
-    The Percus–Yevick route (:func:`structure_factor_percus_yevick`) is
-    within ~1 % of the table at η ≤ 0.2 and drifts at higher η (its first
-    peak is too low: see the benchmark JSON for the measured maximum errors).
+    Checks (``tests/test_hard_disk.py``, ``benchmarks/bench_hard_disk.py``,
+    figures from ``benchmarks/results/hard_disk.json``):
 
-    Above η ≈ 0.70 the N = 2000 system in a square box is in the
-    fluid–hexatic coexistence / hexatic range: the first peak is sharp and
-    size-dependent, and the rows there describe that finite system (started
-    from a triangular lattice; a compressed-fluid start gives the same state).
+    * pressure of every row against Henderson's ``Z = (1 + η²/8)/(1 - η)²``:
+      within 0.15 % up to η = 0.4, 1.2 % at 0.6 (Henderson is too high
+      there: 2.2 % at 0.65, 13 % at 0.70, where the simulated isotherm has
+      the finite-size loop of the fluid–hexatic transition);
+    * contact value ``g(σ⁺)`` extrapolated from ``g(r)`` agrees with
+      ``(Z - 1)/(2η)`` within its error (0.3–2 %) in every row;
+    * the table's ``S(0)`` is within 1 % of Henderson's ``1/(d(ηZ)/dη)`` up
+      to η = 0.45 (0.258 at 0.3, 0.081 vs 0.079 at 0.5), then rises above
+      it (+8 % at 0.65, +47 % at 0.70: the compressibility softens towards
+      freezing, which Henderson does not know);
+    * sum rule ``∫ T_a T_s d²d = 1 - F_a`` for circles: within 0.05 % for
+      every F_a ≤ 0.70 (e.g. +0.04 %, -0.04 %, -0.05 %, -0.003 % at
+      F_a = 0.1, 0.3, 0.5, 0.65); ~1 % at 0.71–0.72 (Bragg-like peaks);
+    * the Percus–Yevick route (:func:`structure_factor_percus_yevick`)
+      agrees with the table to max ``|ΔS|`` ≤ 0.009 for η ≤ 0.35, 0.026 at
+      0.5, 0.07 at 0.6, 0.12 at 0.65 and 0.26 at 0.68 (its first peak is
+      2–3 % too high up to η ≈ 0.65, its contact value too low: 2.94 vs
+      3.11 at η = 0.5), and fails
+      near freezing (first peak 5.9 vs 12.0 at 0.72).
+
+    Above η ≈ 0.69 the N = 2000 system in a square box is in the
+    fluid–hexatic coexistence / hexatic range (mean ``|ψ6|`` 0.14, 0.35,
+    0.62, 0.71 at η = 0.69 … 0.72): the first peak is sharp and size
+    dependent, Bragg-like spots appear, and these rows describe that finite
+    system (started from a triangular lattice; a compressed-fluid start
+    reaches the same ``ψ6`` and pressure at 0.72), with their peak area
+    kept by a kernel average rather than resolved.  The interpolation
+    between rows is least certain there (the peak grows from 5 to 12 over
+    η = 0.69 … 0.72).
 
     Parameters
     ----------
@@ -1257,6 +1411,11 @@ class HardDisk(Process):
         sd = "" if self.exclusion_diameter is None else \
             f", exclusion_diameter={self.exclusion_diameter:g}"
         return f"HardDisk(area_fraction={self.fraction:g}{sd})"
+
+    def key(self) -> dict:
+        """Parameters plus the identity of the shipped table (so that cached
+        lobe tables follow a regenerated structure-factor table)."""
+        return {**super().key(), "table": _table_id()}
 
     # --- geometry -----------------------------------------------------------
     def diameter(self, shape) -> float:
