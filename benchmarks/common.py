@@ -21,13 +21,13 @@ def machine() -> dict:
                     break
     except OSError:
         pass
+    import corona  # before drjit: it points Dr.Jit at a usable libLLVM
     try:
         import drjit as dr
         import mitsuba as mi
         info.update(mitsuba=mi.__version__, drjit=dr.__version__, variant=mi.variant())
     except Exception:
         pass
-    import corona
     info["corona"] = corona.__version__
     return info
 

@@ -69,6 +69,42 @@ def test_sample_weight_is_eval_over_pdf_and_constant(mi_variant):
     np.testing.assert_allclose(w[ok], m.diffuse_transmittance(), rtol=2e-3)
 
 
+@pytest.mark.parametrize("theta", [0, 60])
+def test_cosine_sampling_follows_its_pdf(mi_variant, theta):
+    # the comparison strategy of the talk: wo cosine-distributed on the far side
+    ok, test = chi2_test({**CIRCLE_POISSON, "sampling": "cosine"}, theta, smooth_context())
+    assert ok, test.messages
+
+
+def test_cosine_and_lobe_sampling_estimate_the_same_energy(mi_variant):
+    import mitsuba as mi
+    n = 400000
+    si = interaction(n, (0.3, 0.0, np.sqrt(1 - 0.09)), (550.0,) * 4)
+    rng = np.random.default_rng(5)
+    s1, s2 = mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n))
+    ctx = smooth_context()
+    est = {}
+    for how in ("lobe", "cosine"):
+        bsdf = mi.load_dict({"type": "corona", "radius": 2.0, "area_fraction": 0.3,
+                             "process": "poisson", "sampling": how})
+        bs, w = bsdf.sample(ctx, si, s1, s2)
+        e, p = bsdf.eval_pdf(ctx, si, bs.wo)
+        w, e, p = np.array(w)[0], np.array(e)[0], np.array(p)
+        ok = p > 0
+        np.testing.assert_allclose(w[ok], e[ok] / p[ok], rtol=1e-5)
+        est[how] = (w.mean(), w.std() / np.sqrt(n))
+    # both estimate the transmitted lobe energy; the cosine one is far noisier
+    (m_l, e_l), (m_c, e_c) = est["lobe"], est["cosine"]
+    assert abs(m_l - m_c) < 4 * np.hypot(e_l, e_c)
+    assert e_c > 5 * e_l
+
+
+def test_unknown_sampling_is_an_error(mi_variant):
+    import mitsuba as mi
+    with pytest.raises(Exception, match="sampling"):
+        mi.load_dict({"type": "corona", "sampling": "uniform"})
+
+
 @pytest.mark.parametrize("mode", ["aperture", "particle"])
 def test_white_furnace(mi_variant, mode):
     """Reflected + transmitted energy <= 1 at every angle and wavelength, and equal to the model."""

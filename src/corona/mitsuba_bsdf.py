@@ -24,6 +24,8 @@ exclusion_diameter      µm          shape's      hard-core diameter σ
 jitter                  µm          0            lattice jitter (rms per axis)
 mode                    —           aperture     aperture, particle
 albedo                  —           0            diffuse reflectance of the opaque part
+sampling                —           lobe         lobe: sample T_a T_s exactly; cosine: cosine-
+                                                 weighted hemisphere (for comparisons only)
 ======================  ==========  ===========  =============================================
 
 Components: 0 = coherent transmission (``DeltaTransmission``), 1 = diffraction
@@ -58,6 +60,7 @@ from .parameters import DEFAULTS, material_from_parameters
 
 N_RESPONSE = 8
 NEWTON_STEPS = 5
+SAMPLING = ("lobe", "cosine")   # plugin-only parameter: how the lobe component is sampled
 
 _FLOAT_PARAMS = {"radius", "aspect", "angle", "pixel_size", "edge_width", "size_spread",
                  "area_fraction", "exclusion_diameter", "jitter", "albedo"}
@@ -68,8 +71,9 @@ def _read_props(props) -> dict:
     """Named parameters from a ``mi.Properties`` (unknown names are an error)."""
     out = {}
     for name in props.keys():
-        if name not in DEFAULTS:
-            raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(DEFAULTS))}")
+        if name not in DEFAULTS and name != "sampling":
+            known = ", ".join(sorted([*DEFAULTS, "sampling"]))
+            raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {known}")
         value = props.get(name)
         if name in _FLOAT_PARAMS or name in _INT_PARAMS:
             try:
@@ -131,6 +135,10 @@ class CoronaBSDFMixin:
     def __init__(self, props):
         mi.BSDF.__init__(self, props)  # the active variant's base class
         params = _read_props(props)
+        self.sampling = params.pop("sampling", "lobe")
+        if self.sampling not in SAMPLING:
+            raise CoronaError(f"corona BSDF: sampling={self.sampling!r} is not allowed; "
+                              f"allowed: {', '.join(SAMPLING)}")
         material = material_from_parameters(**params)
         self.material = material
         table = material.table
@@ -141,7 +149,7 @@ class CoronaBSDFMixin:
         # --- component energies (wavelength-independent) ---------------------
         self.w_coherent = float(material.coherent_transmittance)
         self.w_lobe = float(material.diffuse_transmittance())      # F_a ∫v d²u / 4π²
-        self.lobe_scale = float(fa)                                  # f = F_a (R/λ)² v(u)
+        self.lobe_scale = float(material.lobe_weight)                # f = F_a (R/λ)² v(u), capped
         self.w_reflect = float(material.reflectance)                 # ρ · opaque fraction, capped
         self.albedo = mi.Float(material.albedo)                      # exposed through mi.traverse
         self.table_total = float(table.total)
@@ -350,6 +358,8 @@ class CoronaBSDFMixin:
         f, pdf_d = self._lobe_and_pdf(wi, wo, si.wavelengths, transmit)
         abs_cos_o = dr.abs(cos_o)
         value = dr.select(transmit & lobe_on, f * abs_cos_o, 0.0)        # eval = f |cos θo|
+        if self.sampling == "cosine":
+            pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
         pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
         if self.w_reflect > 0:
             value += dr.select(reflect & refl_on, self.w_reflect * dr.inv_pi * abs_cos_o, 0.0)
@@ -389,6 +399,10 @@ class CoronaBSDFMixin:
         oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
         wo_lobe = mi.Vector3f(ox, oy, oz)
         lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
+        if self.sampling == "cosine":   # cosine-weighted hemisphere on the far side
+            wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
+            wo_lobe = mi.Vector3f(wo_cos.x, wo_cos.y, -dr.mulsign(wo_cos.z, cos_i))
+            lobe_valid = pick_lobe & (wo_cos.z > 0)
 
         wo_refl = mi.warp.square_to_cosine_hemisphere(sample2)
         wo_refl = mi.Vector3f(wo_refl.x, wo_refl.y, dr.mulsign(wo_refl.z, cos_i))
