@@ -29,6 +29,10 @@ demo: venv
 test: venv
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
+# every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
+gallery: venv
+	$(PY) -m corona.cli gallery
+
 bench: venv
 	$(PY) benchmarks/run_all.py
 

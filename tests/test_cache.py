@@ -74,3 +74,123 @@ def test_material_tables_come_back_from_cache(tmp_path, monkeypatch):
     m3 = corona.Material(corona.Circle(1.1), corona.Poisson(0.2))
     m3.table
     assert tables.cache_info()["tables"] == 2  # another radius, another key
+
+
+# --------------------------------------------------------------------------
+# interrupted writers
+# --------------------------------------------------------------------------
+_KILLED_WRITER = r"""
+import io, os, sys, time
+import numpy as np
+from corona import tables
+
+signal, stage = sys.argv[1], sys.argv[2]
+real_savez = np.savez
+
+def half_savez(f, **arrays):
+    # write half of the file, then hang: the parent kills us mid-write
+    buf = io.BytesIO()
+    real_savez(buf, **arrays)
+    data = buf.getvalue()
+    f.write(data[: len(data) // 2])
+    f.flush()
+    open(signal, "w").write("writing")
+    time.sleep(600)
+
+def slow_build():
+    # hang while building (holding the lock)
+    open(signal, "w").write("building")
+    time.sleep(600)
+    return {"values": np.arange(100_000.0)}
+
+if stage == "write":
+    np.savez = half_savez
+    tables.cached({"killed-writer": 1}, lambda: {"values": np.arange(100_000.0)})
+else:
+    tables.cached({"killed-writer": 1}, slow_build)
+"""
+
+
+def _start_and_kill(tmp_path, stage):
+    """Start a writer in another process and SIGKILL it at ``stage`` ('write' or 'build')."""
+    import signal as sig
+    import subprocess
+    import sys
+    import time
+    signal_file = tmp_path / f"signal-{stage}"
+    env = {**os.environ, "CORONA_CACHE_DIR": str(tmp_path)}
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER, str(signal_file), stage], env=env)
+    try:
+        t0 = time.time()
+        while not signal_file.exists():
+            assert proc.poll() is None, "the writer exited early"
+            assert time.time() - t0 < 120, "the writer never started"
+            time.sleep(0.05)
+    finally:
+        proc.send_signal(sig.SIGKILL)
+        proc.wait(30)
+    assert proc.returncode == -sig.SIGKILL
+
+
+def _cached_with_timeout(params, build, seconds=60):
+    """``tables.cached`` in a thread: a lock left by a dead writer must not block."""
+    import concurrent.futures
+    with concurrent.futures.ThreadPoolExecutor(1) as ex:
+        return ex.submit(tables.cached, params, build).result(timeout=seconds)
+
+
+def test_writer_killed_mid_write_leaves_no_table(tmp_path, monkeypatch):
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    _start_and_kill(tmp_path, "write")
+    names = os.listdir(tmp_path)
+    params = {"killed-writer": 1}
+    final = tables.cache_key(params) + ".npz"
+    assert final not in names                       # atomic: only the temporary file exists
+    assert any(n.startswith(".tmp-") for n in names)
+    assert tables.cache_info()["tables"] == 0       # the half-written temporary is not a table
+    out = _cached_with_timeout(params, lambda: {"values": np.full(10, 3.0)})
+    assert np.all(out["values"] == 3.0)             # rebuilt, not the half-written bytes
+    assert tables.cache_info()["tables"] == 1
+    assert not any(n.startswith(".tmp-") for n in os.listdir(tmp_path))   # the stale temporary is gone
+    assert np.all(tables.cached(params, lambda: pytest.fail("rebuilt twice"))["values"] == 3.0)
+    assert tables.cache_clear() == 1 and not [n for n in os.listdir(tmp_path) if n.endswith(".npz")]
+
+
+def test_cache_clear_counts_tables_not_temporaries(tmp_path, monkeypatch):
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    tables.cached({"clear-test": 1}, lambda: {"values": np.ones(3)})
+    (tmp_path / ".tmp-deadbeef-x.npz").write_bytes(b"half")
+    assert tables.cache_info()["tables"] == 1
+    assert tables.cache_clear() == 1 and os.listdir(tmp_path) == []
+
+
+def test_builder_killed_while_holding_the_lock(tmp_path, monkeypatch):
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    _start_and_kill(tmp_path, "build")
+    out = _cached_with_timeout({"killed-writer": 1}, lambda: {"values": np.full(10, 5.0)})
+    assert np.all(out["values"] == 5.0)
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated", "garbage", "no-meta", "wrong-key"])
+def test_damaged_file_is_rebuilt(tmp_path, monkeypatch, damage):
+    """A truncated or otherwise damaged table (e.g. written by a non-atomic copy) is rebuilt."""
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    params = {"damage-test": 1}
+    tables.cached(params, lambda: {"values": np.arange(5000.0)})
+    path = tmp_path / (tables.cache_key(params) + ".npz")
+    raw = path.read_bytes()
+    if damage == "empty":
+        path.write_bytes(b"")
+    elif damage == "truncated":
+        path.write_bytes(raw[: len(raw) - 100])
+    elif damage == "garbage":
+        path.write_bytes(os.urandom(len(raw)))
+    elif damage == "no-meta":
+        np.savez(path, values=np.arange(5000.0))
+    else:  # a valid table of another key copied over this one
+        other = {"damage-test": 2}
+        tables.cached(other, lambda: {"values": np.zeros(5000)})
+        path.write_bytes((tmp_path / (tables.cache_key(other) + ".npz")).read_bytes())
+    out = tables.cached(params, lambda: {"values": np.full(5000, 9.0)})
+    assert np.all(out["values"] == 9.0)
+    assert np.all(tables.cached(params, lambda: pytest.fail("rebuilt twice"))["values"] == 9.0)

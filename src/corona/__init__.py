@@ -6,7 +6,7 @@ scatterer and ``T_s`` the structure factor of their positions.
 """
 from . import _environment  # noqa: F401  (must come first: sets DRJIT_LIBLLVM_PATH)
 from ._environment import default_variant, set_default_variant
-from ._validation import CoronaError
+from ._validation import CoronaError, CoronaWarning
 from .shapes import (Shape, Circle, Ellipse, Rectangle, Square, Polygon, RegularPolygon, Mask,
                      SoftEdge, RandomOrientation, SizeDistribution, Mixture)
 from .processes import Process, Poisson, SequentialAdsorption, Lattice, PointSet
@@ -15,7 +15,7 @@ from .micrograph import from_micrograph
 
 __version__ = "0.1.0"
 
-__all__ = ["CoronaError",
+__all__ = ["CoronaError", "CoronaWarning",
            "Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon", "Mask",
            "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture",
            "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk",

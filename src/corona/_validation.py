@@ -11,6 +11,11 @@ class CoronaError(ValueError):
     """A parameter outside its allowed range (subclass of ValueError)."""
 
 
+class CoronaWarning(UserWarning):
+    """Input that is computable but where the physics becomes questionable
+    (e.g. scatterers smaller than about two wavelengths)."""
+
+
 def check_positive(name: str, value, unit: str = "") -> float:
     try:
         v = float(value)
@@ -51,3 +56,21 @@ def check_wavelength(wavelength) -> np.ndarray:
     if not np.all(np.isfinite(w)) or np.any(w <= 0):
         raise CoronaError(f"wavelength={wavelength!r} is out of range; expected finite values > 0 nm")
     return w
+
+
+def check_finite_array(name: str, value, unit: str = "") -> np.ndarray:
+    """A float64 array with only finite entries (else one clear error)."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CoronaError(f"{name}={_short(value)} is not a numeric array") from None
+    if not np.all(np.isfinite(a)):
+        bad = float(a[~np.isfinite(a)].ravel()[0])
+        raise CoronaError(f"{name} contains {bad!r}; expected finite values" + (f" {unit}" if unit else ""))
+    return a
+
+
+def _short(value, limit: int = 80) -> str:
+    """``repr(value)`` on one line, shortened (arrays can be long)."""
+    r = " ".join(repr(value).split())
+    return r if len(r) <= limit else r[:limit - 3] + "..."

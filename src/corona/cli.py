@@ -1,14 +1,17 @@
 """The ``corona`` command line (click).
 
-    corona render SCENE.xml [--spp N] [--variant V] [--out DIR] [-D key=value ...]
+    corona render SCENE.xml [--spp N] [--variant V] [--out DIR] [--name NAME] [--exposure E] [-D key=value ...]
     corona lobe [material options] [--out FILE.png] [--json]
+    corona gallery [--only NAME ...]
     corona tables info | clear
     corona doctor
+    corona validate [--out DIR] [--quick] [--cases A,B] [--realisations N]
 
 Errors are one line on stderr and exit code 2.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
@@ -27,10 +30,34 @@ class CoronaUsageError(click.ClickException):
 
 
 def _fail(err) -> None:
-    raise CoronaUsageError(str(err).strip().splitlines()[0] if str(err).strip() else repr(err))
+    from .render import one_line_error  # Mitsuba wraps plugin errors in a traceback
+    raise CoronaUsageError(one_line_error(err))
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class OneLineErrorGroup(click.Group):
+    """Usage errors (bad option values, unknown choices or commands) as one
+    line on stderr, exit code 2, like every other corona error."""
+
+    def make_context(self, *args, **kwargs):
+        with _one_line_usage_errors():
+            return super().make_context(*args, **kwargs)
+
+    def invoke(self, ctx):
+        with _one_line_usage_errors():
+            return super().invoke(ctx)
+
+
+@contextlib.contextmanager
+def _one_line_usage_errors():
+    try:
+        yield
+    except click.exceptions.NoArgsIsHelpError:
+        raise
+    except click.UsageError as err:
+        raise CoronaUsageError(err.format_message().strip().splitlines()[0]) from None
+
+
+@click.group(cls=OneLineErrorGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="corona")
 def main():
     """corona: a wave-optics BSDF for layers of correlated scatterers."""
@@ -41,29 +68,36 @@ def main():
 # ----------------------------------------------------------------------
 @main.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--spp", type=click.IntRange(min=1), default=64, show_default=True, help="Samples per pixel.")
-@click.option("--variant", default=None, help="Mitsuba variant (default: cuda > llvm > scalar spectral).")
+@click.option("--spp", type=click.IntRange(min=1), default=None,
+              help="Samples per pixel (default: the scene's sample_count, e.g. -D spp=N).")
+@click.option("--variant", default=None, help="Mitsuba variant (default: the fastest, cuda > llvm > scalar spectral).")
 @click.option("--out", "out_dir", default="out", show_default=True, help="Output folder.")
+@click.option("--name", default=None, help="Output file stem (default: the scene file's name).")
+@click.option("--exposure", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="PNG: scale of the linear values (default: the 99.5th luminance percentile maps to white).")
 @click.option("-D", "defines", multiple=True, metavar="KEY=VALUE", help="Scene parameter ($KEY in the XML).")
 @click.option("--seed", type=int, default=0, show_default=True)
-def render(scene, spp, variant, out_dir, defines, seed):
-    """Render SCENE.xml to EXR (linear) and PNG (sRGB)."""
+def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
+    """Render SCENE.xml to EXR (linear sRGB) and PNG (tonemapped sRGB), with a progress bar."""
     if not os.path.isfile(scene):
         _fail(f"scene file {scene!r} does not exist")
+    if os.path.getsize(scene) == 0:
+        _fail(f"scene file {scene!r} is empty")
     kv = {}
     for d in defines:
-        if "=" not in d:
+        if "=" not in d or not d.split("=", 1)[0].strip():
             _fail(f"-D {d!r}: expected KEY=VALUE")
         k, v = d.split("=", 1)
         kv[k.strip()] = v.strip()
     try:
-        from .render import render_to_files, setup_variant
+        from .render import load_scene, render_to_files, scene_spp, setup_variant
         v = setup_variant(variant)
-        click.echo(f"corona: rendering with variant {v}", err=True)
-        import mitsuba as mi
-        loaded = mi.load_file(scene, **kv)
-        name = os.path.splitext(os.path.basename(scene))[0]
-        res = render_to_files(loaded, out_dir, name, spp=spp, seed=seed)
+        loaded = load_scene(scene, kv)
+        spp = spp or scene_spp(loaded)
+        how = "" if variant else " (the fastest available: cuda > llvm > scalar)"
+        click.echo(f"corona: rendering with variant {v}{how}", err=True)  # after loading: errors stay one line
+        name = name or os.path.splitext(os.path.basename(scene))[0]
+        res = render_to_files(loaded, out_dir, name, spp=spp, seed=seed, exposure=exposure)
     except (CoronaError, RuntimeError, ValueError) as err:
         _fail(err)
     click.echo(f"{res['png']}  ({res['exr']}, {res['seconds']:.1f} s, {spp} spp, {res['variant']})")
@@ -80,6 +114,8 @@ def material_options(f):
         click.option("--sides", type=int, default=DEFAULTS["sides"], show_default=True),
         click.option("--angle", type=float, default=DEFAULTS["angle"], show_default=True, help="degree"),
         click.option("--filename", default=None, help="mask image or point file"),
+        click.option("--points-filename", "points_filename", default=None,
+                     help="point file (process=points with shape=mask)"),
         click.option("--pixel-size", "pixel_size", type=float, default=None, help="µm (mask)"),
         click.option("--edge-width", "edge_width", type=float, default=0.0, show_default=True, help="µm"),
         click.option("--orientation", type=click.Choice(["fixed", "random"]), default="fixed", show_default=True),
@@ -109,8 +145,12 @@ def lobe(out_path, as_json, wavelength, **params):
         from .parameters import material_from_parameters
         m = material_from_parameters(**params)
         if as_json:
+            from ._validation import check_range
+            from .tables import WAVELENGTH_MAX, WAVELENGTH_MIN
+            wavelength = check_range("wavelength", wavelength, WAVELENGTH_MIN, WAVELENGTH_MAX, unit="nm")
             R = m.length_scale
-            u = np.linspace(0, min(m.table.u_max, 40.0), 201)
+            from .pictures import _u_extent
+            u = np.linspace(0, _u_extent(m), 201)  # a cut along u_x (radial tables: the profile)
             q = np.stack([u / R, 0 * u], -1)
             d = np.stack([u * wavelength * 1e-3 / (2 * np.pi * R), 0 * u], -1)
             out = {
@@ -130,6 +170,23 @@ def lobe(out_path, as_json, wavelength, **params):
     except (CoronaError, ValueError, OSError) as err:
         _fail(err)
     click.echo(path)
+
+
+# ----------------------------------------------------------------------
+# gallery
+# ----------------------------------------------------------------------
+@main.command()
+@click.option("--only", multiple=True, metavar="NAME", help="Render only this strip (repeatable).")
+@click.option("--variant", default=None, help="Mitsuba variant (default: the fastest available).")
+def gallery(only, variant):
+    """Render every scene of scenes/ into docs/gallery/ and rewrite docs/gallery.md."""
+    try:
+        from .gallery import build
+        res = build(only=list(only) or None, variant=variant, log=lambda m: click.echo(m, err=True))
+    except (CoronaError, RuntimeError, ValueError, OSError) as err:
+        _fail(err)
+    if res["failed"]:
+        _fail(f"{len(res['failed'])} strip(s) failed: " + "; ".join(f"{k}: {v}" for k, v in res["failed"].items()))
 
 
 # ----------------------------------------------------------------------
@@ -179,9 +236,40 @@ def doctor():
     lines.append(f"LLVM backend usable: {_environment.has_llvm()}")
     lines.append(f"GPU (CUDA backend): {_environment.has_cuda()}")
     lines.append(f"default variant: {_environment.default_variant()}")
-    info = t.cache_info()
-    lines.append(f"table cache: {info['path']} ({info['tables']} tables, {info['bytes'] / 1e6:.2f} MB)")
+    try:
+        info = t.cache_info()
+        lines.append(f"table cache: {info['path']} ({info['tables']} tables, {info['bytes'] / 1e6:.2f} MB, "
+                     f"format {info['format']})")
+    except OSError as err:
+        lines.append(f"table cache: NOT usable ({err})")
     click.echo("\n".join(lines))
+
+
+# ----------------------------------------------------------------------
+# validate
+# ----------------------------------------------------------------------
+@main.command()
+@click.option("--out", "out_dir", default="out/validate", show_default=True, help="Report folder.")
+@click.option("--quick", is_flag=True, help="Reduced matrix (circle and hexagon at F_a 0.3, 3 extras).")
+@click.option("--cases", default=None, metavar="A,B,...",
+              help="Keep cases whose name contains one of these (comma-separated).")
+@click.option("--realisations", type=click.IntRange(min=1), default=None,
+              help="Screens per ensemble [default: 64, --quick 16].")
+@click.option("--scatterers", type=click.IntRange(min=16), default=None,
+              help="Scatterers per screen [default: 2000].")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--no-progress", is_flag=True, help="No progress bars.")
+def validate(out_dir, quick, cases, realisations, scatterers, seed, no_progress):
+    """Compare the model with a brute-force wave-optics reference; write a report folder."""
+    try:
+        from . import validate as v
+        summary = v.run(out_dir, quick=quick, cases=cases.split(",") if cases else None,
+                        realisations=realisations, n_scatterers=scatterers, seed=seed,
+                        progress=not no_progress, echo=lambda s: click.echo(s, err=True))
+    except (CoronaError, ValueError, OSError, MemoryError) as err:
+        _fail(err)
+    n = sum(1 for c in summary["cases"] if "skipped" not in c)
+    click.echo(f"{os.path.join(out_dir, 'README.md')}  ({n} case(s), {summary['seconds']:.0f} s)")
 
 
 def run() -> int:  # pragma: no cover - console entry

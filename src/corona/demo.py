@@ -1,13 +1,28 @@
 """``make demo``: a lobe table, its pictures, and a rendered corona.
 
-Writes into ``out/demo/`` (or the folder given as the first argument).
+Writes into ``out/demo/`` (or the folder given as the first argument) and,
+from a source checkout, renders ``scenes/teaser.xml`` and copies the picture
+to ``docs/images/teaser.png`` (the README's).
 """
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 
 import numpy as np
+
+
+def _repo_file(*parts: str) -> str | None:
+    """``parts`` inside the source checkout (scenes/, docs/), or None for an installed package."""
+    root = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
+    path = os.path.join(root, *parts)
+    if parts[-1].endswith(".xml"):
+        return path if os.path.isfile(path) else None
+    if os.path.isdir(os.path.join(root, "scenes")):
+        os.makedirs(path, exist_ok=True)
+        return path
+    return None
 
 
 def main(out_dir: str = "out/demo") -> int:
@@ -37,13 +52,30 @@ def main(out_dir: str = "out/demo") -> int:
     fig = lobe_figure(material, os.path.join(out_dir, "lobe.png"))
     print(f"\n  lobe tables and far-field corona: {fig}")
 
-    from .render import render_to_files, setup_variant
-    from .scenes import street_light_scene
+    from .render import load_scene, render_to_files, scene_spp, setup_variant
     variant = setup_variant()
     import mitsuba as mi
-    scene = mi.load_dict(street_light_scene(resolution=256, bsdf={"type": "corona", **params}))
-    res = render_to_files(scene, out_dir, "teaser", spp=64)
-    print(f"  rendered with {variant} in {res['seconds']:.1f} s: {res['png']} (linear: {res['exr']})")
+    teaser = _repo_file("scenes", "teaser.xml")
+    fast = not variant.startswith("scalar")
+    if teaser is not None:
+        # the scene's own resolution and spp (512², 256 spp) on llvm / cuda; less in scalar (Python per sample)
+        scene = load_scene(teaser, {} if fast else {"res": 128, "spp": 16})
+        spp = scene_spp(scene)
+        what = teaser
+    else:  # an installed package without the repository's scenes/
+        from .scenes import street_light_scene
+        scene = mi.load_dict(street_light_scene(resolution=256 if fast else 96, bsdf={"type": "corona", **params}))
+        spp, what = (64 if fast else 8), "the built-in street-light scene"
+    print(f"\n  rendering {what} with {variant} ({spp} spp)...")
+    res = render_to_files(scene, out_dir, "teaser", spp=spp)
+    print(f"  rendered in {res['seconds']:.1f} s")
+    docs = _repo_file("docs", "images")
+    if docs is not None and teaser is not None and fast:
+        shutil.copyfile(res["png"], os.path.join(docs, "teaser.png"))
+        print(f"  copied to {os.path.join(docs, 'teaser.png')} (the README's picture)")
+    print(f"\n  the teaser image: {os.path.abspath(res['png'])}")
+    print(f"  linear sRGB EXR:  {os.path.abspath(res['exr'])}")
+    print(f"  lobe pictures:    {os.path.abspath(fig)}")
     return 0
 
 

@@ -1432,6 +1432,8 @@ class HardDisk(Process):
         return self.fraction * (math.pi * s * s / 4.0) / float(shape.area)
 
     def validate(self, shape) -> None:
+        from .processes import _check_exclusion
+        _check_exclusion("HardDisk", self.diameter(shape), shape)   # σ smaller: scatterers overlap
         eta = self.packing_fraction(shape)
         if eta > ETA_MAX + 1e-12:
             allowed = self.fraction * ETA_MAX / eta

@@ -5,15 +5,24 @@ This is the readable, exact model that the Mitsuba plugin is tested against.
 from __future__ import annotations
 
 import functools
+import math
+import warnings
 
 import numpy as np
 
 from . import tables
-from ._validation import CoronaError, check_choice, check_range, check_wavelength
+from ._validation import CoronaError, CoronaWarning, check_choice, check_finite_array, check_range
 from .processes import Poisson, Process
 from .shapes import Shape
 
 MODES = ("aperture", "particle")
+
+#: Scatterers whose equivalent radius ``sqrt(|A|/π)`` is below this many
+#: wavelengths (at the red end of the tables, 830 nm) get one
+#: :class:`corona.CoronaWarning` per process: scalar Fraunhofer diffraction
+#: loses accuracy there, but the model stays computable.
+SMALL_RADIUS_WAVELENGTHS = 2.0
+_small_radius_warned = False
 
 
 class Material:
@@ -52,7 +61,15 @@ class Material:
     evanescent and dropped (not renormalised).  For processes that allow
     overlaps (Poisson) the lobe integrates to ``F_a`` instead of
     ``F_a (1 - F_a)``; the reflected weight is then capped so that coherent
-    + lobe + reflection never exceeds 1.
+    + lobe + reflection never exceeds 1, and the lobe's weight ``F_a`` is
+    lowered so that coherent + lobe <= 1 (:attr:`lobe_weight`; this only
+    bites for Poisson apertures with ``F_a > (√5 - 1)/2 ≈ 0.618``, where
+    ``F_a² + F_a > 1``, or measured point sets with overlapping pairs).
+
+    Scatterers smaller than about two wavelengths (equivalent radius
+    ``sqrt(|A|/π) < 2 × 830 nm = 1.66 µm``) get one
+    :class:`corona.CoronaWarning` per process: Fraunhofer (scalar)
+    diffraction loses accuracy there, but the model is still computed.
 
     References
     ----------
@@ -79,6 +96,7 @@ class Material:
             raise CoronaError(f"area_fraction={fa:g} (from {process!r} with {shape!r}) is out of range; "
                               "allowed (0, 1)")
         self.area_fraction = fa
+        _warn_if_small(shape)
 
     def __repr__(self):
         return (f"Material({self.shape!r}, {self.process!r}, mode={self.mode!r}, "
@@ -107,6 +125,22 @@ class Material:
     def opaque_fraction(self) -> float:
         """Fraction of the layer that is opaque: ``1 - F_a`` (aperture), ``F_a`` (particle)."""
         return 1.0 - self.area_fraction if self.mode == "aperture" else self.area_fraction
+
+    @functools.cached_property
+    def lobe_weight(self) -> float:
+        """Prefactor of the lobe: ``F_a``, lowered where coherent + lobe would exceed 1.
+
+        The lobe's plane integral ``F_a ∫ T_a T_s d²d`` is ``F_a (1 - F_a)``
+        for non-overlapping scatterers, but ``F_a`` for Poisson (overlaps
+        counted twice): Poisson apertures with ``F_a > (√5 - 1)/2 ≈ 0.618``
+        would transmit ``F_a² + F_a > 1``, and measured point sets with
+        overlapping pairs can exceed ``1 - F_a`` too.  There the weight is
+        scaled so that the plane integral is ``1 - coherent_transmittance``.
+        """
+        fa = self.area_fraction
+        budget = max(0.0, 1.0 - self.coherent_transmittance)
+        plane = fa * self.table.total / (4 * np.pi**2)
+        return float(fa if plane <= budget else fa * budget / plane)
 
     @property
     def reflectance(self) -> float:
@@ -138,7 +172,7 @@ class Material:
         return np.maximum(P + C * (S - 1.0), 0.0) / R**2
 
     def _u(self, d, wavelength):
-        d = np.asarray(d, dtype=np.float64)
+        d = check_finite_array("d", d)
         if d.ndim == 0 or d.shape[-1] != 2:
             raise CoronaError(f"d must have shape (..., 2), got {d.shape}")
         lam = self._wavelength(wavelength)
@@ -147,10 +181,15 @@ class Material:
 
     @staticmethod
     def _wavelength(wavelength) -> np.ndarray:
-        lam = check_wavelength(wavelength)
-        if np.any(lam < tables.WAVELENGTH_MIN) or np.any(lam > tables.WAVELENGTH_MAX):
-            raise CoronaError(f"wavelength={wavelength!r} is out of range; allowed "
-                              f"[{tables.WAVELENGTH_MIN:g}, {tables.WAVELENGTH_MAX:g}] nm")
+        allowed = f"allowed [{tables.WAVELENGTH_MIN:g}, {tables.WAVELENGTH_MAX:g}] nm"
+        try:
+            lam = np.asarray(wavelength, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise CoronaError(f"wavelength={wavelength!r} is not a number; {allowed}") from None
+        ok = (lam >= tables.WAVELENGTH_MIN) & (lam <= tables.WAVELENGTH_MAX)   # False for NaN
+        if not np.all(ok):
+            bad = float(np.ravel(lam[~ok] if lam.ndim else lam)[0])
+            raise CoronaError(f"wavelength={bad!r} is out of range; {allowed}")
         return lam * 1e-3  # nm -> µm
 
     def lobe(self, d, wavelength) -> np.ndarray:
@@ -169,7 +208,7 @@ class Material:
             v = self.lobe_dimensionless_radial(np.hypot(u[..., 0], u[..., 1]))
         else:
             v = self.lobe_dimensionless(u)
-        return self.area_fraction * (R / lam) ** 2 * v      # F_a (R/λ)² v(u)
+        return self.lobe_weight * (R / lam) ** 2 * v        # F_a (R/λ)² v(u)
 
     # ------------------------------------------------------------------
     # the table (what the renderer evaluates and samples)
@@ -217,7 +256,7 @@ class Material:
         u, lam = self._u(d, wavelength)
         t = self.table
         v = t.eval(np.hypot(u[..., 0], u[..., 1])) if self.isotropic else t.eval(u)
-        return self.area_fraction * (self.length_scale / lam) ** 2 * v
+        return self.lobe_weight * (self.length_scale / lam) ** 2 * v
 
     def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=None, phi_i=0.0) -> float | np.ndarray:
         """Integral of the lobe (the diffuse transmittance).
@@ -230,7 +269,7 @@ class Material:
         diffusely at that wavelength [nm].
         """
         t = self.table
-        fa = self.area_fraction
+        fa = self.lobe_weight
         if cos_theta_i is None:
             return fa * t.total / (4 * np.pi**2)
         lam = self._wavelength(wavelength)
@@ -246,11 +285,15 @@ class Material:
         else:
             c = t.centres()
             ux, uy = np.meshgrid(c, c, indexing="xy")
+            # trapezoid weights: exact for the bilinear table (the same integral as t.total)
+            edge = np.ones(t.n)
+            edge[0] = edge[-1] = 0.5
+            weights = np.outer(edge, edge) * t.cell**2
             out = []
             for dpu in np.atleast_1d(d_per_u):
                 dx, dy = ux * dpu - s * np.cos(phi_i), uy * dpu - s * np.sin(phi_i)
                 inside = dx * dx + dy * dy <= 1.0
-                out.append(np.sum(t.values * inside) * t.cell**2)
+                out.append(np.sum(t.values * inside * weights))
             val = np.asarray(out) * fa / (4 * np.pi**2)
         return float(val[0]) if np.ndim(wavelength) == 0 else val
 
@@ -259,7 +302,11 @@ class Material:
 
         ``xi`` (..., 2) uniform in [0, 1)²; the density is :meth:`pdf`.
         """
-        xi = np.asarray(xi, dtype=np.float64)
+        xi = check_finite_array("xi", xi)
+        if xi.ndim == 0 or xi.shape[-1] != 2:
+            raise CoronaError(f"xi must have shape (..., 2), got {xi.shape}")
+        if np.any(xi < 0) or np.any(xi > 1):
+            raise CoronaError(f"xi={float(xi[(xi < 0) | (xi > 1)][0])!r} is out of range; allowed [0, 1]")
         lam = self._wavelength(wavelength)
         u = self.table.sample(xi)
         return u * (lam / (2 * np.pi * self.length_scale))[..., None]
@@ -270,6 +317,21 @@ class Material:
         t = self.table
         pu = t.pdf(np.hypot(u[..., 0], u[..., 1])) if self.isotropic else t.pdf(u)
         return pu * (2 * np.pi * self.length_scale / lam) ** 2
+
+
+def _warn_if_small(shape) -> None:
+    """One :class:`CoronaWarning` per process for scatterers below ~2 wavelengths."""
+    global _small_radius_warned
+    if _small_radius_warned:
+        return
+    limit = SMALL_RADIUS_WAVELENGTHS * tables.WAVELENGTH_MAX * 1e-3          # µm
+    r_eq = math.sqrt(float(shape.area) / math.pi)
+    if r_eq < limit:
+        warnings.warn(f"{shape!r}: equivalent radius sqrt(|A|/pi) = {r_eq:.3g} µm is below "
+                      f"{SMALL_RADIUS_WAVELENGTHS:g} wavelengths ({limit:g} µm at "
+                      f"{tables.WAVELENGTH_MAX:g} nm); Fraunhofer diffraction loses accuracy there "
+                      "(warned once per process)", CoronaWarning, stacklevel=3)
+        _small_radius_warned = True
 
 
 def _arc_fraction_inside(rho, s):

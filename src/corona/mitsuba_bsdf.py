@@ -15,6 +15,7 @@ shape                   —           circle       circle, ellipse, square, rect
 radius                  µm          0.5          size of the scatterer (circle radius, half-width…)
 aspect / sides / angle  — / — / °   1 / 6 / 0    ellipse & rectangle aspect; polygon sides; rotation
 filename, pixel_size    — , µm      —            mask image (shape=mask) or point file (process=points)
+points_filename         —           —            point file (process=points with shape=mask)
 edge_width              µm          0            soft edge (Gaussian apodisation)
 orientation             —           fixed        fixed, random
 size_spread             —           0            relative std of the size (lognormal / schulz)

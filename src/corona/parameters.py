@@ -14,6 +14,9 @@ aspect                  —           1.0          ellipse / rectangle: extent a
 sides                   —           6            polygon: number of sides (>= 3)
 angle                   degree      0            rotation of anisotropic shapes
 filename                —           —            mask: image file; process=points: point file
+                                                 (when the shape is not a mask)
+points_filename         —           —            process=points: point file (needed with
+                                                 shape=mask, where filename is the image)
 pixel_size              µm          —            mask: size of one image pixel
 edge_width              µm          0            soft edge: std of the Gaussian apodisation
 orientation             —           fixed        fixed, random (rotational average)
@@ -41,7 +44,7 @@ SIZE_DISTRIBUTIONS = ("lognormal", "schulz")
 
 DEFAULTS = {
     "shape": "circle", "radius": 0.5, "aspect": 1.0, "sides": 6, "angle": 0.0,
-    "filename": None, "pixel_size": None, "edge_width": 0.0, "orientation": "fixed",
+    "filename": None, "points_filename": None, "pixel_size": None, "edge_width": 0.0, "orientation": "fixed",
     "size_spread": 0.0, "size_distribution": "lognormal", "area_fraction": 0.3,
     "process": "hard-disk", "exclusion_diameter": None, "jitter": 0.0,
     "mode": "aperture", "albedo": 0.0,
@@ -102,14 +105,31 @@ def make_process(p: dict, shape):
         return processes.SequentialAdsorption(fa, exclusion_diameter=sigma)
     if kind in ("lattice-square", "lattice-hex"):
         jitter = check_range("jitter", p["jitter"], 0.0, math.inf, hi_open=True, unit="µm")
-        # spacing from the area fraction: cell area = |A| / F_a
+        # spacing from the area fraction: cell area = |A| / F_a; neighbours at
+        # the shape's exclusion diameter σ give the largest F_a without overlaps
+        sd = shape.exclusion_diameter
+        fmax = shape.area / (sd * sd) if kind == "lattice-square" else 2 * shape.area / (math.sqrt(3) * sd * sd)
+        if fa > fmax * (1.0 + 1e-12):
+            raise CoronaError(f"area_fraction={fa:g} is out of range for process={kind!r} with this shape; "
+                              f"allowed (0, {fmax:.4g}] (neighbours would overlap)")
         cell = shape.area / fa
         if kind == "lattice-square":
             return processes.Lattice("square", math.sqrt(cell), jitter=jitter)
         return processes.Lattice("hexagonal", math.sqrt(2 * cell / math.sqrt(3)), jitter=jitter)
+    return processes.PointSet.from_file(points_file(p))
+
+
+def points_file(p: dict) -> str:
+    """The point file of process='points': ``points_filename``, else ``filename``
+    unless that names the mask image of shape='mask'."""
+    if p.get("points_filename"):
+        return p["points_filename"]
+    if p.get("shape") == "mask":
+        raise CoronaError("process='points' with shape='mask' needs points_filename=<point file> "
+                          "(filename is the mask image)")
     if not p.get("filename"):
-        raise CoronaError("process='points' needs filename=<point file>")
-    return processes.PointSet.from_file(p["filename"])
+        raise CoronaError("process='points' needs filename=<point file> (or points_filename=)")
+    return p["filename"]
 
 
 def material_from_parameters(**params):

@@ -25,38 +25,112 @@ def far_field_corona(material, half_angle_deg: float = 10.0, size: int = 256,
     return spectrum_to_linear_srgb(spectra, lams)
 
 
+def _u_extent(material, u_cap: float = 40.0) -> float:
+    """Largest |u| to plot: the table's reach, at most ``u_cap``."""
+    t = material.table
+    reach = t.u_max if hasattr(t, "u_max") else t.u_range
+    return float(min(reach, u_cap))
+
+
+def lobe_maps(material, u_extent: float, n: int = 201) -> dict:
+    """The dimensionless tables on an n×n grid of ``u = (u_x, u_y)`` in [-u_extent, u_extent]².
+
+    Returns ``u`` (n,) and maps (n, n), index [iy, ix]: ``form_factor`` =
+    ``P(u/R)/R²`` (T_a = (R/λ)² × this), ``structure_factor`` = S (for fixed
+    lattices the mean over each grid cell, so that Bragg peaks narrower than a
+    cell keep their weight, as in the renderer's tables), and ``lobe`` =
+    ``[P + C (S - 1)]/R²`` (= T_a T_s for identical scatterers; F_a (R/λ)² ×
+    this is the BSDF's lobe).
+    """
+    R = material.length_scale
+    u = np.linspace(-u_extent, u_extent, n)
+    ux, uy = np.meshgrid(u, u[::-1], indexing="xy")
+    uv = np.stack([ux, uy], -1)
+    q = uv / R
+    shape, process = material.shape, material.process
+    if shape.isotropic:
+        qa = np.hypot(q[..., 0], q[..., 1])
+        P, C = shape.form_factor_radial(qa), shape.coherent_form_factor_radial(qa)
+    else:
+        P, C = shape.form_factor(q), shape.coherent_form_factor(q)
+    cell_mean = None if process.isotropic else getattr(process, "structure_factor_cell_mean", None)
+    if cell_mean is not None:
+        S = cell_mean(q, (u[1] - u[0]) / R, shape)
+    elif process.isotropic:
+        S = process.structure_factor_radial(np.hypot(q[..., 0], q[..., 1]), shape)
+    else:
+        S = process.structure_factor_at(q, shape)
+    return {"u": u, "form_factor": P / R**2, "structure_factor": S,
+            "lobe": np.maximum(P + C * (S - 1.0), 0.0) / R**2}
+
+
 def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: float | None = None):
-    """Save a 4-panel figure: form factor, structure factor, their product, the corona."""
+    """Save the material's pictures: the single-scatterer (form factor) table, the
+    structure-factor table, their product (the lobe), and the far-field corona.
+
+    Top row: 2-D maps over ``u = 2πR d/λ`` (log scale for the form factor and
+    the lobe); bottom row: cuts along u_x (and u_y for anisotropic
+    materials), and the corona as a person would see it around a 3000 K point
+    light (spectrally integrated to sRGB).
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
 
     R = material.length_scale
-    u_plot = min(material.table.u_max, 40.0)
-    u = np.linspace(1e-6, u_plot, 2000)
-    q = u / R
-    pts = np.stack([q, 0 * q], -1)
-    P = material.shape.form_factor(pts) / R**2
-    S = material.process.structure_factor_at(pts, material.shape)
-    v = material.lobe_dimensionless(np.stack([u, 0 * u], -1))
+    U = _u_extent(material)
+    maps = lobe_maps(material, U)
+    u = maps["u"]
+    mid = u.size // 2
     if half_angle_deg is None:
         # show the first few rings: u ≈ 14 at 550 nm
         half_angle_deg = float(np.degrees(np.arcsin(min(1.0, 14 * 0.55 / (2 * np.pi * R)))))
     img = far_field_corona(material, half_angle_deg)
 
-    fig, ax = plt.subplots(1, 4, figsize=(17, 4))
-    ax[0].semilogy(u, P / P[0])
-    ax[0].set(title=f"form factor T_a ({type(material.shape).__name__})", xlabel="u = 2πR|d|/λ",
-              ylabel="relative")
-    ax[1].plot(u, S)
-    ax[1].axhline(1, color="0.7", lw=0.8)
-    ax[1].set(title=f"structure factor T_s ({type(material.process).__name__})", xlabel="u", ylabel="S")
-    ax[2].semilogy(u, v / v[0])
-    ax[2].set(title="lobe T_a·T_s", xlabel="u", ylabel="relative")
-    ax[3].imshow(tonemap_srgb(img, percentile=99.0), extent=[-half_angle_deg, half_angle_deg] * 2)
-    ax[3].set(title="far-field corona (3000 K light)", xlabel="degree", ylabel="degree")
+    fig, ax = plt.subplots(2, 4, figsize=(18, 8.6), gridspec_kw={"height_ratios": [1.15, 1]})
+    ext = [-U, U, -U, U]
+    names = [("form_factor", f"single scatterer: T_a table ({type(material.shape).__name__})", True),
+             ("structure_factor", f"structure factor: T_s table ({type(material.process).__name__})", False),
+             ("lobe", "product: lobe T_a·T_s", True)]
+    for k, (key, title, log) in enumerate(names):
+        m = maps[key]
+        if log:
+            top = float(np.max(m)) if np.max(m) > 0 else 1.0
+            im = ax[0, k].imshow(np.maximum(m, top * 1e-8), extent=ext, cmap="magma",
+                                 norm=LogNorm(vmin=top * 1e-6, vmax=top))
+        else:
+            hi = max(1.5, float(np.percentile(m, 99.9)))
+            im = ax[0, k].imshow(m, extent=ext, cmap="viridis", vmin=0.0, vmax=hi)
+        ax[0, k].set(title=title, xlabel="u_x = 2πR d_x/λ", ylabel="u_y")
+        fig.colorbar(im, ax=ax[0, k], fraction=0.046, pad=0.03)
+        # cuts through the centre (row mid is u_y = 0, column mid is u_x = 0)
+        ax[1, k].plot(u[mid:], m[mid, mid:], label="along u_x")
+        if not material.isotropic:
+            ax[1, k].plot(u[mid:], m[mid::-1, mid], "--", label="along u_y")
+            ax[1, k].legend(fontsize=8)
+        if log:
+            ax[1, k].set_yscale("log")
+            ax[1, k].set_ylim(max(np.max(m) * 1e-8, 1e-300), None)
+        else:
+            ax[1, k].axhline(1, color="0.7", lw=0.8)
+        ax[1, k].set(xlabel="u", ylabel="dimensionless table" if k != 1 else "S")
+    ax[0, 3].imshow(tonemap_srgb(img, percentile=99.0), extent=[-half_angle_deg, half_angle_deg] * 2)
+    ax[0, 3].set(title="far-field corona (3000 K point light, sRGB)", xlabel="degree", ylabel="degree")
+    lines = [f"area fraction F_a = {material.area_fraction:.3g}",
+             f"length scale R = {R:.3g} µm",
+             f"coherent transmittance = {material.coherent_transmittance:.4f}",
+             f"diffuse (lobe) transmittance = {material.diffuse_transmittance():.4f}",
+             f"reflectance = {material.reflectance:.4f}",
+             "",
+             f"at {wavelength:g} nm: u = 2πR|d|/λ, |d| = sin θ",
+             f"u = 10  ↔  θ = {np.degrees(np.arcsin(min(1.0, 10 * wavelength * 1e-3 / (2 * np.pi * R)))):.3g}°",
+             "lobe f = F_a (R/λ)² × table  (no cosine)"]
+    ax[1, 3].axis("off")
+    ax[1, 3].text(0.02, 0.95, "\n".join(lines), va="top", family="monospace", fontsize=10,
+                  transform=ax[1, 3].transAxes)
     fig.suptitle(repr(material), fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
     return path

@@ -942,7 +942,8 @@ class Mask(Shape):
             img = (img >= threshold).astype(np.float64)
         total = float(img.sum())
         if not total > 0.0:
-            raise CoronaError("image has no transmitting pixel (all values are 0"
+            raise CoronaError(("image" if self._source is None else f"image={self._source!r}")
+                              + " has no transmitting pixel (all values are 0"
                               + (f" below threshold={threshold:g}" if threshold is not None
                                  else "") + "); expected at least one opening")
         img.setflags(write=False)

@@ -314,7 +314,7 @@ def _read(path: str, key: str) -> dict | None:
 def _write_atomic(path: str, key: str, arrays: dict) -> None:
     meta = json.dumps({"format": FORMAT_VERSION, "key": key, "checksum": _checksum(arrays)})
     folder = os.path.dirname(path)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=f".tmp-{key}-", suffix=".npz", dir=folder)
     try:
         with os.fdopen(fd, "wb") as f:
             np.savez(f, __meta__=np.array(meta), **arrays)
@@ -337,7 +337,11 @@ def cached(params: dict, build, *, use_cache: bool = True) -> dict:
         return build()
     from filelock import FileLock
     key = cache_key(params)
-    folder = cache_dir()
+    try:
+        folder = cache_dir()
+    except OSError as err:  # an unusable cache folder must not stop rendering either
+        warnings.warn(f"corona: table cache unusable ({err}); building without it", RuntimeWarning)
+        return build()
     path = os.path.join(folder, f"{key}.npz")
     data = _read(path, key) if os.path.exists(path) else None
     if data is not None:
@@ -346,12 +350,28 @@ def cached(params: dict, build, *, use_cache: bool = True) -> dict:
         data = _read(path, key) if os.path.exists(path) else None
         if data is not None:
             return data
+        _remove_stale_temporaries(folder, key)
         arrays = build()
         try:
             _write_atomic(path, key, arrays)
         except OSError as err:  # a read-only cache must not stop rendering
             warnings.warn(f"corona: could not write table cache {path}: {err}", RuntimeWarning)
         return arrays
+
+
+def _remove_stale_temporaries(folder: str, key: str) -> None:
+    """Delete temporary files of ``key`` left by a writer that was killed.
+
+    Called under the key's lock: every writer of this key holds it while
+    writing, so no live writer owns one of these files.
+    """
+    prefix = f".tmp-{key}-"
+    for name in os.listdir(folder):
+        if name.startswith(prefix):
+            try:
+                os.unlink(os.path.join(folder, name))
+            except OSError:
+                pass
 
 
 def cache_info() -> dict:
@@ -370,7 +390,7 @@ def cache_clear() -> int:
         if f.endswith(".npz") or f.endswith(".lock"):
             try:
                 os.unlink(os.path.join(folder, f))
-                n += f.endswith(".npz")
+                n += f.endswith(".npz") and not f.startswith(".tmp-")
             except FileNotFoundError:
                 pass
     return n

@@ -1,0 +1,325 @@
+"""``make gallery``: render every scene of ``scenes/`` into figure strips.
+
+Each :class:`Strip` is one figure of the reference talk (DESIGN §5): one or
+more renders of a scene with different ``-D`` parameters, tiled side by side
+with a label under each.  The strips go to ``docs/gallery/``, the linear EXRs
+and single PNGs to ``out/gallery/``, and ``docs/gallery.md`` is rewritten
+with every picture and the exact ``corona`` command behind each panel.
+
+    corona gallery [--only NAME ...] [--variant V]
+    python -m corona.gallery
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import shlex
+import sys
+import time
+
+import numpy as np
+
+from ._validation import CoronaError
+
+
+@dataclasses.dataclass
+class Panel:
+    label: str
+    defines: dict = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class Strip:
+    name: str            # file stem in docs/gallery/
+    title: str
+    scene: str | None    # file in scenes/ (None: a `corona lobe` picture)
+    text: str
+    panels: list = dataclasses.field(default_factory=list)
+    shared_exposure: int | None = None   # index of the panel whose auto exposure all panels use
+    lobe_args: list = dataclasses.field(default_factory=list)
+    extra: object = None      # f(list of linear images) -> (image, label): one more panel (not a render)
+    annotate: object = None   # f(list of linear images) -> list of label suffixes (measured numbers)
+
+
+def _rmse_against_last(rgbs):
+    """Relative RMS error of each panel's luminance against the last panel (the reference)."""
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    ref = rgbs[-1] @ lum
+    out = [f": rel. RMSE {np.sqrt(np.mean((im @ lum - ref) ** 2)) / np.mean(ref):.2f}" for im in rgbs[:-1]]
+    return out + [""]
+
+
+def _babinet_difference(rgbs):
+    """particle − aperture: the halos cancel, the lamp's coherent part remains."""
+    ap, pa = rgbs
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    la, lp = ap @ lum, pa @ lum
+    lamp = lp >= 0.5 * lp.max()
+    ratio = float(np.mean(lp[lamp]) / max(np.mean(la[lamp]), 1e-30))
+    return pa - ap, f"particle − aperture (lamp ×{ratio:.2f})"
+
+
+STRIPS = [
+    Strip("teaser", "Teaser: street lights through a fogged window", "teaser.xml",
+          "Three lamps (3000 K, 2400 K, 5000 K) seen at night through a window pane with condensation: "
+          "water droplets of radius 5 µm on 40 % of the glass, hard-disk positions, particle mode. "
+          "Every lamp wears the same rings: their size depends on the droplets, not on the lamp. "
+          "`make demo` renders it at 512², 256 spp for the README.",
+          [Panel("condensation, R = 5 µm, F_a = 0.4", {"res": 256, "spp": 64})]),
+    Strip("lobe_tables", "Single-aperture table and structure-factor table", None,
+          "`corona lobe` for the teaser's droplets: the form-factor table T_a, the hard-disk "
+          "structure-factor table T_s, their product (the lobe), and the far-field corona as seen "
+          "around a 3000 K point light.", [],
+          lobe_args=["--radius", "5", "--area-fraction", "0.4", "--process", "hard-disk", "--mode", "particle"]),
+    Strip("lobe_tables_fabric", "Tables of the fabric: square pores on a jittered square lattice", None,
+          "`corona lobe` for the fabric scene's material: the square pore's cross-shaped form factor, "
+          "the lattice's Bragg peaks (weakened by the jitter), their product and the corona.", [],
+          lobe_args=["--shape", "square", "--radius", "20", "--area-fraction", "0.25",
+                     "--process", "lattice-square", "--jitter", "4"]),
+    Strip("lycopodium", "Lycopodium powder on a slide, 10× and 40×", "lycopodium.xml",
+          "Spores of 30 µm diameter (5 % size spread) on 35 % of a glass slide, random sequential "
+          "adsorption, particle mode, in front of a point-like 3200 K lamp. Magnification narrows the "
+          "field of view of the same set-up: 16° across at 10×, 4° at 40×.",
+          [Panel("10×: 16° field of view", {"fov": 16}), Panel("40×: 4° field of view", {"fov": 4})]),
+    Strip("fabric", "A fabric held against a light", "fabric.xml",
+          "A voile curtain: square pores 40 µm wide on a square lattice of pitch 80 µm (25 % open), "
+          "each pore displaced by 4 µm rms. The lattice turns the corona into spots; orders ±2 vanish "
+          "because the pore is half the pitch. Right: a perfect weave turned by 20°.",
+          [Panel("jitter 4 µm", {}), Panel("jitter 0, weave turned 20°", {"jitter": 0, "angle": 20})]),
+    Strip("sweep_radius", "Sweep: aperture radius", "sweep_radius.xml",
+          "Circular holes in a foil, F_a = 0.3, hard disks: the corona scales as 1/R "
+          "(each panel exposed on its own).",
+          [Panel(f"R = {r} µm", {"radius": r}) for r in (2.5, 5, 10)]),
+    Strip("sweep_area_fraction", "Sweep: area fraction", "sweep_area_fraction.xml",
+          "Holes of radius 5 µm, hard disks: denser holes are more ordered, S(q) < 1 dims the aureole "
+          "relative to the rings (each panel exposed on its own).",
+          [Panel(f"F_a = {f}", {"area_fraction": f}) for f in (0.1, 0.3, 0.5)]),
+    Strip("sweep_incidence", "Sweep: incident angle (elevation 90°, 60°, 30°)", "sweep_incidence.xml",
+          "The layer turns about the vertical axis; the light arrives at 90° (normal), 60° and 30° above "
+          "its plane. The lobe lives in d = (wo + wi).xy, so the corona stretches along the tilt.",
+          [Panel(f"elevation {e}°", {"elevation": e}) for e in (90, 60, 30)]),
+    Strip("circle_vs_square", "Circle vs square apertures", "circle_vs_square.xml",
+          "Holes of the same area (circle R = 5 µm, square of side 8.86 µm), F_a = 0.3, hard disks: "
+          "Airy rings against a sinc² cross.",
+          [Panel("circle", {"shape": "circle", "radius": 5.0}),
+           Panel("square", {"shape": "square", "radius": 4.43})]),
+    Strip("babinet", "Particle vs aperture at f = 0.3, r = 0.5 µm (Babinet)", "babinet.xml",
+          "The same halo around the lamp (the lobe is identical), but the lamp itself is brighter "
+          "through the particles: coherent (1 − F_a)² = 0.49 against F_a² = 0.09, 5.4×. Same exposure "
+          "(set by the halo, so the lamp saturates); the right panel is the difference of the two "
+          "linear images, where the halos cancel and only the lamp remains, with the lamp's measured "
+          "brightness ratio in its label.",
+          [Panel("aperture (holes)", {"mode": "aperture"}), Panel("particle (discs)", {"mode": "particle"})],
+          shared_exposure=0, extra=_babinet_difference),
+    Strip("monochromatic", "F_a = 0.3 at 400 nm vs F_a = 0.5 at 600 nm", "monochromatic.xml",
+          "Holes of radius 5 µm, hard disks, lit by narrow-band (10 nm) lamps: the rings are sharp, "
+          "1.5× wider at 600 nm, and the denser layer's aureole is weaker (each panel exposed on its own).",
+          [Panel("F_a = 0.3, 400 nm", {"area_fraction": 0.3, "lambda_min": 395, "lambda_max": 405,
+                                        "spp": 256}),
+           Panel("F_a = 0.5, 600 nm", {"area_fraction": 0.5, "lambda_min": 595, "lambda_max": 605,
+                                        "spp": 256})]),
+    Strip("mixed", "Mixed aperture types", "mixed.xml",
+          "Circular and square holes of equal area, F_a = 0.3 each, mixed as patches (Mitsuba's "
+          "blendbsdf of two corona layers): the fraction of square holes is 0, ½ and 1.",
+          [Panel(f"{label}", {"weight": w}) for label, w in
+           (("circles", 0), ("half circles, half squares", 0.5), ("squares", 1))]),
+    Strip("sampling", "MIS(cosine, light) vs MIS(T_a × T_s, light)", "sampling.xml",
+          "Droplets of radius 20 µm (a narrow lobe) in front of a large lamp (4.8° radius), both "
+          "strategies combined with light sampling by multiple importance sampling, at 16 spp each; "
+          "right: a 512 spp reference. Same exposure. The labels give each 16 spp image's relative "
+          "RMS error (luminance) against the reference.",
+          [Panel("cosine, 16 spp", {"sampling": "cosine", "spp": 16}),
+           Panel("T_a × T_s, 16 spp", {"sampling": "lobe", "spp": 16}),
+           Panel("reference: T_a × T_s, 512 spp", {"sampling": "lobe", "spp": 512})],
+          shared_exposure=2, annotate=_rmse_against_last),
+]
+
+
+def repo_root() -> str:
+    return os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
+
+
+def _fmt(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def render_command(strip: Strip, index: int, exposure: float | None) -> str:
+    panel = strip.panels[index]
+    args = ["corona", "render", f"scenes/{strip.scene}"]
+    for k, v in panel.defines.items():
+        args += ["-D", f"{k}={_fmt(v)}"]
+    args += ["--out", "out/gallery", "--name", _panel_name(strip, index)]
+    if exposure is not None:
+        args += ["--exposure", f"{exposure:.4g}"]
+    return shlex.join(args)
+
+
+def _panel_name(strip: Strip, index: int) -> str:
+    return strip.name if len(strip.panels) == 1 else f"{strip.name}-{index + 1}"
+
+
+def _auto_exposure(rgb, percentile: float = 99.5) -> float:
+    lum = np.maximum(np.nan_to_num(rgb), 0.0) @ np.array([0.2126, 0.7152, 0.0722])
+    ref = float(np.percentile(lum, percentile))
+    return float(f"{1.0 / ref:.4g}") if ref > 0 else 1.0
+
+
+def _font(size: int):
+    """DejaVu Sans (shipped with matplotlib: has µ, ×, °), else Pillow's default."""
+    from PIL import ImageFont
+    try:
+        from matplotlib import font_manager
+        return ImageFont.truetype(font_manager.findfont("DejaVu Sans"), size)
+    except Exception:
+        try:
+            return ImageFont.load_default(size=size)
+        except TypeError:  # Pillow < 10.1
+            return ImageFont.load_default()
+
+
+def tile(images: list, labels: list, gap: int = 4, band: int = 26):
+    """Side-by-side 8-bit images with a label under each (a PIL image)."""
+    from PIL import Image, ImageDraw
+    h = max(im.shape[0] for im in images)
+    w = sum(im.shape[1] for im in images) + gap * (len(images) - 1)
+    canvas = Image.new("RGB", (w, h + band), (255, 255, 255))
+    draw = ImageDraw.Draw(canvas)
+    font = _font(15)
+    x = 0
+    for im, label in zip(images, labels):
+        canvas.paste(Image.fromarray(im), (x, 0))
+        tw = draw.textlength(label, font=font)
+        draw.text((x + (im.shape[1] - tw) / 2, h + 4), label, fill=(0, 0, 0), font=font)
+        x += im.shape[1] + gap
+    return canvas
+
+
+def build(only=None, variant: str | None = None, out_dir: str | None = None,
+          md_path: str | None = None, progress: bool = True, log=print) -> dict:
+    """Render the strips (all, or the names in ``only``) and rewrite the gallery page.
+
+    Returns ``{"seconds": total, "strips": {name: seconds}, "failed": {name: message}}``.
+    """
+    from .color import tonemap_srgb
+    from .render import load_scene, render_linear, scene_spp, setup_variant, write_images
+    root = repo_root()
+    scenes_dir = os.path.join(root, "scenes")
+    if not os.path.isdir(scenes_dir):
+        raise CoronaError(f"no scenes/ folder next to the package ({scenes_dir}); "
+                          "the gallery needs a source checkout")
+    out_dir = out_dir or os.path.join(root, "docs", "gallery")
+    md_path = md_path or os.path.join(root, "docs", "gallery.md")
+    raw_dir = os.path.join(root, "out", "gallery")
+    os.makedirs(out_dir, exist_ok=True)
+    names = [s.name for s in STRIPS]
+    if only:
+        bad = sorted(set(only) - set(names))
+        if bad:
+            raise CoronaError(f"unknown gallery strip(s) {', '.join(bad)}; known: {', '.join(names)}")
+    v = setup_variant(variant)
+    log(f"corona gallery: variant {v}, strips into {out_dir}")
+    t_all = time.perf_counter()
+    timing, failed, commands = {}, {}, {}
+    for strip in STRIPS:
+        if only and strip.name not in only:
+            continue
+        t0 = time.perf_counter()
+        png = os.path.join(out_dir, f"{strip.name}.png")
+        try:
+            if strip.scene is None:
+                from .cli import main as cli_main
+                args = ["lobe", *strip.lobe_args, "--out", png]
+                try:
+                    cli_main.main(args=args, prog_name="corona", standalone_mode=False)
+                except Exception as err:
+                    raise CoronaError(str(err)) from None
+                commands[strip.name] = [shlex.join(["corona", *args[:-1], os.path.relpath(png, root)])]
+            else:
+                path = os.path.join(scenes_dir, strip.scene)
+                rgbs = []
+                for i, panel in enumerate(strip.panels):
+                    scene = load_scene(path, panel.defines)
+                    rgb, _ = render_linear(scene, scene_spp(scene), progress=progress,
+                                           desc=f"{strip.name} {i + 1}/{len(strip.panels)}")
+                    rgbs.append(rgb)
+                exposures = [None] * len(rgbs)
+                if strip.shared_exposure is not None:
+                    exposures = [_auto_exposure(rgbs[strip.shared_exposure])] * len(rgbs)
+                images, labels = [], [p.label for p in strip.panels]
+                if strip.annotate is not None:
+                    labels = [a + b for a, b in zip(labels, strip.annotate(rgbs))]
+                for i, rgb in enumerate(rgbs):
+                    write_images(rgb, raw_dir, _panel_name(strip, i), exposures[i])
+                    images.append(tonemap_srgb(rgb, exposures[i]))
+                if strip.extra is not None:
+                    rgb, label = strip.extra(rgbs)
+                    images.append(tonemap_srgb(rgb, exposures[0]))
+                    labels.append(label)
+                tile(images, labels).save(png, optimize=True)
+                commands[strip.name] = [render_command(strip, i, exposures[i]) for i in range(len(rgbs))]
+        except CoronaError as err:
+            failed[strip.name] = str(err)
+            log(f"  {strip.name}: FAILED: {err}")
+            continue
+        timing[strip.name] = time.perf_counter() - t0
+        log(f"  {strip.name}: {timing[strip.name]:.1f} s -> {os.path.relpath(png, root)}")
+    total = time.perf_counter() - t_all
+    # commands of strips not rendered this time (--only) come from the previous run
+    import json
+    record = os.path.join(out_dir, "commands.json")
+    try:
+        with open(record, encoding="utf-8") as f:
+            commands = {**json.load(f), **commands}
+    except (OSError, ValueError):
+        pass
+    commands = {k: v for k, v in commands.items() if k in names and k not in failed}
+    with open(record, "w", encoding="utf-8") as f:
+        json.dump(commands, f, indent=1, ensure_ascii=False)
+    write_markdown(md_path, out_dir, commands, failed, v)
+    log(f"corona gallery: {total:.1f} s in all; page {os.path.relpath(md_path, root)}")
+    return {"seconds": total, "strips": timing, "failed": failed}
+
+
+def write_markdown(md_path: str, out_dir: str, commands: dict, failed: dict, variant: str) -> None:
+    """Rewrite the gallery page: every strip whose picture exists, with its commands."""
+    rel = os.path.relpath(out_dir, os.path.dirname(md_path))
+    lines = ["# Gallery", "",
+             "Every scene of [`scenes/`](../scenes) as a figure of the reference talk (DESIGN §5), "
+             "rendered at modest resolution and sample count by `make gallery` "
+             f"(variant `{variant}`). Each panel comes from the command under it; the EXRs land in "
+             "`out/gallery/`. Scene units are metres, the corona BSDF's lengths micrometres; each "
+             "scene's comment states its dimensions.", ""]
+    for strip in STRIPS:
+        png = os.path.join(out_dir, f"{strip.name}.png")
+        if not os.path.isfile(png) and strip.name not in failed:
+            continue
+        lines += [f"## {strip.title}", "", strip.text, ""]
+        if strip.name in failed:
+            lines += [f"*Not rendered: {failed[strip.name]}*", ""]
+            continue
+        lines += [f"![{strip.title}]({rel}/{strip.name}.png)", ""]
+        cmds = commands.get(strip.name) or _default_commands(strip)
+        lines += ["```sh", *cmds, "```", ""]
+    os.makedirs(os.path.dirname(md_path) or ".", exist_ok=True)
+    with open(md_path, "w", encoding="utf-8") as f:
+        f.write("\n".join(lines))
+
+
+def _default_commands(strip: Strip) -> list:
+    if strip.scene is None:
+        return [shlex.join(["corona", "lobe", *strip.lobe_args, "--out", f"docs/gallery/{strip.name}.png"])]
+    return [render_command(strip, i, None) for i in range(len(strip.panels))]
+
+
+def main(argv=None) -> int:
+    import argparse
+    ap = argparse.ArgumentParser(prog="python -m corona.gallery", description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="*", default=None, help="strip names")
+    ap.add_argument("--variant", default=None)
+    a = ap.parse_args(argv)
+    res = build(only=a.only, variant=a.variant)
+    return 1 if res["failed"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
