@@ -5,6 +5,8 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 PYTEST_ARGS ?=
+# make bench BENCH_ARGS=--full (bigger runs) or BENCH_ARGS="--only render sampling"
+BENCH_ARGS ?=
 
 .PHONY: all demo test venv llvm bench gallery clean clean-cache
 
@@ -34,7 +36,7 @@ gallery: venv
 	$(PY) -m corona.cli gallery
 
 bench: venv
-	$(PY) benchmarks/run_all.py
+	$(PY) benchmarks/run_all.py $(BENCH_ARGS)
 
 clean-cache: venv
 	$(PY) -m corona.cli tables clear
