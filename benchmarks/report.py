@@ -1,4 +1,8 @@
-"""Regenerate docs/benchmarks.md from the JSON files in benchmarks/results/."""
+"""Regenerate docs/benchmarks.md from the JSON files in benchmarks/results/.
+
+The page opens with the headline figures (each against its goal), then one
+section per benchmark: its machine and a table of its results.
+"""
 from __future__ import annotations
 
 import glob
@@ -6,49 +10,119 @@ import json
 import os
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results")
 DOC = os.path.join(HERE, "..", "docs", "benchmarks.md")
 
 
+def _load(name: str) -> dict | None:
+    path = os.path.join(RESULTS, f"{name}.json")
+    if not os.path.exists(path):
+        return None
+    with open(path) as f:
+        return json.load(f)
+
+
 def _machine(m: dict) -> str:
-    return (f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, {m.get('variant', '')} "
-            f"(mitsuba {m.get('mitsuba', '?')}, drjit {m.get('drjit', '?')}), {m.get('date', '?')}")
+    cores = m.get("cores", m.get("cpu_count", "?"))
+    return (f"{m.get('cpu', 'CPU ?')}, {cores} cores, variant {m.get('variant') or '—'} "
+            f"(mitsuba {m.get('mitsuba', '?')}, drjit {m.get('drjit', '?')}), {m.get('date', 'date ?')}")
 
 
-def render_section(name: str, data: dict) -> list[str]:
+def _fmt(x) -> str:
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, float):
+        return f"{x:.4g}"
+    return str(x)
+
+
+def _table(rows: dict) -> list[str]:
+    """A markdown table of ``{case: {column: scalar}}`` (non-scalar cells left out)."""
+    keys = []
+    for v in rows.values():
+        for k, x in v.items():
+            if k not in keys and isinstance(x, (int, float, str, bool)):
+                keys.append(k)
+    out = ["| case | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+    for case, v in rows.items():
+        out.append(f"| {case} | " + " | ".join(_fmt(v.get(k, "")) for k in keys) + " |")
+    return out
+
+
+def headline() -> list[str]:
+    rows = []
+    r = _load("render")
+    if r:
+        c = r["results"]["corona"]
+        rows.append(("Render cost, corona / roughdielectric (256², 64 spp, path)",
+                     f"{c['ratio_to_roughdielectric']:.2f}× (medians; minima {c.get('ratio_of_minima', float('nan')):.2f}×)",
+                     "≤ 1.3×"))
+        rows.append(("First-render JIT compile, corona / roughdielectric",
+                     f"{c['jit_compile_s']:.2f} s / {r['results']['roughdielectric']['jit_compile_s']:.2f} s", "—"))
+    s = _load("sampling")
+    if s:
+        for k, v in s["results"].items():
+            if k.endswith("/ lobe"):
+                name = k[:-len(" / lobe")]
+                rows.append((f"Sampling, {name}: RMSE cosine / T_a×T_s at equal time (image; halo)",
+                             f"{v['rmse_ratio_image_equal_time']:.2f}×; {v['rmse_ratio_halo_equal_time']:.2f}× "
+                             f"(weight variance {v['weight_variance_ratio']:.2g}×)", "≥ 10×"))
+    t = _load("tables")
+    if t:
+        worst = max(t["results"].items(), key=lambda kv: kv[1]["build_median_s"])
+        rows.append(("Slowest lobe table build (" + worst[0] + ")", f"{worst[1]['build_median_s']:.3f} s", "—"))
+    h = _load("hard_disk")
+    if h:
+        rows.append(("Hard-disk structure-factor lookup (cold, 2^18 points)",
+                     f"{h['lookup']['cold_seconds']:.3f} s", f"≤ {h['lookup']['limit_seconds']} s"))
+        g = h.get("regenerate_row")
+        if g:
+            rows.append((f"Regenerate one hard-disk row (η = {g['eta']}, {g['jobs']} jobs)",
+                         f"{g['wall_seconds']:.0f} s", f"≤ {g['limit_seconds']:.0f} s"))
+    w = _load("wave")
+    if w:
+        c = w["converged"]
+        rows.append(("Brute force to 2 % / model lobe on the same grid",
+                     f"{c['seconds']:.1f} s / {c['seconds'] / c['ratio_to_model_warm']:.3f} s = "
+                     f"{c['ratio_to_model_warm']:.0f}×", "report"))
+    g = _load("gpu")
+    if g:
+        rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else
+                     "see render_cuda", "when a GPU exists"))
+    out = ["## Headline figures", "", "| figure | measured | goal |", "|---|---|---|"]
+    out += [f"| {a} | {b} | {c} |" for a, b, c in rows]
+    if s and s.get("note"):
+        out += ["", f"Sampling: {s['note']}"]
+    return out + [""]
+
+
+def section(name: str, data: dict) -> list[str]:
     out = [f"## {name}", "", f"Machine: {_machine(data.get('machine', {}))}", ""]
     if "goal" in data:
         out += [f"Goal: {data['goal']}", ""]
     res = data.get("results")
     if isinstance(res, dict) and res and all(isinstance(v, dict) for v in res.values()):
-        keys = []
-        for v in res.values():
-            for k, x in v.items():
-                if k not in keys and isinstance(x, (int, float, str)):
-                    keys.append(k)
-        out.append("| case | " + " | ".join(keys) + " |")
-        out.append("|---|" + "---|" * len(keys))
-        for case, v in res.items():
-            cells = []
-            for k in keys:
-                x = v.get(k, "")
-                cells.append(f"{x:.4g}" if isinstance(x, float) else str(x))
-            out.append(f"| {case} | " + " | ".join(cells) + " |")
-    else:
-        summary = {k: v for k, v in data.items() if k != "machine"}
-        out += ["```json", json.dumps(summary, indent=1)[:3000], "```"]
-    return out + [""]
+        out += _table(res) + [""]
+    rest = {k: v for k, v in data.items() if k not in ("machine", "results", "goal")}
+    if rest:
+        text = json.dumps(rest, indent=1)
+        if len(text) > 4000:
+            text = text[:4000] + "\n… (truncated; full data in benchmarks/results/" + name + ".json)"
+        out += ["<details><summary>more figures</summary>", "", "```json", text, "```", "", "</details>", ""]
+    return out
 
 
 def main():
     lines = ["# Benchmarks", "",
-             "Generated by `python benchmarks/report.py` from `benchmarks/results/*.json`;",
-             "each script in `benchmarks/` writes one JSON file. Timings are medians of",
-             "repeated runs on the machine named; ratios measured in one run are the",
-             "figures to compare.", ""]
-    for path in sorted(glob.glob(os.path.join(HERE, "results", "*.json"))):
-        with open(path) as f:
-            data = json.load(f)
-        lines += render_section(os.path.splitext(os.path.basename(path))[0], data)
+             "Generated by `make bench` (`benchmarks/run_all.py`, then `benchmarks/report.py`) from",
+             "`benchmarks/results/*.json`; each `benchmarks/bench_*.py` writes one JSON file",
+             "with the machine it ran on. Timings are medians of repeated runs; ratios",
+             "measured in one run are the figures to compare. Timings are never asserted",
+             "in tests.", ""]
+    lines += headline()
+    for path in sorted(glob.glob(os.path.join(RESULTS, "*.json"))):
+        name = os.path.splitext(os.path.basename(path))[0]
+        lines += section(name, _load(name))
     os.makedirs(os.path.dirname(DOC), exist_ok=True)
     with open(DOC, "w") as f:
         f.write("\n".join(lines))

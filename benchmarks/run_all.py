@@ -17,7 +17,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 FULL = {   # bigger runs: extra arguments per script
     "render": ["--rounds", "5", "--repeats", "5"],
-    "sampling": ["--res", "256", "--ref-spp", "8192"],
+    "sampling": ["--res", "512", "--ref-spp", "8192"],
     "scaling": ["--repeats", "5"],
     "tables": ["--repeats", "20"],
     "wave": ["--max-m", "512"],
