@@ -145,7 +145,6 @@ class CoronaBSDFMixin:
         table = material.table
         self.isotropic = material.isotropic
         self.R = float(material.length_scale)
-        fa = material.area_fraction
 
         # --- component energies (wavelength-independent) ---------------------
         self.w_coherent = float(material.coherent_transmittance)
