@@ -34,6 +34,7 @@ test: venv
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
 gallery: venv
 	$(PY) -m corona.cli gallery
+	$(PY) -m corona.demo out/demo --update-docs
 
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)

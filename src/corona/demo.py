@@ -1,8 +1,10 @@
 """``make demo``: a lobe table, its pictures, and a rendered corona.
 
-Writes into ``out/demo/`` (or the folder given as the first argument) and,
-from a source checkout, renders ``scenes/teaser.xml`` and copies the picture
-to ``docs/images/teaser.png`` (the README's).
+Writes into ``out/demo/`` (or the folder given as the first argument); from
+a source checkout it renders ``scenes/teaser.xml``.  With ``--update-docs``
+(``make gallery`` passes it) the picture is also copied to
+``docs/images/teaser.png``, the README's; a plain ``make demo`` leaves the
+checkout's tracked files alone.
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ def _repo_file(*parts: str) -> str | None:
     return None
 
 
-def main(out_dir: str = "out/demo") -> int:
+def main(out_dir: str = "out/demo", update_docs: bool = False) -> int:
     import corona
     from .parameters import material_from_parameters
     from .pictures import lobe_figure
@@ -69,7 +71,7 @@ def main(out_dir: str = "out/demo") -> int:
     print(f"\n  rendering {what} with {variant} ({spp} spp)...")
     res = render_to_files(scene, out_dir, "teaser", spp=spp)
     print(f"  rendered in {res['seconds']:.1f} s")
-    docs = _repo_file("docs", "images")
+    docs = _repo_file("docs", "images") if update_docs else None
     if docs is not None and teaser is not None and fast:
         shutil.copyfile(res["png"], os.path.join(docs, "teaser.png"))
         print(f"  copied to {os.path.join(docs, 'teaser.png')} (the README's picture)")
@@ -80,4 +82,6 @@ def main(out_dir: str = "out/demo") -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(*sys.argv[1:]))
+    args = sys.argv[1:]
+    flag = "--update-docs" in args
+    sys.exit(main(*[a for a in args if a != "--update-docs"], update_docs=flag))
