@@ -144,3 +144,25 @@ def test_table_cache_roundtrip_and_damage(tmp_path, monkeypatch):
     assert len(calls) == 2 and np.array_equal(c["values"], np.arange(10.0))
     assert tables.cache_info()["tables"] == 1
     assert tables.cache_clear() == 1 and tables.cache_info()["tables"] == 0
+
+
+def test_mixture_parameter_follows_the_decoupling_formula():
+    """shape=mixture: lobe = (F_a/<|A|>) [<|Â|²> + |<Â>|² (S - 1)] / λ², from Airy amplitudes."""
+    from scipy.special import j1
+
+    from corona.parameters import material_from_parameters
+    m = material_from_parameters(shape="mixture", mixture="circle:1.0:0.3, circle:1.5:0.7",
+                                 process="hard-disk", area_fraction=0.4)
+    lam = 0.6  # µm
+    d = np.stack([np.linspace(0.005, 0.8, 300), np.zeros(300)], -1)
+    q = 2 * np.pi * d[:, 0] / lam
+    w, R = np.array([0.3, 0.7]), np.array([1.0, 1.5])
+    area = np.pi * R**2
+    amp = area[:, None] * 2 * j1(np.outer(R, q)) / np.outer(R, q)          # Â_i(q), real
+    mean_sq = (w[:, None] * amp**2).sum(0)                                 # <|Â|²>
+    sq_mean = (w[:, None] * amp).sum(0) ** 2                               # |<Â>|²
+    S = m.process.structure_factor_at(np.stack([q, 0 * q], -1), m.shape)
+    expected = 0.4 / (w @ area) * (mean_sq + sq_mean * (S - 1)) / lam**2
+    np.testing.assert_allclose(m.lobe(d, lam * 1e3), expected, rtol=1e-6, atol=1e-9 * expected.max())
+    # the exclusion diameter is the largest type's: η = F_a (π σ²/4) / <|A|>
+    assert m.process.packing_fraction(m.shape) == pytest.approx(0.4 * np.pi * 3.0**2 / 4 / (w @ area))

@@ -172,6 +172,9 @@ def test_xml_and_dict_load(mi_variant):
     ({"shape": "blob"}, "shape"),
     ({"mode": "sideways"}, "mode"),
     ({"bogus": 1.0}, "bogus"),
+    ({"shape": "mixture", "mixture": "circle:1"}, "mixture"),
+    ({"shape": "mixture", "mixture": "circle:1:0.5, blob:1:0.5"}, "mixture shape"),
+    ({"mixture": "circle:1:1"}, "mixture"),
 ])
 def test_bad_parameters_fail_at_load(mi_variant, params, word):
     import mitsuba as mi

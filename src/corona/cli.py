@@ -127,6 +127,8 @@ def material_options(f):
         click.option("--jitter", type=float, default=0.0, show_default=True, help="µm (lattices)"),
         click.option("--mode", type=click.Choice(["aperture", "particle"]), default="aperture", show_default=True),
         click.option("--albedo", type=float, default=0.0, show_default=True),
+        click.option("--mixture", default=None,
+                     help="shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (radius µm, number weights)"),
     ]
     for o in reversed(opts):
         f = o(f)

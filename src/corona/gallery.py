@@ -119,10 +119,11 @@ STRIPS = [
            Panel("F_a = 0.5, 600 nm", {"area_fraction": 0.5, "lambda_min": 595, "lambda_max": 605,
                                         "spp": 256})]),
     Strip("mixed", "Mixed aperture types", "mixed.xml",
-          "Circular and square holes of equal area, F_a = 0.3 each, mixed as patches (Mitsuba's "
-          "blendbsdf of two corona layers): the fraction of square holes is 0, ½ and 1.",
-          [Panel(f"{label}", {"weight": w}) for label, w in
-           (("circles", 0), ("half circles, half squares", 0.5), ("squares", 1))]),
+          "Circular and square holes of equal area on one set of hard-disk positions, F_a = 0.3 in "
+          "all (the corona BSDF's shape=mixture, decoupling approximation): number fractions of "
+          "square holes 0, ½ and 1.",
+          [Panel(f"{label}", {"circles": c, "squares": q}) for label, c, q in
+           (("circles", 1, 0), ("half circles, half squares", 0.5, 0.5), ("squares", 0, 1))]),
     Strip("sampling", "MIS(cosine, light) vs MIS(T_a × T_s, light)", "sampling.xml",
           "Droplets of radius 20 µm (a narrow lobe) in front of a large lamp (4.8° radius), both "
           "strategies combined with light sampling by multiple importance sampling, at 16 spp each; "

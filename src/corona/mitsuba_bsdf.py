@@ -11,7 +11,8 @@ Parameters (all optional; see :mod:`corona.parameters` for the full table):
 ======================  ==========  ===========  =============================================
 name                    unit        default      meaning
 ======================  ==========  ===========  =============================================
-shape                   —           circle       circle, ellipse, square, rectangle, polygon, mask
+shape                   —           circle       circle, ellipse, square, rectangle, polygon, mask,
+                                                 mixture (with ``mixture``)
 radius                  µm          0.5          size of the scatterer (circle radius, half-width…)
 aspect / sides / angle  — / — / °   1 / 6 / 0    ellipse & rectangle aspect; polygon sides; rotation
 filename, pixel_size    — , µm      —            mask image (shape=mask) or point file (process=points)
@@ -25,6 +26,7 @@ exclusion_diameter      µm          shape's      hard-core diameter σ
 jitter                  µm          0            lattice jitter (rms per axis)
 mode                    —           aperture     aperture, particle
 albedo                  —           0            diffuse reflectance of the opaque part
+mixture                 —           —            'SHAPE:RADIUS:WEIGHT, ...' number-weighted types
 sampling                —           lobe         lobe: sample T_a T_s exactly; cosine: cosine-
                                                  weighted hemisphere (for comparisons only)
 ======================  ==========  ===========  =============================================

@@ -6,7 +6,8 @@ scripts.  Every parameter is validated here with one clear error.
 ======================  ==========  ===========  =============================================
 name                    unit        default      meaning
 ======================  ==========  ===========  =============================================
-shape                   —           circle       circle, ellipse, square, rectangle, polygon, mask
+shape                   —           circle       circle, ellipse, square, rectangle, polygon, mask,
+                                                 mixture
 radius                  µm          0.5          circle radius; ellipse semi-axis along x;
                                                  square / rectangle half-width; polygon
                                                  circumradius
@@ -29,6 +30,9 @@ exclusion_diameter      µm          shape's      hard-core diameter σ (hard-di
 jitter                  µm          0            lattice: rms displacement per axis
 mode                    —           aperture     aperture, particle
 albedo                  —           0            diffuse reflectance of the opaque part
+mixture                 —           —            shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (shapes
+                                                 circle…polygon, radius µm, number weights);
+                                                 decoupling approximation (DESIGN §3)
 ======================  ==========  ===========  =============================================
 """
 from __future__ import annotations
@@ -37,7 +41,7 @@ import math
 
 from ._validation import CoronaError, check_choice, check_positive, check_range
 
-SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon", "mask")
+SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon", "mask", "mixture")
 PROCESSES = ("poisson", "hard-disk", "rsa", "lattice-square", "lattice-hex", "points")
 ORIENTATIONS = ("fixed", "random")
 SIZE_DISTRIBUTIONS = ("lognormal", "schulz")
@@ -47,36 +51,58 @@ DEFAULTS = {
     "filename": None, "points_filename": None, "pixel_size": None, "edge_width": 0.0, "orientation": "fixed",
     "size_spread": 0.0, "size_distribution": "lognormal", "area_fraction": 0.3,
     "process": "hard-disk", "exclusion_diameter": None, "jitter": 0.0,
-    "mode": "aperture", "albedo": 0.0,
+    "mode": "aperture", "albedo": 0.0, "mixture": None,
 }
 
 
-def make_shape(p: dict):
+MIXTURE_SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon")
+
+
+def _outline(kind: str, r: float, p: dict):
+    """The bare shape ``kind`` of size ``r`` [µm] (aspect, sides, angle from ``p``)."""
     from . import shapes
-    kind = check_choice("shape", p["shape"], SHAPES)
     angle = math.radians(check_range("angle", p["angle"], -360.0, 360.0, unit="degree"))
-    if kind == "mask":
-        if not p.get("filename"):
-            raise CoronaError("shape='mask' needs filename=<image file>")
-        if p.get("pixel_size") is None:
-            raise CoronaError("shape='mask' needs pixel_size=<µm per pixel>")
-        base = shapes.Mask(p["filename"], check_positive("pixel_size", p["pixel_size"], "µm"))
-    else:
-        r = check_positive("radius", p["radius"], "µm")
-        aspect = check_positive("aspect", p["aspect"])
-        if kind == "circle":
-            base = shapes.Circle(r)
-        elif kind == "ellipse":
-            base = shapes.Ellipse(r, r * aspect, angle=angle)
-        elif kind == "square":
-            base = shapes.Square(2 * r, angle=angle)
-        elif kind == "rectangle":
-            base = shapes.Rectangle(2 * r, 2 * r * aspect, angle=angle)
-        else:
-            sides = p["sides"]
-            if int(sides) != sides or int(sides) < 3:
-                raise CoronaError(f"sides={sides!r} is out of range; allowed integers >= 3")
-            base = shapes.RegularPolygon(int(sides), r, angle=angle)
+    aspect = check_positive("aspect", p["aspect"])
+    if kind == "circle":
+        return shapes.Circle(r)
+    if kind == "ellipse":
+        return shapes.Ellipse(r, r * aspect, angle=angle)
+    if kind == "square":
+        return shapes.Square(2 * r, angle=angle)
+    if kind == "rectangle":
+        return shapes.Rectangle(2 * r, 2 * r * aspect, angle=angle)
+    sides = p["sides"]
+    if int(sides) != sides or int(sides) < 3:
+        raise CoronaError(f"sides={sides!r} is out of range; allowed integers >= 3")
+    return shapes.RegularPolygon(int(sides), r, angle=angle)
+
+
+def parse_mixture(spec) -> list[tuple[str, float, float]]:
+    """``"circle:5:0.5, square:4.43:0.5"`` -> [(shape, radius µm, number weight), ...]."""
+    form = "mixture='SHAPE:RADIUS:WEIGHT, ...' (e.g. 'circle:5:0.5, square:4.43:0.5')"
+    if not isinstance(spec, str) or not spec.strip():
+        raise CoronaError(f"shape='mixture' needs {form}")
+    out = []
+    for item in spec.split(","):
+        parts = [x.strip() for x in item.split(":")]
+        if len(parts) != 3:
+            raise CoronaError(f"mixture item {item.strip()!r} is malformed; expected {form}")
+        kind = check_choice("mixture shape", parts[0], MIXTURE_SHAPES)
+        try:
+            r, w = float(parts[1]), float(parts[2])
+        except ValueError:
+            raise CoronaError(f"mixture item {item.strip()!r}: radius and weight must be numbers; "
+                              f"expected {form}") from None
+        out.append((kind, check_positive("mixture radius", r, "µm"),
+                    check_range("mixture weight", w, 0.0, math.inf, hi_open=True)))
+    if sum(w for _, _, w in out) <= 0:
+        raise CoronaError(f"mixture={spec!r}: the number weights are all 0; at least one must be > 0")
+    return out
+
+
+def _modified(base, p: dict):
+    """``base`` with the soft edge, size spread and random orientation of ``p``."""
+    from . import shapes
     w = check_range("edge_width", p["edge_width"], 0.0, math.inf, hi_open=True, unit="µm")
     if w > 0:
         base = shapes.SoftEdge(base, w)
@@ -87,6 +113,29 @@ def make_shape(p: dict):
     if check_choice("orientation", p["orientation"], ORIENTATIONS) == "random" and not base.isotropic:
         base = shapes.RandomOrientation(base)
     return base
+
+
+def make_shape(p: dict):
+    from . import shapes
+    kind = check_choice("shape", p["shape"], SHAPES)
+    check_range("angle", p["angle"], -360.0, 360.0, unit="degree")
+    if kind == "mixture":
+        # each component carries the edge / spread / orientation modifiers; the
+        # layer's lobe follows the decoupling approximation (DESIGN §3)
+        # (types of weight 0 are left out: they would still set the exclusion diameter)
+        return shapes.Mixture([(_modified(_outline(k, r, p), p), w)
+                               for k, r, w in parse_mixture(p["mixture"]) if w > 0])
+    if p.get("mixture"):
+        raise CoronaError(f"mixture={p['mixture']!r} needs shape='mixture' (got shape={kind!r})")
+    if kind == "mask":
+        if not p.get("filename"):
+            raise CoronaError("shape='mask' needs filename=<image file>")
+        if p.get("pixel_size") is None:
+            raise CoronaError("shape='mask' needs pixel_size=<µm per pixel>")
+        base = shapes.Mask(p["filename"], check_positive("pixel_size", p["pixel_size"], "µm"))
+    else:
+        base = _outline(kind, check_positive("radius", p["radius"], "µm"), p)
+    return _modified(base, p)
 
 
 def make_process(p: dict, shape):
