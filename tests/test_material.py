@@ -166,3 +166,25 @@ def test_mixture_parameter_follows_the_decoupling_formula():
     np.testing.assert_allclose(m.lobe(d, lam * 1e3), expected, rtol=1e-6, atol=1e-9 * expected.max())
     # the exclusion diameter is the largest type's: η = F_a (π σ²/4) / <|A|>
     assert m.process.packing_fraction(m.shape) == pytest.approx(0.4 * np.pi * 3.0**2 / 4 / (w @ area))
+
+
+def test_lattice_table_keeps_each_bragg_peak_weight():
+    """The 2D table of a lattice transmits what the exact lobe does into |d| <= 1.
+
+    The Bragg peaks are far narrower than a table cell; each must enter the
+    table with its exact weight C(G) W_G (a form factor taken at the cell
+    centre instead of at the peak overestimated this by 3.7 % for R = 2.5 µm).
+    """
+    from corona import processes, shapes
+    R, fa = 1.5, 0.3
+    a = np.sqrt(np.pi * R**2 / fa)
+    m = Material(shapes.Circle(R), processes.Lattice("square", a, jitter=0.1 * a))
+    lam = 550.0
+    n = 2048                                   # d grid resolving the peaks (rms width ~ 3 points)
+    g = (np.arange(n) + 0.5) / n * 2 - 1
+    exact = 0.0
+    for i in range(0, n, 256):
+        dx, dy = np.meshgrid(g, g[i:i + 256])
+        inside = dx**2 + dy**2 <= 1
+        exact += (m.lobe(np.stack([dx, dy], -1), lam) * inside).sum() * (2 / n) ** 2
+    assert m.diffuse_transmittance(lam, cos_theta_i=1.0) == pytest.approx(exact, rel=3e-3)

@@ -239,17 +239,18 @@ class Material:
         c = -u_range + (np.arange(n) + 0.5) * cell
         ux, uy = np.meshgrid(c, c, indexing="xy")
         u = np.stack([ux, uy], -1)
-        cell_mean = getattr(self.process, "structure_factor_cell_mean", None)
-        if cell_mean is None:
+        if not hasattr(self.process, "bragg_cell_mean"):
             return tables.GridTable(u_range, self.lobe_dimensionless(u)).arrays()
-        # Bragg peaks narrower than a cell: use the cell mean of S, which keeps
-        # every peak's integrated weight (sampling S at the centre would not)
+        # Bragg peaks narrower than a cell: each vertex carries the cell mean of
+        # the lobe, P + C (S_bg - 1) + Σ_G C(G) W_G ⟨g_G⟩_cell, i.e. every peak
+        # with its exact weight C(G) W_G (C at the peak, not at the cell centre)
         R = self.length_scale
         q = u / R
         P = self.shape.form_factor(q)
         C = self.shape.coherent_form_factor(q)
-        S = cell_mean(q, cell / R, self.shape)
-        return tables.GridTable(u_range, np.maximum(P + C * (S - 1.0), 0.0) / R**2).arrays()
+        S_bg = self.process.background_cell_mean(q, cell / R)
+        bragg = self.process.bragg_cell_mean(q, cell / R, peak_factor=self.shape.coherent_form_factor)
+        return tables.GridTable(u_range, np.maximum(P + C * (S_bg - 1.0) + bragg, 0.0) / R**2).arrays()
 
     def lobe_tabulated(self, d, wavelength) -> np.ndarray:
         """The lobe as the renderer evaluates it: interpolated from :attr:`table`."""

@@ -782,34 +782,61 @@ class Lattice(Process):
         cell : float
             Cell side [rad/µm].
         """
-        from scipy.special import erf
+        return self.background_cell_mean(q, cell) + self.bragg_cell_mean(q, cell)
+
+    def _check_cells(self, q, cell):
         q = np.asarray(q, dtype=np.float64)
         if q.ndim == 0 or q.shape[-1] != 2:
             raise CoronaError(f"q must have shape (..., 2), got {q.shape}")
         c = check_positive("cell", cell, "rad/µm")
         if self.isotropic:
-            raise CoronaError("Lattice: structure_factor_cell_mean is for orientation='fixed'")
-        h = 0.5 * c
-        d = self.jitter
+            raise CoronaError("Lattice: cell means are for orientation='fixed'")
+        return q, c
+
+    def background_cell_mean(self, q, cell: float) -> np.ndarray:
+        """Cell mean of the diffuse background ``1 - e^{-q²δ²}`` (see :meth:`structure_factor_cell_mean`)."""
+        from scipy.special import erf
+        q, c = self._check_cells(q, cell)
+        h, d = 0.5 * c, self.jitter
+        dw = np.ones(q.shape[:-1])
+        if d > 0.0:
+            for i in range(2):
+                x = q[..., i]
+                dw = dw * np.sqrt(np.pi) / (2.0 * d * c) * (erf((x + h) * d) - erf((x - h) * d))
+        return 1.0 - dw
+
+    def bragg_cell_mean(self, q, cell: float, peak_factor=None) -> np.ndarray:
+        """Cell mean of the Bragg peaks, each scaled by ``peak_factor(G)``.
+
+        ``Σ_G f(G) W_G ⟨g_G⟩_cell`` with ``W_G = (2π)² n e^{-G²δ²}`` the peak's
+        weight and ``g_G`` its unit Gaussian; ``peak_factor`` (default 1) maps
+        peak positions (M, 2) [rad/µm] to factors (M,).  A table that
+        multiplies each peak by the form factor at the peak itself (not at the
+        cell centre) keeps the exact weight ``f(G) W_G`` of every peak.
+        """
+        from scipy.special import erf
+        q, c = self._check_cells(q, cell)
+        h, d = 0.5 * c, self.jitter
 
         def mean_gauss_1d(x, centre, sig):  # cell mean of exp(-(x-centre)²/(2 sig²)) / (√(2π) sig)
             s2 = np.sqrt(2.0) * sig
             return 0.5 * (erf((x + h - centre) / s2) - erf((x - h - centre) / s2)) / c
 
-        if d > 0.0:
-            dw = np.ones(q.shape[:-1])
-            for i in range(2):
-                x = q[..., i]
-                dw = dw * np.sqrt(np.pi) / (2.0 * d * c) * (erf((x + h) * d) - erf((x - h) * d))
-        else:
-            dw = np.ones(q.shape[:-1])
-        out = 1.0 - dw
         A = self.lattice_vectors
         B = self.reciprocal_vectors
         w = self.peak_width
         wt = (2.0 * np.pi) ** 2 * self.number_density
         f0 = np.rint(q @ A.T / (2.0 * np.pi))
         m = max(1, int(np.ceil(0.5 + (6.0 * w + h * np.sqrt(2.0)) * self.spacing / (2.0 * np.pi))))
+        factor = None
+        if peak_factor is not None and f0.size:
+            # the factor on every reciprocal lattice point the cells can reach
+            lo = f0.reshape(-1, 2).min(axis=0).astype(int) - m
+            hi = f0.reshape(-1, 2).max(axis=0).astype(int) + m
+            hh, kk = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+            G_all = np.stack([hh, kk], -1).reshape(-1, 2) @ B
+            factor = np.asarray(peak_factor(G_all), dtype=np.float64).reshape(hh.shape)
+        out = np.zeros(q.shape[:-1])
         for dh in range(-m, m + 1):
             for dk in range(-m, m + 1):
                 hk = f0 + np.array([dh, dk], dtype=np.float64)
@@ -817,6 +844,10 @@ class Lattice(Process):
                 G2 = G[..., 0] ** 2 + G[..., 1] ** 2
                 peak = (wt * np.exp(-G2 * d * d) * mean_gauss_1d(q[..., 0], G[..., 0], w)
                         * mean_gauss_1d(q[..., 1], G[..., 1], w))
+                if factor is not None:
+                    ih = hk[..., 0].astype(int) - lo[0]
+                    ik = hk[..., 1].astype(int) - lo[1]
+                    peak = peak * factor[ih, ik]
                 out = out + np.where((hk[..., 0] == 0) & (hk[..., 1] == 0), 0.0, peak)
         return out
 

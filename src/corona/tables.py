@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2   # 2: lattice tables weight each Bragg peak by C at the peak
 
 #: Shortest and longest wavelength the tables are built for [nm].
 WAVELENGTH_MIN = 360.0
