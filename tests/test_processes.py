@@ -552,3 +552,34 @@ def test_micrograph_errors(tmp_path):
         from_micrograph(np.eye(10), 0.0)
     with pytest.raises(CoronaError, match="shape"):
         from_micrograph(np.zeros((4, 4, 4, 4)), 1.0)
+
+
+def test_sparse_lattice_cell_mean_keeps_the_peaks_weight(monkeypatch):
+    """Many Bragg peaks per table cell: the smooth envelope carries their weight.
+
+    Summing every peak (slow for sparse lattices: minutes for F_a ~ 1e-6) and
+    the envelope e^{-q²δ²} must give the same integral over a patch of cells.
+    """
+    from corona import processes
+    lat = processes.Lattice("square", 40.0, jitter=4.0)          # 1/40 rad/µm reciprocal spacing
+    cell = 0.2                                                     # 64 peaks per cell
+    c = (np.arange(-20, 20) + 0.5) * cell
+    q = np.stack(np.meshgrid(c, c), -1)
+    envelope = lat.bragg_cell_mean(q, cell)
+    monkeypatch.setattr(processes.Lattice, "PEAKS_PER_CELL_MAX", 1e9)
+    peaks = lat.bragg_cell_mean(q, cell)
+    assert envelope.sum() == pytest.approx(peaks.sum(), rel=2e-3)
+    # cell by cell, up to the count of peaks on the cell's edges
+    np.testing.assert_allclose(envelope, peaks, rtol=0.3, atol=0.05)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 2.225073858507203e-309, 1e-200, 1e-12])
+def test_lattice_cell_mean_finite_for_tiny_jitter(jitter):
+    """A jitter of 1e-309 µm once gave 0/0 = NaN in the Debye-Waller cell mean."""
+    lat = Lattice("square", 2.0, jitter=jitter)
+    c = (np.arange(-8, 8) + 0.5) * 0.3
+    q = np.stack(np.meshgrid(c, c), -1)
+    S = lat.structure_factor_cell_mean(q, 0.3)
+    assert np.all(np.isfinite(S)) and np.all(S >= 0)
+    ref = Lattice("square", 2.0, jitter=0.0).structure_factor_cell_mean(q, 0.3)
+    np.testing.assert_allclose(S, ref, rtol=1e-5, atol=1e-9)

@@ -2,7 +2,7 @@
 
 For every shape (circle, square, hexagon, ellipse), radius 0.2–500 µm
 (log-uniform), area fraction from near 0 up to each process's limit
-(Poisson, hard disks, RSA), both modes, incidence up to 89.9° and
+(Poisson, hard disks, RSA, jittered square and hexagonal lattices), both modes, incidence up to 89.9° and
 wavelengths over the tables' whole range [360, 830] nm:
 
 * the lobe, pdf and sampling weights are finite and non-negative for every
@@ -31,11 +31,13 @@ from corona.parameters import make_shape, material_from_parameters, DEFAULTS
 
 from bsdf_checks import interaction
 
-SETTINGS = dict(deadline=None, database=None, print_blob=True,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-
-#: a deeper search: CORONA_PROPERTY_SCALE=10 pytest tests/test_properties.py (10× the examples)
+#: a deeper search: CORONA_PROPERTY_SCALE=10 pytest tests/test_properties.py (10× the examples);
+#: CORONA_PROPERTY_RANDOM=1 draws new examples each run (the default sequence is fixed, so
+#: that `make test` is reproducible)
 SCALE = float(os.environ.get("CORONA_PROPERTY_SCALE", "1"))
+SETTINGS = dict(deadline=None, database=None, print_blob=True,
+                derandomize=os.environ.get("CORONA_PROPERTY_RANDOM", "0") != "1",
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 LIMITS = {"poisson": 1.0 - 1e-6, "hard-disk": hard_disk.ETA_MAX, "rsa": processes.RSA_JAMMING_LIMIT}
 
@@ -46,6 +48,10 @@ def _max_area_fraction(params: dict) -> float:
         return LIMITS["poisson"]
     shape = make_shape({**DEFAULTS, **params})
     sd = shape.exclusion_diameter
+    if params["process"] == "lattice-square":      # neighbours at σ: cell σ²
+        return shape.area / (sd * sd)
+    if params["process"] == "lattice-hex":         # cell (√3/2) σ²
+        return 2.0 * shape.area / (math.sqrt(3.0) * sd * sd)
     return LIMITS[params["process"]] * shape.area / (math.pi * sd * sd / 4.0)
 
 
@@ -60,7 +66,9 @@ def materials(draw):
         p["angle"] = draw(st.floats(-90.0, 90.0))
     if kind == "ellipse":
         p["aspect"] = draw(st.floats(0.4, 2.5))
-    p["process"] = draw(st.sampled_from(["poisson", "hard-disk", "rsa"]))
+    p["process"] = draw(st.sampled_from(["poisson", "hard-disk", "rsa", "lattice-square", "lattice-hex"]))
+    if p["process"].startswith("lattice"):
+        p["jitter"] = draw(st.floats(0.0, 0.5)) * p["radius"]
     # relative to the process limit: near 0, in between, at the limit
     t = draw(st.one_of(st.sampled_from([1e-6, 1e-3, 0.999, 1.0]), st.floats(1e-6, 1.0)))
     p["area_fraction"] = t * _max_area_fraction(p)

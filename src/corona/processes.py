@@ -802,8 +802,17 @@ class Lattice(Process):
         if d > 0.0:
             for i in range(2):
                 x = q[..., i]
-                dw = dw * np.sqrt(np.pi) / (2.0 * d * c) * (erf((x + h) * d) - erf((x - h) * d))
+                # √π/(2δc) [erf((x+h)δ) - erf((x-h)δ)]; for (|x|+h)δ << 1 (a tiny
+                # jitter, where the quotient is 0/0 in floating point) its series
+                # e^{-δ²(x² + c²/12)}
+                small = (np.abs(x) + h) * d < 1e-4
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    exact = np.sqrt(np.pi) / (2.0 * d * c) * (erf((x + h) * d) - erf((x - h) * d))
+                dw = dw * np.where(small, np.exp(-d * d * (x * x + c * c / 12.0)), exact)
         return 1.0 - dw
+
+    #: above this many Bragg peaks per table cell their sum is taken as smooth
+    PEAKS_PER_CELL_MAX = 16.0
 
     def bragg_cell_mean(self, q, cell: float, peak_factor=None) -> np.ndarray:
         """Cell mean of the Bragg peaks, each scaled by ``peak_factor(G)``.
@@ -812,7 +821,11 @@ class Lattice(Process):
         weight and ``g_G`` its unit Gaussian; ``peak_factor`` (default 1) maps
         peak positions (M, 2) [rad/µm] to factors (M,).  A table that
         multiplies each peak by the form factor at the peak itself (not at the
-        cell centre) keeps the exact weight ``f(G) W_G`` of every peak.
+        cell centre) keeps the exact weight ``f(G) W_G`` of every peak.  Where
+        the peaks outnumber the cells, the peaks of a cell share the factor at
+        the cell's centre; above :attr:`PEAKS_PER_CELL_MAX` peaks per cell (a
+        sparse lattice, small area fraction) their sum is the cell mean of its
+        smooth envelope ``e^{-q²δ²}`` (the same total weight).
         """
         from scipy.special import erf
         q, c = self._check_cells(q, cell)
@@ -826,16 +839,29 @@ class Lattice(Process):
         B = self.reciprocal_vectors
         w = self.peak_width
         wt = (2.0 * np.pi) ** 2 * self.number_density
+        if c * c > self.PEAKS_PER_CELL_MAX * abs(np.linalg.det(B)):
+            # a sparse lattice: many peaks per cell, whose cell mean is that of
+            # their smooth envelope e^{-q²δ²} (total weight kept), less the
+            # q = 0 peak (the coherent beam, not part of S)
+            out = (1.0 - self.background_cell_mean(q, c)
+                   - wt * mean_gauss_1d(q[..., 0], 0.0, w) * mean_gauss_1d(q[..., 1], 0.0, w))
+            if peak_factor is not None:
+                out = out * np.asarray(peak_factor(q.reshape(-1, 2)), dtype=np.float64).reshape(q.shape[:-1])
+            return np.maximum(out, 0.0)
         f0 = np.rint(q @ A.T / (2.0 * np.pi))
         m = max(1, int(np.ceil(0.5 + (6.0 * w + h * np.sqrt(2.0)) * self.spacing / (2.0 * np.pi))))
-        factor = None
+        factor = centre_factor = None
         if peak_factor is not None and f0.size:
             # the factor on every reciprocal lattice point the cells can reach
             lo = f0.reshape(-1, 2).min(axis=0).astype(int) - m
             hi = f0.reshape(-1, 2).max(axis=0).astype(int) + m
-            hh, kk = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
-            G_all = np.stack([hh, kk], -1).reshape(-1, 2) @ B
-            factor = np.asarray(peak_factor(G_all), dtype=np.float64).reshape(hh.shape)
+            if np.prod(hi - lo + 1) <= max(q.size // 2, 1024):
+                hh, kk = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+                G_all = np.stack([hh, kk], -1).reshape(-1, 2) @ B
+                factor = np.asarray(peak_factor(G_all), dtype=np.float64).reshape(hh.shape)
+            else:
+                # more peaks than cells: the many peaks of a cell share the factor at its centre
+                centre_factor = np.asarray(peak_factor(q.reshape(-1, 2)), dtype=np.float64).reshape(q.shape[:-1])
         out = np.zeros(q.shape[:-1])
         for dh in range(-m, m + 1):
             for dk in range(-m, m + 1):
@@ -849,7 +875,7 @@ class Lattice(Process):
                     ik = hk[..., 1].astype(int) - lo[1]
                     peak = peak * factor[ih, ik]
                 out = out + np.where((hk[..., 0] == 0) & (hk[..., 1] == 0), 0.0, peak)
-        return out
+        return out if centre_factor is None else out * centre_factor
 
     def structure_factor_radial(self, q_abs, shape=None) -> np.ndarray:
         """Powder-averaged ``S(|q|)`` (only for ``orientation="random"``)."""
