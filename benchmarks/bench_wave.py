@@ -72,6 +72,20 @@ def bench_converge(max_m: int):
     return rows, bf
 
 
+def cold_and_warm(make, evaluate):
+    """Seconds of the first ``evaluate(make())`` (set-up included) and the median of 5 more."""
+    t0 = time.perf_counter()
+    m = make()
+    evaluate(m)
+    cold = time.perf_counter() - t0
+    warm = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        evaluate(m)
+        warm.append(time.perf_counter() - t0)
+    return cold, statistics.median(warm)
+
+
 def bench_model(bf):
     R_ = bf.length_scale
     ix = np.abs(bf.qx) * R_ <= U_COMPARE
@@ -80,27 +94,11 @@ def bench_model(bf):
     d = np.stack([QX, QY], -1) * (LAM * 1e-3 / (2 * np.pi))
     from corona import hard_disk
     hard_disk._row.cache_clear()
-    t0 = time.perf_counter()
-    m = _material()
-    m.lobe(d, LAM)
-    cold = time.perf_counter() - t0
-    warm = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        m.lobe(d, LAM)
-        warm.append(time.perf_counter() - t0)
-    m2 = Material(shapes.Circle(R), HardDisk(0.3), use_cache=False)
-    t0 = time.perf_counter()
-    m2.lobe_tabulated(d, LAM)
-    tab_cold = time.perf_counter() - t0
-    tab = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        m2.lobe_tabulated(d, LAM)
-        tab.append(time.perf_counter() - t0)
-    return dict(points=int(d.shape[0] * d.shape[1]), exact_cold_s=cold,
-                exact_warm_s=statistics.median(warm), table_cold_s=tab_cold,
-                table_warm_s=statistics.median(tab))
+    cold, warm = cold_and_warm(_material, lambda m: m.lobe(d, LAM))
+    tab_cold, tab_warm = cold_and_warm(lambda: Material(shapes.Circle(R), HardDisk(0.3), use_cache=False),
+                                       lambda m: m.lobe_tabulated(d, LAM))
+    return dict(points=int(d.shape[0] * d.shape[1]), exact_cold_s=cold, exact_warm_s=warm,
+                table_cold_s=tab_cold, table_warm_s=tab_warm)
 
 
 def bench_fft(n):
