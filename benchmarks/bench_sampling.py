@@ -7,7 +7,8 @@ corona lobe's sampling differs (plugin parameter ``sampling = cosine | lobe``,
 
 Scenes (from ``scenes/``): the teaser (street lights of 0.14° through
 condensation), lycopodium at 10× (a point-like lamp), and the sampling scene
-(20 µm droplets before a lamp of 4.8° radius, wider than the lobe).  With a
+(20 µm droplets before a lamp of 4.8° radius, wider than the lobe); and the
+same droplets before a large lamp of 26.6° radius (``street_light_scene``).  With a
 small light, emitter sampling alone evaluates the lobe almost exactly, so
 both MIS combinations come out close; with a light wider than the lobe,
 emitter sampling misses the lobe's peak and the BSDF strategy decides.
@@ -43,6 +44,10 @@ SCENES = {   # name: (scene file, extra -D parameters, the layer's parameters fo
                         "mode": "particle"}),
     "wide lamp": ("sampling.xml", {}, {"radius": 20.0, "area_fraction": 0.4, "process": "hard-disk",
                                        "mode": "particle"}),
+    # the same droplets before a lamp of 10 m radius at 20 m (26.6°, a bright diffuser or
+    # overcast window filling much of the view): far wider than the lobe
+    "large lamp": (None, {"light_radius": 10.0, "fov": 30.0},
+                   {"radius": 20.0, "area_fraction": 0.4, "process": "hard-disk", "mode": "particle"}),
 }
 
 
@@ -96,6 +101,7 @@ def main():
     import mitsuba as mi
     from common import write
     from corona.render import setup_variant
+    from corona.scenes import street_light_scene
     setup_variant(args.variant)
 
     def render(scene, spp, seed):
@@ -105,14 +111,21 @@ def main():
 
     results = {}
     for name, (file, defines, layer) in SCENES.items():
-        path = os.path.join(SCENE_DIR, file)
-        scenes = {how: mi.load_file(path, res=str(args.res), sampling=how, **defines)
-                  for how in ("lobe", "cosine")}
+        if file is not None:
+            path = os.path.join(SCENE_DIR, file)
+            scenes = {how: mi.load_file(path, res=str(args.res), sampling=how, **defines)
+                      for how in ("lobe", "cosine")}
+        else:   # corona.scenes.street_light_scene with these keyword arguments
+            scenes = {how: mi.load_dict(street_light_scene(
+                resolution=args.res, bsdf={"type": "corona", "sampling": how, **layer}, **defines))
+                for how in ("lobe", "cosine")}
         passes = max(1, args.ref_spp // 256)
         ref = sum(render(scenes["lobe"], args.ref_spp // passes, 1000 + i)[0]
                   for i in range(passes)) / passes
         regions = {"image": None, "halo": halo_mask(ref)}
-        out = {"halo_fraction_of_image": float(regions["halo"].mean())}
+        if regions["halo"].mean() < 0.01:   # the lamp fills the view: no halo to speak of
+            del regions["halo"]
+        out = {"halo_fraction_of_image": float(regions["halo"].mean()) if "halo" in regions else 0.0}
         for how, sc in scenes.items():
             render(sc, args.spp, 7)                       # JIT warm-up
             runs = [render(sc, args.spp, s) for s in range(args.repeats)]
@@ -125,7 +138,7 @@ def main():
         render(scenes["cosine"], spp_eq, 7)               # a new spp may compile anew
         runs = [render(scenes["cosine"], spp_eq, 10 + s)[0] for s in range(args.repeats)]
         out["cosine"]["spp_equal_time"] = spp_eq
-        ratios = {"halo_fraction_of_image": out.pop("halo_fraction_of_image")}
+        ratios = {"halo_fraction_of_image": out.pop("halo_fraction_of_image") if "halo" in regions else 0.0}
         for k, m in regions.items():
             out["cosine"][f"rmse_{k}_equal_time"] = float(np.mean([relative_rmse(i, ref, m) for i in runs]))
             out["lobe"][f"rmse_{k}_equal_time"] = out["lobe"][f"rmse_{k}_equal_spp"]
@@ -137,8 +150,9 @@ def main():
             results[f"{name} / {how}"] = {**out[how], **ratios}
         print(f"{name:15s} RMSE cosine/lobe at equal spp / equal time: whole image "
               f"{ratios['rmse_ratio_image_equal_spp']:.2f}x / {ratios['rmse_ratio_image_equal_time']:.2f}x, "
-              f"halo {ratios['rmse_ratio_halo_equal_spp']:.2f}x / {ratios['rmse_ratio_halo_equal_time']:.2f}x; "
-              f"single-sample weight variance ratio "
+              + (f"halo {ratios['rmse_ratio_halo_equal_spp']:.2f}x / {ratios['rmse_ratio_halo_equal_time']:.2f}x; "
+                 if "halo" in regions else "no halo region (the lamp fills the view); ")
+              + "single-sample weight variance ratio "
               f"{ratios['weight_variance_ratio']:.3g}", flush=True)
     write("sampling", {"resolution": args.res, "spp": args.spp, "reference_spp": args.ref_spp,
                        "integrator": "path (MIS with emitter sampling)", "results": results,

@@ -65,8 +65,9 @@ def headline() -> list[str]:
             if k.endswith("/ lobe"):
                 name = k[:-len(" / lobe")]
                 rows.append((f"Sampling, {name}: RMSE cosine / T_a×T_s at equal time (image; halo)",
-                             f"{v['rmse_ratio_image_equal_time']:.2f}×; {v['rmse_ratio_halo_equal_time']:.2f}× "
-                             f"(weight variance {v['weight_variance_ratio']:.2g}×)", "≥ 10×"))
+                             f"{v['rmse_ratio_image_equal_time']:.2f}×; "
+                             + (f"{v['rmse_ratio_halo_equal_time']:.2f}× " if "rmse_ratio_halo_equal_time" in v
+                                else "— ") + f"(weight variance {v['weight_variance_ratio']:.2g}×)", "≥ 10×"))
     t = _load("tables")
     if t:
         worst = max(t["results"].items(), key=lambda kv: kv[1]["build_median_s"])
