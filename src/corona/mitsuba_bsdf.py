@@ -389,25 +389,26 @@ class CoronaBSDFMixin:
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
 
-        # lobe: sample u for the hero wavelength, d = u λ / (2π R), wo.xy = d - wi.xy
-        # pick the hero wavelength with its mixture weight, reusing sample1
-        s_hero = dr.clip((sample1 - p_coh) / max(p_lobe, 1e-30), 0.0, 0.99999994)
-        lam = self._lambda_um(self._pick_hero(si.wavelengths, s_hero))
-        u = self._sample_u(sample2, pick_lobe)
-        d = u * (lam / (2.0 * dr.pi * self.R))
-        ox = d.x - wi.x
-        oy = d.y - wi.y
-        r2 = dr.fma(ox, ox, oy * oy)
-        oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
-        wo_lobe = mi.Vector3f(ox, oy, oz)
-        lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
-        if self.sampling == "cosine":   # cosine-weighted hemisphere on the far side
-            wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
-            wo_lobe = mi.Vector3f(wo_cos.x, wo_cos.y, -dr.mulsign(wo_cos.z, cos_i))
-            lobe_valid = pick_lobe & (wo_cos.z > 0)
+        # reflection: cosine-weighted on the side of wi
+        wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
+        wo_refl = mi.Vector3f(wo_cos.x, wo_cos.y, dr.mulsign(wo_cos.z, cos_i))
 
-        wo_refl = mi.warp.square_to_cosine_hemisphere(sample2)
-        wo_refl = mi.Vector3f(wo_refl.x, wo_refl.y, dr.mulsign(wo_refl.z, cos_i))
+        if self.sampling == "cosine":   # lobe: the same warp, mirrored to the far side
+            wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
+            lobe_valid = pick_lobe & (wo_cos.z > 0)
+        else:
+            # lobe: sample u for the hero wavelength, d = u λ / (2π R), wo.xy = d - wi.xy;
+            # the hero wavelength is picked with its mixture weight, reusing sample1
+            s_hero = dr.clip((sample1 - p_coh) / max(p_lobe, 1e-30), 0.0, 0.99999994)
+            lam = self._lambda_um(self._pick_hero(si.wavelengths, s_hero))
+            u = self._sample_u(sample2, pick_lobe)
+            d = u * (lam / (2.0 * dr.pi * self.R))
+            ox = d.x - wi.x
+            oy = d.y - wi.y
+            r2 = dr.fma(ox, ox, oy * oy)
+            oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
+            wo_lobe = mi.Vector3f(ox, oy, oz)
+            lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
 
         bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0),
