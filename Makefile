@@ -12,11 +12,12 @@ BENCH_ARGS ?=
 
 all: test
 
-# The virtual environment, created and filled idempotently.
+# The virtual environment, created and filled idempotently: the runtime plus
+# the reference tier and the test tools (a plain `pip install .` is the light runtime).
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[reference,test]'
 	@touch $(STAMP)
 
 venv: $(STAMP) llvm
@@ -26,15 +27,15 @@ llvm:
 	@bash scripts/ensure_llvm.sh
 
 demo: venv
-	$(PY) -m corona.demo
+	$(PY) scripts/demo.py
 
 test: venv
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
 gallery: venv
-	$(PY) -m corona.cli gallery
-	$(PY) -m corona.demo out/demo --update-docs
+	$(PY) scripts/gallery.py
+	$(PY) scripts/demo.py out/demo --update-docs
 
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)

@@ -3,11 +3,11 @@
 ``src/corona/data/hard_disk_structure_factor.npz``.
 
 Every row ``η`` of the table is an event-chain Monte Carlo run of
-``corona.hard_disk.simulate_hard_disks`` (N = 2000 disks in a periodic square
+``corona.reference.hard_disk.simulate_hard_disks`` (N = 2000 disks in a periodic square
 box, two independent chains, settings from :func:`row_settings`), seeded with
 ``seed + round(1000 η)`` so that any single row can be regenerated bit for bit
 on its own.  The raw box-wave-vector data of each row are kept in the table
-file, and :func:`corona.hard_disk.smooth_structure_factor_row` turns them into
+file, and :func:`corona.reference.hard_disk.smooth_structure_factor_row` turns them into
 the smooth row on the fixed ``qσ`` grid (documented there).
 
 Usage
@@ -35,7 +35,7 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "src"))
 
-from corona import hard_disk as hd  # noqa: E402
+from corona.reference import hard_disk as hd  # noqa: E402
 
 DEFAULT_OUT = os.path.join(ROOT, "src", "corona", "data", "hard_disk_structure_factor.npz")
 DEFAULT_WORK = os.path.join(ROOT, "build", "hard_disk_rows")

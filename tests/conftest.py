@@ -1,5 +1,9 @@
 import os
+import sys
 import tempfile
+
+# scripts/ (gallery, demo) need a source checkout; the tests run from one
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "scripts"))
 
 # Tables built by the tests go to a private cache, never the user's.
 os.environ.setdefault("CORONA_CACHE_DIR", tempfile.mkdtemp(prefix="corona-test-cache-"))

@@ -7,8 +7,8 @@ import pytest
 from scipy import special
 
 from corona import CoronaError
-from corona import hard_disk as hd
-from corona.hard_disk import HardDisk
+from corona.processes import HardDisk
+from corona.reference import hard_disk as hd
 from corona.shapes import Circle
 
 
@@ -55,7 +55,8 @@ def pair_distances_ok(pos, L):
 # the shipped table
 # --------------------------------------------------------------------------
 def test_table_file_and_metadata():
-    path = hd._table_path()
+    from corona.processes.hard_disk import _table_path
+    path = _table_path()
     assert os.path.getsize(path) < 2e6
     t = hd.load_table()
     m = t["metadata"]

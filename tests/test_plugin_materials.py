@@ -12,7 +12,7 @@ def data_files(tmp_path_factory):
     """A mask image (a cross) and a point file (an RSA configuration)."""
     import imageio.v3 as iio
 
-    from corona.processes import rsa_configuration
+    from corona.reference.rsa import rsa_configuration
     folder = tmp_path_factory.mktemp("data")
     img = np.zeros((24, 24), dtype=np.uint8)
     img[9:15, 3:21] = 255

@@ -8,8 +8,9 @@ from scipy.spatial import cKDTree
 
 from corona import CoronaError
 from corona import processes as P
-from corona.processes import Lattice, PointSet, SequentialAdsorption, rsa_configuration, \
-    rsa_structure_factor
+from corona.processes import Lattice, PointSet, SequentialAdsorption, rsa_structure_factor
+from corona.processes.rsa import _RSA_TABLE_PATH
+from corona.reference.rsa import rsa_configuration
 from corona.shapes import Circle
 
 
@@ -59,7 +60,7 @@ def test_rsa_partial_configuration():
 
 
 def test_rsa_table_saturation_and_coverage():
-    with np.load(P._RSA_TABLE_PATH) as z:
+    with np.load(_RSA_TABLE_PATH) as z:
         cov, cov_err = z["saturation_coverage"]
         s0 = z["S0"]
     assert abs(cov - P.RSA_SATURATION) < 3 * cov_err + 1e-4

@@ -26,7 +26,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import corona
-from corona import hard_disk, processes
+from corona import processes
+from corona.processes import hard_disk
 from corona.parameters import make_shape, material_from_parameters, DEFAULTS
 
 from bsdf_checks import interaction

@@ -67,7 +67,7 @@ def test_scene_renders_finite(path, variant):
 
 
 def _gallery_panels():
-    from corona.gallery import STRIPS
+    from gallery import STRIPS
     out = []
     for strip in STRIPS:
         for i, panel in enumerate(strip.panels):
@@ -84,7 +84,7 @@ def test_gallery_panel_renders_finite(scene, defines, variant):
 
 
 def test_gallery_strips_refer_to_existing_scenes_and_parameters():
-    from corona.gallery import STRIPS
+    from gallery import STRIPS
     names = [s.name for s in STRIPS]
     assert len(names) == len(set(names))
     for strip in STRIPS:
@@ -99,7 +99,7 @@ def test_gallery_strips_refer_to_existing_scenes_and_parameters():
 
 
 def test_gallery_tile_and_page(tmp_path):
-    from corona import gallery
+    import gallery
     ims = [np.zeros((10, 12, 3), np.uint8), np.full((10, 8, 3), 255, np.uint8)]
     img = gallery.tile(ims, ["a µm", "b ×"], gap=2, band=20)
     assert img.size == (12 + 2 + 8, 30)

@@ -19,11 +19,12 @@ import pytest
 from click.testing import CliRunner
 from scipy import fft as sp_fft
 
-from corona import CoronaError, CoronaWarning, Material, shapes, wave
+from corona import CoronaError, CoronaWarning, Material, shapes
 from corona.cli import main
-from corona.hard_disk import HardDisk
+from corona.processes import HardDisk
 from corona.processes import Lattice, Poisson, Process
-from corona.validate import blob_mask_image, compare, select_cases, all_cases
+from corona.reference import wave
+from corona.reference.validate import blob_mask_image, compare, select_cases, all_cases
 
 R = 2.5
 LAMS = (400.0, 550.0, 700.0)

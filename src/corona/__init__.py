@@ -1,17 +1,25 @@
 """corona — a wave-optics BSDF for layers of correlated scatterers.
 
-The model (DESIGN §3): the diffraction lobe of a layer is
+The model (docs/physics.md#the-model): the diffraction lobe of a layer is
 ``F_a · T_a(d) · T_s(d)`` with ``T_a`` the normalised form factor of one
 scatterer and ``T_s`` the structure factor of their positions.
+
+Data flows one way: :mod:`corona.shapes` + :mod:`corona.processes` →
+:class:`corona.Material` → :mod:`corona.tables` → the Mitsuba plugin
+(:mod:`corona.mitsuba_bsdf`) → the CLI (:mod:`corona.cli`).  The reference
+tier (:mod:`corona.reference`: simulations, brute force, validation) needs
+the ``reference`` extra and is never imported from here.
 """
-from . import _environment  # noqa: F401  (must come first: sets DRJIT_LIBLLVM_PATH)
+# _environment must come first: when DRJIT_LIBLLVM_PATH is unset it points it at
+# a libLLVM >= 16 before Dr.Jit loads (a user's own setting is left alone)
+from . import _environment  # noqa: F401
 from ._environment import default_variant, set_default_variant
 from ._validation import CoronaError, CoronaWarning
-from .shapes import (Shape, Circle, Ellipse, Rectangle, Square, Polygon, RegularPolygon, Mask,
-                     SoftEdge, RandomOrientation, SizeDistribution, Mixture)
-from .processes import Process, Poisson, SequentialAdsorption, Lattice, PointSet
 from .material import Material
 from .micrograph import from_micrograph
+from .processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
+from .shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
+                     RegularPolygon, Shape, SizeDistribution, SoftEdge, Square)
 
 __version__ = "0.1.0"
 
@@ -20,14 +28,6 @@ __all__ = ["CoronaError", "CoronaWarning",
            "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture",
            "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk",
            "Material", "from_micrograph", "default_variant", "set_default_variant", "register"]
-
-
-def __getattr__(name):
-    # HardDisk loads its shipped table lazily; import on first use
-    if name == "HardDisk":
-        from .hard_disk import HardDisk
-        return HardDisk
-    raise AttributeError(f"module 'corona' has no attribute {name!r}")
 
 
 def register() -> None:

@@ -2,7 +2,6 @@
 
     corona render SCENE.xml [--spp N] [--variant V] [--out DIR] [--name NAME] [--exposure E] [-D key=value ...]
     corona lobe [material options] [--out FILE.png] [--json]
-    corona gallery [--only NAME ...]
     corona tables info | clear
     corona doctor
     corona validate [--out DIR] [--quick] [--cases A,B] [--realisations N]
@@ -175,23 +174,6 @@ def lobe(out_path, as_json, wavelength, **params):
 
 
 # ----------------------------------------------------------------------
-# gallery
-# ----------------------------------------------------------------------
-@main.command()
-@click.option("--only", multiple=True, metavar="NAME", help="Render only this strip (repeatable).")
-@click.option("--variant", default=None, help="Mitsuba variant (default: the fastest available).")
-def gallery(only, variant):
-    """Render every scene of scenes/ into docs/gallery/ and rewrite docs/gallery.md."""
-    try:
-        from .gallery import build
-        res = build(only=list(only) or None, variant=variant, log=lambda m: click.echo(m, err=True))
-    except (CoronaError, RuntimeError, ValueError, OSError) as err:
-        _fail(err)
-    if res["failed"]:
-        _fail(f"{len(res['failed'])} strip(s) failed: " + "; ".join(f"{k}: {v}" for k, v in res["failed"].items()))
-
-
-# ----------------------------------------------------------------------
 # tables
 # ----------------------------------------------------------------------
 @main.group()
@@ -264,7 +246,7 @@ def doctor():
 def validate(out_dir, quick, cases, realisations, scatterers, seed, no_progress):
     """Compare the model with a brute-force wave-optics reference; write a report folder."""
     try:
-        from . import validate as v
+        from .reference import validate as v
         summary = v.run(out_dir, quick=quick, cases=cases.split(",") if cases else None,
                         realisations=realisations, n_scatterers=scatterers, seed=seed,
                         progress=not no_progress, echo=lambda s: click.echo(s, err=True))

@@ -148,8 +148,7 @@ def make_process(p: dict, shape):
     if kind == "poisson":
         return processes.Poisson(fa)
     if kind == "hard-disk":
-        from .hard_disk import HardDisk
-        return HardDisk(fa, exclusion_diameter=sigma)
+        return processes.HardDisk(fa, exclusion_diameter=sigma)
     if kind == "rsa":
         return processes.SequentialAdsorption(fa, exclusion_diameter=sigma)
     if kind in ("lattice-square", "lattice-hex"):

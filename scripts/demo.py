@@ -16,8 +16,8 @@ import numpy as np
 
 
 def _repo_file(*parts: str) -> str | None:
-    """``parts`` inside the source checkout (scenes/, docs/), or None for an installed package."""
-    root = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
+    """``parts`` inside the source checkout (scenes/, docs/), or None where missing."""
+    root = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
     path = os.path.join(root, *parts)
     if parts[-1].endswith(".xml"):
         return path if os.path.isfile(path) else None
@@ -29,8 +29,8 @@ def _repo_file(*parts: str) -> str | None:
 
 def main(out_dir: str = "out/demo", update_docs: bool = False) -> int:
     import corona
-    from .parameters import material_from_parameters
-    from .pictures import lobe_figure
+    from corona.parameters import material_from_parameters
+    from corona.pictures import lobe_figure
 
     os.makedirs(out_dir, exist_ok=True)
     params = dict(shape="circle", radius=5.0, area_fraction=0.4, process="hard-disk", mode="particle")
@@ -54,7 +54,7 @@ def main(out_dir: str = "out/demo", update_docs: bool = False) -> int:
     fig = lobe_figure(material, os.path.join(out_dir, "lobe.png"))
     print(f"\n  lobe tables and far-field corona: {fig}")
 
-    from .render import load_scene, render_to_files, scene_spp, setup_variant
+    from corona.render import load_scene, render_to_files, scene_spp, setup_variant
     variant = setup_variant()
     import mitsuba as mi
     teaser = _repo_file("scenes", "teaser.xml")
@@ -65,7 +65,7 @@ def main(out_dir: str = "out/demo", update_docs: bool = False) -> int:
         spp = scene_spp(scene)
         what = teaser
     else:  # an installed package without the repository's scenes/
-        from .scenes import street_light_scene
+        from corona.scenes import street_light_scene
         scene = mi.load_dict(street_light_scene(resolution=256 if fast else 96, bsdf={"type": "corona", **params}))
         spp, what = (64 if fast else 8), "the built-in street-light scene"
     print(f"\n  rendering {what} with {variant} ({spp} spp)...")

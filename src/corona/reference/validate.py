@@ -57,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validation import CoronaError, CoronaWarning, check_range
+from .._validation import CoronaError, CoronaWarning, check_range
 
 WAVELENGTHS = (400.0, 550.0, 700.0)
 RADIUS = 2.5                      # circumradius of the matrix shapes [µm]
@@ -91,7 +91,7 @@ def blob_mask_image(n: int = 40, r0: float = 14.0) -> np.ndarray:
 
 def make_shape(name: str, radius: float = RADIUS):
     """Matrix shapes of circumradius ``radius`` [µm]."""
-    from . import shapes
+    from .. import shapes
     if name == "circle":
         return shapes.Circle(radius)
     if name == "square":
@@ -122,7 +122,7 @@ class Case:
 
 def _hd(shape_name, fa):
     def build():
-        from .hard_disk import HardDisk
+        from ..processes import HardDisk
         return make_shape(shape_name), HardDisk(fa)
     return build
 
@@ -135,9 +135,8 @@ def matrix_cases(quick: bool = False) -> list[Case]:
 
 
 def extra_cases(quick: bool = False) -> list[Case]:
-    from . import shapes
-    from .hard_disk import HardDisk
-    from .processes import Lattice, PointSet, Poisson, SequentialAdsorption
+    from .. import shapes
+    from ..processes import HardDisk, Lattice, PointSet, Poisson, SequentialAdsorption
     from .wave import hard_disk_configurations, lattice_box
     R = RADIUS
 
@@ -309,7 +308,7 @@ def compare(material, bf, wavelengths=WAVELENGTHS, particle=None, u_compare=U_CO
     Returns a dict with per-wavelength metrics, the binned profiles and the
     2D maps for the pictures (see the module notes for the definitions).
     """
-    from .processes import Lattice
+    from ..processes import Lattice
     R = bf.length_scale
     qx, qy = bf.qx, bf.qy
     ix = np.nonzero(np.abs(qx) * R <= u_compare)[0]
@@ -546,7 +545,7 @@ def run(out_dir: str = "out/validate", *, quick: bool = False, cases=None,
         Seed of every ensemble.
     """
     from . import wave
-    from .material import Material
+    from ..material import Material
     chosen = select_cases(all_cases(quick), cases)
     M_default = QUICK_REALISATIONS if quick else REALISATIONS
     if realisations is not None:
@@ -622,8 +621,7 @@ def _json_default(o):
 
 def _is_hard(process) -> bool:
     """Processes whose scatterers never overlap (sum rule F_a(1 - F_a))."""
-    from .hard_disk import HardDisk
-    from .processes import Lattice, SequentialAdsorption
+    from ..processes import HardDisk, Lattice, SequentialAdsorption
     return isinstance(process, (HardDisk, SequentialAdsorption, Lattice))
 
 

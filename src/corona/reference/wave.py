@@ -7,7 +7,7 @@ assumptions (no form-factor × structure-factor split, no tables):
 
 1. **Positions** — one realisation of the point process in a periodic box
    (:func:`positions_source`): hard-disk configurations from the event-chain
-   simulation (:func:`corona.hard_disk.simulate_hard_disks`, the same
+   simulation (:func:`corona.reference.hard_disk.simulate_hard_disks`, the same
    ``N = 2000`` disks the shipped table was made with), random sequential
    adsorption (:func:`corona.processes.rsa_configuration`), jittered
    lattices (box commensurate with the lattice), Poisson (``N`` uniform
@@ -104,9 +104,10 @@ import numpy as np
 from scipy import fft as sp_fft
 from scipy import ndimage
 
-from ._validation import CoronaError, check_choice, check_range
-from .processes import Lattice, PointSet, Poisson, Process, SequentialAdsorption, rsa_configuration
-from .shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle, Shape,
+from .._validation import CoronaError, check_choice, check_range
+from ..processes import Lattice, PointSet, Poisson, Process, SequentialAdsorption
+from .rsa import rsa_configuration
+from ..shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle, Shape,
                      SizeDistribution, SoftEdge)
 
 #: default samples per circumradius of the smallest base shape
@@ -358,7 +359,7 @@ def hard_disk_configurations(packing_fraction: float, count: int, n_disks: int =
                              seed: int = 0, progress: bool = False):
     """``count`` equilibrium hard-disk configurations (cached per process).
 
-    Event-chain Monte Carlo (:func:`corona.hard_disk.simulate_hard_disks`):
+    Event-chain Monte Carlo (:func:`corona.reference.hard_disk.simulate_hard_disks`):
 
     * η < 0.69 (fluid): one chain from a triangular lattice, equilibrated for
       3000 sweeps (η < 0.6) or 10⁴ sweeps, then one configuration every 100
@@ -366,7 +367,7 @@ def hard_disk_configurations(packing_fraction: float, count: int, n_disks: int =
       at the smallest box wave vectors are decorrelated after that (measured
       lag-1 correlation ≲ 0.3);
     * η ≥ 0.69 (fluid–hexatic coexistence and hexatic, see
-      :class:`corona.hard_disk.HardDisk`): the periodic box holds a single
+      :class:`corona.HardDisk`): the periodic box holds a single
       orientationally ordered domain whose director is pinned by the start
       (a lattice start keeps it along the box axes), while the table's
       ``S(|q|)`` is an orientational average (a macroscopic layer has many
@@ -449,7 +450,7 @@ def positions_source(process: Process, shape: Shape, *, n_scatterers: int = N_SC
     The box holds about ``n_scatterers`` centres at the process's density
     ``n = F_a / ⟨|A|⟩``; hard disks and RSA keep their exclusion diameter σ.
     """
-    from .hard_disk import HardDisk
+    from ..processes import HardDisk
     process.validate(shape)
     fa = float(process.area_fraction(shape))
     area = float(shape.area)
@@ -882,7 +883,7 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
     -------
     BruteForce
     """
-    from .material import Material
+    from ..material import Material
     if not isinstance(material, Material):
         raise CoronaError(f"material={material!r} is not a corona.Material")
     M = int(check_range("realisations", realisations, 1, 1e7))

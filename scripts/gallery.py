@@ -6,8 +6,7 @@ with a label under each.  The strips go to ``docs/gallery/``, the linear EXRs
 and single PNGs to ``out/gallery/``, and ``docs/gallery.md`` is rewritten
 with every picture and the exact ``corona`` command behind each panel.
 
-    corona gallery [--only NAME ...] [--variant V]
-    python -m corona.gallery
+    python scripts/gallery.py [--only NAME ...] [--variant V]      (make gallery)
 """
 from __future__ import annotations
 
@@ -19,7 +18,7 @@ import time
 
 import numpy as np
 
-from ._validation import CoronaError
+from corona._validation import CoronaError
 
 
 @dataclasses.dataclass
@@ -137,7 +136,7 @@ STRIPS = [
 
 
 def repo_root() -> str:
-    return os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
+    return os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
 
 
 def _fmt(v) -> str:
@@ -201,8 +200,8 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
 
     Returns ``{"seconds": total, "strips": {name: seconds}, "failed": {name: message}}``.
     """
-    from .color import tonemap_srgb
-    from .render import load_scene, render_linear, scene_spp, setup_variant, write_images
+    from corona.color import tonemap_srgb
+    from corona.render import load_scene, render_linear, scene_spp, setup_variant, write_images
     root = repo_root()
     scenes_dir = os.path.join(root, "scenes")
     if not os.path.isdir(scenes_dir):
@@ -228,7 +227,7 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
         png = os.path.join(out_dir, f"{strip.name}.png")
         try:
             if strip.scene is None:
-                from .cli import main as cli_main
+                from corona.cli import main as cli_main
                 args = ["lobe", *strip.lobe_args, "--out", png]
                 try:
                     cli_main.main(args=args, prog_name="corona", standalone_mode=False)
@@ -314,7 +313,7 @@ def _default_commands(strip: Strip) -> list:
 
 def main(argv=None) -> int:
     import argparse
-    ap = argparse.ArgumentParser(prog="python -m corona.gallery", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python scripts/gallery.py", description=__doc__.splitlines()[0])
     ap.add_argument("--only", nargs="*", default=None, help="strip names")
     ap.add_argument("--variant", default=None)
     a = ap.parse_args(argv)

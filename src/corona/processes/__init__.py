@@ -1,0 +1,37 @@
+"""Structure factors of the scatterers' centres (docs/physics.md#the-model).
+
+A point process provides
+
+* ``area_fraction(shape)`` — ``F_a = n |A|``;
+* ``structure_factor_at(q, shape)`` — ``S(q)`` at wave vectors ``q``
+  [rad/µm] of shape (..., 2), without the forward delta, ``S → 1`` at large q;
+* ``structure_factor_radial(q_abs, shape)`` for isotropic processes;
+* ``isotropic`` — True when S depends on ``|q|`` only;
+* ``validate(shape)`` — a :class:`~corona.CoronaError` naming the parameter,
+  its value and the allowed range when the process cannot hold ``shape``;
+* ``key()`` — the parameters that identify it (for table caching).
+
+Processes, one module each:
+
+* :class:`Poisson` — independent centres, ``S = 1`` (dilute limit only);
+* :class:`HardDisk` — the equilibrium hard-disk fluid, ``S(qσ, η)`` from a
+  shipped event-chain Monte Carlo table;
+* :class:`SequentialAdsorption` — random sequential adsorption (RSA) of
+  disks, ``S(qσ, η)`` from a shipped Monte Carlo table;
+* :class:`Lattice` — square / hexagonal lattices with Gaussian jitter
+  (Debye–Waller background plus broadened Bragg peaks);
+* :class:`PointSet` — measured centres, ``S`` estimated by a tapered
+  periodogram.
+
+Every lookup here is numpy/scipy only; the simulations that make the tables
+live in :mod:`corona.reference` (extra ``corona[reference]``).
+"""
+from .base import Process
+from .hard_disk import HardDisk
+from .lattice import Lattice
+from .point_set import PointSet
+from .poisson import Poisson
+from .rsa import RSA_JAMMING_LIMIT, RSA_SATURATION, SequentialAdsorption, rsa_structure_factor
+
+__all__ = ["Process", "Poisson", "HardDisk", "SequentialAdsorption", "Lattice", "PointSet",
+           "rsa_structure_factor", "RSA_JAMMING_LIMIT", "RSA_SATURATION"]

@@ -1,0 +1,41 @@
+"""Independent centres: S(q) = 1."""
+from __future__ import annotations
+
+
+import numpy as np
+
+from .._validation import check_range
+from .base import Process
+
+
+class Poisson(Process):
+    """Independent, uniformly random centres (overlaps allowed): ``S(q) = 1``.
+
+    Only the dilute limit of a real layer: overlapping scatterers make the
+    sum rule ``∫ T_a T_s = 1 - F_a`` fail (the lobe integrates to 1 instead).
+
+    Parameters
+    ----------
+    area_fraction : float, default 0.1
+        ``F_a = n |A|`` in (0, 1).
+    """
+
+    isotropic = True
+
+    def __init__(self, area_fraction: float = 0.1):
+        self.fraction = check_range("area_fraction", area_fraction, 0.0, 1.0,
+                                    lo_open=True, hi_open=True)
+
+    def __repr__(self):
+        return f"Poisson(area_fraction={self.fraction:g})"
+
+    def area_fraction(self, shape) -> float:
+        return self.fraction
+
+    def structure_factor_radial(self, q_abs, shape) -> np.ndarray:
+        return np.ones_like(np.asarray(q_abs, dtype=np.float64))
+
+    def structure_factor_at(self, q, shape) -> np.ndarray:
+        q = np.asarray(q, dtype=np.float64)
+        return np.ones(q.shape[:-1])
+

@@ -1,0 +1,14 @@
+"""The reference tier: what makes and checks the runtime's tables.
+
+Needs the extra ``pip install corona[reference]`` (numba, matplotlib,
+scikit-image); the runtime (shapes, processes, material, tables, the
+plugin, the CLI's ``render`` and ``lobe``) never imports it.
+
+* :mod:`corona.reference.hard_disk` — event-chain Monte Carlo of hard disks,
+  Percus–Yevick, the smoothing that makes the shipped S(q) table;
+* :mod:`corona.reference.rsa` — the random-sequential-adsorption generator;
+* :mod:`corona.reference.wave` — the brute-force wave-optics reference
+  (random screens, FFT);
+* :mod:`corona.reference.validate` — ``corona validate``: model vs brute force,
+  a report with figures.
+"""

@@ -1,0 +1,23 @@
+"""Form factors of single scatterers (docs/physics.md#the-model).
+
+Every shape is a transmission profile ``A(x)`` in the layer plane, lengths in
+micrometres; :class:`Shape` documents the interface (``area``,
+``length_scale``, ``amplitude``, ``form_factor``, ``coherent_form_factor``).
+
+* :mod:`corona.shapes.analytic`: :class:`Circle`, :class:`Ellipse`,
+  :class:`Rectangle`, :class:`Square` (closed-form transforms);
+* :mod:`corona.shapes.polygon`: :class:`Polygon`, :class:`RegularPolygon`
+  (edge sum);
+* :mod:`corona.shapes.mask`: :class:`Mask` (any image, FFT);
+* :mod:`corona.shapes.modifiers`: :class:`SoftEdge`,
+  :class:`RandomOrientation`, :class:`SizeDistribution` (on the shared
+  :class:`Modifier` base) and :class:`Mixture`.
+"""
+from .analytic import Circle, Ellipse, Rectangle, Square
+from .base import Shape
+from .mask import Mask
+from .modifiers import Mixture, Modifier, RandomOrientation, SizeDistribution, SoftEdge
+from .polygon import Polygon, RegularPolygon
+
+__all__ = ["Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon",
+           "Mask", "Modifier", "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture"]
