@@ -18,7 +18,7 @@ import sys
 import click
 
 from ._validation import CoronaError
-from .parameters import DEFAULTS, PROCESSES, SHAPES
+from .parameters import PARAMETERS
 
 
 class CoronaUsageError(click.ClickException):
@@ -105,32 +105,18 @@ def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
 # ----------------------------------------------------------------------
 # lobe
 # ----------------------------------------------------------------------
+def _spec_option(p):
+    """The ``--name`` option of one :data:`corona.parameters.PARAMETERS` entry."""
+    kind = {"float": float, "int": int, "choice": click.Choice(p.choices)}.get(p.kind, str)
+    unit = f" [{p.unit}]" if p.unit else ""
+    return click.option(f"--{p.name.replace('_', '-')}", p.name, type=kind, default=p.default,
+                        show_default=p.default is not None, help=f"{p.meaning}{unit}")
+
+
 def material_options(f):
-    opts = [
-        click.option("--shape", type=click.Choice(SHAPES), default=DEFAULTS["shape"], show_default=True),
-        click.option("--radius", type=float, default=DEFAULTS["radius"], show_default=True, help="µm"),
-        click.option("--aspect", type=float, default=DEFAULTS["aspect"], show_default=True),
-        click.option("--sides", type=int, default=DEFAULTS["sides"], show_default=True),
-        click.option("--angle", type=float, default=DEFAULTS["angle"], show_default=True, help="degree"),
-        click.option("--filename", default=None, help="mask image or point file"),
-        click.option("--points-filename", "points_filename", default=None,
-                     help="point file (process=points with shape=mask)"),
-        click.option("--pixel-size", "pixel_size", type=float, default=None, help="µm (mask)"),
-        click.option("--edge-width", "edge_width", type=float, default=0.0, show_default=True, help="µm"),
-        click.option("--orientation", type=click.Choice(["fixed", "random"]), default="fixed", show_default=True),
-        click.option("--size-spread", "size_spread", type=float, default=0.0, show_default=True),
-        click.option("--area-fraction", "area_fraction", type=float, default=DEFAULTS["area_fraction"],
-                     show_default=True),
-        click.option("--process", type=click.Choice(PROCESSES), default=DEFAULTS["process"], show_default=True),
-        click.option("--exclusion-diameter", "exclusion_diameter", type=float, default=None, help="µm"),
-        click.option("--jitter", type=float, default=0.0, show_default=True, help="µm (lattices)"),
-        click.option("--mode", type=click.Choice(["aperture", "particle"]), default="aperture", show_default=True),
-        click.option("--albedo", type=float, default=0.0, show_default=True),
-        click.option("--mixture", default=None,
-                     help="shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (radius µm, number weights)"),
-    ]
-    for o in reversed(opts):
-        f = o(f)
+    """Every material parameter of the plugin as an option (from the one specification)."""
+    for p in reversed([p for p in PARAMETERS if not p.plugin_only]):
+        f = _spec_option(p)(f)
     return f
 
 

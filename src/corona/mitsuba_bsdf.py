@@ -6,30 +6,9 @@ reflects diffusely from its opaque part (DESIGN §3).  Register it with
 :func:`corona.register` after ``mi.set_variant(...)``; then
 ``<bsdf type="corona">`` and ``mi.load_dict({'type': 'corona', ...})`` work.
 
-Parameters (all optional; see :mod:`corona.parameters` for the full table):
+Parameters (all optional; the one specification is :data:`corona.parameters.PARAMETERS`):
 
-======================  ==========  ===========  =============================================
-name                    unit        default      meaning
-======================  ==========  ===========  =============================================
-shape                   —           circle       circle, ellipse, square, rectangle, polygon, mask,
-                                                 mixture (with ``mixture``)
-radius                  µm          0.5          size of the scatterer (circle radius, half-width…)
-aspect / sides / angle  — / — / °   1 / 6 / 0    ellipse & rectangle aspect; polygon sides; rotation
-filename, pixel_size    — , µm      —            mask image (shape=mask) or point file (process=points)
-points_filename         —           —            point file (process=points with shape=mask)
-edge_width              µm          0            soft edge (Gaussian apodisation)
-orientation             —           fixed        fixed, random
-size_spread             —           0            relative std of the size (lognormal / schulz)
-area_fraction           —           0.3          F_a = n |A|
-process                 —           hard-disk    poisson, hard-disk, rsa, lattice-square, lattice-hex, points
-exclusion_diameter      µm          shape's      hard-core diameter σ
-jitter                  µm          0            lattice jitter (rms per axis)
-mode                    —           aperture     aperture, particle
-albedo                  —           0            diffuse reflectance of the opaque part
-mixture                 —           —            'SHAPE:RADIUS:WEIGHT, ...' number-weighted types
-sampling                —           lobe         lobe: sample T_a T_s exactly; cosine: cosine-
-                                                 weighted hemisphere (for comparisons only)
-======================  ==========  ===========  =============================================
+{table}
 
 Components: 0 = coherent transmission (``DeltaTransmission``), 1 = diffraction
 lobe (``GlossyTransmission``), 2 = diffuse reflection (``DiffuseReflection``,
@@ -37,10 +16,11 @@ weight 0 when ``albedo`` is 0).  The layer is two-sided and symmetric.
 ``mi.traverse`` exposes ``albedo``; the lobe's parameters fix its tables, so
 change them by loading a new BSDF.
 
-Spectral variants evaluate each of the lane's wavelengths.  Sampling draws
-``d`` for the lane's first (hero) wavelength and returns the pdf averaged over
-all the lane's wavelengths (a one-sample balance-heuristic mixture, hence
-unbiased).  RGB and mono variants evaluate each channel as the lobe averaged
+Spectral variants evaluate each of the lane's wavelengths.  Sampling picks
+one of the lane's wavelengths at random (each with probability 1/n, reusing
+the component-selection random number), draws ``d`` for it, and returns the
+pdf averaged over all the lane's wavelengths (a one-sample balance-heuristic
+mixture, hence unbiased).  RGB and mono variants evaluate each channel as the lobe averaged
 over that channel's spectral response (CIE 1931 → linear sRGB, negative lobes
 clipped; luminance ȳ for mono), using ``N_RESPONSE`` wavelengths per channel.
 
@@ -51,7 +31,6 @@ layer never transmits plus reflects more than it receives.
 """
 from __future__ import annotations
 
-import math
 
 import drjit as dr
 import mitsuba as mi
@@ -59,35 +38,31 @@ import numpy as np
 
 from . import tables
 from ._validation import CoronaError
-from .parameters import DEFAULTS, material_from_parameters
+from .parameters import SPEC, material_from_parameters, rst_table
+
+__doc__ = __doc__.replace("{table}", rst_table())
 
 N_RESPONSE = 8
 NEWTON_STEPS = 5
-SAMPLING = ("lobe", "cosine")   # plugin-only parameter: how the lobe component is sampled
-
-_FLOAT_PARAMS = {"radius", "aspect", "angle", "pixel_size", "edge_width", "size_spread",
-                 "area_fraction", "exclusion_diameter", "jitter", "albedo"}
-_INT_PARAMS = {"sides"}
 
 
 def _read_props(props) -> dict:
-    """Named parameters from a ``mi.Properties`` (unknown names are an error)."""
+    """Named parameters from a ``mi.Properties``, checked against :data:`SPEC`
+    (unknown names are an error)."""
     out = {}
     for name in props.keys():
-        if name not in DEFAULTS and name != "sampling":
-            known = ", ".join(sorted([*DEFAULTS, "sampling"]))
-            raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {known}")
+        if name not in SPEC:
+            raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(SPEC))}")
         value = props.get(name)
-        if name in _FLOAT_PARAMS or name in _INT_PARAMS:
+        if SPEC[name].kind in ("float", "int"):
             try:
                 value = float(value)
             except (TypeError, ValueError):
-                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number") from None
-            if name in _INT_PARAMS:
-                value = int(value) if value == int(value) else value
+                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; "
+                                  f"allowed {SPEC[name].allowed}") from None
         else:
             value = str(value)
-        out[name] = value
+        out[name] = SPEC[name].check(value)
     return out
 
 
@@ -138,10 +113,7 @@ class CoronaBSDFMixin:
     def __init__(self, props):
         mi.BSDF.__init__(self, props)  # the active variant's base class
         params = _read_props(props)
-        self.sampling = params.pop("sampling", "lobe")
-        if self.sampling not in SAMPLING:
-            raise CoronaError(f"corona BSDF: sampling={self.sampling!r} is not allowed; "
-                              f"allowed: {', '.join(SAMPLING)}")
+        self.sampling = params.pop("sampling", SPEC["sampling"].default)
         material = material_from_parameters(**params)
         self.material = material
         table = material.table

@@ -1,58 +1,175 @@
-"""Build a :class:`corona.Material` from flat, named parameters.
+"""The one parameter specification of a corona layer, and the material it builds.
 
-One vocabulary serves the Mitsuba plugin (XML / ``load_dict``), the CLI and
-scripts.  Every parameter is validated here with one clear error.
+:data:`PARAMETERS` lists every parameter once: name, type, unit, default,
+allowed values and a one-line meaning.  The Mitsuba plugin reads its
+properties through it (and its docstring table is generated from it), the
+CLI's ``corona lobe`` options are generated from it, and the README's table
+is checked against it by the tests (``python -m corona.parameters`` prints
+the Markdown table).  :func:`material_from_parameters` validates each value
+here, at the boundary, with one clear error (name, value, allowed range).
 
-======================  ==========  ===========  =============================================
-name                    unit        default      meaning
-======================  ==========  ===========  =============================================
-shape                   —           circle       circle, ellipse, square, rectangle, polygon, mask,
-                                                 mixture
-radius                  µm          0.5          circle radius; ellipse semi-axis along x;
-                                                 square / rectangle half-width; polygon
-                                                 circumradius
-aspect                  —           1.0          ellipse / rectangle: extent along y over x
-sides                   —           6            polygon: number of sides (>= 3)
-angle                   degree      0            rotation of anisotropic shapes
-filename                —           —            mask: image file; process=points: point file
-                                                 (when the shape is not a mask)
-points_filename         —           —            process=points: point file (needed with
-                                                 shape=mask, where filename is the image)
-pixel_size              µm          —            mask: size of one image pixel
-edge_width              µm          0            soft edge: std of the Gaussian apodisation
-orientation             —           fixed        fixed, random (rotational average)
-size_spread             —           0            relative std of the scatterer size
-size_distribution       —           lognormal    lognormal, schulz
-area_fraction           —           0.3          F_a = n |A|
-process                 —           hard-disk    poisson, hard-disk, rsa, lattice-square,
-                                                 lattice-hex, points
-exclusion_diameter      µm          shape's      hard-core diameter σ (hard-disk, rsa)
-jitter                  µm          0            lattice: rms displacement per axis
-mode                    —           aperture     aperture, particle
-albedo                  —           0            diffuse reflectance of the opaque part
-mixture                 —           —            shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (shapes
-                                                 circle…polygon, radius µm, number weights);
-                                                 decoupling approximation (DESIGN §3)
-======================  ==========  ===========  =============================================
+{table}
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from ._validation import CoronaError, check_choice, check_positive, check_range
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One parameter of a corona layer.
+
+    Attributes
+    ----------
+    name : str
+        Name in XML / ``load_dict`` / Python (``--name-with-dashes`` on the CLI).
+    kind : {"float", "int", "choice", "string", "file"}
+    unit : str
+        Unit of a number ("" when dimensionless).
+    default : object
+        Value when not given (None: not set; ``meaning`` says what happens).
+    meaning : str
+        One line for tables and ``--help``.
+    choices : tuple of str
+        Allowed values of a ``choice``.
+    low, high : float
+        Allowed range of a number; ``low_open`` / ``high_open`` exclude the ends.
+    plugin_only : bool
+        A rendering option of the Mitsuba plugin, not a property of the material.
+    """
+
+    name: str
+    kind: str
+    unit: str
+    default: object
+    meaning: str
+    choices: tuple = ()
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False
+    high_open: bool = False
+    plugin_only: bool = False
+
+    @property
+    def allowed(self) -> str:
+        """The allowed values as a short text (``(0, 1)``, ``circle, ellipse``, ``file``)."""
+        if self.kind == "choice":
+            return ", ".join(self.choices)
+        if self.kind in ("float", "int"):
+            lb = "(" if self.low_open else "["
+            rb = ")" if self.high_open else "]"
+            fmt = (lambda v: "∞" if v == math.inf else ("-∞" if v == -math.inf else f"{v:g}"))
+            return f"{lb}{fmt(self.low)}, {fmt(self.high)}{rb}" + (" integer" if self.kind == "int" else "")
+        return "file path" if self.kind == "file" else "text"
+
+    def check(self, value):
+        """``value`` converted to this parameter's type and checked, or one :class:`CoronaError`."""
+        unit = f" {self.unit}" if self.unit else ""
+        if self.kind == "choice":
+            return check_choice(self.name, value, self.choices)
+        if self.kind in ("string", "file"):
+            if not isinstance(value, (str, bytes)) and not hasattr(value, "__fspath__"):
+                raise CoronaError(f"{self.name}={value!r} is not a text; expected a {self.allowed}")
+            return value
+        if self.kind == "int":
+            ok = not isinstance(value, bool)
+            try:
+                ok = ok and float(value).is_integer() and self.low <= float(value) <= self.high
+            except (TypeError, ValueError, OverflowError):
+                ok = False
+            if not ok:
+                raise CoronaError(f"{self.name}={value!r} is out of range; allowed integers "
+                                  f">= {self.low:g} and <= {self.high:g}")
+            return int(value)
+        if isinstance(value, bool):
+            raise CoronaError(f"{self.name}={value!r} is not a number; allowed {self.allowed}{unit}")
+        if self.low == 0.0 and self.low_open and self.high == math.inf:
+            return check_positive(self.name, value, self.unit)        # "a finite value > 0"
+        return check_range(self.name, value, self.low, self.high, lo_open=self.low_open,
+                           hi_open=self.high_open, unit=self.unit)
+
 
 SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon", "mask", "mixture")
 PROCESSES = ("poisson", "hard-disk", "rsa", "lattice-square", "lattice-hex", "points")
 ORIENTATIONS = ("fixed", "random")
 SIZE_DISTRIBUTIONS = ("lognormal", "schulz")
+MODES = ("aperture", "particle")
+SAMPLINGS = ("lobe", "cosine")
+MAX_SIDES = 100_000
 
-DEFAULTS = {
-    "shape": "circle", "radius": 0.5, "aspect": 1.0, "sides": 6, "angle": 0.0,
-    "filename": None, "points_filename": None, "pixel_size": None, "edge_width": 0.0, "orientation": "fixed",
-    "size_spread": 0.0, "size_distribution": "lognormal", "area_fraction": 0.3,
-    "process": "hard-disk", "exclusion_diameter": None, "jitter": 0.0,
-    "mode": "aperture", "albedo": 0.0, "mixture": None,
-}
+#: Every parameter of a corona layer, in the order of the tables.
+PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("shape", "choice", "", "circle", "scatterer shape", SHAPES),
+    Parameter("radius", "float", "µm", 0.5, "circle radius; ellipse semi-axis x; square/rectangle "
+              "half-width; polygon circumradius", low=0.0, low_open=True, high_open=True),
+    Parameter("aspect", "float", "", 1.0, "ellipse / rectangle: extent along y over x",
+              low=0.0, low_open=True, high_open=True),
+    Parameter("sides", "int", "", 6, "polygon: number of sides", low=3, high=MAX_SIDES),
+    Parameter("angle", "float", "degree", 0.0, "rotation of anisotropic shapes", low=-360.0, high=360.0),
+    Parameter("filename", "file", "", None, "mask image (shape=mask), or point file (process=points "
+              "with any other shape)"),
+    Parameter("points_filename", "file", "", None, "point file of process=points; needed with "
+              "shape=mask, where filename is the image"),
+    Parameter("pixel_size", "float", "µm", None, "mask: size of one image pixel",
+              low=0.0, low_open=True, high_open=True),
+    Parameter("edge_width", "float", "µm", 0.0, "soft edge: std of a Gaussian apodisation",
+              low=0.0, high_open=True),
+    Parameter("orientation", "choice", "", "fixed", "fixed, or random (rotational average: radial lobe)",
+              ORIENTATIONS),
+    Parameter("size_spread", "float", "", 0.0, "relative std of the scatterer size", low=0.0, high=1.0),
+    Parameter("size_distribution", "choice", "", "lognormal", "distribution of the size (with "
+              "size_spread > 0)", SIZE_DISTRIBUTIONS),
+    Parameter("area_fraction", "float", "", 0.3, "F_a = n |A|, the fraction of the layer covered",
+              low=0.0, high=1.0, low_open=True, high_open=True),
+    Parameter("process", "choice", "", "hard-disk", "point process of the centres", PROCESSES),
+    Parameter("exclusion_diameter", "float", "µm", None, "hard-core diameter σ (hard-disk, rsa); "
+              "default the shape's circumscribed diameter", low=0.0, low_open=True, high_open=True),
+    Parameter("jitter", "float", "µm", 0.0, "lattice: rms displacement per axis", low=0.0, high_open=True),
+    Parameter("mode", "choice", "", "aperture", "aperture: scatterers transmit in an opaque screen; "
+              "particle: they block light in a clear layer", MODES),
+    Parameter("albedo", "float", "", 0.0, "diffuse reflectance of the opaque part", low=0.0, high=1.0),
+    Parameter("mixture", "string", "", None, "shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (radius µm, "
+              "number weights; decoupling approximation)"),
+    Parameter("sampling", "choice", "", "lobe", "how the lobe is sampled: lobe (T_a T_s exactly) or "
+              "cosine (for comparisons only)", SAMPLINGS, plugin_only=True),
+)
+
+#: The parameters by name.
+SPEC: dict[str, Parameter] = {p.name: p for p in PARAMETERS}
+#: Defaults of the material parameters (the plugin-only ones left out).
+DEFAULTS = {p.name: p.default for p in PARAMETERS if not p.plugin_only}
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def markdown_table(plugin: bool = True) -> str:
+    """The parameter table in Markdown (the README's)."""
+    rows = ["| parameter | unit | default | allowed | meaning |", "|---|---|---|---|---|"]
+    for p in PARAMETERS:
+        if p.plugin_only and not plugin:
+            continue
+        default = "—" if p.default is None else f"`{p.default}`"
+        rows.append(f"| `{p.name}` | {p.unit or '—'} | {default} | {_cell(p.allowed)} | {_cell(p.meaning)} |")
+    return "\n".join(rows)
+
+
+def rst_table() -> str:
+    """The parameter table as a reStructuredText list-table (docstrings)."""
+    lines = [".. list-table::", "   :header-rows: 1", "", "   * - parameter", "     - unit",
+             "     - default", "     - allowed", "     - meaning"]
+    for p in PARAMETERS:
+        default = "—" if p.default is None else f"``{p.default}``"
+        lines += [f"   * - ``{p.name}``", f"     - {p.unit or '—'}", f"     - {default}",
+                  f"     - {p.allowed}", f"     - {p.meaning}"]
+    return "\n".join(lines)
+
+
+__doc__ = __doc__.replace("{table}", rst_table())
 
 
 MIXTURE_SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon")
@@ -181,7 +298,10 @@ def points_file(p: dict) -> str:
 
 
 def material_from_parameters(**params):
-    """A :class:`corona.Material` from the named parameters of the module table.
+    """A :class:`corona.Material` from the named parameters of :data:`PARAMETERS`.
+
+    Each value is checked against its specification (type, allowed values or
+    range); None means "not given" (the default).
 
     Unknown names raise a :class:`corona.CoronaError` listing the known ones.
     """
@@ -189,8 +309,11 @@ def material_from_parameters(**params):
     unknown = sorted(set(params) - set(DEFAULTS))
     if unknown:
         raise CoronaError(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
-    p = {**DEFAULTS, **{k: v for k, v in params.items() if v is not None}}
+    p = {**DEFAULTS, **{k: SPEC[k].check(v) for k, v in params.items() if v is not None}}
     shape = make_shape(p)
     process = make_process(p, shape)
-    mode = check_choice("mode", p["mode"], ("aperture", "particle"))
-    return Material(shape, process, mode=mode, albedo=p["albedo"])
+    return Material(shape, process, mode=p["mode"], albedo=p["albedo"])
+
+
+if __name__ == "__main__":   # python -m corona.parameters: the README's table
+    print(markdown_table())
