@@ -225,15 +225,15 @@ def test_traverse_albedo(mi_variant):
     import mitsuba as mi
     bsdf = mi.load_dict({"type": "corona", **CIRCLE_POISSON, "albedo": 0.0})
     params = mi.traverse(bsdf)
-    assert "albedo" in params
+    assert "albedo.value" in params
     si = interaction(1, (0.0, 0.0, 1.0))
     wo = mi.Vector3f(0.0, 0.6, 0.8)  # reflection side
     assert np.all(np.array(bsdf.eval(mi.BSDFContext(), si, wo)) == 0)
-    params["albedo"] = 0.5
+    params["albedo.value"] = 0.5
     params.update()
     m = material_from_parameters(**CIRCLE_POISSON, albedo=0.5)
     val = np.array(bsdf.eval(mi.BSDFContext(), si, wo))
     np.testing.assert_allclose(val, m.reflectance / np.pi * 0.8, rtol=1e-5)
-    params["albedo"] = 2.0
+    params["albedo.value"] = 2.0
     with pytest.raises(Exception, match="albedo"):
         params.update()

@@ -22,6 +22,10 @@ MODES = ("aperture", "particle")
 #: :class:`corona.CoronaWarning` per process: scalar Fraunhofer diffraction
 #: loses accuracy there, but the model stays computable.
 SMALL_RADIUS_WAVELENGTHS = 2.0
+
+#: Largest relative change of the lobe from interpolating between area-fraction rows
+#: (:meth:`Material.area_fraction_rows`).
+ROW_TOLERANCE = 0.004
 _small_radius_warned = False
 
 
@@ -251,6 +255,105 @@ class Material:
         S_bg = self.process.background_cell_mean(q, cell / R)
         bragg = self.process.bragg_cell_mean(q, cell / R, peak_factor=self.shape.coherent_form_factor)
         return tables.GridTable(u_range, np.maximum(P + C * (S_bg - 1.0) + bragg, 0.0) / R**2).arrays()
+
+    # ------------------------------------------------------------------
+    # rows over the area fraction (layers whose F_a varies over a surface)
+    # ------------------------------------------------------------------
+    def _table_grid(self):
+        """The u sample points of :attr:`table` ((n,) radial or (n, n, 2) grid) and its geometry."""
+        u_max = tables.u_max_for(self.length_scale)
+        if self.isotropic:
+            n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
+            du = u_max / (n - 1)
+            return np.arange(n) * du, du
+        n = tables.GRID2D_SIZE
+        u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
+        cell = 2 * u_range / n
+        c = -u_range + (np.arange(n) + 0.5) * cell
+        ux, uy = np.meshgrid(c, c, indexing="xy")
+        return np.stack([ux, uy], -1), u_range
+
+    def _row_values(self, u, area_fractions):
+        """``v(u)`` of this material at each area fraction (P and C computed once)."""
+        R = self.length_scale
+        if self.isotropic:
+            q = u / R
+            P = self.shape.form_factor_radial(q)
+            C = self.shape.coherent_form_factor_radial(q)
+            S_of = lambda proc: proc.structure_factor_radial(q, self.shape)
+        else:
+            q = u / R
+            P = self.shape.form_factor(q)
+            C = self.shape.coherent_form_factor(q)
+            S_of = lambda proc: proc.structure_factor_at(q, self.shape)
+        out = []
+        for fa in area_fractions:
+            S = 1.0 if fa <= 0.0 else S_of(self.process.with_area_fraction(float(fa)))
+            out.append(np.maximum(P + C * (S - 1.0), 0.0) / R**2)
+        return out
+
+    def area_fraction_rows(self, lo: float = 0.0, hi: float | None = None,
+                           tolerance: float = ROW_TOLERANCE, max_rows: int = 160):
+        """Lobe tables at rows of area fraction, for layers whose ``F_a`` varies.
+
+        Between two rows the renderer interpolates the dimensionless lobe
+        linearly in ``F_a``.  The rows cover ``[lo, hi]`` (default: 0 to
+        :meth:`Process.area_fraction_limit`); they start at the process's own
+        tabulation nodes and are bisected until the interpolated lobe at every
+        interval's midpoint is within ``tolerance`` (relative) of the exact
+        one wherever that exceeds 1e-3 of its peak.
+
+        Returns
+        -------
+        area_fractions : ndarray (n_rows,)
+            Increasing, covering ``[lo, hi]``.
+        tables : list of RadialTable or GridTable
+            The lobe table at each row.
+        error : float
+            The largest relative midpoint error of the final rows.
+        """
+        if not self.process.varying_area_fraction:
+            return np.array([self.area_fraction]), [self.table], 0.0
+        limit = float(self.process.area_fraction_limit(self.shape))
+        hi = limit if hi is None else min(float(hi), limit)
+        lo = max(0.0, min(float(lo), hi))
+        arrays = tables.cached({**self.table_params(), "rows": [lo, hi], "tolerance": tolerance,
+                                "max_rows": max_rows},
+                               lambda: self._build_rows(lo, hi, tolerance, max_rows), use_cache=self.use_cache)
+        fas = np.asarray(arrays["area_fraction"], dtype=np.float64)
+        vals = np.asarray(arrays["values"], dtype=np.float64)
+        geo = float(arrays["geometry"])
+        make = (lambda v: tables.RadialTable(geo, v)) if self.isotropic else (lambda v: tables.GridTable(geo, v))
+        return fas, [make(v) for v in vals], float(arrays["error"])
+
+    def _build_rows(self, lo, hi, tolerance, max_rows):
+        u, geo = self._table_grid()
+        nodes = np.asarray(self.process.area_fraction_nodes(self.shape), dtype=np.float64)
+        inner = nodes[(nodes > lo) & (nodes < hi)]
+        # the nodes bracketing [lo, hi] too, so interpolation there follows the process's own rows
+        below, above = nodes[nodes <= lo], nodes[nodes >= hi]
+        ends = [below.max() if below.size else lo, above.min() if above.size else hi]
+        fas = np.unique(np.concatenate([ends, inner, [lo, hi]]))
+        vals = dict(zip(fas.tolist(), self._row_values(u, fas)))
+        todo = list(zip(fas[:-1].tolist(), fas[1:].tolist()))
+        worst = 0.0
+        while todo and len(vals) < max_rows:
+            mids = [0.5 * (a + b) for a, b in todo]
+            split = []
+            for (a, b), m, e in zip(todo, mids, self._row_values(u, mids)):
+                lerp = 0.5 * (vals[a] + vals[b])
+                sel = e > 1e-3 * e.max()
+                err = float(np.max(np.abs(lerp[sel] - e[sel]) / e[sel])) if np.any(sel) else 0.0
+                if err > tolerance:
+                    vals[m] = e
+                    split += [(a, m), (m, b)]
+                else:
+                    worst = max(worst, err)
+            todo = split
+        keys = [k for i, k in enumerate(sorted(vals))     # rows distinct in float32 too
+                if i == 0 or np.float32(k) != np.float32(sorted(vals)[i - 1])]
+        return {"area_fraction": np.array(keys), "values": np.stack([vals[k] for k in keys]).astype(np.float32),
+                "geometry": np.array(geo), "error": np.array(worst if not todo else np.inf)}
 
     def lobe_tabulated(self, d, wavelength) -> np.ndarray:
         """The lobe as the renderer evaluates it: interpolated from :attr:`table`."""

@@ -46,14 +46,22 @@ N_RESPONSE = 8
 NEWTON_STEPS = 5
 
 
-def _read_props(props) -> dict:
+#: Parameters that take a Mitsuba texture as well as a float (a float becomes a
+#: ``uniform`` texture, so ``mi.traverse`` shows ``area_fraction.value`` etc.).
+TEXTURED = ("area_fraction", "radius", "albedo")
+
+
+def _read_props(props) -> tuple[dict, dict]:
     """Named parameters from a ``mi.Properties``, checked against :data:`SPEC`
-    (unknown names are an error)."""
-    out = {}
+    (unknown names are an error), and the textures of :data:`TEXTURED`."""
+    out, textures = {}, {}
     for name in props.keys():
         if name not in SPEC:
             raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(SPEC))}")
         value = props.get(name)
+        if name in TEXTURED and isinstance(value, mi.Texture):
+            textures[name] = value
+            continue
         if SPEC[name].kind in ("float", "int"):
             try:
                 value = float(value)
@@ -63,7 +71,36 @@ def _read_props(props) -> dict:
         else:
             value = str(value)
         out[name] = SPEC[name].check(value)
-    return out
+    return out, textures
+
+
+def _uniform(value: float):
+    return mi.load_dict({"type": "uniform", "value": float(value)})
+
+
+def texture_range(texture) -> tuple[float | None, float]:
+    """(min, max) of a scalar texture's values.
+
+    Evaluated at the texel centres of a bitmap (``texture.resolution()``) or
+    on a 64×64 grid of uv for procedural textures; where the texture cannot
+    be evaluated without a mesh (``mesh_attribute``) the minimum is unknown
+    (None) and the maximum is ``texture.max()``.
+    """
+    if not texture.is_spatially_varying():
+        v = float(np.asarray(dr.detach(texture.mean())).ravel()[0])
+        return v, v
+    res = [int(x) for x in texture.resolution()]
+    nx, ny = min(max(res[0], 64), 4096), min(max(res[1], 64), 4096)
+    uu, vv = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(ny) + 0.5) / ny)
+    try:
+        si = dr.zeros(mi.SurfaceInteraction3f, uu.size)
+        si.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
+        vals = np.asarray(dr.detach(texture.eval_1(si)), dtype=np.float64).ravel()
+        if vals.size and np.all(np.isfinite(vals)):
+            return float(vals.min()), float(vals.max())
+    except Exception:  # noqa: BLE001 - textures that need a mesh
+        pass
+    return None, float(texture.max())
 
 
 def _channel_response():
@@ -112,36 +149,28 @@ class CoronaBSDFMixin:
 
     def __init__(self, props):
         mi.BSDF.__init__(self, props)  # the active variant's base class
-        params = _read_props(props)
+        params, textures = _read_props(props)
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
-        material = material_from_parameters(**params)
-        self.material = material
-        table = material.table
-        self.isotropic = material.isotropic
-        self.R = float(material.length_scale)
-
-        # --- component energies (wavelength-independent) ---------------------
-        self.w_coherent = float(material.coherent_transmittance)
-        self.w_lobe = float(material.diffuse_transmittance())      # F_a ∫v d²u / 4π²
-        self.lobe_scale = float(material.lobe_weight)                # f = F_a (R/λ)² v(u), capped
-        self.w_reflect = float(material.reflectance)                 # ρ · opaque fraction, capped
-        self.albedo = mi.Float(material.albedo)                      # exposed through mi.traverse
-        self.table_total = float(table.total)
-
-        # --- table in Dr.Jit arrays ------------------------------------------
-        if self.isotropic:
-            self.du = float(table.du)
-            self.n = int(table.values.size)
-            self.values = _array(mi.Float, table.values)
-            self._set_cdf(table.cdf)
-        else:
-            self.n = int(table.n)
-            self.lo = float(table.lo)                 # first vertex [u]
-            self.cell = float(table.cell)
-            self.span = float(table.cell * (table.n - 1))
-            self.values = _array(mi.Float, table.values.ravel())
-            # exact sampling of the bilinear density (marginal y, conditional x)
-            self.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(table.values, dtype=np.float32))
+        self.params = params
+        # textured parameters: a float is a uniform texture (traverse: "<name>.value")
+        for name in TEXTURED:
+            if name not in textures:
+                value = params.get(name, SPEC[name].default)
+                textures[name] = _uniform(SPEC[name].default if value is None else value)
+        self.fa_tex = textures["area_fraction"]
+        self.radius_tex = textures["radius"]
+        self.albedo_tex = textures["albedo"]
+        # sizes that do not follow `radius`: a mask's pixels, a point file's positions, a mixture's radii
+        self.fixed_radius = (params.get("shape") in ("mask", "mixture") or params.get("process") == "points")
+        self._textured = {k for k in textures if textures[k].is_spatially_varying()}
+        if self.fixed_radius and "radius" in self._textured:
+            raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or 'mixture', or "
+                              "process='points' (their sizes and positions are absolute); give a float")
+        ranges = self._ranges()
+        # absolute lengths (edge_width, exclusion_diameter, jitter) belong to the largest radius at
+        # load; `radius` scales the whole layer with them (σ/R fixed), so the table in u is unchanged
+        self.radius_ref = ranges[1][1]
+        self._setup(*ranges)
 
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
@@ -152,35 +181,127 @@ class CoronaBSDFMixin:
         # --- components and flags ----------------------------------------------
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         comps = [mi.BSDFFlags.DeltaTransmission | sides,
-                 mi.BSDFFlags.GlossyTransmission | sides]
-        comps.append(mi.BSDFFlags.DiffuseReflection | sides)   # weight 0 when albedo = 0
+                 mi.BSDFFlags.GlossyTransmission | sides,
+                 mi.BSDFFlags.DiffuseReflection | sides]   # weight 0 where albedo = 0
+        if self._textured:
+            comps = [c | mi.BSDFFlags.SpatiallyVarying for c in comps]
         if not self.isotropic:
             comps[1] = comps[1] | mi.BSDFFlags.Anisotropic
-        self.m_components = [c for c in comps]
+        self.m_components = comps
         flags = mi.BSDFFlags.Empty
         for c in comps:
             flags = flags | c
         self.m_flags = flags
 
-    def _set_cdf(self, cdf64):
-        """Normalised CDF (float32) plus a guide table that narrows each search.
+    # ------------------------------------------------------------------
+    # textures -> tables
+    # ------------------------------------------------------------------
+    def _ranges(self):
+        """Checked (lo, hi) of the area fraction, radius and albedo textures."""
+        out = []
+        for name, tex in (("area_fraction", self.fa_tex), ("radius", self.radius_tex),
+                          ("albedo", self.albedo_tex)):
+            lo, hi = texture_range(tex)
+            given = self.params.get(name)
+            if given is not None and not tex.is_spatially_varying() and np.float32(given) == np.float32(hi):
+                lo = hi = given                  # the float64 value given, not its float32 copy
+            spec = SPEC[name]
+            what = "texture" if tex.is_spatially_varying() else "value"
+            # a texture may reach F_a = 0 (clear glass) but nothing below
+            low_ok = (lo is None) or (lo > 0 if name == "radius" else lo >= 0)
+            if not low_ok or not np.isfinite(hi) or hi > spec.high or (name == "area_fraction" and hi >= 1):
+                raise CoronaError(f"corona BSDF: {name} {what} spans [{lo if lo is not None else '?'}, {hi:g}]; "
+                                  f"allowed {spec.allowed}" + (" (0 allowed in a texture)"
+                                                               if name == "area_fraction" else ""))
+            out.append((0.0 if lo is None else lo, hi))
+        return out
+
+    def _setup(self, fa_range, radius_range, albedo_range):
+        """Build the material at the largest radius and its area-fraction rows, as Dr.Jit arrays."""
+        fa_lo, fa_hi = fa_range
+        params = dict(self.params)
+        # tables in u = 2π L |d| / λ cover the largest radius (uniform: 25 % headroom, so that
+        # an optimiser can grow it without a rebuild); a smaller one scales L down
+        cover = radius_range[1] * (1.0 if "radius" in self._textured else 1.25)
+        if not self.fixed_radius:
+            params["radius"] = cover
+            for name in ("edge_width", "exclusion_diameter", "jitter"):
+                if params.get(name) is not None:
+                    params[name] = params[name] * cover / self.radius_ref
+        params["area_fraction"] = min(max(fa_hi, 1e-6), 1.0 - 1e-6)
+        params["albedo"] = albedo_range[1]
+        try:
+            material = material_from_parameters(**params)
+        except CoronaError as err:
+            if "area_fraction" in str(err) and fa_hi > 0 and self.fa_tex.is_spatially_varying():
+                raise CoronaError(f"corona BSDF: the area_fraction texture reaches {fa_hi:g}: {err}") from None
+            raise
+        process = material.process
+        if not process.varying_area_fraction and (fa_lo != fa_hi or "area_fraction" in self._textured):
+            raise CoronaError(f"corona BSDF: area_fraction cannot be a texture with process="
+                              f"{self.params.get('process', SPEC['process'].default)!r} (the area fraction "
+                              "sets its geometry); use poisson, hard-disk or rsa")
+        self.material = material
+        self.isotropic = material.isotropic
+        self.radius_cover = float(params.get("radius", SPEC["radius"].default))
+        self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
+        self.mode_aperture = material.mode == "aperture"
+        if process.varying_area_fraction:
+            # radial tables: the whole range (updates never rebuild); 2D tables: the texture's range
+            lo, hi = (0.0, None) if self.isotropic else (fa_lo, fa_hi)
+            fas, tabs, self.row_error = material.area_fraction_rows(lo, hi)
+        else:
+            fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
+        self.fa_rows_np = fas
+        self.n_rows = len(fas)
+        self.fa_rows = _array(mi.Float, fas)
+        self.row_steps = max(1, int(np.ceil(np.log2(max(self.n_rows - 1, 1)))))
+        self.totals = _array(mi.Float, [t.total for t in tabs])
+        if self.isotropic:
+            self.du = float(tabs[0].du)
+            self.n = int(tabs[0].values.size)
+            self.values = _array(mi.Float, np.concatenate([t.values for t in tabs]))
+            self._set_cdf([t.cdf for t in tabs])
+        else:
+            t0 = tabs[0]
+            self.n = int(t0.n)
+            self.lo = float(t0.lo)                 # first vertex [u]
+            self.cell = float(t0.cell)
+            self.span = float(t0.cell * (t0.n - 1))
+            self.values = _array(mi.Float, np.concatenate([t.values.ravel() for t in tabs]))
+            # exact sampling of the bilinear density (marginal y, conditional x); with several
+            # rows Mitsuba interpolates the normalised slices linearly in F_a: the same mixture
+            # (1 - t) p_j + t p_j+1 that pdf() returns
+            data = np.ascontiguousarray(np.stack([t.values for t in tabs]), dtype=np.float32)
+            if self.n_rows == 1:
+                self.distr = mi.MarginalContinuous2D0(data[0])
+            else:
+                self.distr = mi.MarginalContinuous2D1(data, [fas.astype(np.float32).tolist()])
+        self.fa_cover = (float(fas[0]), float(fas[-1]))
+
+    def _set_cdf(self, cdfs):
+        """Normalised CDFs of the rows (float32) plus guide tables that narrow each search.
 
         ``guide[j]`` is the last bin whose CDF is <= j/G, so a target in
         [j/G, (j+1)/G) lies in bins ``guide[j] .. guide[j+1]``; a fixed number
-        of bisection steps (the widest such range) then finds the bin.
+        of bisection steps (the widest such range over all rows) then finds the bin.
         """
-        cdf = np.asarray(cdf64, dtype=np.float64) / cdf64[-1]
-        cdf32 = cdf.astype(np.float32)
-        n_bins = cdf.size - 1
+        n_bins = cdfs[0].size - 1
         G = int(min(max(n_bins, 16), 1 << 16))
-        marks = np.arange(G + 1) / G
-        guide = np.clip(np.searchsorted(cdf32, marks.astype(np.float32), side="right") - 1, 0, n_bins - 1)
-        width = int(np.max(guide[1:] - guide[:-1])) + 1
+        marks = (np.arange(G + 1) / G).astype(np.float32)
+        cdf_all, guide_all, width = [], [], 1
+        for cdf64 in cdfs:
+            total = cdf64[-1] if cdf64[-1] > 0 else 1.0
+            cdf32 = (np.asarray(cdf64, dtype=np.float64) / total).astype(np.float32)
+            guide = np.clip(np.searchsorted(cdf32, marks, side="right") - 1, 0, n_bins - 1)
+            width = max(width, int(np.max(guide[1:] - guide[:-1])) + 1)
+            cdf_all.append(cdf32)
+            guide_all.append(guide)
         self.guide_size = G
         self.search_steps = max(1, int(np.ceil(np.log2(width + 1))))
         self.n_bins = n_bins
-        self.cdf = _array(mi.Float, cdf32)
-        self.guide = _array(mi.UInt32, guide)
+        self.cdf = _array(mi.Float, np.concatenate(cdf_all))
+        self.guide = _array(mi.UInt32, np.concatenate(guide_all))
 
     # ------------------------------------------------------------------
     # helpers (traced Dr.Jit code)
@@ -190,15 +311,54 @@ class CoronaBSDFMixin:
         # wavelength [nm] clamped to the table range, in µm
         return dr.clip(lam, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
 
-    def _table_value(self, ux, uy, active):
-        """v(u): linear in |u| (radial) or bilinear in (u_x, u_y) (grid)."""
+    def _layer(self, si, active):
+        """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
+        and the energies of the coherent beam, the lobe and the reflection."""
+        fa = dr.clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
+        if self.n_rows == 1:
+            j, t = mi.UInt32(0), mi.Float(0.0)
+            total = _gather(mi.Float, self.totals, j, active)
+            total_next = total
+        else:
+            lo, hi = mi.UInt32(0), mi.UInt32(self.n_rows - 1)
+            for _ in range(self.row_steps):          # fa_rows[lo] <= fa <= fa_rows[hi]
+                mid = (lo + hi) >> 1
+                right = _gather(mi.Float, self.fa_rows, mid, active) <= fa
+                lo = dr.select(right, mid, lo)
+                hi = dr.select(right, hi, mid)
+            j = dr.minimum(lo, self.n_rows - 2)
+            f0 = _gather(mi.Float, self.fa_rows, j, active)
+            f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
+            t = dr.clip((fa - f0) / dr.maximum(f1 - f0, 1e-12), 0.0, 1.0)   # linear in F_a between rows
+            total = _gather(mi.Float, self.totals, j, active)
+            total_next = _gather(mi.Float, self.totals, j + 1, active)
+        plane = fa * dr.lerp(total, total_next, t) * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π²
+        coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
+        budget = dr.maximum(1.0 - coherent, 0.0)
+        # lobe weight F_a, lowered where coherent + lobe would exceed 1 (Poisson, see Material.lobe_weight)
+        scale = dr.select(plane > budget, budget / dr.maximum(plane, 1e-30), 1.0)
+        weight = fa * scale
+        lobe = plane * scale
+        opaque = (1.0 - fa) if self.mode_aperture else fa
+        albedo = dr.clip(self.albedo_tex.eval_1(si, active), 0.0, 1.0)
+        reflect = dr.minimum(albedo * opaque, dr.maximum(1.0 - coherent - lobe, 0.0))
+        if self.fixed_radius:
+            L = mi.Float(self.L_per_radius * self.radius_cover)
+        else:
+            L = self.radius_tex.eval_1(si, active) * self.L_per_radius
+        return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
+                    coherent=coherent, lobe=lobe, reflect=reflect)
+
+    def _table_value(self, ux, uy, row, active):
+        """v(u) of one row: linear in |u| (radial) or bilinear in (u_x, u_y) (grid)."""
         if self.isotropic:
-            x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.du
+            x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
             i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
             t = x - mi.Float(i)
             inside = active & (x <= self.n - 1)
-            v0 = _gather(mi.Float, self.values, i, inside)
-            v1 = _gather(mi.Float, self.values, i + 1, inside)
+            k = row * self.n + i
+            v0 = _gather(mi.Float, self.values, k, inside)
+            v1 = _gather(mi.Float, self.values, k + 1, inside)
             return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
         fx = (ux - self.lo) / self.cell
         fy = (uy - self.lo) / self.cell
@@ -207,7 +367,7 @@ class CoronaBSDFMixin:
         y0 = dr.clip(dr.floor(fy), 0, self.n - 2)
         tx = dr.clip(fx - x0, 0.0, 1.0)
         ty = dr.clip(fy - y0, 0.0, 1.0)
-        k = mi.UInt32(y0) * self.n + mi.UInt32(x0)
+        k = row * (self.n * self.n) + mi.UInt32(y0) * self.n + mi.UInt32(x0)
         v00 = _gather(mi.Float, self.values, k, inside)
         v01 = _gather(mi.Float, self.values, k + 1, inside)
         v10 = _gather(mi.Float, self.values, k + self.n, inside)
@@ -215,31 +375,38 @@ class CoronaBSDFMixin:
         v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
         return dr.select(inside, dr.maximum(v, 0.0), 0.0)
 
-    def _sample_u(self, s, active):
-        """Invert the table's CDF: s (Vector2f) -> u (Vector2f)."""
+    def _sample_u(self, s, row, fa, active):
+        """Invert the CDF of table row ``row``: s (Vector2f) -> u (Vector2f).
+
+        (2D tables: Mitsuba's distribution samples the F_a-interpolated mixture itself.)"""
         if not self.isotropic:
-            p01, _ = self.distr.sample(s, active=active)
+            if self.n_rows == 1:
+                p01, _ = self.distr.sample(s, active=active)
+            else:
+                p01, _ = self.distr.sample(s, [fa], active=active)
             return mi.Vector2f(self.lo + p01.x * self.span, self.lo + p01.y * self.span)
         target = s.x
-        # guide table, then bisection with cdf[lo] <= target < cdf[hi]
-        j = mi.UInt32(dr.minimum(target * self.guide_size, self.guide_size - 1))
-        lo = _gather(mi.UInt32, self.guide, j, active)
-        hi = dr.minimum(_gather(mi.UInt32, self.guide, j + 1, active) + 1, self.n_bins)
+        # guide table of the row, then bisection with cdf[lo] <= target < cdf[hi]
+        base_c = row * (self.n_bins + 1)
+        g = mi.UInt32(dr.minimum(target * self.guide_size, self.guide_size - 1))
+        base_g = row * (self.guide_size + 1)
+        lo = _gather(mi.UInt32, self.guide, base_g + g, active)
+        hi = dr.minimum(_gather(mi.UInt32, self.guide, base_g + g + 1, active) + 1, self.n_bins)
         for _ in range(self.search_steps):
             mid = (lo + hi) >> 1
-            go_right = _gather(mi.Float, self.cdf, mid, active) <= target
+            go_right = _gather(mi.Float, self.cdf, base_c + mid, active) <= target
             lo = dr.select(go_right, mid, lo)
             hi = dr.select(go_right, hi, mid)
         idx = dr.minimum(lo, self.n_bins - 1)
-        c0 = _gather(mi.Float, self.cdf, idx, active)
-        c1 = _gather(mi.Float, self.cdf, idx + 1, active)
+        c0 = _gather(mi.Float, self.cdf, base_c + idx, active)
+        c1 = _gather(mi.Float, self.cdf, base_c + idx + 1, active)
         # radial: density 2π u v_lin(u) in the bin; its CDF is the cubic
         # C(t) = c1 t + c2 t² + c3 t³ (normalised), solved by safeguarded Newton
         du = self.du
         u0 = mi.Float(idx) * du
-        a = _gather(mi.Float, self.values, idx, active)
-        b = _gather(mi.Float, self.values, idx + 1, active) - a
-        norm = 2.0 * dr.pi * du / self.table_total
+        a = _gather(mi.Float, self.values, row * self.n + idx, active)
+        b = _gather(mi.Float, self.values, row * self.n + idx + 1, active) - a
+        norm = 2.0 * dr.pi * du / dr.maximum(_gather(mi.Float, self.totals, row, active), 1e-30)
         k1 = norm * u0 * a
         k2 = norm * (u0 * b + du * a) * 0.5
         k3 = norm * du * b * (1.0 / 3.0)
@@ -259,21 +426,28 @@ class CoronaBSDFMixin:
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
         return mi.Vector2f(r * cos_phi, r * sin_phi)
 
-    def _lobe_and_pdf(self, wi, wo, wavelengths, active):
+    def _lobe_and_pdf(self, layer, wi, wo, wavelengths, active):
         """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths."""
         dx = wo.x + wi.x
         dy = wo.y + wi.y
         lams, mix = self._wavelength_mixture(wavelengths)
+        j, t, L = layer["j"], layer["t"], layer["L"]
+        interpolate = self.n_rows > 1
         values = []
         pdf = mi.Float(0.0)
         for lam_nm, m in zip(lams, mix):
             lam = self._lambda_um(lam_nm)
-            k = 2.0 * dr.pi * self.R / lam                 # u = 2π R d / λ
+            k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
             ux, uy = dx * k, dy * k
-            v = self._table_value(ux, uy, active)
-            values.append(self.lobe_scale * dr.square(self.R / lam) * v)   # F_a (R/λ)² v
-            # p_d = p_u k²; the tables are sampled exactly ∝ v, so p_u = v / ∫v d²u
-            pdf += m * (v * (1.0 / self.table_total)) * dr.square(k)
+            v = self._table_value(ux, uy, j, active)
+            p_u = v / dr.maximum(layer["total"], 1e-30)
+            if interpolate:                            # linear in F_a between two rows
+                v_next = self._table_value(ux, uy, j + 1, active)
+                p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
+                v = dr.lerp(v, v_next, t)
+            values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
+            # p_d = p_u k²: each row is sampled exactly ∝ v, so p_u = v / ∫v d²u, mixed by t
+            pdf += m * p_u * dr.square(k)
         if mi.is_spectral:
             f = mi.Spectrum(values)
         else:
@@ -282,62 +456,54 @@ class CoronaBSDFMixin:
             chans = []
             for c in range(nc):
                 acc = mi.Float(0.0)
-                for j in range(per):
-                    acc += float(self.channel_weights[c, j]) * values[c * per + j]
+                for q in range(per):
+                    acc += float(self.channel_weights[c, q]) * values[c * per + q]
                 chans.append(acc)
             f = mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)
         return f, pdf
 
     def _wavelength_mixture(self, wavelengths):
-        """The wavelengths [nm] evaluated per lane and their pdf mixture weights."""
+        """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
         if mi.is_spectral:
             lams = [wavelengths[k] for k in range(dr.size_v(mi.Spectrum))]
             return lams, [1.0 / len(lams)] * len(lams)
-        lams = [mi.Float(float(l)) for l in self.channel_lambdas.ravel()]
-        mix = (self.channel_weights / self.channel_weights.shape[0]).ravel()
-        return lams, [float(m) for m in mix]
+        lams = [mi.Float(float(lam)) for lam in self.channel_lambdas.ravel()]
+        return lams, [1.0 / len(lams)] * len(lams)
 
-    def _pick_hero(self, wavelengths, s):
-        """One wavelength of the mixture, chosen with its mixture weight by ``s`` in [0, 1)."""
-        lams, mix = self._wavelength_mixture(wavelengths)
-        cum = np.cumsum(mix)
-        hero = mi.Float(lams[-1])
-        for k in range(len(lams) - 2, -1, -1):
-            hero = dr.select(s < float(cum[k]), lams[k], hero)
-        return hero
-
-    def _selection(self, ctx):
-        """Probabilities of (coherent, lobe, reflection) honouring the context."""
+    def _selection(self, ctx, layer):
+        """Per-lane probabilities of (coherent, lobe, reflection) honouring the context."""
         flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
                  mi.BSDFFlags.DiffuseReflection)
-        energies = (self.w_coherent, self.w_lobe, self.w_reflect)
-        en = [w if ctx.is_enabled(fl, i) else 0.0
-              for i, (w, fl) in enumerate(zip(energies, flags))]
-        total = sum(en)
-        return tuple(e / total if total > 0 else 0.0 for e in en)
+        energies = (layer["coherent"], layer["lobe"], layer["reflect"])
+        en = [e if ctx.is_enabled(fl, i) else mi.Float(0.0)
+              for i, (e, fl) in enumerate(zip(energies, flags))]
+        total = en[0] + en[1] + en[2]
+        inv = dr.select(total > 0, 1.0 / dr.maximum(total, 1e-30), 0.0)
+        return tuple(e * inv for e in en)
 
     # ------------------------------------------------------------------
     # BSDF interface
     # ------------------------------------------------------------------
-    def _eval_pdf(self, ctx, si, wo, active):
+    def _eval_pdf(self, ctx, si, wo, active, layer=None):
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
         transmit = active & (cos_i * cos_o < 0)
         reflect = active & (cos_i * cos_o > 0)
-        p_coh, p_lobe, p_refl = self._selection(ctx)
+        if layer is None:
+            layer = self._layer(si, active)
+        p_coh, p_lobe, p_refl = self._selection(ctx, layer)
         lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
 
-        f, pdf_d = self._lobe_and_pdf(wi, wo, si.wavelengths, transmit)
+        f, pdf_d = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, transmit)
         abs_cos_o = dr.abs(cos_o)
         value = dr.select(transmit & lobe_on, f * abs_cos_o, 0.0)        # eval = f |cos θo|
         if self.sampling == "cosine":
             pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
         pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
-        if self.w_reflect > 0:
-            value += dr.select(reflect & refl_on, self.w_reflect * dr.inv_pi * abs_cos_o, 0.0)
-            pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
+        value += dr.select(reflect & refl_on, layer["reflect"] * dr.inv_pi * abs_cos_o, 0.0)
+        pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
         return value, pdf
 
     def eval(self, ctx, si, wo, active=True):
@@ -353,7 +519,8 @@ class CoronaBSDFMixin:
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
-        p_coh, p_lobe, p_refl = self._selection(ctx)
+        layer = self._layer(si, active)
+        p_coh, p_lobe, p_refl = self._selection(ctx, layer)
         pick_coh = active & (sample1 < p_coh)
         pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
         pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
@@ -369,12 +536,22 @@ class CoronaBSDFMixin:
             wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
             lobe_valid = pick_lobe & (wo_cos.z > 0)
         else:
-            # lobe: sample u for the hero wavelength, d = u λ / (2π R), wo.xy = d - wi.xy;
-            # the hero wavelength is picked with its mixture weight, reusing sample1
-            s_hero = dr.clip((sample1 - p_coh) / max(p_lobe, 1e-30), 0.0, 0.99999994)
-            lam = self._lambda_um(self._pick_hero(si.wavelengths, s_hero))
-            u = self._sample_u(sample2, pick_lobe)
-            d = u * (lam / (2.0 * dr.pi * self.R))
+            # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
+            # sample1's position inside the lobe's share picks the wavelength (equal weights)
+            # and what is left of it the row (j with probability 1 - t, j + 1 with t)
+            lams, _ = self._wavelength_mixture(si.wavelengths)
+            n_lam = len(lams)
+            s = dr.clip((sample1 - p_coh) / dr.maximum(p_lobe, 1e-30), 0.0, 0.99999994) * n_lam
+            pick = dr.minimum(mi.UInt32(s), n_lam - 1)
+            hero = lams[-1]
+            for q in range(n_lam - 2, -1, -1):
+                hero = dr.select(pick == q, lams[q], hero)
+            lam = self._lambda_um(hero)
+            row = layer["j"]
+            if self.n_rows > 1 and self.isotropic:
+                row = dr.select(s - mi.Float(pick) >= 1.0 - layer["t"], row + 1, row)
+            u = self._sample_u(sample2, row, layer["fa"], pick_lobe)
+            d = u * (lam / (2.0 * dr.pi * layer["L"]))
             ox = d.x - wi.x
             oy = d.y - wi.y
             r2 = dr.fma(ox, ox, oy * oy)
@@ -390,27 +567,42 @@ class CoronaBSDFMixin:
             dr.select(pick_lobe, mi.UInt32(+mi.BSDFFlags.GlossyTransmission),
                       mi.UInt32(+mi.BSDFFlags.DiffuseReflection)))
 
-        value, pdf = self._eval_pdf(ctx, si, bs.wo, (lobe_valid | pick_refl))
+        value, pdf = self._eval_pdf(ctx, si, bs.wo, (lobe_valid | pick_refl), layer)
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
-        weight = dr.select(pdf > 0, value / pdf, 0.0)
-        weight = dr.select(pick_coh, self.w_coherent / dr.maximum(p_coh, 1e-30), weight)
+        weight = value / dr.select(pdf > 0, pdf, 1.0)                    # no 0/0 (scalar variants too)
+        weight = dr.select(pick_coh, layer["coherent"] / dr.maximum(p_coh, 1e-30), weight)
         ok = pick_coh | ((lobe_valid | pick_refl) & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
     def traverse(self, callback):
-        # the albedo can change after loading; the lobe's parameters fix its tables
-        callback.put("albedo", self.albedo, mi.ParamFlags.NonDifferentiable)
+        # float parameters are uniform textures: keys "area_fraction.value", "radius.value",
+        # "albedo.value" (a texture exposes its own keys); all differentiable
+        flag = mi.ParamFlags.Differentiable
+        if self.material.process.varying_area_fraction:
+            callback.put("area_fraction", self.fa_tex, flag)
+        if not self.fixed_radius:
+            callback.put("radius", self.radius_tex, flag)
+        callback.put("albedo", self.albedo_tex, flag)
 
     def parameters_changed(self, keys):
-        if "albedo" in keys or not keys:
-            a = float(self.albedo[0]) if dr.is_array_v(self.albedo) else float(self.albedo)
-            if not (0.0 <= a <= 1.0):
-                raise CoronaError(f"corona BSDF: albedo={a!r} is out of range; allowed [0, 1]")
-            self.material.albedo = a
-            self.w_reflect = float(self.material.reflectance)
+        # new values: check them; rebuild the tables only when they leave what the tables cover
+        (fa_lo, fa_hi), radius, albedo = ranges = self._ranges()
+        outside = (fa_lo < self.fa_cover[0] - 1e-7 or fa_hi > self.fa_cover[1] + 1e-7
+                   or (not self.fixed_radius and radius[1] > self.radius_cover * (1 + 1e-6)))
+        if outside:
+            self._setup(*ranges)
 
     def to_string(self):
-        return f"CoronaBSDF[{self.material!r}]"
+        # the material at the current (largest) values, not at the table's headroom
+        (_, fa), (_, radius), (_, albedo) = self._ranges()
+        now = {**self.params, "area_fraction": min(max(fa, 1e-6), 1 - 1e-6), "albedo": albedo}
+        if not self.fixed_radius:
+            now["radius"] = radius
+            for name in ("edge_width", "exclusion_diameter", "jitter"):
+                if now.get(name) is not None:
+                    now[name] = now[name] * radius / self.radius_ref
+        textured = f", textured: {', '.join(sorted(self._textured))}" if self._textured else ""
+        return f"CoronaBSDF[{material_from_parameters(**now)!r}{textured}]"
 
 
 _CLASSES: dict[str, type] = {}

@@ -27,6 +27,24 @@ class Process:
     def validate(self, shape) -> None:
         """Raise a clear error if this process cannot hold ``shape`` as given."""
 
+    # --- a varying area fraction (textured layers) -----------------------------
+    #: True when ``S`` depends on the area fraction only through a table or a
+    #: formula, so that the layer's ``F_a`` may vary over a surface.
+    varying_area_fraction: bool = False
+
+    def with_area_fraction(self, area_fraction: float) -> "Process":
+        """The same process at another area fraction."""
+        raise CoronaError(f"{type(self).__name__}: the area fraction fixes its geometry and cannot "
+                          "vary over the layer; use process poisson, hard-disk or rsa")
+
+    def area_fraction_limit(self, shape) -> float:
+        """The largest area fraction this process reaches with ``shape``."""
+        return self.area_fraction(shape)
+
+    def area_fraction_nodes(self, shape):
+        """Area fractions at which ``S`` is tabulated (rows of interpolation), within the limit."""
+        return np.zeros(0)
+
     def key(self) -> dict:
         from ..shapes.base import _keyable
         return {"type": type(self).__name__, **{k: _keyable(v) for k, v in vars(self).items()

@@ -238,6 +238,22 @@ class HardDisk(Process):
     def area_fraction(self, shape) -> float:
         return self.fraction
 
+    varying_area_fraction = True
+
+    def with_area_fraction(self, area_fraction: float) -> "HardDisk":
+        return HardDisk(area_fraction, exclusion_diameter=self.exclusion_diameter)
+
+    def _fa_per_eta(self, shape) -> float:
+        s = self.diameter(shape)
+        return float(shape.area) / (math.pi * s * s / 4.0)
+
+    def area_fraction_limit(self, shape) -> float:
+        return min(ETA_MAX * self._fa_per_eta(shape), 1.0 - 1e-6)
+
+    def area_fraction_nodes(self, shape):
+        eta = load_table()["eta"]
+        return np.asarray(eta[eta <= ETA_MAX], dtype=np.float64) * self._fa_per_eta(shape)
+
     def packing_fraction(self, shape) -> float:
         """``η = F_a · (π σ²/4) / |A|``."""
         s = self.diameter(shape)

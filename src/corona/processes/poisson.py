@@ -32,6 +32,14 @@ class Poisson(Process):
     def area_fraction(self, shape) -> float:
         return self.fraction
 
+    varying_area_fraction = True
+
+    def with_area_fraction(self, area_fraction: float) -> "Poisson":
+        return Poisson(area_fraction)
+
+    def area_fraction_limit(self, shape) -> float:
+        return 1.0 - 1e-6
+
     def structure_factor_radial(self, q_abs, shape) -> np.ndarray:
         return np.ones_like(np.asarray(q_abs, dtype=np.float64))
 

@@ -129,6 +129,23 @@ class SequentialAdsorption(Process):
     def area_fraction(self, shape) -> float:
         return self.fraction
 
+    varying_area_fraction = True
+
+    def with_area_fraction(self, area_fraction: float) -> "SequentialAdsorption":
+        return SequentialAdsorption(area_fraction, exclusion_diameter=self.exclusion_diameter)
+
+    def _fa_per_eta(self, shape) -> float:
+        s = self.sigma(shape)
+        return float(shape.area) / (np.pi * s * s / 4.0)
+
+    def area_fraction_limit(self, shape) -> float:
+        return min(RSA_JAMMING_LIMIT * self._fa_per_eta(shape), RSA_JAMMING_LIMIT)   # the constructor's bound too
+
+    def area_fraction_nodes(self, shape):
+        etas = _rsa_table()[1]
+        fas = np.asarray(etas[etas <= RSA_JAMMING_LIMIT], dtype=np.float64) * self._fa_per_eta(shape)
+        return fas[fas <= self.area_fraction_limit(shape)]
+
     def sigma(self, shape) -> float:
         """The exclusion diameter σ [µm] used with ``shape``."""
         return shape.exclusion_diameter if self.exclusion_diameter is None else self.exclusion_diameter
