@@ -25,7 +25,7 @@ SMALL_RADIUS_WAVELENGTHS = 2.0
 
 #: Largest relative change of the lobe from interpolating between area-fraction rows
 #: (:meth:`Material.area_fraction_rows`).
-ROW_TOLERANCE = 0.004
+ROW_TOLERANCE = 0.001
 _small_radius_warned = False
 
 

@@ -43,6 +43,8 @@ from .parameters import SPEC, material_from_parameters, rst_table
 __doc__ = __doc__.replace("{table}", rst_table())
 
 N_RESPONSE = 8
+#: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
+FA_WINDOW = 0.1
 NEWTON_STEPS = 5
 
 
@@ -247,9 +249,11 @@ class CoronaBSDFMixin:
         self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
         self.mode_aperture = material.mode == "aperture"
         if process.varying_area_fraction:
-            # radial tables: the whole range (updates never rebuild); 2D tables: the texture's range
-            lo, hi = (0.0, None) if self.isotropic else (fa_lo, fa_hi)
-            fas, tabs, self.row_error = material.area_fraction_rows(lo, hi)
+            # rows over the texture's range; a uniform value gets ± FA_WINDOW around it, so that an
+            # optimiser's steps need no rebuild (leaving the rows rebuilds them: parameters_changed)
+            if not self.fa_tex.is_spatially_varying():
+                fa_lo, fa_hi = fa_lo - FA_WINDOW, fa_hi + FA_WINDOW
+            fas, tabs, self.row_error = material.area_fraction_rows(max(fa_lo, 0.0), max(fa_hi, 0.0))
         else:
             fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
         self.fa_rows_np = fas
