@@ -48,3 +48,28 @@ def smooth_context():
     ctx = mi.BSDFContext()
     ctx.type_mask = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection
     return ctx
+
+
+def run_chi2(bsdf, theta_deg, uv=(0.5, 0.5), wavelengths=(450.0, 520.0, 600.0, 700.0),
+             sample_count=1_000_000, res=101, ires=16):
+    """mitsuba.chi2 on a loaded BSDF (smooth components) at one shading point ``uv``."""
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+    th = np.radians(theta_deg)
+    wi = (np.sin(th), 0.0, np.cos(th))
+    ctx = smooth_context()
+
+    def si_of(n):
+        si = interaction(n, wi, wavelengths)
+        si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
+        return si
+
+    def sample(s, *args):
+        bs, w = bsdf.sample(ctx, si_of(dr.width(s)), s[0], mi.Point2f(s[1], s[2]))
+        return bs.wo, dr.select(dr.all(w == 0), 0.0, 1.0)
+
+    def pdf(wo, *args):
+        return bsdf.pdf(ctx, si_of(dr.width(wo)), wo)
+
+    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf,
+                         sample_dim=3, sample_count=sample_count, res=res, ires=ires)
+    return test.run(), test

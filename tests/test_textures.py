@@ -1,0 +1,230 @@
+"""Spatially varying, traversable and differentiable layers (textures on the corona BSDF).
+
+References are independent of the plugin's tables: ``Material`` built at the
+local parameter values (exact numpy model), finite differences of the
+plugin itself for its derivatives, and Mitsuba's chi-square test.
+"""
+import drjit as dr
+import numpy as np
+import pytest
+
+from corona import CoronaError
+from corona.parameters import material_from_parameters
+
+from bsdf_checks import run_chi2
+
+FA_MAP = np.array([[0.05, 0.2], [0.37, 0.61]], dtype=np.float32)   # hard-disk rows and values between
+UV = [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]         # the four texel centres
+LAMS = (450.0, 520.0, 600.0, 700.0)
+
+
+def _bitmap(arr):
+    import mitsuba as mi
+    return {"type": "bitmap", "bitmap": mi.Bitmap(np.asarray(arr, np.float32)[..., None]),
+            "raw": True, "filter_type": "nearest"}
+
+
+def _si(n, wi, uv, lams=LAMS):
+    import mitsuba as mi
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(*[float(x) for x in wi])
+    si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
+    si.wavelengths = mi.Spectrum(*lams)
+    return si
+
+
+def _transmitted(n, seed, theta):
+    rng = np.random.default_rng(seed)
+    th = np.radians(theta)
+    wi = np.array([np.sin(th), 0.0, np.cos(th)])
+    # directions around the undeviated beam, where the lobe lives
+    d = rng.normal(0.0, 0.08, (n, 2))
+    wo_xy = d - wi[:2]
+    keep = np.sum(wo_xy**2, 1) < 0.999
+    wo = np.column_stack([wo_xy[keep], -np.sqrt(1 - np.sum(wo_xy[keep] ** 2, 1))])
+    return wi, wo
+
+
+@pytest.fixture(scope="module")
+def textured(mi_variant):
+    import mitsuba as mi
+    return mi.load_dict({"type": "corona", "radius": 3.0, "process": "hard-disk", "albedo": 0.5,
+                         "area_fraction": _bitmap(FA_MAP)})
+
+
+def test_uniform_layer_exposes_value_keys_all_differentiable(mi_variant):
+    import mitsuba as mi
+    params = mi.traverse(mi.load_dict({"type": "corona", "radius": 3.0, "area_fraction": 0.3}))
+    for key in ("area_fraction.value", "radius.value", "albedo.value"):
+        assert key in params and params.flags(key) & int(mi.ParamFlags.NonDifferentiable) == 0, key
+
+
+def test_textured_layer_exposes_its_texture(textured):
+    import mitsuba as mi
+    params = mi.traverse(textured)
+    assert "area_fraction.data" in params and "radius.value" in params
+
+
+@pytest.mark.parametrize("theta", [0, 40])
+def test_eval_is_the_material_at_the_local_area_fraction(textured, theta):
+    import mitsuba as mi
+    wi, wo = _transmitted(1500, 3, theta)
+    for (u, v), fa in zip(UV, FA_MAP.ravel()):
+        val = np.array(textured.eval(mi.BSDFContext(), _si(len(wo), wi, (u, v)), mi.Vector3f(wo.T)))
+        m = material_from_parameters(radius=3.0, process="hard-disk", area_fraction=float(fa))
+        d = wo[:, :2] + wi[:2]
+        for k, lam in enumerate(LAMS):
+            ref = m.lobe(d, lam) * np.abs(wo[:, 2])
+            # rows every 0.1 % of the lobe; the radial table's own linear interpolation in u
+            # (step 0.01) and float32 add up to 1e-4 of the peak on the flanks of dark rings
+            err = np.abs(val[k] - ref) - (1e-3 * ref + 1e-4 * ref.max())
+            assert err.max() <= 0, (fa, lam, err.max())
+
+
+def test_energies_follow_the_local_area_fraction(textured):
+    """Sample weights average to the local albedo: F_a² + lobe + ρ(1 - F_a) (white furnace per texel)."""
+    import mitsuba as mi
+    n = 200_000
+    rng = np.random.default_rng(5)
+    for (u, v), fa in zip(UV, FA_MAP.ravel()):
+        m = material_from_parameters(radius=3.0, process="hard-disk", area_fraction=float(fa), albedo=0.5)
+        wi = (0.0, 0.0, 1.0)
+        si = _si(n, wi, (u, v), (550.0,) * 4)
+        bs, w = textured.sample(mi.BSDFContext(), si, mi.Float(rng.random(n)),
+                                mi.Point2f(rng.random(n), rng.random(n)))
+        total = float(np.mean(np.array(w)[0]))
+        expect = m.coherent_transmittance + m.diffuse_transmittance(550.0, 1.0) + m.reflectance
+        assert abs(total - expect) < 0.01 * expect + 2e-3, (fa, total, expect)
+        assert total <= 1.0 + 3e-3
+
+
+@pytest.mark.parametrize("fa", [0.2, 0.37])
+def test_chi2_at_local_values_of_a_textured_area_fraction(textured, fa):
+    """0.2 sits on a hard-disk table row, 0.37 between two: the mixture of rows is sampled exactly."""
+    (u, v), = [uv for uv, f in zip(UV, FA_MAP.ravel()) if abs(f - fa) < 1e-6]
+    ok, test = run_chi2(textured, 30, uv=(u, v))
+    assert ok, test.messages
+
+
+def test_chi2_with_a_textured_radius(mi_variant):
+    import mitsuba as mi
+    bsdf = mi.load_dict({"type": "corona", "process": "hard-disk", "area_fraction": 0.3,
+                         "radius": _bitmap([[0.6, 1.5]])})
+    ok, test = run_chi2(bsdf, 20, uv=(0.25, 0.5))       # radius 0.6, below the table's 1.5
+    assert ok, test.messages
+
+
+def test_radius_scales_the_layer(mi_variant):
+    """radius texture value r: the lobe of a layer loaded with radius r (σ/R fixed)."""
+    import mitsuba as mi
+    bsdf = mi.load_dict({"type": "corona", "process": "hard-disk", "area_fraction": 0.3,
+                         "edge_width": 0.1, "radius": _bitmap([[1.0, 2.0]])})
+    wi, wo = _transmitted(1000, 4, 20)
+    val = np.array(bsdf.eval(mi.BSDFContext(), _si(len(wo), wi, (0.25, 0.5)), mi.Vector3f(wo.T)))
+    # at r = 1 the edge width (given for the largest radius, 2) is halved with it
+    m = material_from_parameters(process="hard-disk", area_fraction=0.3, radius=1.0, edge_width=0.05)
+    ref = m.lobe(wo[:, :2] + wi[:2], LAMS[1]) * np.abs(wo[:, 2])
+    np.testing.assert_allclose(val[1], ref, rtol=2e-3, atol=1e-4 * ref.max())
+
+
+def _eval_sum(bsdf, params, key, value, wi, wo, uv=(0.5, 0.5)):
+    import mitsuba as mi
+    params[key] = value
+    params.update()
+    return float(np.sum(np.array(bsdf.eval(mi.BSDFContext(), _si(len(wo), wi, uv), mi.Vector3f(wo.T)))))
+
+
+@pytest.mark.parametrize("key,value,h", [("area_fraction.value", 0.31, 2e-3),
+                                         ("radius.value", 2.0, 2e-3),
+                                         ("albedo.value", 0.4, 1e-2)])
+def test_gradients_match_central_differences(mi_variant, key, value, h):
+    import mitsuba as mi
+    bsdf = mi.load_dict({"type": "corona", "process": "hard-disk", "radius": 2.0,
+                         "area_fraction": 0.31, "albedo": 0.4})
+    params = mi.traverse(bsdf)
+    wi, wo = _transmitted(400, 6, 30)
+    if key == "albedo.value":                                   # the reflected side
+        wo = wo * np.array([1.0, 1.0, -1.0])
+    fd = (_eval_sum(bsdf, params, key, value + h, wi, wo) - _eval_sum(bsdf, params, key, value - h, wi, wo)) / (2 * h)
+    # reverse mode
+    x = mi.Float(value)
+    dr.enable_grad(x)
+    params[key] = x
+    params.update()
+    y = dr.sum(dr.sum(bsdf.eval(mi.BSDFContext(), _si(len(wo), wi, (0.5, 0.5)), mi.Vector3f(wo.T))))
+    dr.backward(y)
+    rev = float(np.asarray(dr.grad(x)).ravel()[0])
+    # forward mode
+    x2 = mi.Float(value)
+    dr.enable_grad(x2)
+    params[key] = x2
+    params.update()
+    y2 = dr.sum(dr.sum(bsdf.eval(mi.BSDFContext(), _si(len(wo), wi, (0.5, 0.5)), mi.Vector3f(wo.T))))
+    dr.forward(x2)
+    fwd = float(np.asarray(dr.grad(y2)).ravel()[0])
+    assert abs(fd) > 0
+    assert abs(rev - fd) < 0.01 * abs(fd), (rev, fd)
+    assert abs(fwd - fd) < 0.01 * abs(fd), (fwd, fd)
+
+
+def _scene(bsdf_fa):
+    import mitsuba as mi
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "path", "max_depth": 3},
+        "sensor": {"type": "perspective", "fov": 30,
+                   "to_world": mi.ScalarTransform4f().look_at([0, 0, 4], [0, 0, 0], [0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 24, "height": 24, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent", "sample_count": 4}},
+        "pane": {"type": "rectangle", "bsdf": {"type": "corona", "radius": 4.0,
+                                               "process": "hard-disk", "area_fraction": bsdf_fa}},
+        "lamp": {"type": "sphere", "radius": 0.05, "center": [0, 0, -3],
+                 "emitter": {"type": "area", "radiance": {"type": "uniform", "value": 200.0}}},
+    })
+
+
+def test_update_rerenders_without_recompiling_and_matches_a_fresh_load(mi_variant):
+    import mitsuba as mi
+    scene = _scene(0.3)
+    params = mi.traverse(scene)
+    mi.render(scene, seed=1)
+    params["pane.bsdf.area_fraction.value"] = 0.36
+    params.update()
+    dr.kernel_history_clear()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        img = np.array(mi.render(scene, seed=1))
+        hist = dr.kernel_history()
+    compiled = [k for k in hist if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit", True)]
+    assert not compiled, f"{len(compiled)} kernel(s) recompiled after params.update()"
+    fresh = np.array(mi.render(_scene(0.36), seed=1))
+    np.testing.assert_allclose(img, fresh, rtol=1e-4, atol=1e-6)
+
+
+def test_bad_textures_fail_at_load_naming_the_parameter(mi_variant):
+    import mitsuba as mi
+    with pytest.raises(Exception, match="area_fraction"):        # above the hard-disk limit somewhere
+        mi.load_dict({"type": "corona", "radius": 2.0, "area_fraction": _bitmap([[0.3, 0.8]])})
+    with pytest.raises(Exception, match="area_fraction"):        # negative somewhere
+        mi.load_dict({"type": "corona", "radius": 2.0, "area_fraction": _bitmap([[0.3, -0.1]])})
+    with pytest.raises(Exception, match="radius"):               # a zero radius
+        mi.load_dict({"type": "corona", "radius": _bitmap([[0.0, 1.0]])})
+    with pytest.raises(Exception, match="albedo"):
+        mi.load_dict({"type": "corona", "radius": 2.0, "albedo": _bitmap([[0.3, 1.2]])})
+    with pytest.raises(Exception, match="lattice"):              # F_a sets a lattice's geometry
+        mi.load_dict({"type": "corona", "radius": 2.0, "process": "lattice-hex",
+                      "area_fraction": _bitmap([[0.3, 0.4]])})
+
+
+def test_update_outside_the_rows_rebuilds_and_stays_exact(mi_variant):
+    import mitsuba as mi
+    bsdf = mi.load_dict({"type": "corona", "radius": 3.0, "area_fraction": 0.2})
+    params = mi.traverse(bsdf)
+    params["area_fraction.value"] = 0.6                          # beyond 0.2 ± 0.1
+    params.update()
+    wi, wo = _transmitted(500, 8, 0)
+    val = np.array(bsdf.eval(mi.BSDFContext(), _si(len(wo), wi, (0.5, 0.5)), mi.Vector3f(wo.T)))
+    m = material_from_parameters(radius=3.0, area_fraction=0.6)
+    ref = m.lobe(wo[:, :2] + wi[:2], LAMS[0]) * np.abs(wo[:, 2])
+    np.testing.assert_allclose(val[0], ref, rtol=1e-3, atol=1e-4 * ref.max())
+    with pytest.raises(CoronaError, match="area_fraction"):
+        params["area_fraction.value"] = 0.9
+        params.update()
