@@ -1,5 +1,5 @@
 """The `corona` command line: one-line errors with exit code 2, render outputs,
-and `corona lobe --json` numbers that match the physics (DESIGN §3, §4)."""
+and `corona lobe --json` numbers that match the physics (docs/physics.md)."""
 from __future__ import annotations
 
 import json

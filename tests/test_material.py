@@ -9,7 +9,7 @@ from corona.material import Material
 
 
 def airy_lobe(d, lam_nm, radius, fa):
-    """DESIGN §3 written out independently: F_a (π R²/λ²) (2 J1(u)/u)²."""
+    """docs/physics.md#the-model written out independently: F_a (π R²/λ²) (2 J1(u)/u)²."""
     lam = lam_nm * 1e-3
     u = 2 * np.pi * radius * np.hypot(d[..., 0], d[..., 1]) / lam
     airy = np.where(u > 1e-9, 2 * special.j1(u) / np.where(u > 1e-9, u, 1), 1.0)
@@ -46,7 +46,7 @@ def test_babinet_particle_and_aperture():
 
 
 def test_wavelength_scaling():
-    """lobe(d, λ) = (λ'/λ)² lobe(d λ'/λ, λ') (DESIGN §3: depends on u, prefactor R²/λ²)."""
+    """lobe(d, λ) = (λ'/λ)² lobe(d λ'/λ, λ') (docs/physics.md#the-model: depends on u, prefactor R²/λ²)."""
     m = Material(corona.Circle(1.0), corona.Poisson(0.1))
     d = np.random.default_rng(4).uniform(-0.5, 0.5, (200, 2))
     l1, l2 = 450.0, 675.0

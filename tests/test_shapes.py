@@ -1,4 +1,4 @@
-"""Physics checks of the single-scatterer form factors (DESIGN §3, §4).
+"""Physics checks of the single-scatterer form factors (docs/physics.md).
 
 Every reference value here is computed independently of ``corona.shapes``:
 analytic transforms written out in the test, brute-force angle / size
@@ -27,7 +27,7 @@ LAM = 0.55  # µm
 # helpers
 # ---------------------------------------------------------------------------
 def T_a(shape, d, lam=LAM):
-    """Normalised lobe of DESIGN §3: ``T_a(d) = form_factor(2π d/λ)/λ²`` [1/µm² of d]."""
+    """Normalised lobe of docs/physics.md#the-model: ``T_a(d) = form_factor(2π d/λ)/λ²`` [1/µm² of d]."""
     return shape.form_factor(2 * np.pi * np.asarray(d) / lam) / lam**2
 
 
@@ -179,7 +179,7 @@ def test_airy_zeros(shape):
 def test_circle_peak_and_formula():
     R = 0.9
     c = Circle(R)
-    # T_a(0) = π R² / λ²  (DESIGN §3)
+    # T_a(0) = π R² / λ²  (docs/physics.md#the-model)
     assert T_a(c, np.zeros((1, 2)))[0] == pytest.approx(np.pi * R**2 / LAM**2, rel=1e-14)
     u = np.linspace(0.1, 30, 50)
     d = u * LAM / (2 * np.pi * R)
@@ -574,7 +574,7 @@ def test_radial_table_build_time():
 
 
 # ---------------------------------------------------------------------------
-# scaling with wavelength and size (DESIGN §3)
+# scaling with wavelength and size (docs/physics.md#the-model)
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("make", [lambda s: Circle(s), lambda s: Square(s, 0.3),
                                   lambda s: Polygon(L_SHAPE * s),

@@ -1,4 +1,4 @@
-"""The reference material: the whole corona BSDF in numpy, float64 (DESIGN §3).
+"""The reference material: the whole corona BSDF in numpy, float64 (docs/physics.md#the-model).
 
 This is the readable, exact model that the Mitsuba plugin is tested against.
 """
@@ -47,7 +47,7 @@ class Material:
     Notes
     -----
     With ``d = (wo + wi).xy`` the projected offset and λ in nm (converted to
-    µm inside), the components are (DESIGN §3)
+    µm inside), the components are (docs/physics.md#the-model)
 
     * coherent transmission along ``-wi`` with weight ``F_a²`` (aperture) or
       ``(1 - F_a)²`` (particle);

@@ -152,7 +152,7 @@ def structure_factor_table(q_sigma, eta):
 
 
 class HardDisk(Process):
-    """Equilibrium hard-disk fluid: centres at least ``σ`` apart (DESIGN §3).
+    """Equilibrium hard-disk fluid: centres at least ``σ`` apart (docs/physics.md#the-model).
 
     ``S(q)`` depends on ``qσ`` and on the packing fraction of the exclusion
     disks ``η = F_a · (π σ²/4) / |A|`` (``η = F_a`` for circles with the

@@ -1,7 +1,7 @@
-"""The model against the brute force, case by case: ``corona validate`` (DESIGN §4).
+"""The model against the brute force, case by case: ``corona validate`` (docs/physics.md#validation-figures).
 
 For each case an ensemble of random screens is rasterised and Fourier
-transformed (:func:`corona.wave.brute_force`) and compared with the model's
+transformed (:func:`corona.reference.wave.brute_force`) and compared with the model's
 lobe ``F_a T_a(d) T_s(d)`` (:meth:`corona.Material.lobe`) on the same FFT grid.
 
 The case matrix
@@ -659,11 +659,11 @@ def write_report(out_dir: str, summary: dict) -> str:
         "",
         "## Method",
         "",
-        "* **Brute force** (`corona.wave`): random screens of 2000 scatterers in a periodic box "
+        "* **Brute force** (`corona.reference.wave`): random screens of 2000 scatterers in a periodic box "
         "(hard-disk configurations from the event-chain simulation, the same N as the shipped table), "
         "each translated at random, rasterised with anti-aliased edges at 16 samples per circumradius "
         "(masks exactly, at their own pixel pitch), FFT'd; `⟨|T̂(q)|²⟩/(A_screen λ²)` averaged over "
-        "the realisations is the d-space intensity `I(d)` of DESIGN §4.  The anti-aliasing edge ramp "
+        "the realisations is the d-space intensity `I(d)` of docs/physics.md#validation-figures.  The anti-aliasing edge ramp "
         "is divided out (`sinc²(|q|h/2)`).  The coherent peak is the DC bin only: "
         "coherent weight `⟨mean t⟩²`; nothing is subtracted at q ≠ 0.",
         "* **Model**: `Material.lobe(d, λ)` = `F_a T_a T_s` evaluated at the very grid points of "
