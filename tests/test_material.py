@@ -188,3 +188,17 @@ def test_lattice_table_keeps_each_bragg_peak_weight():
         inside = dx**2 + dy**2 <= 1
         exact += (m.lobe(np.stack([dx, dy], -1), lam) * inside).sum() * (2 / n) ** 2
     assert m.diffuse_transmittance(lam, cos_theta_i=1.0) == pytest.approx(exact, rel=3e-3)
+
+
+def test_anisotropic_shape_on_a_powder_lattice_builds_its_table():
+    """A square on a randomly oriented lattice: a 2-D table with the powder's radial S
+    (the Bragg cell means are for fixed lattices only; this used to raise)."""
+    from corona import processes, shapes
+    m = Material(shapes.Square(4.0), processes.Lattice("square", 8.0, jitter=0.2, orientation="random"),
+                 use_cache=False)
+    assert not m.isotropic and m.process.isotropic
+    assert np.all(np.isfinite(m.table.values)) and np.all(m.table.values >= 0)
+    # non-overlapping squares: the lobe's plane integral is at most F_a (1 - F_a) (the sum rule;
+    # the table's reach |u| <= 64 leaves part of the tail out)
+    fa = m.area_fraction
+    assert 0.8 * fa * (1 - fa) < m.diffuse_transmittance() <= fa * (1 - fa) * (1 + 1e-3)

@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import time
 
 import numpy as np
 import pytest
@@ -549,28 +548,17 @@ def test_random_orientation_odd_symmetry_and_isotropic_base():
     np.testing.assert_allclose(RandomOrientation(c).form_factor_radial(q), c.form_factor_radial(q))
 
 
-def test_radial_table_build_time():
+def test_radial_and_grid_tables_are_finite():
+    """Every kind of shape table builds, with its shape and finite values (the build
+    times are measured by benchmarks/bench_tables.py, not asserted here)."""
     u = np.linspace(0, 100, 2048)
-    timings = {}
-    for name, sh in (("circle", Circle(1.0)), ("random square", RandomOrientation(Square(1.0))),
-                     ("polydisperse circle", SizeDistribution(Circle(1.0), 0.2))):
-        best = math.inf
-        for _ in range(3):
-            t0 = time.perf_counter()
-            tab = sh.table_radial(u)
-            best = min(best, time.perf_counter() - t0)
-        assert tab.shape == u.shape and np.all(np.isfinite(tab))
-        timings[name] = best
-    for name, sh in (("square", Square(1.0, 0.3)), ("hexagon", RegularPolygon(6, 1.0)),
-                     ("ellipse", Ellipse(1.0, 0.5))):
-        uu = grid(512, 50.0)
-        best = math.inf
-        for _ in range(2):
-            t0 = time.perf_counter()
-            tab = sh.table(uu)
-            best = min(best, time.perf_counter() - t0)
-        timings[name] = best
-    assert max(timings.values()) < 1.0, timings
+    for sh in (Circle(1.0), RandomOrientation(Square(1.0)), SizeDistribution(Circle(1.0), 0.2)):
+        tab = sh.table_radial(u)
+        assert tab.shape == u.shape and np.all(np.isfinite(tab)), sh
+    uu = grid(512, 50.0)
+    for sh in (Square(1.0, 0.3), RegularPolygon(6, 1.0), Ellipse(1.0, 0.5)):
+        tab = sh.table(uu)
+        assert tab.shape == uu.shape[:-1] and np.all(np.isfinite(tab)), sh
 
 
 # ---------------------------------------------------------------------------
