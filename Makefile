@@ -7,8 +7,11 @@ STAMP := $(VENV)/.installed-stamp
 PYTEST_ARGS ?=
 # make bench BENCH_ARGS=--full (bigger runs) or BENCH_ARGS="--only render sampling"
 BENCH_ARGS ?=
+DOCS_STAMP := $(VENV)/.docs-stamp
+# make docs SPHINXOPTS=-W (warnings as errors) or SPHINXOPTS=-E (rebuild everything)
+SPHINXOPTS ?=
 
-.PHONY: all demo test venv llvm bench gallery clean clean-cache
+.PHONY: all demo test venv llvm bench gallery docs clean clean-cache
 
 all: test
 
@@ -40,8 +43,19 @@ gallery: venv
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)
 
+# the docs extra (Sphinx, MyST), added to the same .venv idempotently
+$(DOCS_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install -q -e '.[test,docs]'
+	@touch $(DOCS_STAMP)
+
+# docs/physics.md + the API reference from the docstrings -> docs/_build/html
+# (configuration in docs/api/conf.py; no network access during the build)
+docs: $(DOCS_STAMP)
+	$(PY) -m sphinx -b html -q -c docs/api -d docs/_build/doctrees $(SPHINXOPTS) docs docs/_build/html
+	@echo "docs: open docs/_build/html/index.html"
+
 clean-cache: venv
 	$(PY) -m corona.cli tables clear
 
 clean:
-	rm -rf $(VENV) build src/*.egg-info .pytest_cache
+	rm -rf $(VENV) build src/*.egg-info .pytest_cache docs/_build

@@ -3,7 +3,7 @@
 
 Writes ``benchmarks/results/wave.json`` with
 
-* ``results.converge``: the brute force (``corona.wave.brute_force``) of one
+* ``results.converge``: the brute force (``corona.reference.wave.brute_force``) of one
   lobe — circles of R = 2.5 µm on hard disks, F_a = 0.3, 2000 per screen,
   16 samples per radius, the comparison region of ``corona validate``
   (|u| ≤ 16, > 1 % of the peak) — with M = 1, 2, 4, … screens, each run from

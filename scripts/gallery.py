@@ -1,6 +1,6 @@
 """``make gallery``: render every scene of ``scenes/`` into figure strips.
 
-Each :class:`Strip` is one figure of the reference talk (DESIGN §5): one or
+Each :class:`Strip` is one figure of the reference talk (docs/gallery.md): one or
 more renders of a scene with different ``-D`` parameters, tiled side by side
 with a label under each.  The strips go to ``docs/gallery/``, the linear EXRs
 and single PNGs to ``out/gallery/``, and ``docs/gallery.md`` is rewritten
@@ -284,7 +284,7 @@ def write_markdown(md_path: str, out_dir: str, commands: dict, failed: dict, var
     """Rewrite the gallery page: every strip whose picture exists, with its commands."""
     rel = os.path.relpath(out_dir, os.path.dirname(md_path))
     lines = ["# Gallery", "",
-             "Every scene of [`scenes/`](../scenes) as a figure of the reference talk (DESIGN §5), "
+             "Every scene of [`scenes/`](../scenes) as a figure of the reference talk (docs/gallery.md), "
              "rendered at modest resolution and sample count by `make gallery` "
              f"(variant `{variant}`). Each panel comes from the command under it; the EXRs land in "
              "`out/gallery/`. Scene units are metres, the corona BSDF's lengths micrometres; each "

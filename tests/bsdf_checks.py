@@ -1,4 +1,8 @@
 """Helpers that drive the plugin the way Mitsuba's own tests do."""
+import contextlib
+import shutil
+import tempfile
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -39,8 +43,25 @@ def chi2_test(params, theta_deg, ctx=None, wavelengths=(450.0, 520.0, 600.0, 700
 
     test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf,
                          sample_dim=3, sample_count=sample_count, res=res, ires=ires)
-    ok = test.run()
-    return ok, test
+    return run_chi2(test), test
+
+
+def run_chi2(test) -> bool:
+    """``test.run()`` in a fresh temporary directory.
+
+    A failing ``mitsuba.chi2.ChiSquareTest`` writes ``chi2_data.py`` (the
+    histogram and the density) into the working directory; here it lands in
+    a temporary directory, kept and named in ``test.messages`` on failure,
+    removed on success.
+    """
+    folder = tempfile.mkdtemp(prefix="corona-chi2-")
+    with contextlib.chdir(folder):
+        ok = test.run()
+    if ok:
+        shutil.rmtree(folder, ignore_errors=True)
+    else:
+        test.messages += f"\n(histogram and density: {folder}/chi2_data.py)"
+    return ok
 
 
 def smooth_context():

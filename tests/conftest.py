@@ -1,14 +1,11 @@
 import os
 import sys
-import tempfile
 
 # scripts/ (gallery, demo) need a source checkout; the tests run from one
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "scripts"))
 
-# Tables built by the tests go to a private cache, never the user's.
-os.environ.setdefault("CORONA_CACHE_DIR", tempfile.mkdtemp(prefix="corona-test-cache-"))
-
-import corona  # noqa: E402,F401  (sets DRJIT_LIBLLVM_PATH before drjit loads)
+# the private table cache and `import corona` before drjit: ../conftest.py
+import corona  # noqa: E402,F401
 import pytest  # noqa: E402
 
 

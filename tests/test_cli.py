@@ -1,5 +1,5 @@
 """The `corona` command line: one-line errors with exit code 2, render outputs,
-and `corona lobe --json` numbers that match the physics (DESIGN §3, §4)."""
+and `corona lobe --json` numbers that match the physics (docs/physics.md)."""
 from __future__ import annotations
 
 import json
@@ -155,16 +155,35 @@ def lobe_json(*args):
     return json.loads(r.stdout)
 
 
+def airy_times_hard_disk_table(u, fa):
+    """``(2 J1(u)/u)² S(2u)``, computed here independently of corona: the circle's
+    normalised Airy pattern times the shipped hard-disk table's row at η = F_a
+    (circles with σ = 2R: qσ = 2u), read straight from the .npz and
+    interpolated by a scipy cubic spline (the table's rows are 0.05 apart in
+    η, and ``fa`` must be one of them; ``u <= 20`` stays inside the table)."""
+    from scipy.interpolate import CubicSpline
+    from scipy.special import j1
+    with np.load(os.path.join(ROOT, "src", "corona", "data", "hard_disk_structure_factor.npz")) as z:
+        row = int(np.flatnonzero(np.isclose(z["eta"], fa))[0])
+        S = CubicSpline(z["q_sigma"], z["S"][row])(2 * np.asarray(u))
+    u = np.asarray(u, dtype=np.float64)
+    airy = np.where(u > 0, 2 * j1(u) / np.where(u > 0, u, 1), 1.0) ** 2
+    return airy * S
+
+
 @pytest.mark.parametrize("R,lam,fa", [(5.0, 550.0, 0.3), (1.5, 450.0, 0.5)])
 def test_lobe_json_at_d0_is_fa_ta_ts(R, lam, fa):
     o = lobe_json("--radius", R, "--wavelength", lam, "--area-fraction", fa)
     assert o["u"][0] == 0.0 and o["d"][0] == 0.0
     ta0 = math.pi * R**2 / (lam * 1e-3) ** 2          # circle: T_a(0) = π R² / λ²
     assert o["form_factor_Ta"][0] == pytest.approx(ta0, rel=1e-9)
-    assert o["lobe"][0] == pytest.approx(fa * ta0 * o["structure_factor_Ts"][0], rel=1e-9)
-    # every point: lobe = F_a T_a T_s (identical circles)
-    ta, ts, lobe = (np.array(o[k]) for k in ("form_factor_Ta", "structure_factor_Ts", "lobe"))
-    assert np.allclose(lobe, fa * ta * ts, rtol=1e-9, atol=1e-12 * lobe[0])
+    # identical circles: the coherent form factor is the form factor
+    assert o["coherent_form_factor_Tc"] == o["form_factor_Ta"]
+    # every point: lobe = F_a T_a(0) (2 J1(u)/u)² S_hard-disk(2u), from an independent evaluation
+    u, lobe = np.array(o["u"]), np.array(o["lobe"])
+    inside = u <= 20.0
+    ref = fa * ta0 * airy_times_hard_disk_table(u[inside], fa)
+    np.testing.assert_allclose(lobe[inside], ref, rtol=1e-4, atol=1e-6 * lobe[0])
 
 
 def test_lobe_json_physics():
@@ -198,11 +217,17 @@ def test_lobe_json_anisotropic_material():
     assert o["form_factor_Ta"][0] == pytest.approx(16.0 / 0.55**2, rel=1e-9)
 
 
-def test_lobe_picture(tmp_path):
+def test_lobe_picture(tmp_path, monkeypatch):
     import imageio.v3 as iio
+    import matplotlib
+    monkeypatch.delitem(sys.modules, "matplotlib.pyplot", raising=False)
+    backend = dict.__getitem__(matplotlib.rcParams, "backend")
     out = tmp_path / "lobe.png"
     r = run("lobe", "--radius", "5", "--area-fraction", "0.4", "--mode", "particle", "--out", out)
     assert r.exit_code == 0, r.stderr
+    # library code leaves matplotlib's global state alone: no pyplot, no backend switch
+    assert "matplotlib.pyplot" not in sys.modules
+    assert dict.__getitem__(matplotlib.rcParams, "backend") == backend
     assert out.is_file() and str(out) in r.stdout
     img = iio.imread(out)
     assert img.ndim == 3 and img.shape[1] > 2 * img.shape[0]    # the panels side by side
@@ -216,14 +241,33 @@ def test_lobe_picture_anisotropic(tmp_path):
     assert out.is_file()
 
 
-def test_lobe_maps_match_the_material():
-    """The pictured tables are the material's own: lobe map = [P + C(S-1)]/R² = v(u)."""
+def test_lobe_maps_match_the_physics():
+    """The pictured lobe map is v(u) = (2 J1(u)/u)² S(2u) (circles on hard disks, v in units
+    of P(0)/R² = π), checked against the independent evaluation on the 2-D grid."""
     import corona
     from corona.pictures import lobe_maps
-    m = corona.Material(corona.Circle(radius=3.0), corona.HardDisk(area_fraction=0.35))
+    fa = 0.35
+    m = corona.Material(corona.Circle(radius=3.0), corona.HardDisk(area_fraction=fa))
     maps = lobe_maps(m, 20.0, n=41)
     u = maps["u"]
-    uv = np.stack(np.meshgrid(u, u[::-1], indexing="xy"), -1)
-    assert np.allclose(maps["lobe"], m.lobe_dimensionless_radial(np.hypot(uv[..., 0], uv[..., 1])),
-                       rtol=1e-9, atol=1e-15)
-    assert np.allclose(maps["lobe"], maps["form_factor"] * maps["structure_factor"], rtol=1e-9, atol=1e-15)
+    ux, uy = np.meshgrid(u, u[::-1], indexing="xy")
+    ua = np.hypot(ux, uy)
+    inside = ua <= 20.0
+    ref = np.pi * airy_times_hard_disk_table(ua[inside], fa)
+    np.testing.assert_allclose(maps["lobe"][inside], ref, rtol=1e-4, atol=1e-7 * np.pi)
+    # the form-factor map is the Airy pattern, the structure-factor map the hard-disk S
+    np.testing.assert_allclose(maps["form_factor"][inside] * maps["structure_factor"][inside], ref,
+                               rtol=1e-4, atol=1e-7 * np.pi)
+    # S(0) against Henderson's compressibility 1 / (d(ηZ)/dη), Z = (1 + η²/8)/(1 - η)² (within 1 %)
+    henderson = (1 - fa) ** 3 / ((1 + 3 * fa**2 / 8) * (1 - fa) + 2 * fa * (1 + fa**2 / 8))
+    assert maps["structure_factor"][20, 20] == pytest.approx(henderson, rel=0.01)
+
+
+def test_lobe_picture_without_matplotlib_is_one_line(tmp_path, monkeypatch):
+    """matplotlib is in the `reference` extra: without it, one line says how to get it."""
+    for name in [k for k in sys.modules if k == "matplotlib" or k.startswith("matplotlib.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)          # import matplotlib -> ImportError
+    line = assert_one_line_error(run("lobe", "--radius", "5", "--out", tmp_path / "x.png"),
+                                 "matplotlib", "corona[reference]")
+    assert not (tmp_path / "x.png").exists(), line

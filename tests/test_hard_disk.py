@@ -1,5 +1,5 @@
 """Hard-disk fluid: simulation, shipped S(qσ, η) table, Percus–Yevick route,
-and the HardDisk process (DESIGN §3, §4)."""
+and the HardDisk process (docs/physics.md)."""
 import os
 
 import numpy as np
@@ -72,7 +72,7 @@ def test_table_file_and_metadata():
 
 @pytest.mark.parametrize("eta, rel_tol", [(0.3, 0.03), (0.5, 0.04)])
 def test_table_compressibility_limit_vs_henderson(eta, rel_tol):
-    # DESIGN §4: S(0) = 1/(d(ηZ)/dη) ≈ 0.258 at η=0.3, 0.079 at η=0.5
+    # docs/physics.md#hard-disk-thermodynamics: S(0) = 1/(d(ηZ)/dη) ≈ 0.258 at η=0.3, 0.079 at η=0.5
     ref = float(hd.henderson_structure_factor_zero(eta))
     assert abs(ref - {0.3: 0.258, 0.5: 0.079}[eta]) < 0.001
     S0 = HardDisk(eta).structure_factor(np.array([0.0]))[0]
@@ -144,7 +144,7 @@ def test_interpolation_between_rows_is_bounded_by_the_rows():
 
 @pytest.mark.parametrize("fa", [0.1, 0.3, 0.5, 0.65])
 def test_sum_rule_circles(fa):
-    # DESIGN §3: ∫ T_a T_s d²d = 1 - F_a exactly for non-overlapping disks
+    # docs/physics.md#the-model: ∫ T_a T_s d²d = 1 - F_a exactly for non-overlapping disks
     got = sum_rule(HardDisk(fa))
     assert abs(got / (1 - fa) - 1) < 0.005, got
 

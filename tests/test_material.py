@@ -9,7 +9,7 @@ from corona.material import Material
 
 
 def airy_lobe(d, lam_nm, radius, fa):
-    """DESIGN §3 written out independently: F_a (π R²/λ²) (2 J1(u)/u)²."""
+    """docs/physics.md#the-model written out independently: F_a (π R²/λ²) (2 J1(u)/u)²."""
     lam = lam_nm * 1e-3
     u = 2 * np.pi * radius * np.hypot(d[..., 0], d[..., 1]) / lam
     airy = np.where(u > 1e-9, 2 * special.j1(u) / np.where(u > 1e-9, u, 1), 1.0)
@@ -46,7 +46,7 @@ def test_babinet_particle_and_aperture():
 
 
 def test_wavelength_scaling():
-    """lobe(d, λ) = (λ'/λ)² lobe(d λ'/λ, λ') (DESIGN §3: depends on u, prefactor R²/λ²)."""
+    """lobe(d, λ) = (λ'/λ)² lobe(d λ'/λ, λ') (docs/physics.md#the-model: depends on u, prefactor R²/λ²)."""
     m = Material(corona.Circle(1.0), corona.Poisson(0.1))
     d = np.random.default_rng(4).uniform(-0.5, 0.5, (200, 2))
     l1, l2 = 450.0, 675.0
@@ -188,3 +188,17 @@ def test_lattice_table_keeps_each_bragg_peak_weight():
         inside = dx**2 + dy**2 <= 1
         exact += (m.lobe(np.stack([dx, dy], -1), lam) * inside).sum() * (2 / n) ** 2
     assert m.diffuse_transmittance(lam, cos_theta_i=1.0) == pytest.approx(exact, rel=3e-3)
+
+
+def test_anisotropic_shape_on_a_powder_lattice_builds_its_table():
+    """A square on a randomly oriented lattice: a 2-D table with the powder's radial S
+    (the Bragg cell means are for fixed lattices only; this used to raise)."""
+    from corona import processes, shapes
+    m = Material(shapes.Square(4.0), processes.Lattice("square", 8.0, jitter=0.2, orientation="random"),
+                 use_cache=False)
+    assert not m.isotropic and m.process.isotropic
+    assert np.all(np.isfinite(m.table.values)) and np.all(m.table.values >= 0)
+    # non-overlapping squares: the lobe's plane integral is at most F_a (1 - F_a) (the sum rule;
+    # the table's reach |u| <= 64 leaves part of the tail out)
+    fa = m.area_fraction
+    assert 0.8 * fa * (1 - fa) < m.diffuse_transmittance() <= fa * (1 - fa) * (1 + 1e-3)

@@ -1,4 +1,4 @@
-"""Physics checks of the single-scatterer form factors (DESIGN §3, §4).
+"""Physics checks of the single-scatterer form factors (docs/physics.md).
 
 Every reference value here is computed independently of ``corona.shapes``:
 analytic transforms written out in the test, brute-force angle / size
@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import time
 
 import numpy as np
 import pytest
@@ -27,7 +26,7 @@ LAM = 0.55  # µm
 # helpers
 # ---------------------------------------------------------------------------
 def T_a(shape, d, lam=LAM):
-    """Normalised lobe of DESIGN §3: ``T_a(d) = form_factor(2π d/λ)/λ²`` [1/µm² of d]."""
+    """Normalised lobe of docs/physics.md#the-model: ``T_a(d) = form_factor(2π d/λ)/λ²`` [1/µm² of d]."""
     return shape.form_factor(2 * np.pi * np.asarray(d) / lam) / lam**2
 
 
@@ -179,7 +178,7 @@ def test_airy_zeros(shape):
 def test_circle_peak_and_formula():
     R = 0.9
     c = Circle(R)
-    # T_a(0) = π R² / λ²  (DESIGN §3)
+    # T_a(0) = π R² / λ²  (docs/physics.md#the-model)
     assert T_a(c, np.zeros((1, 2)))[0] == pytest.approx(np.pi * R**2 / LAM**2, rel=1e-14)
     u = np.linspace(0.1, 30, 50)
     d = u * LAM / (2 * np.pi * R)
@@ -549,32 +548,21 @@ def test_random_orientation_odd_symmetry_and_isotropic_base():
     np.testing.assert_allclose(RandomOrientation(c).form_factor_radial(q), c.form_factor_radial(q))
 
 
-def test_radial_table_build_time():
+def test_radial_and_grid_tables_are_finite():
+    """Every kind of shape table builds, with its shape and finite values (the build
+    times are measured by benchmarks/bench_tables.py, not asserted here)."""
     u = np.linspace(0, 100, 2048)
-    timings = {}
-    for name, sh in (("circle", Circle(1.0)), ("random square", RandomOrientation(Square(1.0))),
-                     ("polydisperse circle", SizeDistribution(Circle(1.0), 0.2))):
-        best = math.inf
-        for _ in range(3):
-            t0 = time.perf_counter()
-            tab = sh.table_radial(u)
-            best = min(best, time.perf_counter() - t0)
-        assert tab.shape == u.shape and np.all(np.isfinite(tab))
-        timings[name] = best
-    for name, sh in (("square", Square(1.0, 0.3)), ("hexagon", RegularPolygon(6, 1.0)),
-                     ("ellipse", Ellipse(1.0, 0.5))):
-        uu = grid(512, 50.0)
-        best = math.inf
-        for _ in range(2):
-            t0 = time.perf_counter()
-            tab = sh.table(uu)
-            best = min(best, time.perf_counter() - t0)
-        timings[name] = best
-    assert max(timings.values()) < 1.0, timings
+    for sh in (Circle(1.0), RandomOrientation(Square(1.0)), SizeDistribution(Circle(1.0), 0.2)):
+        tab = sh.table_radial(u)
+        assert tab.shape == u.shape and np.all(np.isfinite(tab)), sh
+    uu = grid(512, 50.0)
+    for sh in (Square(1.0, 0.3), RegularPolygon(6, 1.0), Ellipse(1.0, 0.5)):
+        tab = sh.table(uu)
+        assert tab.shape == uu.shape[:-1] and np.all(np.isfinite(tab)), sh
 
 
 # ---------------------------------------------------------------------------
-# scaling with wavelength and size (DESIGN §3)
+# scaling with wavelength and size (docs/physics.md#the-model)
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("make", [lambda s: Circle(s), lambda s: Square(s, 0.3),
                                   lambda s: Polygon(L_SHAPE * s),

@@ -1,5 +1,5 @@
 """The brute-force wave-optics reference (corona.wave) and its comparison with the
-model (corona.validate): a small version of ``corona validate`` (DESIGN §4).
+model (corona.validate): a small version of ``corona validate`` (docs/physics.md#validation-figures).
 
 Bounds.  The brute force is a Monte Carlo average, so every bound is the
 statistical error (split-half estimate ``noise``, printed by the comparison)

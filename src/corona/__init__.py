@@ -31,6 +31,26 @@ __all__ = ["CoronaError", "CoronaWarning",
 
 
 def register() -> None:
-    """Register the ``corona`` BSDF plugin for the active Mitsuba variant (idempotent)."""
+    """Register the ``corona`` BSDF plugin for the active Mitsuba variant (idempotent).
+
+    Examples
+    --------
+    Load the plugin in a spectral variant and evaluate it opposite to
+    ``wi``: ``eval`` is the lobe times ``|cos θo|``, here the material's
+    ``F_a T_a(0) T_s(0)`` (up to the table's float32 rounding):
+
+    >>> import mitsuba as mi, corona
+    >>> mi.set_variant("scalar_spectral")
+    >>> corona.register()
+    >>> bsdf = mi.load_dict({"type": "corona", "radius": 5.0, "area_fraction": 0.3})
+    >>> si = mi.SurfaceInteraction3f()
+    >>> si.wi = mi.Vector3f(0.0, 0.0, 1.0)
+    >>> si.wavelengths = mi.Spectrum(550.0, 550.0, 550.0, 550.0)
+    >>> value = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(0.0, 0.0, -1.0))
+    >>> from corona.parameters import material_from_parameters
+    >>> f0 = material_from_parameters(radius=5.0, area_fraction=0.3).lobe([[0.0, 0.0]], 550.0)[0]
+    >>> round(float(value[0] / f0), 4)
+    1.0
+    """
     from .mitsuba_bsdf import register as _register
     _register()

@@ -4,6 +4,12 @@ Dr.Jit's LLVM backend needs libLLVM >= 16 (libLLVM 15 crashes at JIT time
 with ``Cannot select ... fminimum``).  Dr.Jit reads ``DRJIT_LIBLLVM_PATH``
 when it is first imported, so this module must run before ``drjit`` is
 imported; ``corona/__init__.py`` imports it first.
+
+Side effect of ``import corona`` (the one change it makes to the process's
+global state): when ``DRJIT_LIBLLVM_PATH`` is unset, it is set in
+``os.environ`` to the newest libLLVM >= 16 found on the usual system paths;
+a value the user set is never changed.  Nothing else is written (no variant
+is activated on import).
 """
 from __future__ import annotations
 

@@ -138,17 +138,20 @@ def lobe(out_path, as_json, wavelength, **params):
             R = m.length_scale
             from .pictures import _u_extent
             u = np.linspace(0, _u_extent(m), 201)  # a cut along u_x (radial tables: the profile)
-            q = np.stack([u / R, 0 * u], -1)
-            d = np.stack([u * wavelength * 1e-3 / (2 * np.pi * R), 0 * u], -1)
+            lam_um = wavelength * 1e-3
+            terms = m.lobe_terms(np.stack([u, 0 * u], -1))
+            # lobe = F_a (R/λ)² v(u) = F_a [T_a + T_c (T_s - 1)] (T_c = T_a for identical scatterers)
+            lobe = m.lobe_weight * (R / lam_um) ** 2 * terms["v"]
             out = {
                 "material": repr(m), "area_fraction": m.area_fraction,
                 "coherent_transmittance": m.coherent_transmittance,
                 "diffuse_transmittance": m.diffuse_transmittance(),
                 "reflectance": m.reflectance, "length_scale_um": R, "wavelength_nm": wavelength,
                 "u": u.tolist(),
-                "form_factor_Ta": (m.shape.form_factor(q) / (wavelength * 1e-3) ** 2).tolist(),
-                "structure_factor_Ts": m.process.structure_factor_at(q, m.shape).tolist(),
-                "d": d[:, 0].tolist(), "lobe": m.lobe(d, wavelength).tolist(),
+                "form_factor_Ta": (terms["P"] / lam_um**2).tolist(),
+                "coherent_form_factor_Tc": (terms["C"] / lam_um**2).tolist(),
+                "structure_factor_Ts": terms["S"].tolist(),
+                "d": (u * lam_um / (2 * np.pi * R)).tolist(), "lobe": lobe.tolist(),
             }
             click.echo(json.dumps(out))
             return

@@ -1,4 +1,4 @@
-"""The reference material: the whole corona BSDF in numpy, float64 (DESIGN §3).
+"""The reference material: the whole corona BSDF in numpy, float64 (docs/physics.md#the-model).
 
 This is the readable, exact model that the Mitsuba plugin is tested against.
 """
@@ -51,7 +51,7 @@ class Material:
     Notes
     -----
     With ``d = (wo + wi).xy`` the projected offset and λ in nm (converted to
-    µm inside), the components are (DESIGN §3)
+    µm inside), the components are (docs/physics.md#the-model)
 
     * coherent transmission along ``-wi`` with weight ``F_a²`` (aperture) or
       ``(1 - F_a)²`` (particle);
@@ -79,6 +79,43 @@ class Material:
     ----------
     R. Yang, J. Kim, A. Pediredla, W. Jarosz, "A wave-optics BSDF for
     correlated scatterers", Computer Graphics Forum 44(4), 2025.
+
+    Examples
+    --------
+    Holes of radius 20 µm in an opaque screen, their centres an equilibrium
+    hard-disk fluid at ``F_a = 0.3``.  The coherent beam keeps ``F_a²``; the
+    lobe carries ``F_a (1 - F_a) = 0.21`` (the sum rule of non-overlapping
+    scatterers; here 0.2097: the evanescent Airy tail ``|d| > 2`` is left out):
+
+    >>> import numpy as np, corona
+    >>> m = corona.Material(corona.Circle(radius=20.0), corona.HardDisk(area_fraction=0.3))
+    >>> round(m.coherent_transmittance, 12), round(m.diffuse_transmittance(), 3)
+    (0.09, 0.21)
+
+    As particles (Babinet): the coherent beam is ``(1 - F_a)²``, the lobe the same:
+
+    >>> p = corona.Material(m.shape, m.process, mode="particle")
+    >>> round(p.coherent_transmittance, 12), round(p.diffuse_transmittance(), 3)
+    (0.49, 0.21)
+
+    The lobe ``F_a T_a T_s`` at ``d = 0`` is ``F_a (π R²/λ²) S(0)``, with
+    ``S(0) = 0.257`` (Henderson's compressibility: 0.258); it vanishes on the
+    first dark ring of the Airy pattern, ``2π R |d| / λ = 3.8317``:
+
+    >>> lam = 550.0                                      # nm
+    >>> f0 = m.lobe([[0.0, 0.0]], lam)[0]                 # sr⁻¹, no cosine factors
+    >>> round(float(f0 / (0.3 * np.pi * 20.0**2 / 0.55**2)), 3)
+    0.257
+    >>> d1 = 3.8317 * 0.55 / (2 * np.pi * 20.0)
+    >>> bool(m.lobe([[d1, 0.0]], lam)[0] < 1e-9 * f0)
+    True
+
+    The same material from the plugin's flat parameters (defaults: circles,
+    hard disks, apertures):
+
+    >>> from corona.parameters import material_from_parameters
+    >>> material_from_parameters(radius=20.0, area_fraction=0.3)
+    Material(Circle(radius=20), HardDisk(area_fraction=0.3), mode='aperture', albedo=0)
     """
 
     def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
@@ -155,25 +192,91 @@ class Material:
     # ------------------------------------------------------------------
     # the exact lobe
     # ------------------------------------------------------------------
-    def lobe_dimensionless(self, u) -> np.ndarray:
-        """Exact ``v(u) = [P + C (S - 1)] / R²`` at ``u`` (..., 2) (see :mod:`corona.tables`)."""
+    def lobe_terms(self, u, radial: bool = False, cell: float | None = None,
+                   structure_factor: bool = True) -> dict:
+        """The factors of the dimensionless lobe and the lobe itself at ``u``.
+
+        The one implementation of the decoupling rule (docs/physics.md)::
+
+            v(u) = max(P + C (S - 1), 0) / R²,   q = u / R
+
+        with ``P = ⟨|Â(q)|²⟩/⟨|A|⟩`` the form factor, ``C = |⟨Â(q)⟩|²/⟨|A|⟩``
+        the coherent form factor (``C = P`` for identical scatterers), both in
+        µm², and ``S(q)`` the structure factor.  The BSDF's lobe is
+        ``F_a (R/λ)² v(u)`` (:meth:`lobe`); ``P/λ²`` is ``T_a`` and ``S`` is ``T_s``.
+
+        Parameters
+        ----------
+        u : array_like
+            Dimensionless offsets ``u = 2π R d / λ``: shape (..., 2), or
+            ``|u|`` (...) with ``radial=True`` (isotropic materials only).
+        radial : bool
+            Evaluate the radial forms ``P(|q|)``, ``C(|q|)``, ``S(|q|)``.
+        cell : float, optional
+            Side of the table cells in ``u`` (2-D only).  For a fixed lattice
+            ``S`` is then the mean over each cell and every Bragg peak enters
+            ``v`` with its exact weight ``C(G) W_G`` (``C`` at the peak, not at
+            the cell centre): ``v = max(P + C (S_bg - 1) + Σ_G C(G) W_G ⟨g_G⟩_cell, 0) / R²``,
+            as in the renderer's tables.
+        structure_factor : bool
+            With ``False`` the cell-mean ``S`` of a fixed lattice, which
+            costs a second pass over the peaks and does not enter ``v``, is
+            not computed (``S`` is then None); table builds use this.
+
+        Returns
+        -------
+        dict
+            ``P``, ``C`` [µm²], ``S`` and ``v`` (dimensionless), each of the
+            shape of ``u`` without its last axis (or of ``|u|``).
+
+        Examples
+        --------
+        Circles of radius R = 2 µm at ``F_a = 0.3``: ``P(0) = |A| = π R²``,
+        ``C = P``, and at the first zero of the Airy pattern (u = 3.8317) the
+        lobe vanishes whatever ``S``:
+
+        >>> import corona
+        >>> m = corona.Material(corona.Circle(radius=2.0), corona.Poisson(area_fraction=0.3))
+        >>> t = m.lobe_terms([0.0, 3.8317], radial=True)
+        >>> (t["P"] / np.pi).round(6)                # P(0) = |A| = π R², R² = 4 µm²
+        array([4., 0.])
+        >>> bool(np.all(t["C"] == t["P"])), t["S"]  # identical circles; Poisson: S = 1
+        (True, array([1., 1.]))
+        >>> t["v"].round(6)                          # v(0) = P(0) / R² = π
+        array([3.141593, 0.      ])
+        """
         u = np.asarray(u, dtype=np.float64)
         R = self.length_scale
         q = u / R
-        P = self.shape.form_factor(q)
-        C = self.shape.coherent_form_factor(q)
-        S = self.process.structure_factor_at(q, self.shape)
-        return np.maximum(P + C * (S - 1.0), 0.0) / R**2
+        shape, process = self.shape, self.process
+        bragg = 0.0
+        if radial:
+            if not self.isotropic:
+                raise CoronaError(f"radial lobe terms need an isotropic material; {self!r} is not")
+            P = shape.form_factor_radial(q)
+            C = shape.coherent_form_factor_radial(q)
+            S = S_smooth = process.structure_factor_radial(q, shape)
+        else:
+            if q.ndim == 0 or q.shape[-1] != 2:
+                raise CoronaError(f"u must have shape (..., 2), got {q.shape}")
+            P = shape.form_factor(q)
+            C = shape.coherent_form_factor(q)
+            if cell is not None and not process.isotropic and hasattr(process, "bragg_cell_mean"):
+                S_smooth = process.background_cell_mean(q, cell / R)
+                S = S_smooth + process.bragg_cell_mean(q, cell / R) if structure_factor else None
+                bragg = process.bragg_cell_mean(q, cell / R, peak_factor=shape.coherent_form_factor)
+            else:
+                S = S_smooth = process.structure_factor_at(q, shape)
+        v = np.maximum(P + C * (S_smooth - 1.0) + bragg, 0.0) / R**2
+        return {"P": P, "C": C, "S": S, "v": v}
+
+    def lobe_dimensionless(self, u) -> np.ndarray:
+        """Exact ``v(u) = [P + C (S - 1)] / R²`` at ``u`` (..., 2) (:meth:`lobe_terms`)."""
+        return self.lobe_terms(u)["v"]
 
     def lobe_dimensionless_radial(self, u) -> np.ndarray:
-        """Exact radial ``v(|u|)`` for isotropic materials."""
-        u = np.asarray(u, dtype=np.float64)
-        R = self.length_scale
-        q = u / R
-        P = self.shape.form_factor_radial(q)
-        C = self.shape.coherent_form_factor_radial(q)
-        S = self.process.structure_factor_radial(q, self.shape)
-        return np.maximum(P + C * (S - 1.0), 0.0) / R**2
+        """Exact radial ``v(|u|)`` for isotropic materials (:meth:`lobe_terms`)."""
+        return self.lobe_terms(u, radial=True)["v"]
 
     def _u(self, d, wavelength):
         d = check_finite_array("d", d)
@@ -243,18 +346,8 @@ class Material:
         c = -u_range + (np.arange(n) + 0.5) * cell
         ux, uy = np.meshgrid(c, c, indexing="xy")
         u = np.stack([ux, uy], -1)
-        if not hasattr(self.process, "bragg_cell_mean"):
-            return tables.GridTable(u_range, self.lobe_dimensionless(u)).arrays()
-        # Bragg peaks narrower than a cell: each vertex carries the cell mean of
-        # the lobe, P + C (S_bg - 1) + Σ_G C(G) W_G ⟨g_G⟩_cell, i.e. every peak
-        # with its exact weight C(G) W_G (C at the peak, not at the cell centre)
-        R = self.length_scale
-        q = u / R
-        P = self.shape.form_factor(q)
-        C = self.shape.coherent_form_factor(q)
-        S_bg = self.process.background_cell_mean(q, cell / R)
-        bragg = self.process.bragg_cell_mean(q, cell / R, peak_factor=self.shape.coherent_form_factor)
-        return tables.GridTable(u_range, np.maximum(P + C * (S_bg - 1.0) + bragg, 0.0) / R**2).arrays()
+        # cell means: Bragg peaks narrower than a cell keep their exact weight
+        return tables.GridTable(u_range, self.lobe_terms(u, cell=cell, structure_factor=False)["v"]).arrays()
 
     # ------------------------------------------------------------------
     # rows over the area fraction (layers whose F_a varies over a surface)

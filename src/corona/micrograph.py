@@ -1,4 +1,4 @@
-"""Scatterers measured from a micrograph (DESIGN §1: pores, droplets, spores).
+"""Scatterers measured from a micrograph (docs/physics.md: pores, droplets, spores).
 
 :func:`from_micrograph` segments a binary or grey image into scatterers
 (Otsu threshold, connected components, region properties — scikit-image)

@@ -2,7 +2,7 @@
 
 A thin layer of scatterers (pores, droplets, grains) that transmits a
 coherent (delta) beam, a diffraction lobe ``F_a T_a T_s`` and optionally
-reflects diffusely from its opaque part (DESIGN §3).  Register it with
+reflects diffusely from its opaque part (docs/physics.md#the-model).  Register it with
 :func:`corona.register` after ``mi.set_variant(...)``; then
 ``<bsdf type="corona">`` and ``mi.load_dict({'type': 'corona', ...})`` work.
 

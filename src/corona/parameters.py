@@ -238,7 +238,7 @@ def make_shape(p: dict):
     check_range("angle", p["angle"], -360.0, 360.0, unit="degree")
     if kind == "mixture":
         # each component carries the edge / spread / orientation modifiers; the
-        # layer's lobe follows the decoupling approximation (DESIGN §3)
+        # layer's lobe follows the decoupling approximation (docs/physics.md#the-model)
         # (types of weight 0 are left out: they would still set the exclusion diameter)
         return shapes.Mixture([(_modified(_outline(k, r, p), p), w)
                                for k, r, w in parse_mixture(p["mixture"]) if w > 0])

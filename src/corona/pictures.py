@@ -1,8 +1,13 @@
-"""Pictures of a material's lobe: tables and the far-field corona (matplotlib)."""
+"""Pictures of a material's lobe: tables and the far-field corona.
+
+The figures need matplotlib (the ``reference`` extra); they are drawn on a
+bare ``matplotlib.figure.Figure``, so no pyplot backend is selected.
+"""
 from __future__ import annotations
 
 import numpy as np
 
+from ._validation import CoronaError
 from .color import blackbody, spectrum_to_linear_srgb, tonemap_srgb
 
 
@@ -39,29 +44,17 @@ def lobe_maps(material, u_extent: float, n: int = 201) -> dict:
     ``P(u/R)/R²`` (T_a = (R/λ)² × this), ``structure_factor`` = S (for fixed
     lattices the mean over each grid cell, so that Bragg peaks narrower than a
     cell keep their weight, as in the renderer's tables), and ``lobe`` =
-    ``[P + C (S - 1)]/R²`` (= T_a T_s for identical scatterers; F_a (R/λ)² ×
-    this is the BSDF's lobe).
+    ``v(u) = [P + C (S - 1)]/R²`` (:meth:`corona.Material.lobe_terms`; = T_a T_s
+    for identical scatterers; F_a (R/λ)² × this is the BSDF's lobe).
     """
     R = material.length_scale
     u = np.linspace(-u_extent, u_extent, n)
     ux, uy = np.meshgrid(u, u[::-1], indexing="xy")
-    uv = np.stack([ux, uy], -1)
-    q = uv / R
-    shape, process = material.shape, material.process
-    if shape.isotropic:
-        qa = np.hypot(q[..., 0], q[..., 1])
-        P, C = shape.form_factor_radial(qa), shape.coherent_form_factor_radial(qa)
+    if material.isotropic:
+        terms = material.lobe_terms(np.hypot(ux, uy), radial=True)
     else:
-        P, C = shape.form_factor(q), shape.coherent_form_factor(q)
-    cell_mean = None if process.isotropic else getattr(process, "structure_factor_cell_mean", None)
-    if cell_mean is not None:
-        S = cell_mean(q, (u[1] - u[0]) / R, shape)
-    elif process.isotropic:
-        S = process.structure_factor_radial(np.hypot(q[..., 0], q[..., 1]), shape)
-    else:
-        S = process.structure_factor_at(q, shape)
-    return {"u": u, "form_factor": P / R**2, "structure_factor": S,
-            "lobe": np.maximum(P + C * (S - 1.0), 0.0) / R**2}
+        terms = material.lobe_terms(np.stack([ux, uy], -1), cell=u[1] - u[0])
+    return {"u": u, "form_factor": terms["P"] / R**2, "structure_factor": terms["S"], "lobe": terms["v"]}
 
 
 def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: float | None = None):
@@ -73,10 +66,12 @@ def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: 
     materials), and the corona as a person would see it around a 3000 K point
     light (spectrally integrated to sRGB).
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LogNorm
+    try:
+        from matplotlib.colors import LogNorm
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise CoronaError("lobe pictures need matplotlib: pip install 'corona[reference]' "
+                          "(or use `corona lobe --json` for the numbers)") from None
 
     R = material.length_scale
     U = _u_extent(material)
@@ -88,7 +83,9 @@ def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: 
         half_angle_deg = float(np.degrees(np.arcsin(min(1.0, 14 * 0.55 / (2 * np.pi * R)))))
     img = far_field_corona(material, half_angle_deg)
 
-    fig, ax = plt.subplots(2, 4, figsize=(18, 8.6), gridspec_kw={"height_ratios": [1.15, 1]})
+    # a bare Figure (no pyplot): no backend is selected, no global state changes
+    fig = Figure(figsize=(18, 8.6))
+    ax = fig.subplots(2, 4, gridspec_kw={"height_ratios": [1.15, 1]})
     ext = [-U, U, -U, U]
     names = [("form_factor", f"single scatterer: T_a table ({type(material.shape).__name__})", True),
              ("structure_factor", f"structure factor: T_s table ({type(material.process).__name__})", False),
@@ -132,5 +129,4 @@ def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: 
     fig.suptitle(repr(material), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path

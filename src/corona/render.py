@@ -125,16 +125,18 @@ def render_linear(scene, spp: int, seed: int = 0, progress: bool = True, desc: s
 
 
 def write_images(rgb, out_dir: str, name: str, exposure: float | None = None) -> dict:
-    """Write ``name.exr`` (linear sRGB) and ``name.png`` (tonemapped sRGB) into ``out_dir``."""
-    import imageio.v3 as iio
+    """Write ``name.exr`` (linear sRGB, float32) and ``name.png`` (tonemapped 8-bit sRGB)
+    into ``out_dir``, both with Mitsuba's ``mi.Bitmap``."""
     import mitsuba as mi
 
     from .color import tonemap_srgb
     os.makedirs(out_dir, exist_ok=True)
     exr = os.path.join(out_dir, f"{name}.exr")
     png = os.path.join(out_dir, f"{name}.png")
-    mi.Bitmap(np.ascontiguousarray(rgb, dtype=np.float32), pixel_format=mi.Bitmap.PixelFormat.RGB).write(exr)
-    iio.imwrite(png, tonemap_srgb(rgb, exposure))
+    rgb_pf = mi.Bitmap.PixelFormat.RGB
+    mi.Bitmap(np.ascontiguousarray(rgb, dtype=np.float32), pixel_format=rgb_pf).write(exr)
+    # uint8 data: Mitsuba marks the bitmap sRGB-encoded, as the tone map made it
+    mi.Bitmap(np.ascontiguousarray(tonemap_srgb(rgb, exposure)), pixel_format=rgb_pf).write(png)
     return {"exr": exr, "png": png}
 
 

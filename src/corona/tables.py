@@ -1,7 +1,7 @@
 """Dimensionless lobe tables, their sampling CDFs, and the on-disk cache.
 
 The lobe of a material is tabulated once in the dimensionless wave vector
-``u = q R = 2π R d / λ`` (DESIGN §3), where ``R`` is the shape's
+``u = q R = 2π R d / λ`` (docs/physics.md#the-model), where ``R`` is the shape's
 ``length_scale``.  With
 
     v(u) = [P(u) + C(u) (S(u) - 1)] / R²,

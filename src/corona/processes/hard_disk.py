@@ -152,7 +152,7 @@ def structure_factor_table(q_sigma, eta):
 
 
 class HardDisk(Process):
-    """Equilibrium hard-disk fluid: centres at least ``σ`` apart (DESIGN §3).
+    """Equilibrium hard-disk fluid: centres at least ``σ`` apart (docs/physics.md#the-model).
 
     ``S(q)`` depends on ``qσ`` and on the packing fraction of the exclusion
     disks ``η = F_a · (π σ²/4) / |A|`` (``η = F_a`` for circles with the
@@ -209,6 +209,20 @@ class HardDisk(Process):
     exclusion_diameter : float, optional
         Hard-core diameter ``σ`` [µm]; default ``shape.exclusion_diameter``
         (the circumscribed diameter).
+
+    Examples
+    --------
+    Circles (σ = 2R, so η = F_a) at F_a = 0.3: ``S(0)`` is the reduced
+    compressibility, ``1/(d(ηZ)/dη) = 0.258`` by Henderson's equation of state
+    ``Z = (1 + η²/8)/(1 - η)²``; far out ``S → 1``:
+
+    >>> import numpy as np, corona
+    >>> hd = corona.HardDisk(area_fraction=0.3)
+    >>> S = hd.structure_factor_radial(np.array([0.0, 50.0]), corona.Circle(radius=1.0))  # q [rad/µm]
+    >>> eta = 0.3
+    >>> henderson = (1 - eta) ** 3 / ((1 + 3 * eta**2 / 8) * (1 - eta) + 2 * eta * (1 + eta**2 / 8))
+    >>> round(henderson, 3), round(float(S[0]), 3), round(float(S[1]), 2)
+    (0.258, 0.257, 1.0)
     """
 
     isotropic = True

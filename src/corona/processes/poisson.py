@@ -18,6 +18,19 @@ class Poisson(Process):
     ----------
     area_fraction : float, default 0.1
         ``F_a = n |A|`` in (0, 1).
+
+    Examples
+    --------
+    ``S = 1`` everywhere, so the lobe of a Poisson layer integrates to ``F_a``
+    (not ``F_a (1 - F_a)``: overlaps are counted twice):
+
+    >>> import corona
+    >>> p = corona.Poisson(area_fraction=0.3)
+    >>> p.structure_factor_radial([0.0, 1.0, 10.0], corona.Circle(radius=1.0))
+    array([1., 1., 1.])
+    >>> m = corona.Material(corona.Circle(radius=20.0), p)
+    >>> round(m.diffuse_transmittance(), 3)
+    0.3
     """
 
     isotropic = True

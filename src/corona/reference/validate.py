@@ -1,7 +1,7 @@
-"""The model against the brute force, case by case: ``corona validate`` (DESIGN §4).
+"""The model against the brute force, case by case: ``corona validate`` (docs/physics.md#validation-figures).
 
 For each case an ensemble of random screens is rasterised and Fourier
-transformed (:func:`corona.wave.brute_force`) and compared with the model's
+transformed (:func:`corona.reference.wave.brute_force`) and compared with the model's
 lobe ``F_a T_a(d) T_s(d)`` (:meth:`corona.Material.lobe`) on the same FFT grid.
 
 The case matrix
@@ -442,13 +442,11 @@ def _maps(qx, qy, mod, I, lab, Mb, Bb, region, R, lam, u_image):
 # ==========================================================================
 def case_figure(path, title, res) -> str:
     """model | brute force | binned ratio (2D, 550 nm) and radial profiles (PNG)."""
-    import matplotlib
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm, TwoSlopeNorm
+    from matplotlib.figure import Figure
 
     mp = res["maps"]
-    fig = plt.figure(figsize=(12.5, 7.6), dpi=64)
+    fig = Figure(figsize=(12.5, 7.6), dpi=64)   # no pyplot: no backend switch, no global state
     gs = fig.add_gridspec(2, 3, height_ratios=[1.0, 0.85], hspace=0.32, wspace=0.28)
     e = mp["extent_d"]
     vmax = float(np.nanmax(mp["model"]))
@@ -509,7 +507,6 @@ def case_figure(path, title, res) -> str:
     fig.suptitle(title, fontsize=11)
     buf = io.BytesIO()
     fig.savefig(buf, dpi=64, format="png")
-    plt.close(fig)
     try:    # 256-colour palette: a third of the size, no visible change
         from PIL import Image
         buf.seek(0)
@@ -659,11 +656,11 @@ def write_report(out_dir: str, summary: dict) -> str:
         "",
         "## Method",
         "",
-        "* **Brute force** (`corona.wave`): random screens of 2000 scatterers in a periodic box "
+        "* **Brute force** (`corona.reference.wave`): random screens of 2000 scatterers in a periodic box "
         "(hard-disk configurations from the event-chain simulation, the same N as the shipped table), "
         "each translated at random, rasterised with anti-aliased edges at 16 samples per circumradius "
         "(masks exactly, at their own pixel pitch), FFT'd; `⟨|T̂(q)|²⟩/(A_screen λ²)` averaged over "
-        "the realisations is the d-space intensity `I(d)` of DESIGN §4.  The anti-aliasing edge ramp "
+        "the realisations is the d-space intensity `I(d)` of docs/physics.md#validation-figures.  The anti-aliasing edge ramp "
         "is divided out (`sinc²(|q|h/2)`).  The coherent peak is the DC bin only: "
         "coherent weight `⟨mean t⟩²`; nothing is subtracted at q ≠ 0.",
         "* **Model**: `Material.lobe(d, λ)` = `F_a T_a T_s` evaluated at the very grid points of "

@@ -1,4 +1,4 @@
-"""Brute-force wave-optics reference: random screens, FFT, ensemble average (DESIGN §4).
+"""Brute-force wave-optics reference: random screens, FFT, ensemble average (docs/physics.md#validation-figures).
 
 The model claims that the diffraction lobe of a layer, ``F_a T_a(d) T_s(d)``,
 is the ensemble average of the Fraunhofer diffraction of a random screen.
@@ -26,7 +26,7 @@ assumptions (no form-factor × structure-factor split, no tables):
 
        ``I(d) = ⟨|T̂(q)|²⟩ / (A_screen λ²)``,  ``q = 2π d / λ``
 
-   (DESIGN §4), which is compared with ``lobe(d) = F_a T_a(d) T_s(d)``
+   (docs/physics.md#validation-figures), which is compared with ``lobe(d) = F_a T_a(d) T_s(d)``
    (:meth:`BruteForce.lobe`).  Both scale with λ only through ``d = q λ/2π``,
    so one ensemble serves every wavelength.
 
@@ -718,7 +718,7 @@ def _stamp_mask_exact(out, splat, mask: Mask, c, blur, grid: Grid):
 # ==========================================================================
 @dataclass
 class BruteForce:
-    """Ensemble-averaged Fraunhofer diffraction of random screens (DESIGN §4).
+    """Ensemble-averaged Fraunhofer diffraction of random screens (docs/physics.md#validation-figures).
 
     Attributes
     ----------
@@ -848,7 +848,7 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
                 seed: int = 0, overlaps: str = "clip", deconvolve: bool = True,
                 max_grid: int = MAX_GRID, workers: int | None = None, progress: bool = True,
                 source: PositionSource | None = None) -> BruteForce:
-    """Average ``|T̂(q)|²`` over random screens of ``material`` (DESIGN §4).
+    """Average ``|T̂(q)|²`` over random screens of ``material`` (docs/physics.md#validation-figures).
 
     Parameters
     ----------

@@ -34,7 +34,7 @@ Shapes: :class:`Circle`, :class:`Ellipse`, :class:`Rectangle`, :class:`Square`,
 :class:`Mixture`.  Composites nest freely, e.g.
 ``SizeDistribution(RandomOrientation(SoftEdge(Square(1.0), 0.05)), 0.2)``.
 
-The normalised form factor of DESIGN §3 is
+The normalised form factor of docs/physics.md#form-factor is
 ``T_a(d) = form_factor(2π d/λ) / λ²``; it integrates to ``self_overlap``
 (= 1 for binary shapes) over the d plane.  ``table(u)`` / ``table_radial(u)``
 give the dimensionless ``form_factor(u/R)/R²`` with ``R = length_scale``, so

@@ -305,6 +305,20 @@ class SizeDistribution(Modifier):
     M. Kotlarchyk, S.-H. Chen, "Analysis of small angle neutron scattering
     spectra from polydisperse interacting colloids", J. Chem. Phys. 79,
     2461–2469 (1983); Pedersen, Adv. Colloid Interface Sci. 70, 171 (1997).
+
+    Examples
+    --------
+    Lognormal circles, spread 0.2: ``⟨|A|⟩ = π R² ⟨s²⟩ = π R² (1 + spread²)``,
+    and in the forward direction the coherent part is ``C(0)/P(0) =
+    ⟨s²⟩² / ⟨s⁴⟩ = (1 + spread²)⁻⁴`` (moments ``⟨sⁿ⟩ = e^{nμ + n²σ²/2}``):
+
+    >>> import numpy as np, corona
+    >>> sd = corona.SizeDistribution(corona.Circle(radius=1.0), spread=0.2)
+    >>> round(sd.area / np.pi, 6)
+    1.04
+    >>> ratio = sd.coherent_form_factor_radial(0.0) / sd.form_factor_radial(0.0)
+    >>> round(float(ratio), 6), round(1.04 ** -4, 6)
+    (0.854804, 0.854804)
     """
 
     _deterministic = False
