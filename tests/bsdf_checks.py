@@ -16,9 +16,14 @@ def interaction(n, wi, wavelengths=(450.0, 520.0, 600.0, 700.0)):
     return si
 
 
-def chi2_test(params, theta_deg, ctx=None, wavelengths=(450.0, 520.0, 600.0, 700.0),
+def chi2_test(params, theta_deg, ctx=None, **kwargs):
+    """Run mitsuba.chi2 on the corona BSDF with the given parameters (see :func:`chi2_bsdf`)."""
+    return chi2_bsdf(mi.load_dict({"type": "corona", **params}), theta_deg, ctx, **kwargs)
+
+
+def chi2_bsdf(bsdf, theta_deg, ctx=None, uv=None, wavelengths=(450.0, 520.0, 600.0, 700.0),
               sample_count=1_000_000, res=101, ires=16):
-    """Run mitsuba.chi2 on the corona BSDF with the given parameters.
+    """Run mitsuba.chi2 on a loaded BSDF, at the shading point ``uv`` (textured layers).
 
     Like ``mitsuba.chi2.BSDFAdapter`` but with chosen wavelengths (the
     stock adapter leaves them zero).  ``ires=16`` sub-samples per histogram
@@ -32,14 +37,19 @@ def chi2_test(params, theta_deg, ctx=None, wavelengths=(450.0, 520.0, 600.0, 700
     wi = (np.sin(th), 0.0, np.cos(th))
     if ctx is None:
         ctx = mi.BSDFContext()
-    bsdf = mi.load_dict({"type": "corona", **params})
+
+    def si_of(n):
+        si = interaction(n, wi, wavelengths)
+        if uv is not None:
+            si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
+        return si
 
     def sample(s, *args):
-        bs, w = bsdf.sample(ctx, interaction(dr.width(s), wi, wavelengths), s[0], mi.Point2f(s[1], s[2]))
+        bs, w = bsdf.sample(ctx, si_of(dr.width(s)), s[0], mi.Point2f(s[1], s[2]))
         return bs.wo, dr.select(dr.all(w == 0), 0.0, 1.0)
 
     def pdf(wo, *args):
-        return bsdf.pdf(ctx, interaction(dr.width(wo), wi, wavelengths), wo)
+        return bsdf.pdf(ctx, si_of(dr.width(wo)), wo)
 
     test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf,
                          sample_dim=3, sample_count=sample_count, res=res, ires=ires)
@@ -70,27 +80,3 @@ def smooth_context():
     ctx.type_mask = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection
     return ctx
 
-
-def run_chi2(bsdf, theta_deg, uv=(0.5, 0.5), wavelengths=(450.0, 520.0, 600.0, 700.0),
-             sample_count=1_000_000, res=101, ires=16):
-    """mitsuba.chi2 on a loaded BSDF (smooth components) at one shading point ``uv``."""
-    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
-    th = np.radians(theta_deg)
-    wi = (np.sin(th), 0.0, np.cos(th))
-    ctx = smooth_context()
-
-    def si_of(n):
-        si = interaction(n, wi, wavelengths)
-        si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
-        return si
-
-    def sample(s, *args):
-        bs, w = bsdf.sample(ctx, si_of(dr.width(s)), s[0], mi.Point2f(s[1], s[2]))
-        return bs.wo, dr.select(dr.all(w == 0), 0.0, 1.0)
-
-    def pdf(wo, *args):
-        return bsdf.pdf(ctx, si_of(dr.width(wo)), wo)
-
-    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf,
-                         sample_dim=3, sample_count=sample_count, res=res, ires=ires)
-    return test.run(), test

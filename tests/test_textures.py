@@ -11,7 +11,7 @@ import pytest
 from corona import CoronaError
 from corona.parameters import material_from_parameters
 
-from bsdf_checks import run_chi2
+from bsdf_checks import chi2_bsdf, smooth_context
 
 FA_MAP = np.array([[0.05, 0.2], [0.37, 0.61]], dtype=np.float32)   # hard-disk rows and values between
 UV = [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]         # the four texel centres
@@ -102,7 +102,7 @@ def test_energies_follow_the_local_area_fraction(textured):
 def test_chi2_at_local_values_of_a_textured_area_fraction(textured, fa):
     """0.2 sits on a hard-disk table row, 0.37 between two: the mixture of rows is sampled exactly."""
     (u, v), = [uv for uv, f in zip(UV, FA_MAP.ravel()) if abs(f - fa) < 1e-6]
-    ok, test = run_chi2(textured, 30, uv=(u, v))
+    ok, test = chi2_bsdf(textured, 30, smooth_context(), uv=(u, v))
     assert ok, test.messages
 
 
@@ -110,7 +110,7 @@ def test_chi2_with_a_textured_radius(mi_variant):
     import mitsuba as mi
     bsdf = mi.load_dict({"type": "corona", "process": "hard-disk", "area_fraction": 0.3,
                          "radius": _bitmap([[0.6, 1.5]])})
-    ok, test = run_chi2(bsdf, 20, uv=(0.25, 0.5))       # radius 0.6, below the table's 1.5
+    ok, test = chi2_bsdf(bsdf, 20, smooth_context(), uv=(0.25, 0.5))       # radius 0.6, below the table's 1.5
     assert ok, test.messages
 
 
