@@ -386,7 +386,7 @@ class Material:
         return out
 
     def area_fraction_rows(self, lo: float = 0.0, hi: float | None = None,
-                           tolerance: float = ROW_TOLERANCE, max_rows: int = 160):
+                           tolerance: float = ROW_TOLERANCE, max_rows: int = 160, include=()):
         """Lobe tables at rows of area fraction, for layers whose ``F_a`` varies.
 
         Between two rows the renderer interpolates the dimensionless lobe
@@ -395,6 +395,9 @@ class Material:
         tabulation nodes and are bisected until the interpolated lobe at every
         interval's midpoint is within ``tolerance`` (relative) of the exact
         one wherever that exceeds 1e-3 of its peak.
+
+        ``include`` adds rows at these area fractions (e.g. a layer's own value,
+        where the renderer is then exact).
 
         Returns
         -------
@@ -410,18 +413,20 @@ class Material:
         limit = float(self.process.area_fraction_limit(self.shape))
         hi = limit if hi is None else min(float(hi), limit)
         lo = max(0.0, min(float(lo), hi))
+        include = sorted(float(f) for f in include if lo <= f <= hi)
         arrays = tables.cached({**self.table_params(), "rows": [lo, hi], "tolerance": tolerance,
-                                "max_rows": max_rows},
-                               lambda: self._build_rows(lo, hi, tolerance, max_rows), use_cache=self.use_cache)
+                                "max_rows": max_rows, "include": include},
+                               lambda: self._build_rows(lo, hi, tolerance, max_rows, include),
+                               use_cache=self.use_cache)
         fas = np.asarray(arrays["area_fraction"], dtype=np.float64)
         vals = np.asarray(arrays["values"], dtype=np.float64)
         geo = float(arrays["geometry"])
         make = (lambda v: tables.RadialTable(geo, v)) if self.isotropic else (lambda v: tables.GridTable(geo, v))
         return fas, [make(v) for v in vals], float(arrays["error"])
 
-    def _build_rows(self, lo, hi, tolerance, max_rows):
+    def _build_rows(self, lo, hi, tolerance, max_rows, include=()):
         u, geo = self._table_grid()
-        nodes = np.asarray(self.process.area_fraction_nodes(self.shape), dtype=np.float64)
+        nodes = np.concatenate([self.process.area_fraction_nodes(self.shape), include]).astype(np.float64)
         inner = nodes[(nodes > lo) & (nodes < hi)]
         # the nodes bracketing [lo, hi] too, so interpolation there follows the process's own rows
         below, above = nodes[nodes <= lo], nodes[nodes >= hi]

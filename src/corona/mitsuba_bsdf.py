@@ -233,6 +233,10 @@ class CoronaBSDFMixin:
         params["area_fraction"] = min(max(fa_hi, 1e-6), 1.0 - 1e-6)
         params["albedo"] = albedo_range[1]
         try:
+            # checked at the values given (their messages name those), built at the table's cover
+            material_from_parameters(**{**params, **({} if self.fixed_radius else {
+                "radius": radius_range[1], **{k: self.params[k] for k in ("edge_width", "exclusion_diameter",
+                                                                          "jitter") if k in self.params}})})
             material = material_from_parameters(**params)
         except CoronaError as err:
             if "area_fraction" in str(err) and fa_hi > 0 and self.fa_tex.is_spatially_varying():
@@ -251,9 +255,11 @@ class CoronaBSDFMixin:
         if process.varying_area_fraction:
             # rows over the texture's range; a uniform value gets ± FA_WINDOW around it, so that an
             # optimiser's steps need no rebuild (leaving the rows rebuilds them: parameters_changed)
-            if not self.fa_tex.is_spatially_varying():
-                fa_lo, fa_hi = fa_lo - FA_WINDOW, fa_hi + FA_WINDOW
-            fas, tabs, self.row_error = material.area_fraction_rows(max(fa_lo, 0.0), max(fa_hi, 0.0))
+            include = ()
+            if not self.fa_tex.is_spatially_varying():     # exact at the value itself
+                include, fa_lo, fa_hi = (fa_hi,), fa_lo - FA_WINDOW, fa_hi + FA_WINDOW
+            fas, tabs, self.row_error = material.area_fraction_rows(max(fa_lo, 0.0), max(fa_hi, 0.0),
+                                                                    include=include)
         else:
             fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
         self.fa_rows_np = fas
@@ -333,7 +339,9 @@ class CoronaBSDFMixin:
             j = dr.minimum(lo, self.n_rows - 2)
             f0 = _gather(mi.Float, self.fa_rows, j, active)
             f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
-            t = dr.clip((fa - f0) / dr.maximum(f1 - f0, 1e-12), 0.0, 1.0)   # linear in F_a between rows
+            # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
+            # the derivative at a row is the next interval's slope, not zero
+            t = (fa - f0) / dr.maximum(f1 - f0, 1e-12)
             total = _gather(mi.Float, self.totals, j, active)
             total_next = _gather(mi.Float, self.totals, j + 1, active)
         plane = fa * dr.lerp(total, total_next, t) * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π²
