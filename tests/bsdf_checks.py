@@ -44,7 +44,8 @@ def chi2_test(params, theta_deg, ctx=None, wavelengths=(450.0, 520.0, 600.0, 700
 
 
 def smooth_context():
-    """A context that leaves out the coherent delta (the chi-square test needs densities)."""
+    """A context that leaves out the delta components (the chi-square test needs densities)."""
     ctx = mi.BSDFContext()
-    ctx.type_mask = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection
+    ctx.type_mask = (mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection
+                     | mi.BSDFFlags.GlossyReflection)
     return ctx

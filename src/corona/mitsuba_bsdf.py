@@ -12,7 +12,35 @@ Parameters (all optional; the one specification is :data:`corona.parameters.PARA
 
 Components: 0 = coherent transmission (``DeltaTransmission``), 1 = diffraction
 lobe (``GlossyTransmission``), 2 = diffuse reflection (``DiffuseReflection``,
-weight 0 when ``albedo`` is 0).  The layer is two-sided and symmetric.
+weight 0 when ``albedo`` is 0).  Without a substrate the layer is two-sided
+and symmetric.
+
+With ``substrate=glass`` the layer sits on a thin non-absorbing pane (index
+``substrate_ior``, default 1.52) on its ``substrate_side`` face, and two
+components are added: 3 = the pane's specular reflection
+(``DeltaReflection``) and 4 = the lobe seen in reflection
+(``GlossyReflection``: light that crosses the layer once coherently and once
+scattered, with a reflection off the pane in between).  The pane reflects
+``R' = 2R/(1 + R)`` of what reaches it (``R`` the polarisation-averaged
+Fresnel reflectance of one face, the internal bounces summed, as Mitsuba's
+``thindielectric``) and transmits ``T' = 1 - R'`` undeviated.  With ``C`` the
+coherent weight, ``f`` the lobe, ``ρ`` the opaque part's reflectance:
+
+=====================  =================================  =========================
+component              light meets the layer first        light meets the glass first
+=====================  =================================  =========================
+coherent transmission  ``C T'(θi)``                       ``T'(θi) C``
+lobe                   ``f T'(θo)``                       ``T'(θi) f``
+diffuse reflection     ``ρ/π``                            ``T'(θi) ρ/π T'(θo)``
+specular reflection    ``C² R'(θi)``                      ``R'(θi)``
+lobe in reflection     ``C f [R'(θi) + R'(θo)]``          0
+=====================  =================================  =========================
+
+Paths that meet the layer a second time after a reflection off the pane are
+dropped unless they are one of the above (the scattered-twice paths, and
+light the pane returns onto the layer's opaque part), so the layer on glass
+reflects plus transmits at most what the layer alone would: the white
+furnace stays <= 1.  ``docs/substrate.md`` lists the approximations.
 ``mi.traverse`` exposes ``albedo``; the lobe's parameters fix its tables, so
 change them by loading a new BSDF.
 
@@ -128,6 +156,13 @@ class CoronaBSDFMixin:
         self.albedo = mi.Float(material.albedo)                      # exposed through mi.traverse
         self.table_total = float(table.total)
 
+        # --- the pane under the layer (docs/substrate.md) ----------------------
+        pane = material.substrate
+        self.has_pane = pane is not None
+        if self.has_pane:
+            self.eta = float(pane.ior)
+            self.layer_on_front = pane.side == "front"
+
         # --- table in Dr.Jit arrays ------------------------------------------
         if self.isotropic:
             self.du = float(table.du)
@@ -154,8 +189,13 @@ class CoronaBSDFMixin:
         comps = [mi.BSDFFlags.DeltaTransmission | sides,
                  mi.BSDFFlags.GlossyTransmission | sides]
         comps.append(mi.BSDFFlags.DiffuseReflection | sides)   # weight 0 when albedo = 0
+        if self.has_pane:
+            comps.append(mi.BSDFFlags.DeltaReflection | sides)   # 3: the pane's mirror image
+            comps.append(mi.BSDFFlags.GlossyReflection | sides)  # 4: the lobe seen in reflection
         if not self.isotropic:
             comps[1] = comps[1] | mi.BSDFFlags.Anisotropic
+            if self.has_pane:
+                comps[4] = comps[4] | mi.BSDFFlags.Anisotropic
         self.m_components = [c for c in comps]
         flags = mi.BSDFFlags.Empty
         for c in comps:
@@ -306,15 +346,44 @@ class CoronaBSDFMixin:
             hero = dr.select(s < float(cum[k]), lams[k], hero)
         return hero
 
-    def _selection(self, ctx):
-        """Probabilities of (coherent, lobe, reflection) honouring the context."""
+    def _pane_reflectance(self, cos_theta):
+        """``R' = 2R / (1 + R)``: the thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``)."""
+        r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
+        return r * 2.0 / (1.0 + r)
+
+    def _layer_first(self, cos_i):
+        """True where light from ``wi`` meets the layer before the pane."""
+        return (cos_i > 0) if self.layer_on_front else (cos_i < 0)
+
+    def _delta_weights(self, cos_i):
+        """Weights of the coherent transmission and of the specular reflection (pane only)."""
+        r_i = self._pane_reflectance(cos_i)
+        c = self.w_coherent
+        return c * (1.0 - r_i), dr.select(self._layer_first(cos_i), c * c * r_i, r_i)
+
+    def _selection(self, ctx, cos_i=None):
+        """Probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
+        honouring the context: each component's energy, roughly for the lobes."""
         flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
                  mi.BSDFFlags.DiffuseReflection)
-        energies = (self.w_coherent, self.w_lobe, self.w_reflect)
+        if not self.has_pane:
+            energies = (self.w_coherent, self.w_lobe, self.w_reflect)
+            en = [w if ctx.is_enabled(fl, i) else 0.0
+                  for i, (w, fl) in enumerate(zip(energies, flags))]
+            total = sum(en)
+            return tuple(e / total if total > 0 else 0.0 for e in en)
+        flags += (mi.BSDFFlags.DeltaReflection, mi.BSDFFlags.GlossyReflection)
+        first = self._layer_first(cos_i)
+        r_i = self._pane_reflectance(cos_i)
+        t_i = 1.0 - r_i
+        w_coh, w_spec = self._delta_weights(cos_i)
+        energies = (w_coh, self.w_lobe * t_i, dr.select(first, self.w_reflect, self.w_reflect * t_i),
+                    w_spec, dr.select(first, 2.0 * self.w_coherent * self.w_lobe * r_i, 0.0))
         en = [w if ctx.is_enabled(fl, i) else 0.0
               for i, (w, fl) in enumerate(zip(energies, flags))]
-        total = sum(en)
-        return tuple(e / total if total > 0 else 0.0 for e in en)
+        total = en[0] + en[1] + en[2] + en[3] + en[4]
+        inv = dr.select(total > 0, 1.0 / dr.maximum(total, 1e-30), 0.0)
+        return tuple(e * inv for e in en)
 
     # ------------------------------------------------------------------
     # BSDF interface
@@ -325,19 +394,30 @@ class CoronaBSDFMixin:
         cos_o = mi.Frame3f.cos_theta(wo)
         transmit = active & (cos_i * cos_o < 0)
         reflect = active & (cos_i * cos_o > 0)
-        p_coh, p_lobe, p_refl = self._selection(ctx)
+        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, cos_i)
         lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
 
-        f, pdf_d = self._lobe_and_pdf(wi, wo, si.wavelengths, transmit)
+        f, pdf_d = self._lobe_and_pdf(wi, wo, si.wavelengths, (transmit | reflect) if self.has_pane else transmit)
         abs_cos_o = dr.abs(cos_o)
-        value = dr.select(transmit & lobe_on, f * abs_cos_o, 0.0)        # eval = f |cos θo|
+        lobe = f * abs_cos_o                                              # eval = f |cos θo|
+        diffuse = self.w_reflect * dr.inv_pi * abs_cos_o
+        if self.has_pane:   # Fresnel factors of the pane (module docstring's table)
+            first = self._layer_first(cos_i)
+            r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
+            lobe_reflected = lobe * dr.select(first, self.w_coherent * (r_i + r_o), 0.0)
+            lobe = lobe * dr.select(first, 1.0 - r_o, 1.0 - r_i)
+            diffuse = diffuse * dr.select(first, 1.0, (1.0 - r_i) * (1.0 - r_o))
+        value = dr.select(transmit & lobe_on, lobe, 0.0)
         if self.sampling == "cosine":
             pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
         pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
         if self.w_reflect > 0:
-            value += dr.select(reflect & refl_on, self.w_reflect * dr.inv_pi * abs_cos_o, 0.0)
+            value += dr.select(reflect & refl_on, diffuse, 0.0)
             pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
+        if self.has_pane:
+            value += dr.select(reflect & ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4), lobe_reflected, 0.0)
+            pdf += dr.select(reflect, p_pane[1] * pdf_d * abs_cos_o, 0.0)
         return value, pdf
 
     def eval(self, ctx, si, wo, active=True):
@@ -353,10 +433,19 @@ class CoronaBSDFMixin:
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
-        p_coh, p_lobe, p_refl = self._selection(ctx)
+        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, cos_i)
         pick_coh = active & (sample1 < p_coh)
         pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
-        pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
+        if self.has_pane:   # after the reflection: 3 specular, 4 the lobe in reflection
+            p_spec, p_rlobe = p_pane
+            c3 = p_coh + p_lobe + p_refl
+            c4 = c3 + p_spec
+            pick_rlobe = active & (sample1 >= c4) & (p_rlobe > 0)
+            pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_rlobe <= 0)) & (p_spec > 0)
+            pick_refl = (active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
+                         & ((sample1 < c3) | ((p_spec <= 0) & (p_rlobe <= 0))))
+        else:
+            pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
 
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
@@ -368,12 +457,20 @@ class CoronaBSDFMixin:
         if self.sampling == "cosine":   # lobe: the same warp, mirrored to the far side
             wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
             lobe_valid = pick_lobe & (wo_cos.z > 0)
+            if self.has_pane:           # the lobe in reflection: the warp itself
+                wo_rlobe = wo_refl
+                rlobe_valid = pick_rlobe & (wo_cos.z > 0)
         else:
             # lobe: sample u for the hero wavelength, d = u λ / (2π R), wo.xy = d - wi.xy;
             # the hero wavelength is picked with its mixture weight, reusing sample1
-            s_hero = dr.clip((sample1 - p_coh) / max(p_lobe, 1e-30), 0.0, 0.99999994)
+            s_hero = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
+            pick_any_lobe = pick_lobe
+            if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
+                s_hero = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s_hero)
+                pick_any_lobe = pick_lobe | pick_rlobe
+            s_hero = dr.clip(s_hero, 0.0, 0.99999994)
             lam = self._lambda_um(self._pick_hero(si.wavelengths, s_hero))
-            u = self._sample_u(sample2, pick_lobe)
+            u = self._sample_u(sample2, pick_any_lobe)
             d = u * (lam / (2.0 * dr.pi * self.R))
             ox = d.x - wi.x
             oy = d.y - wi.y
@@ -381,6 +478,9 @@ class CoronaBSDFMixin:
             oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
             wo_lobe = mi.Vector3f(ox, oy, oz)
             lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
+            if self.has_pane:
+                wo_rlobe = mi.Vector3f(ox, oy, -oz)
+                rlobe_valid = pick_rlobe & (r2 < 1.0) & (oz != 0)
 
         bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0),
@@ -389,12 +489,30 @@ class CoronaBSDFMixin:
             pick_coh, mi.UInt32(+mi.BSDFFlags.DeltaTransmission),
             dr.select(pick_lobe, mi.UInt32(+mi.BSDFFlags.GlossyTransmission),
                       mi.UInt32(+mi.BSDFFlags.DiffuseReflection)))
+        smooth = lobe_valid | pick_refl
+        pick_delta = pick_coh
+        if self.has_pane:
+            bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z),      # mirror of wi
+                              dr.select(pick_rlobe, wo_rlobe, bs.wo))
+            bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
+                                             dr.select(pick_rlobe, mi.UInt32(4), bs.sampled_component))
+            bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
+                                        dr.select(pick_rlobe, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                                  bs.sampled_type))
+            smooth = smooth | rlobe_valid
+            pick_delta = pick_coh | pick_spec
 
-        value, pdf = self._eval_pdf(ctx, si, bs.wo, (lobe_valid | pick_refl))
+        value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth)
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
-        weight = dr.select(pdf > 0, value / pdf, 0.0)
-        weight = dr.select(pick_coh, self.w_coherent / dr.maximum(p_coh, 1e-30), weight)
-        ok = pick_coh | ((lobe_valid | pick_refl) & (bs.pdf > 0))
+        weight = dr.select(pdf > 0, value / dr.select(pdf > 0, pdf, 1.0), 0.0)   # scalar: no 0/0
+        if self.has_pane:
+            w_coh, w_spec = self._delta_weights(cos_i)
+            bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
+            weight = dr.select(pick_spec, w_spec / dr.maximum(p_spec, 1e-30), weight)
+        else:
+            w_coh = self.w_coherent
+        weight = dr.select(pick_coh, w_coh / dr.maximum(p_coh, 1e-30), weight)
+        ok = pick_delta | (smooth & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
     def traverse(self, callback):
