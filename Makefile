@@ -7,6 +7,8 @@ STAMP := $(VENV)/.installed-stamp
 PYTEST_ARGS ?=
 # make bench BENCH_ARGS=--full (bigger runs) or BENCH_ARGS="--only render sampling"
 BENCH_ARGS ?=
+# make gallery VARIANT=llvm_ad_rgb
+VARIANT ?=
 
 .PHONY: all demo test venv llvm bench gallery clean clean-cache
 
@@ -33,9 +35,10 @@ test: venv
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
+# (make gallery VARIANT=llvm_ad_rgb: another Mitsuba variant; default the fastest spectral one)
 gallery: venv
-	$(PY) scripts/gallery.py
-	$(PY) scripts/demo.py out/demo --update-docs
+	$(PY) scripts/gallery.py $(if $(VARIANT),--variant $(VARIANT))
+	$(PY) scripts/demo.py out/demo --update-docs $(if $(VARIANT),--variant $(VARIANT))
 
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)
