@@ -398,7 +398,8 @@ class CoronaBSDFMixin:
         lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
 
-        f, pdf_d = self._lobe_and_pdf(wi, wo, si.wavelengths, (transmit | reflect) if self.has_pane else transmit)
+        lobe_sides = (transmit | reflect) if self.has_pane else transmit   # the pane: the lobe in reflection
+        f, pdf_d = self._lobe_and_pdf(wi, wo, si.wavelengths, lobe_sides)
         abs_cos_o = dr.abs(cos_o)
         lobe = f * abs_cos_o                                              # eval = f |cos θo|
         diffuse = self.w_reflect * dr.inv_pi * abs_cos_o
@@ -416,7 +417,8 @@ class CoronaBSDFMixin:
             value += dr.select(reflect & refl_on, diffuse, 0.0)
             pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
         if self.has_pane:
-            value += dr.select(reflect & ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4), lobe_reflected, 0.0)
+            rlobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
+            value += dr.select(reflect & rlobe_on, lobe_reflected, 0.0)
             pdf += dr.select(reflect, p_pane[1] * pdf_d * abs_cos_o, 0.0)
         return value, pdf
 

@@ -27,7 +27,8 @@ def blackbody_radiance(temperature: float, wavelength=BLACKBODY_WAVELENGTHS) -> 
     from ._validation import check_positive
     t = check_positive("temperature", temperature, "K")
     lam = np.asarray(wavelength, dtype=np.float64) * 1e-9
-    return 1e-9 * 2 * Planck * speed_of_light**2 / lam**5 / np.expm1(Planck * speed_of_light / (lam * Boltzmann * t))
+    hc = Planck * speed_of_light
+    return 1e-9 * 2 * hc * speed_of_light / lam**5 / np.expm1(hc / (lam * Boltzmann * t))
 
 
 def blackbody_text(temperature: float, scale: float = 1.0, per_line: int = 6, indent: str = "") -> str:
@@ -43,7 +44,8 @@ def blackbody_text(temperature: float, scale: float = 1.0, per_line: int = 6, in
 def blackbody_spectrum(temperature: float) -> dict:
     """A black body for ``mi.load_dict`` that renders in spectral, RGB and mono variants."""
     return {"type": "spectrum",
-            "value": [(float(lam), float(v)) for lam, v in zip(BLACKBODY_WAVELENGTHS, blackbody_radiance(temperature))]}
+            "value": [(float(lam), float(v))
+                      for lam, v in zip(BLACKBODY_WAVELENGTHS, blackbody_radiance(temperature))]}
 
 
 def street_light_scene(resolution: int = 256, bsdf: dict | None = None, *, fov: float = 20.0,
