@@ -10,6 +10,8 @@ BENCH_ARGS ?=
 DOCS_STAMP := $(VENV)/.docs-stamp
 # make docs SPHINXOPTS=-W (warnings as errors) or SPHINXOPTS=-E (rebuild everything)
 SPHINXOPTS ?=
+# make gallery VARIANT=llvm_ad_rgb
+VARIANT ?=
 
 .PHONY: all demo test venv llvm bench gallery docs clean clean-cache
 
@@ -36,9 +38,10 @@ test: venv
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
+# (make gallery VARIANT=llvm_ad_rgb: another Mitsuba variant; default the fastest spectral one)
 gallery: venv
-	$(PY) scripts/gallery.py
-	$(PY) scripts/demo.py out/demo --update-docs
+	$(PY) scripts/gallery.py $(if $(VARIANT),--variant $(VARIANT))
+	$(PY) scripts/demo.py out/demo --update-docs $(if $(VARIANT),--variant $(VARIANT))
 
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)

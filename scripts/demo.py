@@ -14,6 +14,8 @@ import sys
 
 import numpy as np
 
+from corona import CoronaError
+
 
 def _repo_file(*parts: str) -> str | None:
     """``parts`` inside the source checkout (scenes/, docs/), or None where missing."""
@@ -27,7 +29,7 @@ def _repo_file(*parts: str) -> str | None:
     return None
 
 
-def main(out_dir: str = "out/demo", update_docs: bool = False) -> int:
+def main(out_dir: str = "out/demo", update_docs: bool = False, variant: str | None = None) -> int:
     import corona
     from corona.parameters import material_from_parameters
     from corona.pictures import lobe_figure
@@ -55,7 +57,7 @@ def main(out_dir: str = "out/demo", update_docs: bool = False) -> int:
     print(f"\n  lobe tables and far-field corona: {fig}")
 
     from corona.render import load_scene, render_to_files, scene_spp, setup_variant
-    variant = setup_variant()
+    variant = setup_variant(variant)
     import mitsuba as mi
     teaser = _repo_file("scenes", "teaser.xml")
     fast = not variant.startswith("scalar")
@@ -84,4 +86,17 @@ def main(out_dir: str = "out/demo", update_docs: bool = False) -> int:
 if __name__ == "__main__":
     args = sys.argv[1:]
     flag = "--update-docs" in args
-    sys.exit(main(*[a for a in args if a != "--update-docs"], update_docs=flag))
+    args = [a for a in args if a != "--update-docs"]
+    chosen = None
+    if "--variant" in args:   # make gallery VARIANT=llvm_ad_rgb passes it on
+        i = args.index("--variant")
+        if i + 1 >= len(args):
+            print("scripts/demo.py: --variant needs a value (e.g. llvm_ad_rgb)", file=sys.stderr)
+            sys.exit(2)
+        chosen = args[i + 1]
+        del args[i:i + 2]
+    try:
+        sys.exit(main(*args, update_docs=flag, variant=chosen))
+    except CoronaError as err:
+        print(f"scripts/demo.py: {err}", file=sys.stderr)
+        sys.exit(2)

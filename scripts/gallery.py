@@ -65,6 +65,18 @@ STRIPS = [
           "Every lamp wears the same rings: their size depends on the droplets, not on the lamp. "
           "`make demo` renders it at 512², 256 spp for the README.",
           [Panel("condensation, R = 5 µm, F_a = 0.4", {"res": 256, "spp": 64})]),
+    Strip("window_at_night", "A window at night: the layer on glass", "window_at_night.xml",
+          "A room lamp behind the camera, mirrored in a fogged window pane (corona BSDF with "
+          "substrate=glass, index 1.52), and three street lights behind the pane; droplets of radius 6 µm "
+          "on 35 % of the glass, hard disks, particle mode. Left: droplets on the room side, so the lamp's "
+          "light crosses them on its way to the glass and back: its mirror image (C² R' = 1.5 % of the "
+          "lamp) wears the same corona as the street lights. Middle: droplets outside, so the glass "
+          "mirrors the lamp before any droplet: a sharp image of R' = 8 %. Right: the droplets without "
+          "the glass (substrate=none): no reflection. Same exposure.",
+          [Panel("droplets on the room side", {}),
+           Panel("droplets outside", {"substrate_side": "front"}),
+           Panel("no glass", {"substrate": "none"})],
+          shared_exposure=0),
     Strip("lobe_tables", "Single-aperture table and structure-factor table", None,
           "`corona lobe` for the teaser's droplets: the form-factor table T_a, the hard-disk "
           "structure-factor table T_s, their product (the lobe), and the far-field corona as seen "

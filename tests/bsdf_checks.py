@@ -75,8 +75,9 @@ def run_chi2(test) -> bool:
 
 
 def smooth_context():
-    """A context that leaves out the coherent delta (the chi-square test needs densities)."""
+    """A context that leaves out the delta components (the chi-square test needs densities)."""
     ctx = mi.BSDFContext()
-    ctx.type_mask = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection
+    ctx.type_mask = (mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection
+                     | mi.BSDFFlags.GlossyReflection)
     return ctx
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import glob
 import os
+import re
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -41,7 +42,8 @@ def test_there_are_scenes():
     names = {os.path.basename(p) for p in SCENES}
     for required in ["teaser.xml", "lycopodium.xml", "fabric.xml", "sweep_radius.xml",
                      "sweep_area_fraction.xml", "sweep_incidence.xml", "circle_vs_square.xml",
-                     "babinet.xml", "monochromatic.xml", "mixed.xml", "sampling.xml"]:
+                     "babinet.xml", "monochromatic.xml", "mixed.xml", "sampling.xml",
+                     "window_at_night.xml"]:
         assert required in names
 
 
@@ -128,3 +130,63 @@ def test_incidence_scene_tilts_the_layer(variant):
     (sx90, sy90), (sx30, sy30) = spreads(90), spreads(30)
     assert abs(sx90 - sy90) < 0.15 * sy90
     assert sx30 > 1.25 * sy30
+
+
+# --- every variant: RGB variants cannot render Mitsuba's `blackbody` -------------------
+RGB_VARIANTS = [("llvm_ad_rgb", 16, 2), ("scalar_rgb", 8, 1)]   # scalar: Python per sample, keep it tiny
+
+
+@pytest.mark.parametrize("name,res,spp", RGB_VARIANTS, ids=[v[0] for v in RGB_VARIANTS])
+@pytest.mark.parametrize("path", SCENES, ids=os.path.basename)
+def test_scene_renders_in_rgb_variants(path, name, res, spp, mi_variant):
+    """Emitters are given in a form RGB variants understand; pixels finite and >= 0."""
+    import mitsuba as mi
+    from corona.render import load_scene, render_linear, setup_variant
+    try:
+        setup_variant(name)
+        scene = load_scene(path, {"res": res, "spp": spp})
+        rgb, _ = render_linear(scene, spp, progress=False, desc=os.path.basename(path))
+    finally:
+        mi.set_variant(mi_variant)
+    assert rgb.shape == (res, res, 3)
+    assert np.all(np.isfinite(rgb))
+    assert rgb.min() >= 0.0
+    assert rgb.max() > 0, "the light (or its corona) is in view"
+
+
+def test_street_light_scene_renders_in_rgb(mi_variant):
+    import mitsuba as mi
+    from corona.render import setup_variant
+    from corona.scenes import street_light_scene
+    try:
+        setup_variant("llvm_ad_rgb")
+        img = np.array(mi.render(mi.load_dict(street_light_scene(resolution=16)), spp=2))
+    finally:
+        mi.set_variant(mi_variant)
+    assert np.all(np.isfinite(img)) and img.min() >= 0 and img.max() > 0
+
+
+BLACKBODY = re.compile(r'blackbody (\d+) K(?: x (\d+(?:\.\d+)?))?[^>]*-->\s*<spectrum name="radiance"\s+value="([^"]+)"')
+
+
+def test_scene_lamps_are_plancks_law(mi_variant):
+    """Every black body of scenes/ (a wavelength:value list) is Planck's law, i.e. what
+    Mitsuba's spectral-only `blackbody` gives (times the stated scale)."""
+    import drjit as dr
+    import mitsuba as mi
+    from corona.scenes import blackbody_radiance
+    lam = np.arange(360.0, 831.0, 10.0)
+    si = dr.zeros(mi.SurfaceInteraction3f, lam.size)
+    si.wavelengths = mi.Spectrum(*[mi.Float(lam)] * 4)
+    found = 0
+    for path in SCENES:
+        text = open(path, encoding="utf-8").read()
+        assert 'type="blackbody"' not in text, f"{path}: Mitsuba's blackbody is spectral-only"
+        for t, scale, values in BLACKBODY.findall(text):
+            pairs = np.array([[float(x) for x in item.split(":")] for item in values.split(",")])
+            np.testing.assert_array_equal(pairs[:, 0], lam)
+            mitsuba_bb = np.array(mi.load_dict({"type": "blackbody", "temperature": float(t)}).eval(si))[0]
+            np.testing.assert_allclose(pairs[:, 1], float(scale or 1) * mitsuba_bb, rtol=6e-4)
+            np.testing.assert_allclose(blackbody_radiance(float(t), lam), mitsuba_bb, rtol=1e-5)
+            found += 1
+    assert found >= 15

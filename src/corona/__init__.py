@@ -20,6 +20,7 @@ from .micrograph import from_micrograph
 from .processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from .shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
                      RegularPolygon, Shape, SizeDistribution, SoftEdge, Square)
+from .substrate import GlassPane
 
 __version__ = "0.1.0"
 
@@ -27,7 +28,7 @@ __all__ = ["CoronaError", "CoronaWarning",
            "Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon", "Mask",
            "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture",
            "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk",
-           "Material", "from_micrograph", "default_variant", "set_default_variant", "register"]
+           "Material", "GlassPane", "from_micrograph", "default_variant", "set_default_variant", "register"]
 
 
 def register() -> None:

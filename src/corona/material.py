@@ -14,6 +14,7 @@ from . import tables
 from ._validation import CoronaError, CoronaWarning, check_choice, check_finite_array, check_range
 from .processes import Poisson, Process
 from .shapes import Shape
+from .substrate import GlassPane
 
 MODES = ("aperture", "particle")
 
@@ -47,6 +48,11 @@ class Material:
         Diffuse (Lambertian) reflectance of the opaque part of the layer.
     use_cache : bool, default True
         Keep expensive tables in the on-disk cache (:mod:`corona.tables`).
+    substrate : corona.GlassPane, optional
+        A thin glass pane the layer sits on (default: none, the layer
+        alone).  It adds a specular reflection and weights every other
+        component with the pane's Fresnel factors; see :meth:`eval` and
+        ``docs/substrate.md``.
 
     Notes
     -----
@@ -119,7 +125,7 @@ class Material:
     """
 
     def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
-                 albedo: float = 0.0, use_cache: bool = True):
+                 albedo: float = 0.0, use_cache: bool = True, substrate: GlassPane | None = None):
         if not isinstance(shape, Shape):
             raise CoronaError(f"shape={shape!r} is not a corona shape (e.g. corona.Circle(radius=0.5))")
         if process is None:
@@ -131,6 +137,10 @@ class Material:
         self.mode = check_choice("mode", mode, MODES)
         self.albedo = check_range("albedo", albedo, 0.0, 1.0)
         self.use_cache = bool(use_cache)
+        if substrate is not None and not isinstance(substrate, GlassPane):
+            raise CoronaError(f"substrate={substrate!r} is not a corona substrate "
+                              "(None or corona.GlassPane(ior=1.52, side='front'))")
+        self.substrate = substrate
         process.validate(shape)
         fa = float(process.area_fraction(shape))
         if not (0.0 < fa < 1.0):
@@ -140,8 +150,9 @@ class Material:
         _warn_if_small(shape)
 
     def __repr__(self):
+        pane = "" if self.substrate is None else f", substrate={self.substrate!r}"
         return (f"Material({self.shape!r}, {self.process!r}, mode={self.mode!r}, "
-                f"albedo={self.albedo:g})")
+                f"albedo={self.albedo:g}{pane})")
 
     # ------------------------------------------------------------------
     # scalars
@@ -519,6 +530,188 @@ class Material:
         t = self.table
         pu = t.pdf(np.hypot(u[..., 0], u[..., 1])) if self.isotropic else t.pdf(u)
         return pu * (2 * np.pi * self.length_scale / lam) ** 2
+
+    # ------------------------------------------------------------------
+    # the whole BSDF: the layer, alone or on its pane (docs/substrate.md)
+    # ------------------------------------------------------------------
+    def _pane(self, cos_theta):
+        """(R', T') of the substrate at |cos θ|: (0, 1) without one."""
+        c = np.asarray(cos_theta, dtype=np.float64)
+        r = np.zeros_like(c) if self.substrate is None else self.substrate.reflectance(c)
+        return r, 1.0 - r
+
+    def _layer_first(self, cos_theta_i):
+        """True where light from ``wi`` meets the layer before the pane (always without one)."""
+        c = np.asarray(cos_theta_i, dtype=np.float64)
+        return np.ones(c.shape, bool) if self.substrate is None else self.substrate.layer_first(c)
+
+    def coherent_transmission(self, cos_theta_i) -> np.ndarray:
+        """Weight of the delta transmission along ``-wi``: ``C T'(θi)``.
+
+        ``C`` is :attr:`coherent_transmittance`, ``T'`` the pane's
+        transmittance (1 without a substrate); ``cos_theta_i`` is signed
+        (+: light from the +z side).  The pane does not deflect the beam, and
+        the layer has no specular reflection, so this path is exact.
+        """
+        _, t = self._pane(cos_theta_i)
+        return self.coherent_transmittance * t
+
+    def specular_reflection(self, cos_theta_i) -> np.ndarray:
+        """Weight of the delta reflection (the mirror direction of ``wi``).
+
+        0 without a substrate; ``C² R'(θi)`` when the light meets the layer
+        first (through the layer coherently, off the pane, back through the
+        layer coherently); ``R'(θi)`` when it meets the glass first.
+        ``R' = 2R/(1 + R)`` is the thin pane's reflectance
+        (:meth:`corona.GlassPane.reflectance`).
+        """
+        r, _ = self._pane(cos_theta_i)
+        c = self.coherent_transmittance
+        return np.where(self._layer_first(cos_theta_i), c * c * r, r)
+
+    def eval(self, wi, wo, wavelength) -> np.ndarray:
+        """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``.
+
+        Parameters
+        ----------
+        wi, wo : array (..., 3)
+            Unit vectors in the layer's frame (z the normal), ``wi`` towards
+            where the light comes from (Mitsuba's convention).
+        wavelength : float or array
+            Wavelength [nm].
+
+        Notes
+        -----
+        With ``f(d)`` the lobe (:meth:`lobe`, ``d = (wo + wi).xy``), ``C`` the
+        coherent transmittance, ``ρ`` the opaque part's :attr:`reflectance`
+        and ``R'``, ``T' = 1 - R'`` the pane's reflectance and transmittance
+        at ``θi`` or ``θo`` (``R' = 0`` without a substrate):
+
+        ==================  ===============================  =====================
+        component           light meets the layer first      meets the glass first
+        ==================  ===============================  =====================
+        lobe, transmitted   ``f T'(θo)``                     ``T'(θi) f``
+        lobe, reflected     ``C f [R'(θi) + R'(θo)]``        0
+        diffuse reflection  ``ρ / π``                        ``T'(θi) ρ/π T'(θo)``
+        ==================  ===============================  =====================
+
+        The delta parts are :meth:`coherent_transmission` and
+        :meth:`specular_reflection`.  Paths that meet the layer again after a
+        reflection off the pane are kept only where they cross the layer
+        coherently once (the reflected lobe); ``docs/substrate.md`` lists what
+        is dropped.  Every entry is symmetric under ``wi ↔ wo`` with the sides
+        swapped (reciprocity).
+        """
+        wi = check_finite_array("wi", wi)
+        wo = check_finite_array("wo", wo)
+        if wi.shape[-1:] != (3,) or wo.shape[-1:] != (3,):
+            raise CoronaError(f"wi and wo must have shape (..., 3), got {wi.shape} and {wo.shape}")
+        wi, wo = np.broadcast_arrays(wi, wo)
+        ci, co = wi[..., 2], wo[..., 2]
+        transmit = ci * co < 0
+        reflect = ci * co > 0
+        first = self._layer_first(ci)
+        ri, ti = self._pane(ci)
+        ro, to = self._pane(co)
+        f = self.lobe(wi[..., :2] + wo[..., :2], wavelength)
+        c = self.coherent_transmittance
+        lobe_t = f * np.where(first, to, ti)
+        lobe_r = f * np.where(first, c * (ri + ro), 0.0)
+        diffuse = self.reflectance / np.pi * np.where(first, 1.0, ti * to)
+        value = np.where(transmit, lobe_t, 0.0) + np.where(reflect, lobe_r + diffuse, 0.0)
+        return value * np.abs(co)
+
+    def _lobe_integrals(self, wavelength: float, wi_xy, weights, n_phi: int = 512) -> list:
+        """``∫ f(d) g(|cos θo|) d²d`` over the propagating ``|d - wi.xy| <= 1`` for each g.
+
+        The lobe is the tabulated one (what the renderer evaluates):
+        isotropic tables on their radial grid × ``n_phi`` azimuths, 2D tables
+        on their vertices with trapezoid weights.
+        """
+        t = self.table
+        lam = float(self._wavelength(wavelength))
+        d_per_u = lam / (2 * np.pi * self.length_scale)
+        wx, wy = float(wi_xy[0]), float(wi_xy[1])
+        out = np.zeros(len(weights))
+        scale = self.lobe_weight / (4 * np.pi**2)
+
+        def accumulate(dx, dy, w):   # w: table weight × measure of each point
+            ox, oy = dx - wx, dy - wy
+            r2 = ox * ox + oy * oy
+            inside = r2 <= 1.0
+            co = np.sqrt(np.maximum(0.0, 1.0 - r2))
+            for k, g in enumerate(weights):
+                out[k] += np.sum(w * np.where(inside, g(co), 0.0))
+
+        if self.isotropic:
+            u_reach = (1.0 + np.hypot(wx, wy)) / d_per_u
+            n = min(t.values.size, int(np.ceil(u_reach / t.du)) + 2)
+            u = np.arange(n) * t.du
+            vals = t.values[:n]
+            trap = np.full(n, t.du)
+            trap[0] = trap[-1] = 0.5 * t.du
+            phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
+            cp, sp = np.cos(phi), np.sin(phi)
+            for lo in range(0, n, 2048):
+                uu = u[lo:lo + 2048, None]
+                w = (vals[lo:lo + 2048] * uu[:, 0] * trap[lo:lo + 2048])[:, None] * (2 * np.pi / n_phi)
+                accumulate(uu * d_per_u * cp, uu * d_per_u * sp, np.broadcast_to(w, (uu.shape[0], n_phi)))
+        else:
+            c = t.centres()
+            edge = np.ones(t.n)
+            edge[0] = edge[-1] = 0.5
+            ux, uy = np.meshgrid(c, c, indexing="xy")
+            accumulate(ux * d_per_u, uy * d_per_u, t.values * np.outer(edge, edge) * t.cell**2)
+        return list(out * scale)
+
+    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0) -> dict:
+        """Energy of each component for light arriving from ``wi`` (the white furnace).
+
+        Parameters
+        ----------
+        cos_theta_i : float in [-1, 1], not 0
+            Signed cosine of ``wi`` (+: from the +z side).
+        wavelength : float
+            Wavelength [nm].
+        phi_i : float
+            Azimuth of ``wi`` [rad] (matters for anisotropic lobes).
+
+        Returns
+        -------
+        dict with ``coherent``, ``specular``, ``lobe_transmission``,
+        ``lobe_reflection``, ``diffuse`` and their ``total`` (<= 1): the
+        integrals over ``wo`` of the components of :meth:`eval` plus the delta
+        weights, the lobes integrated numerically from the table.
+        """
+        ci = check_range("cos_theta_i", cos_theta_i, -1.0, 1.0)
+        if ci == 0.0:
+            raise CoronaError("cos_theta_i=0 is out of range; allowed [-1, 0) or (0, 1] (grazing light "
+                              "carries no energy)")
+        s = np.sqrt(max(0.0, 1.0 - ci * ci))
+        wi_xy = (s * np.cos(phi_i), s * np.sin(phi_i))
+        first = bool(self._layer_first(ci))
+        ri, ti = (float(x) for x in self._pane(ci))
+        c = self.coherent_transmittance
+
+        def pane_r(co):
+            return self._pane(co)[0]
+
+        plain, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_r])
+        out = {"coherent": c * ti, "specular": float(self.specular_reflection(ci))}
+        if first:
+            out["lobe_transmission"] = plain - reflected            # ∫ f T'(θo)
+            out["lobe_reflection"] = c * (ri * plain + reflected)   # ∫ C f [R'(θi) + R'(θo)]
+            out["diffuse"] = self.reflectance
+        else:
+            out["lobe_transmission"] = ti * plain
+            out["lobe_reflection"] = 0.0
+            # ∫ T'(θi) ρ/π T'(θo) cos θo dω = T'(θi) ρ 2∫₀¹ T'(μ) μ dμ
+            mu, w = np.polynomial.legendre.leggauss(64)
+            mu, w = 0.5 * (mu + 1.0), 0.5 * w
+            out["diffuse"] = ti * self.reflectance * float(2.0 * np.sum(w * mu * self._pane(mu)[1]))
+        out = {k: float(v) for k, v in out.items()}
+        out["total"] = sum(out.values())
+        return out
 
 
 def _warn_if_small(shape) -> None:

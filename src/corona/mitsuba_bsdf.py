@@ -12,9 +12,50 @@ Parameters (all optional; the one specification is :data:`corona.parameters.PARA
 
 Components: 0 = coherent transmission (``DeltaTransmission``), 1 = diffraction
 lobe (``GlossyTransmission``), 2 = diffuse reflection (``DiffuseReflection``,
-weight 0 when ``albedo`` is 0).  The layer is two-sided and symmetric.
-``mi.traverse`` exposes ``albedo``; the lobe's parameters fix its tables, so
-change them by loading a new BSDF.
+weight 0 when ``albedo`` is 0).  Without a substrate the layer is two-sided
+and symmetric.
+
+With ``substrate=glass`` the layer sits on a thin non-absorbing pane (index
+``substrate_ior``, default 1.52) on its ``substrate_side`` face, and two
+components are added: 3 = the pane's specular reflection
+(``DeltaReflection``) and 4 = the lobe seen in reflection
+(``GlossyReflection``: light that crosses the layer once coherently and once
+scattered, with a reflection off the pane in between).  The pane reflects
+``R' = 2R/(1 + R)`` of what reaches it (``R`` the polarisation-averaged
+Fresnel reflectance of one face, the internal bounces summed, as Mitsuba's
+``thindielectric``) and transmits ``T' = 1 - R'`` undeviated.  With ``C`` the
+coherent weight, ``f`` the lobe, ``ρ`` the opaque part's reflectance:
+
+=====================  =================================  =========================
+component              light meets the layer first        light meets the glass first
+=====================  =================================  =========================
+coherent transmission  ``C T'(θi)``                       ``T'(θi) C``
+lobe                   ``f T'(θo)``                       ``T'(θi) f``
+diffuse reflection     ``ρ/π``                            ``T'(θi) ρ/π T'(θo)``
+specular reflection    ``C² R'(θi)``                      ``R'(θi)``
+lobe in reflection     ``C f [R'(θi) + R'(θo)]``          0
+=====================  =================================  =========================
+
+Paths that meet the layer a second time after a reflection off the pane are
+dropped unless they are one of the above (the scattered-twice paths, and
+light the pane returns onto the layer's opaque part), so the layer on glass
+reflects plus transmits at most what the layer alone would: the white
+furnace stays <= 1.  ``docs/substrate.md`` lists the approximations.
+
+Textures: ``area_fraction``, ``radius`` and ``albedo`` take a float or any
+Mitsuba texture, evaluated at the shading point.  ``mi.traverse`` exposes
+``area_fraction.value``, ``radius.value`` and ``albedo.value`` of a uniform
+layer (a texture: its own keys), all differentiable; ``params.update()``
+re-renders without recompiling.  ``radius`` scales the whole layer (the
+scatterer, the exclusion diameter, edge width and jitter together, σ/R
+fixed: lengths given in µm belong to the largest radius at load), so the
+dimensionless table is unchanged and the lobe stays exact.  The lobe is
+tabulated in rows of ``F_a`` (the texture's range; a uniform value ± 0.1)
+close enough that interpolating linearly between two rows changes it by at
+most 0.1 % (:meth:`corona.Material.area_fraction_rows`), and sampled as the
+mixture of the two rows with the same weights, which is also the pdf.
+``lattice-*`` and ``points`` (whose geometry F_a sets) take no F_a texture;
+``mask``, ``mixture`` and ``points`` (absolute sizes) no radius texture.
 
 Spectral variants evaluate each of the lane's wavelengths.  Sampling picks
 one of the lane's wavelengths at random (each with probability 1/n, reusing
@@ -174,6 +215,13 @@ class CoronaBSDFMixin:
         self.radius_ref = ranges[1][1]
         self._setup(*ranges)
 
+        # --- the pane under the layer (docs/substrate.md) ----------------------
+        pane = self.material.substrate
+        self.has_pane = pane is not None
+        if self.has_pane:
+            self.eta = float(pane.ior)
+            self.layer_on_front = pane.side == "front"
+
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
             lam, w = _channel_response()
@@ -185,10 +233,15 @@ class CoronaBSDFMixin:
         comps = [mi.BSDFFlags.DeltaTransmission | sides,
                  mi.BSDFFlags.GlossyTransmission | sides,
                  mi.BSDFFlags.DiffuseReflection | sides]   # weight 0 where albedo = 0
-        if self._textured:
-            comps = [c | mi.BSDFFlags.SpatiallyVarying for c in comps]
+        if self.has_pane:
+            comps.append(mi.BSDFFlags.DeltaReflection | sides)   # 3: the pane's mirror image
+            comps.append(mi.BSDFFlags.GlossyReflection | sides)  # 4: the lobe seen in reflection
         if not self.isotropic:
             comps[1] = comps[1] | mi.BSDFFlags.Anisotropic
+            if self.has_pane:
+                comps[4] = comps[4] | mi.BSDFFlags.Anisotropic
+        if self._textured:
+            comps = [c | mi.BSDFFlags.SpatiallyVarying for c in comps]
         self.m_components = comps
         flags = mi.BSDFFlags.Empty
         for c in comps:
@@ -482,14 +535,41 @@ class CoronaBSDFMixin:
         lams = [mi.Float(float(lam)) for lam in self.channel_lambdas.ravel()]
         return lams, [1.0 / len(lams)] * len(lams)
 
-    def _selection(self, ctx, layer):
-        """Per-lane probabilities of (coherent, lobe, reflection) honouring the context."""
+    def _pane_reflectance(self, cos_theta):
+        """``R' = 2R / (1 + R)``: the thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``)."""
+        r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
+        return r * 2.0 / (1.0 + r)
+
+    def _layer_first(self, cos_i):
+        """True where light from ``wi`` meets the layer before the pane."""
+        return (cos_i > 0) if self.layer_on_front else (cos_i < 0)
+
+    def _delta_weights(self, layer, cos_i):
+        """Weights of the coherent transmission and of the specular reflection (pane only)."""
+        r_i = self._pane_reflectance(cos_i)
+        c = layer["coherent"]
+        return c * (1.0 - r_i), dr.select(self._layer_first(cos_i), c * c * r_i, r_i)
+
+    def _selection(self, ctx, layer, cos_i=None):
+        """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
+        honouring the context: each component's energy, roughly for the lobes."""
         flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
                  mi.BSDFFlags.DiffuseReflection)
-        energies = (layer["coherent"], layer["lobe"], layer["reflect"])
+        if not self.has_pane:
+            energies = (layer["coherent"], layer["lobe"], layer["reflect"])
+        else:
+            flags += (mi.BSDFFlags.DeltaReflection, mi.BSDFFlags.GlossyReflection)
+            first = self._layer_first(cos_i)
+            t_i = 1.0 - self._pane_reflectance(cos_i)
+            w_coh, w_spec = self._delta_weights(layer, cos_i)
+            energies = (w_coh, layer["lobe"] * t_i,
+                        dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
+                        dr.select(first, 2.0 * layer["coherent"] * layer["lobe"] * (1.0 - t_i), 0.0))
         en = [e if ctx.is_enabled(fl, i) else mi.Float(0.0)
               for i, (e, fl) in enumerate(zip(energies, flags))]
-        total = en[0] + en[1] + en[2]
+        total = en[0]
+        for e in en[1:]:
+            total = total + e
         inv = dr.select(total > 0, 1.0 / dr.maximum(total, 1e-30), 0.0)
         return tuple(e * inv for e in en)
 
@@ -504,18 +584,31 @@ class CoronaBSDFMixin:
         reflect = active & (cos_i * cos_o > 0)
         if layer is None:
             layer = self._layer(si, active)
-        p_coh, p_lobe, p_refl = self._selection(ctx, layer)
+        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
         lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
 
-        f, pdf_d = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, transmit)
+        lobe_sides = (transmit | reflect) if self.has_pane else transmit   # the pane: the lobe in reflection
+        f, pdf_d = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, lobe_sides)
         abs_cos_o = dr.abs(cos_o)
-        value = dr.select(transmit & lobe_on, f * abs_cos_o, 0.0)        # eval = f |cos θo|
+        lobe = f * abs_cos_o                                              # eval = f |cos θo|
+        diffuse = layer["reflect"] * dr.inv_pi * abs_cos_o
+        if self.has_pane:   # Fresnel factors of the pane (module docstring's table)
+            first = self._layer_first(cos_i)
+            r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
+            lobe_reflected = lobe * dr.select(first, layer["coherent"] * (r_i + r_o), 0.0)
+            lobe = lobe * dr.select(first, 1.0 - r_o, 1.0 - r_i)
+            diffuse = diffuse * dr.select(first, 1.0, (1.0 - r_i) * (1.0 - r_o))
+        value = dr.select(transmit & lobe_on, lobe, 0.0)
         if self.sampling == "cosine":
             pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
         pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
-        value += dr.select(reflect & refl_on, layer["reflect"] * dr.inv_pi * abs_cos_o, 0.0)
+        value += dr.select(reflect & refl_on, diffuse, 0.0)
         pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
+        if self.has_pane:
+            rlobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
+            value += dr.select(reflect & rlobe_on, lobe_reflected, 0.0)
+            pdf += dr.select(reflect, p_pane[1] * pdf_d * abs_cos_o, 0.0)
         return value, pdf
 
     def eval(self, ctx, si, wo, active=True):
@@ -532,10 +625,19 @@ class CoronaBSDFMixin:
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
         layer = self._layer(si, active)
-        p_coh, p_lobe, p_refl = self._selection(ctx, layer)
+        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
         pick_coh = active & (sample1 < p_coh)
         pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
-        pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
+        if self.has_pane:   # after the reflection: 3 specular, 4 the lobe in reflection
+            p_spec, p_rlobe = p_pane
+            c3 = p_coh + p_lobe + p_refl
+            c4 = c3 + p_spec
+            pick_rlobe = active & (sample1 >= c4) & (p_rlobe > 0)
+            pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_rlobe <= 0)) & (p_spec > 0)
+            pick_refl = (active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
+                         & ((sample1 < c3) | ((p_spec <= 0) & (p_rlobe <= 0))))
+        else:
+            pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
 
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
@@ -547,13 +649,21 @@ class CoronaBSDFMixin:
         if self.sampling == "cosine":   # lobe: the same warp, mirrored to the far side
             wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
             lobe_valid = pick_lobe & (wo_cos.z > 0)
+            if self.has_pane:           # the lobe in reflection: the warp itself
+                wo_rlobe = wo_refl
+                rlobe_valid = pick_rlobe & (wo_cos.z > 0)
         else:
             # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
             # sample1's position inside the lobe's share picks the wavelength (equal weights)
             # and what is left of it the row (j with probability 1 - t, j + 1 with t)
             lams, _ = self._wavelength_mixture(si.wavelengths)
             n_lam = len(lams)
-            s = dr.clip((sample1 - p_coh) / dr.maximum(p_lobe, 1e-30), 0.0, 0.99999994) * n_lam
+            s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
+            pick_any_lobe = pick_lobe
+            if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
+                s = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s)
+                pick_any_lobe = pick_lobe | pick_rlobe
+            s = dr.clip(s, 0.0, 0.99999994) * n_lam
             pick = dr.minimum(mi.UInt32(s), n_lam - 1)
             hero = lams[-1]
             for q in range(n_lam - 2, -1, -1):
@@ -562,7 +672,7 @@ class CoronaBSDFMixin:
             row = layer["j"]
             if self.n_rows > 1 and self.isotropic:
                 row = dr.select(s - mi.Float(pick) >= 1.0 - layer["t"], row + 1, row)
-            u = self._sample_u(sample2, row, layer["fa"], pick_lobe)
+            u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
             d = u * (lam / (2.0 * dr.pi * layer["L"]))
             ox = d.x - wi.x
             oy = d.y - wi.y
@@ -570,6 +680,9 @@ class CoronaBSDFMixin:
             oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
             wo_lobe = mi.Vector3f(ox, oy, oz)
             lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
+            if self.has_pane:
+                wo_rlobe = mi.Vector3f(ox, oy, -oz)
+                rlobe_valid = pick_rlobe & (r2 < 1.0) & (oz != 0)
 
         bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0),
@@ -579,11 +692,30 @@ class CoronaBSDFMixin:
             dr.select(pick_lobe, mi.UInt32(+mi.BSDFFlags.GlossyTransmission),
                       mi.UInt32(+mi.BSDFFlags.DiffuseReflection)))
 
-        value, pdf = self._eval_pdf(ctx, si, bs.wo, (lobe_valid | pick_refl), layer)
+        smooth = lobe_valid | pick_refl
+        pick_delta = pick_coh
+        if self.has_pane:
+            bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z),      # mirror of wi
+                              dr.select(pick_rlobe, wo_rlobe, bs.wo))
+            bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
+                                             dr.select(pick_rlobe, mi.UInt32(4), bs.sampled_component))
+            bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
+                                        dr.select(pick_rlobe, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                                  bs.sampled_type))
+            smooth = smooth | rlobe_valid
+            pick_delta = pick_coh | pick_spec
+
+        value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, layer)
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
         weight = value / dr.select(pdf > 0, pdf, 1.0)                    # no 0/0 (scalar variants too)
-        weight = dr.select(pick_coh, layer["coherent"] / dr.maximum(p_coh, 1e-30), weight)
-        ok = pick_coh | ((lobe_valid | pick_refl) & (bs.pdf > 0))
+        if self.has_pane:
+            w_coh, w_spec = self._delta_weights(layer, cos_i)
+            bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
+            weight = dr.select(pick_spec, w_spec / dr.maximum(p_spec, 1e-30), weight)
+        else:
+            w_coh = layer["coherent"]
+        weight = dr.select(pick_coh, w_coh / dr.maximum(p_coh, 1e-30), weight)
+        ok = pick_delta | (smooth & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
     def traverse(self, callback):

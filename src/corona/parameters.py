@@ -98,6 +98,8 @@ ORIENTATIONS = ("fixed", "random")
 SIZE_DISTRIBUTIONS = ("lognormal", "schulz")
 MODES = ("aperture", "particle")
 SAMPLINGS = ("lobe", "cosine")
+SUBSTRATES = ("none", "glass")
+SUBSTRATE_SIDES = ("front", "back")
 MAX_SIDES = 100_000
 
 #: Every parameter of a corona layer, in the order of the tables.
@@ -133,6 +135,13 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("albedo", "float", "", 0.0, "diffuse reflectance of the opaque part", low=0.0, high=1.0),
     Parameter("mixture", "string", "", None, "shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (radius µm, "
               "number weights; decoupling approximation)"),
+    Parameter("substrate", "choice", "", "none", "none, or glass: the layer sits on a thin "
+              "non-absorbing pane (Fresnel reflection of both faces, thin-slab inter-reflections)",
+              SUBSTRATES),
+    Parameter("substrate_ior", "float", "", None, "index of refraction of the pane (substrate=glass); "
+              "default 1.52", low=1.0, high_open=True),
+    Parameter("substrate_side", "choice", "", "front", "face of the pane that carries the layer: front "
+              "(+z, where the shading normal points) or back (-z)", SUBSTRATE_SIDES),
     Parameter("sampling", "choice", "", "lobe", "how the lobe is sampled: lobe (T_a T_s exactly) or "
               "cosine (for comparisons only)", SAMPLINGS, plugin_only=True),
 )
@@ -310,9 +319,11 @@ def material_from_parameters(**params):
     if unknown:
         raise CoronaError(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
     p = {**DEFAULTS, **{k: SPEC[k].check(v) for k, v in params.items() if v is not None}}
+    from .substrate import make_substrate
+    substrate = make_substrate(p["substrate"], p["substrate_ior"], p["substrate_side"])
     shape = make_shape(p)
     process = make_process(p, shape)
-    return Material(shape, process, mode=p["mode"], albedo=p["albedo"])
+    return Material(shape, process, mode=p["mode"], albedo=p["albedo"], substrate=substrate)
 
 
 if __name__ == "__main__":   # python -m corona.parameters: the README's table

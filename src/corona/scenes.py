@@ -1,8 +1,51 @@
-"""Scene dictionaries for ``mi.load_dict`` (used by the demo, tests and benchmarks).
+"""Scene dictionaries for ``mi.load_dict`` (used by the demo, tests and benchmarks),
+and black-body emitters that every Mitsuba variant renders.
 
 Units of the scene are metres; the corona BSDF's own lengths stay in µm.
+
+Mitsuba's ``blackbody`` spectrum renders in spectral variants only; a
+spectrum given as wavelength:value pairs is used as such by spectral
+variants and converted to linear sRGB (against the CIE 1931 matching
+functions, like a spectral render) by the RGB and mono variants.  The scenes
+of ``scenes/`` give their lamps that way (:func:`blackbody_text`).
 """
 from __future__ import annotations
+
+import numpy as np
+
+#: Wavelengths [nm] at which black bodies are listed: Mitsuba's visible range in 10 nm steps.
+BLACKBODY_WAVELENGTHS = np.arange(360.0, 831.0, 10.0)
+
+
+def blackbody_radiance(temperature: float, wavelength=BLACKBODY_WAVELENGTHS) -> np.ndarray:
+    """Planck's law, spectral radiance [W / (m² sr nm)] (the unit of Mitsuba's ``blackbody``).
+
+    ``B(λ, T) = 2 h c² / λ⁵ / (exp(h c / (λ k T)) - 1)``, with λ in m, times
+    1e-9 per nm (M. Planck, 1901; CODATA constants from :mod:`scipy.constants`).
+    """
+    from scipy.constants import Boltzmann, Planck, speed_of_light
+    from ._validation import check_positive
+    t = check_positive("temperature", temperature, "K")
+    lam = np.asarray(wavelength, dtype=np.float64) * 1e-9
+    hc = Planck * speed_of_light
+    return 1e-9 * 2 * hc * speed_of_light / lam**5 / np.expm1(hc / (lam * Boltzmann * t))
+
+
+def blackbody_text(temperature: float, scale: float = 1.0, per_line: int = 6, indent: str = "") -> str:
+    """The ``value`` of ``<spectrum name="radiance" value="..."/>`` for a black body:
+    ``"360:32.27, 370:..., ..."`` (4 significant digits, :data:`BLACKBODY_WAVELENGTHS`),
+    times ``scale`` (a lamp brighter or dimmer than a black body of its colour)."""
+    values = scale * blackbody_radiance(temperature)
+    pairs = [f"{lam:g}:{v:.4g}" for lam, v in zip(BLACKBODY_WAVELENGTHS, values)]
+    lines = [", ".join(pairs[i:i + per_line]) for i in range(0, len(pairs), per_line)]
+    return (",\n" + indent).join(lines)
+
+
+def blackbody_spectrum(temperature: float) -> dict:
+    """A black body for ``mi.load_dict`` that renders in spectral, RGB and mono variants."""
+    return {"type": "spectrum",
+            "value": [(float(lam), float(v))
+                      for lam, v in zip(BLACKBODY_WAVELENGTHS, blackbody_radiance(temperature))]}
 
 
 def street_light_scene(resolution: int = 256, bsdf: dict | None = None, *, fov: float = 20.0,
@@ -48,7 +91,6 @@ def street_light_scene(resolution: int = 256, bsdf: dict | None = None, *, fov: 
         "pane": {"type": "rectangle", "to_world": pane_to_world, "bsdf": bsdf},
         "light": {
             "type": "sphere", "center": [0, 0, light_distance], "radius": light_radius,
-            "emitter": {"type": "area",
-                        "radiance": {"type": "blackbody", "temperature": temperature}},
+            "emitter": {"type": "area", "radiance": blackbody_spectrum(temperature)},
         },
     }

@@ -1,0 +1,148 @@
+"""Brute force for a layer on a glass pane: a Monte Carlo random walk through the stack.
+
+:class:`corona.Material` with a substrate (``docs/substrate.md``) keeps the
+paths that cross the layer at most twice with at most one scattering event,
+and drops the rest.  This walk follows every path, to any order, with the
+layer's and the pane's own statistics only:
+
+* the layer (either side): reflects diffusely with probability ``ρ``
+  (:attr:`~corona.Material.reflectance`, Lambertian), passes coherently with
+  ``C`` (:attr:`~corona.Material.coherent_transmittance`), scatters into the
+  lobe with the lobe's plane integral (:meth:`~corona.Material.sample`: the
+  table; evanescent draws ``|wo.xy| > 1`` are lost), and absorbs the rest;
+* the pane: reflects specularly with ``R'(θ)``
+  (:meth:`corona.GlassPane.reflectance`) and transmits otherwise.
+
+It sorts the escaping energy by path (how many scatterings, how many
+reflections off the pane), so that each component of the model can be
+compared with the paths it stands for, and the energy the model drops is
+measured.  Numpy only (no extra needed).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import CoronaError
+
+#: The model's components and the paths they stand for.
+CLASSES = ("coherent", "specular", "lobe_transmission", "lobe_reflection", "diffuse", "dropped")
+
+
+def random_walk(material, cos_theta_i: float, wavelength: float = 550.0, n: int = 200_000,
+                seed: int = 0, max_events: int = 64) -> dict:
+    """Energy leaving the layer-on-glass stack, sorted by path, for light from ``wi``.
+
+    Parameters
+    ----------
+    material : corona.Material
+        With a :class:`corona.GlassPane` substrate.
+    cos_theta_i : float, signed
+        Cosine of ``wi`` in the layer's frame (+: from the +z side); ``wi``
+        has azimuth 0.
+    wavelength : float
+        [nm].
+    n : int
+        Photons.
+    max_events : int
+        Interactions followed per photon (what is still inside then counts
+        as absorbed; its share is returned as ``unfinished``).
+
+    Returns
+    -------
+    dict: the energy (fraction of the photons) per class of :data:`CLASSES`
+    (``dropped``: escaping paths the model leaves out), ``reflected`` and
+    ``transmitted`` (all escaping paths, on the side of ``wi`` or not),
+    ``unfinished``, and ``sigma`` (the binomial standard error of a class
+    holding a fraction p is ``sqrt(p (1 - p) / n)``; this is the largest).
+    """
+    pane = material.substrate
+    if pane is None:
+        raise CoronaError("random_walk needs a material with a substrate (corona.GlassPane)")
+    rng = np.random.default_rng(seed)
+    rho = material.reflectance
+    c = material.coherent_transmittance
+    d_plane = float(material.diffuse_transmittance())
+    if rho + c + d_plane > 1.0 + 1e-9:
+        raise CoronaError(f"layer energies sum to {rho + c + d_plane:g} > 1")
+    # Work in a frame where the layer lies above the pane: "up" (+z') is the
+    # layer's outside.  Light meeting the layer first comes from above.
+    ci = float(cos_theta_i)
+    first = bool(pane.layer_first(ci))
+    s = np.sqrt(max(0.0, 1.0 - ci * ci))
+    dirs = np.tile([-s, 0.0, -abs(ci) if first else abs(ci)], (n, 1))   # travel direction
+    # next element: 0 layer, 1 pane, 2 escaped above (layer side), 3 escaped below, 4 absorbed
+    nxt = np.full(n, 0 if first else 1)
+    lobes = np.zeros(n, int)        # scatterings into the lobe
+    diffuse = np.zeros(n, int)      # diffuse reflections off the layer
+    pane_r = np.zeros(n, int)       # reflections off the pane
+    layer_hits = np.zeros(n, int)
+    for _ in range(max_events):
+        at_l = np.flatnonzero(nxt == 0)
+        at_p = np.flatnonzero(nxt == 1)
+        if at_l.size == 0 and at_p.size == 0:
+            break
+        # --- the pane ---------------------------------------------------------
+        if at_p.size:
+            d = dirs[at_p]
+            refl = rng.random(at_p.size) < pane.reflectance(d[:, 2])
+            d[refl, 2] *= -1.0
+            dirs[at_p] = d
+            pane_r[at_p] += refl
+            up = d[:, 2] > 0
+            nxt[at_p] = np.where(up, 0, 3)           # up: back to the layer; down: out below
+        # --- the layer --------------------------------------------------------
+        if at_l.size:
+            d = dirs[at_l]
+            layer_hits[at_l] += 1
+            x = rng.random(at_l.size)
+            is_diffuse = x < rho
+            is_lobe = (x >= rho) & (x < rho + d_plane)
+            is_absorbed = x >= rho + d_plane + c
+            # diffuse reflection: cosine-weighted, back towards where it came from
+            k = np.flatnonzero(is_diffuse)
+            if k.size:
+                r2 = rng.random(k.size)
+                phi = 2 * np.pi * rng.random(k.size)
+                z = np.sqrt(1.0 - r2)
+                sign = -np.sign(d[k, 2])
+                d[k] = np.stack([np.sqrt(r2) * np.cos(phi), np.sqrt(r2) * np.sin(phi), sign * z], -1)
+                diffuse[at_l[k]] += 1
+            # the lobe: d_lobe = (wo + wi).xy with wi = -travel direction
+            k = np.flatnonzero(is_lobe)
+            if k.size:
+                dl = material.sample(rng.random((k.size, 2)), wavelength)
+                oxy = dl + d[k, :2]
+                r2 = np.sum(oxy * oxy, -1)
+                ok = r2 < 1.0
+                oz = np.sign(d[k, 2]) * np.sqrt(np.maximum(0.0, 1.0 - r2))
+                d[k] = np.concatenate([oxy, oz[:, None]], -1)
+                lobes[at_l[k]] += 1
+                is_absorbed[k[~ok]] = True
+            dirs[at_l] = d
+            up = d[:, 2] > 0
+            nxt[at_l] = np.where(is_absorbed, 4, np.where(up, 2, 1))   # down: on to the pane
+    unfinished = float(np.mean((nxt == 0) | (nxt == 1)))
+    # the side of wi: above for layer-first light, below for glass-first light
+    out_refl = nxt == (2 if first else 3)
+    out_trans = nxt == (3 if first else 2)
+    one_layer = layer_hits == 1
+    classes = {
+        "coherent": out_trans & (lobes == 0) & (diffuse == 0) & (pane_r == 0) & one_layer,
+        "specular": out_refl & (lobes == 0) & (diffuse == 0) & (pane_r == 1)
+                    & (layer_hits == (2 if first else 0)),
+        "lobe_transmission": out_trans & (lobes == 1) & (diffuse == 0) & (pane_r == 0) & one_layer,
+        "lobe_reflection": out_refl & (lobes == 1) & (diffuse == 0) & (pane_r == 1)
+                           & (layer_hits == 2) & first,
+        "diffuse": out_refl & (lobes == 0) & (diffuse == 1) & (pane_r == 0) & one_layer,
+    }
+    out = {k: float(np.mean(v)) for k, v in classes.items()}
+    kept = np.zeros(n, bool)
+    for v in classes.values():
+        kept |= v
+    out["dropped"] = float(np.mean((out_refl | out_trans) & ~kept))
+    out["reflected"] = float(np.mean(out_refl))
+    out["transmitted"] = float(np.mean(out_trans))
+    out["unfinished"] = unfinished
+    p = max(out[k] for k in CLASSES)
+    out["sigma"] = float(np.sqrt(max(p * (1 - p), 1.0 / n) / n))
+    return out
