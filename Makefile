@@ -13,11 +13,11 @@ BENCH_ARGS ?=
 all: test
 
 # The virtual environment, created and filled idempotently: the runtime plus
-# the reference tier and the test tools (a plain `pip install .` is the light runtime).
+# the reference tier, the sweep executor (Dask) and the test tools (a plain `pip install .` is the light runtime).
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[reference,test]'
+	$(PY) -m pip install -q -e '.[reference,sweep,test]'
 	@touch $(STAMP)
 
 venv: $(STAMP) llvm
