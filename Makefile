@@ -33,6 +33,7 @@ test: venv
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
+# (the panels render as the points of one sweep on a local Dask cluster: corona.sweep)
 gallery: venv
 	$(PY) scripts/gallery.py
 	$(PY) scripts/demo.py out/demo --update-docs

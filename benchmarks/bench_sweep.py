@@ -82,6 +82,9 @@ def main():
     ap.add_argument("--noop", type=int, default=64, help="empty tasks for the overhead")
     args = ap.parse_args()
     from common import write
+
+    from corona.render import setup_variant
+    setup_variant()            # the variant the workers pick too (recorded with the machine)
     with tempfile.TemporaryDirectory() as tmp:
         sweep_command(os.path.join(tmp, "warm"), 0, args.res, 4)      # the kernel cache
         runs = {"serial_1_process": [], "cluster_2_workers": []}
