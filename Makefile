@@ -18,11 +18,11 @@ VARIANT ?=
 all: test
 
 # The virtual environment, created and filled idempotently: the runtime plus
-# the reference tier and the test tools (a plain `pip install .` is the light runtime).
+# the reference tier, the sweep executor (Dask) and the test tools (a plain `pip install .` is the light runtime).
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[reference,test]'
+	$(PY) -m pip install -q -e '.[reference,sweep,test]'
 	@touch $(STAMP)
 
 venv: $(STAMP) llvm
@@ -39,6 +39,7 @@ test: venv
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
 # (make gallery VARIANT=llvm_ad_rgb: another Mitsuba variant; default the fastest spectral one)
+# (the panels render as the points of one sweep on a local Dask cluster: corona.sweep)
 gallery: venv
 	$(PY) scripts/gallery.py $(if $(VARIANT),--variant $(VARIANT))
 	$(PY) scripts/demo.py out/demo --update-docs $(if $(VARIANT),--variant $(VARIANT))

@@ -86,6 +86,15 @@ def headline() -> list[str]:
         rows.append(("Brute force to 2 % / model lobe on the same grid",
                      f"{c['seconds']:.1f} s / {c['seconds'] / c['ratio_to_model_warm']:.3f} s = "
                      f"{c['ratio_to_model_warm']:.0f}×", "report"))
+    sw = _load("sweep")
+    if sw:
+        c, se = sw["results"]["cluster_2_workers"], sw["results"]["serial_1_process"]
+        oh = sw["scheduling_overhead"]["cluster_2_workers"]["seconds_per_task"]
+        rows.append((f"Sweep of 8 points ({sw['resolution']}², {sw['spp']} spp): 2-worker local Dask "
+                     "cluster vs one process",
+                     f"{c['command_s']:.1f} s vs {se['command_s']:.1f} s ({c['speedup_command']:.2f}×; "
+                     f"cluster start {c['startup_s']:.1f} s), scheduling {1e3 * oh:.0f} ms per point",
+                     "report (scales out)"))
     g = _load("gpu")
     if g:
         rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else

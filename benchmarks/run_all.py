@@ -19,6 +19,7 @@ FULL = {   # bigger runs: extra arguments per script
     "render": ["--rounds", "5", "--repeats", "5"],
     "sampling": ["--res", "512", "--ref-spp", "8192"],
     "scaling": ["--repeats", "5"],
+    "sweep": ["--rounds", "4", "--res", "256", "--spp", "64"],
     "tables": ["--repeats", "20"],
     "wave": ["--max-m", "512"],
 }

@@ -6,10 +6,16 @@ with a label under each.  The strips go to ``docs/gallery/``, the linear EXRs
 and single PNGs to ``out/gallery/``, and ``docs/gallery.md`` is rewritten
 with every picture and the exact ``corona`` command behind each panel.
 
-    python scripts/gallery.py [--only NAME ...] [--variant V]      (make gallery)
+    python scripts/gallery.py [--only NAME ...] [--variant V] [--workers N | --scheduler ADDRESS]
+                                                                    (make gallery)
+
+The panels are the points of one sweep (:mod:`corona.sweep`): they render on
+a local Dask cluster sized to the machine (``--workers 0``: in this process,
+``--scheduler``: on an existing cluster), and the strips are assembled here.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import os
 import shlex
@@ -207,13 +213,19 @@ def tile(images: list, labels: list, gap: int = 4, band: int = 26):
 
 
 def build(only=None, variant: str | None = None, out_dir: str | None = None,
-          md_path: str | None = None, progress: bool = True, log=print) -> dict:
+          md_path: str | None = None, progress: bool = True, log=print, executor=None) -> dict:
     """Render the strips (all, or the names in ``only``) and rewrite the gallery page.
 
-    Returns ``{"seconds": total, "strips": {name: seconds}, "failed": {name: message}}``.
+    Every panel of every strip is one point of a sweep: they all go to
+    ``executor`` (a :class:`corona.sweep.Executor`: a local Dask cluster, an
+    existing one, or this process) at once; then each strip is exposed,
+    annotated and tiled here.  Returns ``{"seconds": total, "strips": {name:
+    seconds}, "failed": {name: message}}`` (a strip's seconds: the render time
+    of its panels plus its tiling).
     """
     from corona.color import tonemap_srgb
-    from corona.render import load_scene, render_linear, scene_spp, setup_variant, write_images
+    from corona.render import setup_variant, write_images
+    from corona.sweep import Executor, RenderJob, render_jobs
     root = repo_root()
     scenes_dir = os.path.join(root, "scenes")
     if not os.path.isdir(scenes_dir):
@@ -232,9 +244,26 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
     log(f"corona gallery: variant {v}, strips into {out_dir}")
     t_all = time.perf_counter()
     timing, failed, commands = {}, {}, {}
-    for strip in STRIPS:
-        if only and strip.name not in only:
-            continue
+    strips = [s for s in STRIPS if not only or s.name in only]
+    # every panel of every scene strip: one render job (the scene's own spp, seed 0)
+    jobs, where = [], []
+    for strip in strips:
+        for i, panel in enumerate(strip.panels if strip.scene else []):
+            jobs.append(RenderJob(os.path.join(scenes_dir, strip.scene), panel.defines,
+                                  f"{strip.name} {i + 1}/{len(strip.panels)}", variant=v))
+            where.append((strip.name, i))
+    own = executor is None
+    executor = executor or Executor()
+    try:
+        outcomes = render_jobs(jobs, executor, desc="gallery panels", progress=progress)
+        log(f"corona gallery: {len(jobs)} panels rendered, {executor.describe()}")
+    finally:
+        if own:
+            executor.close()
+    panels = collections.defaultdict(dict)
+    for (name, i), o in zip(where, outcomes):
+        panels[name][i] = o
+    for strip in strips:
         t0 = time.perf_counter()
         png = os.path.join(out_dir, f"{strip.name}.png")
         try:
@@ -247,13 +276,12 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
                     raise CoronaError(str(err)) from None
                 commands[strip.name] = [shlex.join(["corona", *args[:-1], os.path.relpath(png, root)])]
             else:
-                path = os.path.join(scenes_dir, strip.scene)
-                rgbs = []
-                for i, panel in enumerate(strip.panels):
-                    scene = load_scene(path, panel.defines)
-                    rgb, _ = render_linear(scene, scene_spp(scene), progress=progress,
-                                           desc=f"{strip.name} {i + 1}/{len(strip.panels)}")
-                    rgbs.append(rgb)
+                res = [panels[strip.name][i] for i in range(len(strip.panels))]
+                bad = [o for o in res if not o.ok]
+                if bad:
+                    raise CoronaError(f"panel {bad[0].label}: {bad[0].error}")
+                rgbs = [o.value["rgb"] for o in res]
+                t0 -= sum(o.value["seconds"] for o in res)
                 exposures = [None] * len(rgbs)
                 if strip.shared_exposure is not None:
                     exposures = [_auto_exposure(rgbs[strip.shared_exposure])] * len(rgbs)
@@ -328,8 +356,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python scripts/gallery.py", description=__doc__.splitlines()[0])
     ap.add_argument("--only", nargs="*", default=None, help="strip names")
     ap.add_argument("--variant", default=None)
+    ap.add_argument("--workers", type=int, default=None,
+                    help="local Dask cluster size (default: sized to the machine); 0: in this process")
+    ap.add_argument("--scheduler", default=None, help="an existing Dask scheduler (tcp://host:8786)")
     a = ap.parse_args(argv)
-    res = build(only=a.only, variant=a.variant)
+    from corona.sweep import Executor
+    try:
+        with Executor(a.workers, a.scheduler, log=print) as ex:
+            res = build(only=a.only, variant=a.variant, executor=ex)
+    except CoronaError as err:
+        print(f"gallery: error: {err}", file=sys.stderr)
+        return 2
     return 1 if res["failed"] else 0
 
 

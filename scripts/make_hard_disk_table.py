@@ -14,6 +14,8 @@ Usage
 -----
     python scripts/make_hard_disk_table.py                # all rows (long)
     python scripts/make_hard_disk_table.py --jobs 2       # chains in parallel
+    python scripts/make_hard_disk_table.py --workers 2    # rows in parallel (local Dask cluster)
+    python scripts/make_hard_disk_table.py --scheduler tcp://host:8786   # rows on a Dask cluster
     python scripts/make_hard_disk_table.py --eta 0.72     # one row, others kept
     python scripts/make_hard_disk_table.py --assemble-only   # re-smooth stored raw data
 
@@ -73,31 +75,41 @@ def row_file(work_dir: str, eta: float) -> str:
     return os.path.join(work_dir, f"eta_{eta:.4f}.npz")
 
 
-def simulate_row(eta: float, jobs: int, work_dir: str, progress: bool = True) -> dict:
-    """Run one row and store its raw data in ``work_dir``."""
-    st = row_settings(eta)
-    res = hd.simulate_hard_disks(eta, jobs=jobs, progress=progress, **st)
-    n_bins = int(round(Q_SIGMA_MAX / BIN_WIDTH))
-    idx = np.minimum((res.q_sigma / BIN_WIDTH).astype(int), n_bins - 1)
-    raw = dict(eta=eta, q=np.full(n_bins, np.nan), S=np.full(n_bins, np.nan),
-               S_err=np.full(n_bins, np.nan), n_vectors=np.zeros(n_bins, np.int64),
-               Z=res.compressibility_factor, Z_err=res.compressibility_factor_err,
-               contact=res.contact_value, contact_err=res.contact_value_err,
-               psi6=res.psi6, min_distance=res.min_distance, cpu=res.cpu_seconds,
-               wall=res.wall_seconds, events=res.events, g=res.g, g_err=res.g_err,
-               r=res.r_sigma, box_length=res.box_length, n_snapshots=res.n_snapshots,
-               settings=json.dumps(st))
-    raw["q"][idx] = res.q_sigma
-    raw["S"][idx] = res.S
-    raw["S_err"][idx] = res.S_err
-    raw["n_vectors"][idx] = res.n_vectors
+def save_row(work_dir: str, raw: dict) -> None:
     os.makedirs(work_dir, exist_ok=True)
-    np.savez(row_file(work_dir, eta), **raw)
-    print(f"η={eta:.4f}: Z={res.compressibility_factor:.4f}±{res.compressibility_factor_err:.4f} "
-          f"g(σ+)={res.contact_value:.4f}±{res.contact_value_err:.4f} ψ6={res.psi6:.3f} "
-          f"min d={res.min_distance:.6f} cpu={res.cpu_seconds:.1f}s wall={res.wall_seconds:.1f}s",
-          flush=True)
+    np.savez(row_file(work_dir, float(raw["eta"])), **raw)
+    print(f"η={float(raw['eta']):.4f}: Z={float(raw['Z']):.4f}±{float(raw['Z_err']):.4f} "
+          f"g(σ+)={float(raw['contact']):.4f}±{float(raw['contact_err']):.4f} ψ6={float(raw['psi6']):.3f} "
+          f"min d={float(raw['min_distance']):.6f} cpu={float(raw['cpu']):.1f}s "
+          f"wall={float(raw['wall']):.1f}s", flush=True)
+
+
+def simulate_row(eta: float, jobs: int, work_dir: str, progress: bool = True) -> dict:
+    """Run one row here and store its raw data in ``work_dir``."""
+    raw = hd.table_row(eta, row_settings(eta), jobs=jobs, progress=progress)
+    save_row(work_dir, raw)
     return raw
+
+
+def simulate_rows(etas, work_dir: str, executor=None, jobs: int = 1, progress: bool = True,
+                  settings=row_settings) -> list:
+    """Every row of ``etas``, one task per row of ``executor`` (a
+    :class:`corona.sweep.Executor`; default: here, one after the other).
+    Each row is stored in ``work_dir`` as it arrives; a failed row is
+    reported and the others finish.  Returns the raw rows (None where failed).
+    """
+    from corona.sweep import Executor
+    executor = executor or Executor(workers=0)
+    here = executor.in_process
+    tasks = [(float(e), settings(float(e)), jobs if here else 1, progress and here) for e in etas]
+
+    def store(o):
+        if o.ok:
+            save_row(work_dir, o.value)
+
+    outs = executor.map(hd.table_row, tasks, [f"η={e:.4f}" for e in etas], desc="hard-disk rows",
+                        progress=progress and not here, on_result=store)
+    return [o.value if o.ok else None for o in outs]
 
 
 def load_row(work_dir: str, eta: float, old: dict | None):
@@ -207,7 +219,14 @@ def main(argv=None):
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--eta", type=float, action="append",
                     help="regenerate only this row (repeatable); must be on the grid")
-    ap.add_argument("--jobs", type=int, default=1, help="processes (chains run in parallel)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="processes per row (its chains in parallel; rows in this process only)")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="0: rows one after the other here; N: a local Dask cluster of N workers, "
+                         "one row per task")
+    ap.add_argument("--scheduler", default=None,
+                    help="an existing Dask scheduler (tcp://host:8786), one row per task")
+    ap.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for --scheduler")
     ap.add_argument("--out", default=DEFAULT_OUT)
     ap.add_argument("--work-dir", default=DEFAULT_WORK)
     ap.add_argument("--assemble-only", action="store_true", help="re-smooth stored raw rows")
@@ -232,11 +251,19 @@ def main(argv=None):
                 etas.append(float(ETA_GRID[i[0]]))
         else:
             etas = [float(e) for e in ETA_GRID if e > 0]
+        from corona._validation import CoronaError
+        from corona.sweep import Executor
         t0 = time.perf_counter()
-        for eta in etas:
-            if eta > 0:
-                simulate_row(eta, a.jobs, a.work_dir, progress=not a.quiet)
+        try:
+            with Executor(None if a.scheduler else a.workers, a.scheduler, timeout=a.timeout,
+                          log=print) as ex:
+                rows = simulate_rows([e for e in etas if e > 0], a.work_dir, ex, jobs=a.jobs,
+                                     progress=not a.quiet)
+        except CoronaError as err:
+            raise SystemExit(f"make_hard_disk_table: error: {err}") from None
         print(f"simulated {len(etas)} row(s) in {time.perf_counter() - t0:.1f} s wall", flush=True)
+        if any(r is None for r in rows):
+            raise SystemExit("make_hard_disk_table: some rows failed (see above); nothing assembled")
     if not a.no_assemble:
         assemble(a.work_dir, a.out, old)
 

@@ -5,7 +5,7 @@ factor ``S(qσ, η)`` of random sequential adsorption (RSA) of disks.
 Method
 ------
 * Exact RSA of unit disks (σ = 1) in a periodic square box of side ``--box``
-  run to saturation (``corona.processes._rsa_fill``: plain attempts to
+  run to saturation (``corona.reference.rsa._rsa_fill``: plain attempts to
   coverage 0.40, then the voxel method that samples only where space may be
   left).  RSA never removes a disk, so the first ``N_t`` centres of one run are
   a configuration at coverage ``η_t = N_t π/4 / L²``: one run gives every row
@@ -33,6 +33,12 @@ Run (≈ 4 CPU minutes with the defaults — the shipped table took 234 s of CPU
 for 3000 runs; use nohup on a shared machine)::
 
     nohup python scripts/make_rsa_table.py > rsa.log 2>&1 &
+    python scripts/make_rsa_table.py --workers 2                  # chunks on a local Dask cluster
+    python scripts/make_rsa_table.py --scheduler tcp://host:8786  # ... or on several machines
+
+The runs go in chunks of ``--chunk`` runs, one task each
+(:func:`corona.reference.rsa.table_runs`); the chunk sums are added in a
+fixed order, so a cluster gives the same table as a serial run.
 """
 from __future__ import annotations
 
@@ -47,57 +53,44 @@ from scipy import special
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "src"))
 
-import corona.processes as P  # noqa: E402
+import corona.reference.rsa as R  # noqa: E402
 
 DEFAULT_OUT = os.path.join(HERE, "..", "src", "corona", "data", "rsa_structure_factor.npz")
 
 
-def box_vectors(L, kcut):
-    M = int(kcut * L / (2 * np.pi)) + 1
-    m, n = np.meshgrid(np.arange(0, M + 1), np.arange(-M, M + 1), indexing="ij")
-    sel = ((m > 0) | ((m == 0) & (n > 0))) & ((m * m + n * n) * (2 * np.pi / L) ** 2 <= kcut ** 2)
-    return np.stack([m[sel], n[sel]], -1).astype(np.int64)
+def simulate(args, executor=None, progress: bool = True) -> dict:
+    """The raw accumulators of ``args.runs`` runs (seeds ``args.seed + run``).
 
-
-def simulate(args):
+    The runs go in chunks of ``args.chunk`` (one task of ``executor``, a
+    :class:`corona.sweep.Executor`; default: here, one after the other); the
+    chunk sums are added in chunk order, so the result is the same bits
+    wherever the chunks ran (it depends on ``--chunk`` only through the order
+    of floating-point additions).
+    """
+    from corona.sweep import Executor
     L = args.box
-    etas = np.round(np.arange(0.01, 0.54 + 1e-9, 0.01), 4)
-    targets = np.round(etas * L * L / (np.pi / 4)).astype(np.int64)
-    mn = box_vectors(L, args.kcut)
-    kabs = 2 * np.pi / L * np.hypot(mn[:, 0], mn[:, 1])
-    dk = 2 * np.pi / L
-    kbin = np.floor(kabs / dk + 0.5).astype(np.int64)  # bin centred on multiples of 2π/L
-    nkb = kbin.max() + 1
-    nbins = int(round(args.rmax / args.dr))
-    T = len(targets) + 1
-    sk_sum = np.zeros((T, nkb))
-    sk_sq = np.zeros((T, nkb))
-    kcount = np.bincount(kbin, minlength=nkb).astype(np.float64)
-    ksum = np.bincount(kbin, weights=kabs, minlength=nkb)
-    H = np.zeros((T, nbins))
-    ideal = np.zeros((T, nbins))  # expected pair counts of an ideal gas (same N)
-    shell = np.pi * (((np.arange(nbins) + 1) * args.dr) ** 2 - (np.arange(nbins) * args.dr) ** 2) / L ** 2
-    nsat = []
-    P._jit()
+    geo = R.table_geometry(L, args.kcut)
+    seeds = [int(args.seed + run) for run in range(args.runs)]
+    chunks = [seeds[i:i + args.chunk] for i in range(0, len(seeds), args.chunk)]
+    executor = executor or Executor(workers=0)
     t0 = time.time()
-    for run in range(args.runs):
-        pos = P._rsa_fill(float(L), 0, int(args.seed + run))
-        N = len(pos)
-        nsat.append(N)
-        tg = np.concatenate([targets, [N]])
-        sk = P._rsa_sk_prefix(pos, float(L), tg, mn)
-        for t in range(T):
-            s = np.bincount(kbin, weights=sk[t], minlength=nkb)
-            sk_sum[t] += s
-            sk_sq[t] += s * s / np.maximum(kcount, 1)
-        H += P._rsa_pair_hist(pos, float(L), tg, args.dr, nbins)
-        ideal += (tg * (tg - 1) / 2.0)[:, None] * shell[None, :]
-        if (run + 1) % max(1, args.runs // 20) == 0:
-            print(f"run {run + 1}/{args.runs}  N_sat={N}  {time.time() - t0:.1f}s", flush=True)
-    nsat = np.array(nsat, dtype=np.float64)
-    return dict(L=L, etas=etas, targets=targets, kcount=kcount, ksum=ksum, sk_sum=sk_sum,
-                sk_sq=sk_sq, H=H, ideal=ideal, dr=args.dr, runs=args.runs, nsat=nsat,
-                cpu_seconds=time.process_time())
+    outs = executor.map(R.table_runs, [(float(L), args.kcut, args.dr, args.rmax, c) for c in chunks],
+                        [f"runs {c[0] - args.seed}-{c[-1] - args.seed}" for c in chunks],
+                        desc="RSA runs", progress=progress)
+    bad = [o for o in outs if not o.ok]
+    if bad:
+        raise SystemExit(f"make_rsa_table: {len(bad)} chunk(s) failed: {bad[0].label}: {bad[0].error}")
+    acc = {}
+    for k in ("sk_sum", "sk_sq", "H", "ideal"):
+        acc[k] = outs[0].value[k].copy()
+        for o in outs[1:]:
+            acc[k] += o.value[k]
+    nsat = np.concatenate([o.value["nsat"] for o in outs])
+    print(f"{args.runs} runs in {len(chunks)} chunk(s): {time.time() - t0:.1f} s wall, "
+          f"mean N_sat={nsat.mean():.1f}", flush=True)
+    return dict(L=L, etas=geo["etas"], targets=geo["targets"], kcount=geo["kcount"], ksum=geo["ksum"],
+                dr=args.dr, runs=args.runs, nsat=nsat,
+                cpu_seconds=float(sum(o.value["cpu_seconds"] for o in outs)), **acc)
 
 
 def hankel_kernel(q, r_edges):
@@ -178,12 +171,26 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=20250601)
     ap.add_argument("--raw", help="save (or with --assemble-only, load) the raw accumulators here")
     ap.add_argument("--assemble-only", action="store_true")
+    ap.add_argument("--chunk", type=int, default=100, help="runs per task")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="0: the chunks one after the other here; N: a local Dask cluster of N workers")
+    ap.add_argument("--scheduler", default=None, help="an existing Dask scheduler (tcp://host:8786)")
+    ap.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for --scheduler")
     ap.add_argument("--out", default=DEFAULT_OUT)
     args = ap.parse_args(argv)
     if args.assemble_only:
         raw = dict(np.load(args.raw))
     else:
-        raw = simulate(args)
+        from corona._validation import CoronaError
+        from corona.sweep import Executor
+        if args.runs < 1 or args.chunk < 1:
+            raise SystemExit(f"make_rsa_table: --runs {args.runs} / --chunk {args.chunk}: expected >= 1")
+        try:
+            with Executor(None if args.scheduler else args.workers, args.scheduler,
+                          timeout=args.timeout, log=print) as ex:
+                raw = simulate(args, ex)
+        except CoronaError as err:
+            raise SystemExit(f"make_rsa_table: error: {err}") from None
         if args.raw:
             np.savez_compressed(args.raw, **raw)
     q, eta, S, info = assemble(raw)

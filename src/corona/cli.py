@@ -1,10 +1,11 @@
 """The ``corona`` command line (click).
 
     corona render SCENE.xml [--spp N] [--variant V] [--out DIR] [--name NAME] [--exposure E] [-D key=value ...]
+    corona sweep SCENE.xml -D name=v1,v2,... [-D ...] [--spp N] [--out DIR] [--workers N | --scheduler ADDRESS] [--force]
     corona lobe [material options] [--out FILE.png] [--json]
     corona tables info | clear
     corona doctor
-    corona validate [--out DIR] [--quick] [--cases A,B] [--realisations N]
+    corona validate [--out DIR] [--quick] [--cases A,B] [--realisations N] [--workers N | --scheduler ADDRESS]
 
 Errors are one line on stderr and exit code 2.
 """
@@ -100,6 +101,67 @@ def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
     except (CoronaError, RuntimeError, ValueError) as err:
         _fail(err)
     click.echo(f"{res['png']}  ({res['exr']}, {res['seconds']:.1f} s, {spp} spp, {res['variant']})")
+
+
+# ----------------------------------------------------------------------
+# sweep
+# ----------------------------------------------------------------------
+def executor_options(f):
+    """--workers / --scheduler / --timeout: where the jobs run (corona.sweep.Executor)."""
+    f = click.option("--timeout", type=click.FloatRange(min=0, min_open=True), default=10.0,
+                     show_default=True, help="Seconds to wait for --scheduler and its first worker.")(f)
+    f = click.option("--scheduler", default=None, metavar="ADDRESS",
+                     help="An existing Dask scheduler (tcp://host:8786) instead of a local cluster.")(f)
+    return f
+
+
+@main.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("-D", "defines", multiple=True, metavar="NAME=V1,V2,...",
+              help="A scene parameter and its values; the sweep is the product of all -D lists.")
+@click.option("--spp", type=click.IntRange(min=1), default=None,
+              help="Samples per pixel (default: the scene's sample_count).")
+@click.option("--out", "out_dir", default="out/sweep", show_default=True, help="Output folder.")
+@click.option("--workers", type=click.IntRange(min=0), default=None,
+              help="Local cluster of N worker processes [default: sized to the machine]; "
+                   "0: one render after the other in this process.")
+@executor_options
+@click.option("--force", is_flag=True, help="Render points whose EXR and PNG already exist again.")
+@click.option("--variant", default=None, help="Mitsuba variant (default: each worker's fastest).")
+@click.option("--exposure", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="PNG: scale of the linear values (default: each point's 99.5th luminance percentile "
+                   "maps to white).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+def sweep(scene, defines, spp, out_dir, workers, scheduler, timeout, force, variant, exposure, seed,
+          no_progress):
+    """Render SCENE.xml at every combination of the -D value lists, on a Dask cluster.
+
+    One EXR + PNG per point (named by its parameters), a contact sheet
+    SCENE_sheet.png and an index SCENE_index.json in --out.  Points already
+    rendered are skipped (--force renders them again); a failed point is
+    reported with its parameters and the others still finish (exit code 2).
+    """
+    if not defines:
+        _fail("no -D NAME=V1,V2,... given; a sweep needs at least one parameter list")
+    try:
+        from .sweep import Executor, parse_defines, point_label, run_sweep
+        grid = parse_defines(defines)
+        log = (lambda s: click.echo(s, err=True))
+        with Executor(workers, scheduler, timeout=timeout, log=log) as ex:
+            index = run_sweep(scene, grid, out_dir, executor=ex, spp=spp, seed=seed, variant=variant,
+                              exposure=exposure, force=force, progress=not no_progress, log=log)
+    except (CoronaError, ValueError, OSError) as err:
+        _fail(err)
+    pts = index["points"]
+    count = {s: sum(1 for p in pts if p["status"] == s) for s in ("rendered", "existing", "failed")}
+    click.echo(f"{index['sheet']}  ({count['rendered']} rendered, {count['existing']} existing, "
+               f"{count['failed']} failed; {index['index']})")
+    failed = [p for p in pts if p["status"] == "failed"]
+    if failed:
+        _fail(f"{len(failed)} of {len(pts)} point(s) failed: "
+              + "; ".join(f"{point_label(p['parameters'])}: {p['error']}" for p in failed[:3])
+              + (" ..." if len(failed) > 3 else "") + f" (all in {index['index']})")
 
 
 # ----------------------------------------------------------------------
@@ -232,13 +294,21 @@ def doctor():
               help="Scatterers per screen [default: 2000].")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--no-progress", is_flag=True, help="No progress bars.")
-def validate(out_dir, quick, cases, realisations, scatterers, seed, no_progress):
+@click.option("--workers", type=click.IntRange(min=0), default=0, show_default=True,
+              help="0: the cases one after the other in this process; N: a local Dask cluster of N "
+                   "workers, one case per task.")
+@executor_options
+def validate(out_dir, quick, cases, realisations, scatterers, seed, no_progress, workers, scheduler,
+             timeout):
     """Compare the model with a brute-force wave-optics reference; write a report folder."""
     try:
         from .reference import validate as v
-        summary = v.run(out_dir, quick=quick, cases=cases.split(",") if cases else None,
-                        realisations=realisations, n_scatterers=scatterers, seed=seed,
-                        progress=not no_progress, echo=lambda s: click.echo(s, err=True))
+        from .sweep import Executor
+        log = (lambda s: click.echo(s, err=True))
+        with Executor(None if scheduler else workers, scheduler, timeout=timeout, log=log) as ex:
+            summary = v.run(out_dir, quick=quick, cases=cases.split(",") if cases else None,
+                            realisations=realisations, n_scatterers=scatterers, seed=seed,
+                            progress=not no_progress, echo=log, executor=ex)
     except (CoronaError, ValueError, OSError, MemoryError) as err:
         _fail(err)
     n = sum(1 for c in summary["cases"] if "skipped" not in c)

@@ -789,6 +789,38 @@ def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, 
         wall_seconds=wall, S_blocks=S_blocks)
 
 
+def table_row(eta: float, settings: dict, jobs: int = 1, progress: bool = False) -> dict:
+    """One row of the shipped table: a :func:`simulate_hard_disks` run and its raw data.
+
+    The unit of work of ``scripts/make_hard_disk_table.py`` (one task of a
+    :class:`corona.sweep.Executor` per row).  ``settings`` are the keyword
+    arguments of :func:`simulate_hard_disks` (``n_disks``, ``n_sweeps``,
+    ``seed``, ..., ``q_sigma_max``, ``bin_width``); the seed fixes the row bit
+    for bit, whichever process runs it.  ``S``, ``S_err`` and ``n_vectors``
+    are put on the fixed grid of bins of width ``bin_width`` up to
+    ``q_sigma_max`` (NaN / 0 where a bin has no wave vector).  Returns a dict
+    of numpy values (what the script stores per row).
+    """
+    import json
+    res = simulate_hard_disks(eta, jobs=jobs, progress=progress, **settings)
+    q_max, width = float(settings["q_sigma_max"]), float(settings["bin_width"])
+    n_bins = int(round(q_max / width))
+    idx = np.minimum((res.q_sigma / width).astype(int), n_bins - 1)
+    raw = dict(eta=eta, q=np.full(n_bins, np.nan), S=np.full(n_bins, np.nan),
+               S_err=np.full(n_bins, np.nan), n_vectors=np.zeros(n_bins, np.int64),
+               Z=res.compressibility_factor, Z_err=res.compressibility_factor_err,
+               contact=res.contact_value, contact_err=res.contact_value_err,
+               psi6=res.psi6, min_distance=res.min_distance, cpu=res.cpu_seconds,
+               wall=res.wall_seconds, events=res.events, g=res.g, g_err=res.g_err,
+               r=res.r_sigma, box_length=res.box_length, n_snapshots=res.n_snapshots,
+               settings=json.dumps(settings))
+    raw["q"][idx] = res.q_sigma
+    raw["S"][idx] = res.S
+    raw["S_err"][idx] = res.S_err
+    raw["n_vectors"][idx] = res.n_vectors
+    return raw
+
+
 def _compressed_start(n_disks, eta, rng, eta0=0.55, sweeps_per_step=300):
     """A fluid configuration at ``eta``: melt a lattice at ``min(eta, eta0)``,
     then compress in steps of 0.01 (rescale, push overlapping pairs apart,

@@ -235,6 +235,72 @@ def _rsa_pair_hist(pos, L, targets, dr, nbins):
     return H
 
 
+# =====================================================================
+# the shipped table: accumulators of S(k) and g(r) over independent runs
+# =====================================================================
+TABLE_ETAS = np.round(np.arange(0.01, 0.54 + 1e-9, 0.01), 4)
+
+
+def box_vectors(L, kcut):
+    """Box wave vectors ``2π/L (m, n)`` of the half plane with ``|k| <= kcut`` (as ``(m, n)``)."""
+    M = int(kcut * L / (2 * np.pi)) + 1
+    m, n = np.meshgrid(np.arange(0, M + 1), np.arange(-M, M + 1), indexing="ij")
+    sel = ((m > 0) | ((m == 0) & (n > 0))) & ((m * m + n * n) * (2 * np.pi / L) ** 2 <= kcut ** 2)
+    return np.stack([m[sel], n[sel]], -1).astype(np.int64)
+
+
+def table_geometry(L: float, kcut: float) -> dict:
+    """What every run of the table shares: the coverage rows, their disk counts
+    ``N_t`` in a box of side ``L`` (σ = 1), the wave vectors and their ``|k|`` bins
+    (width 2π/L, centred on multiples of 2π/L)."""
+    targets = np.round(TABLE_ETAS * L * L / (np.pi / 4)).astype(np.int64)
+    mn = box_vectors(L, kcut)
+    kabs = 2 * np.pi / L * np.hypot(mn[:, 0], mn[:, 1])
+    kbin = np.floor(kabs / (2 * np.pi / L) + 0.5).astype(np.int64)
+    nkb = int(kbin.max()) + 1
+    return dict(etas=TABLE_ETAS, targets=targets, mn=mn, kabs=kabs, kbin=kbin, nkb=nkb,
+                kcount=np.bincount(kbin, minlength=nkb).astype(np.float64),
+                ksum=np.bincount(kbin, weights=kabs, minlength=nkb))
+
+
+def table_runs(L: float, kcut: float, dr: float, rmax: float, seeds) -> dict:
+    """Sums over the RSA runs seeded by ``seeds`` (one chunk of the table; one task).
+
+    Each run fills the periodic box of side ``L`` to saturation
+    (:func:`_rsa_fill`); for every coverage row ``t`` (and the saturated
+    state, the last row) it adds the bin sums of ``S(k)`` (``sk_sum``), their
+    squares over the bin counts (``sk_sq``), the pair-distance histogram
+    ``H`` (bin ``dr`` to ``rmax``) and the ideal-gas pair counts ``ideal``.
+    Chunks add up (in a fixed order: ``scripts/make_rsa_table.py``); a run
+    depends only on its seed.
+    """
+    _jit()
+    geo = table_geometry(L, kcut)
+    kbin, nkb, kcount, targets = geo["kbin"], geo["nkb"], geo["kcount"], geo["targets"]
+    nbins = int(round(rmax / dr))
+    T = len(targets) + 1
+    sk_sum, sk_sq = np.zeros((T, nkb)), np.zeros((T, nkb))
+    H, ideal = np.zeros((T, nbins)), np.zeros((T, nbins))
+    shell = np.pi * (((np.arange(nbins) + 1) * dr) ** 2 - (np.arange(nbins) * dr) ** 2) / L ** 2
+    nsat = []
+    import time
+    c0 = time.process_time()
+    for seed in seeds:
+        pos = _rsa_fill(float(L), 0, int(seed))
+        N = len(pos)
+        nsat.append(N)
+        tg = np.concatenate([targets, [N]])
+        sk = _rsa_sk_prefix(pos, float(L), tg, geo["mn"])
+        for t in range(T):
+            s = np.bincount(kbin, weights=sk[t], minlength=nkb)
+            sk_sum[t] += s
+            sk_sq[t] += s * s / np.maximum(kcount, 1)
+        H += _rsa_pair_hist(pos, float(L), tg, dr, nbins)
+        ideal += (tg * (tg - 1) / 2.0)[:, None] * shell[None, :]
+    return dict(sk_sum=sk_sum, sk_sq=sk_sq, H=H, ideal=ideal, nsat=np.array(nsat, np.float64),
+                cpu_seconds=time.process_time() - c0)
+
+
 def rsa_configuration(box_size: float, packing_fraction: float | None = None, *,
                       sigma: float = 1.0, seed=None) -> np.ndarray:
     """One RSA configuration of disks of diameter ``sigma`` in the periodic box

@@ -51,6 +51,7 @@ import json
 import math
 import os
 import platform
+import tempfile
 import time
 import warnings
 from dataclasses import dataclass
@@ -522,7 +523,7 @@ def case_figure(path, title, res) -> str:
 # ==========================================================================
 def run(out_dir: str = "out/validate", *, quick: bool = False, cases=None,
         realisations: int | None = None, n_scatterers: int | None = None, seed: int = 0,
-        progress: bool = True, echo=print) -> dict:
+        progress: bool = True, echo=print, executor=None) -> dict:
     """Run the comparison for the selected cases and write the report folder.
 
     Parameters
@@ -540,9 +541,13 @@ def run(out_dir: str = "out/validate", *, quick: bool = False, cases=None,
         Scatterers per screen (default 2000).
     seed : int
         Seed of every ensemble.
+    executor : corona.sweep.Executor, optional
+        Where the cases run, one case per task (:func:`run_case`); default: in
+        this process, one after the other.  Every case depends only on its
+        name and these arguments, so the report is the same either way
+        (timings apart).
     """
-    from . import wave
-    from ..material import Material
+    from ..sweep import Executor
     chosen = select_cases(all_cases(quick), cases)
     M_default = QUICK_REALISATIONS if quick else REALISATIONS
     if realisations is not None:
@@ -551,53 +556,32 @@ def run(out_dir: str = "out/validate", *, quick: bool = False, cases=None,
         n_scatterers = int(check_range("n_scatterers", n_scatterers, 16, 10**7))
     os.makedirs(out_dir, exist_ok=True)
     t_start = time.perf_counter()
-    results = []
-    for case in chosen:
-        t0 = time.perf_counter()
-        entry = {"name": case.name, "label": case.label, "kind": case.kind, "note": case.note,
-                 "overlaps": case.overlaps}
-        try:
-            shape, process = case.build()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", CoronaWarning)
-                ap = Material(shape, process, mode="aperture")
-                pa = Material(shape, process, mode="particle")
-        except CoronaError as err:
-            entry["skipped"] = str(err)
-            echo(f"[skip] {case.name}: {err}")
-            results.append(entry)
-            continue
-        M = case.realisations or M_default
-        R = ap.length_scale
-        q_keep = max(U_COMPARE, 2 * np.pi * R / (min(WAVELENGTHS) * 1e-3)) / R * 1.02
-        bf = wave.brute_force(ap, realisations=M, n_scatterers=n_scatterers or case.n_scatterers,
-                              q_max=q_keep, seed=seed, overlaps=case.overlaps, progress=progress)
-        res = compare(ap, bf, WAVELENGTHS, particle=pa)
-        res["length_scale"] = R
-        fig = case_figure(os.path.join(out_dir, f"{case.name}.png"), case.label, res)
-        hard = _is_hard(process)
-        fa = ap.area_fraction
-        entry.update({
-            "material": repr(ap), "area_fraction": fa, "area_fraction_screen": bf.area_fraction_screen,
-            "packing_fraction": _packing(process, shape), "realisations": bf.realisations,
-            "n_scatterers": bf.n_scatterers, "positions": bf.positions, "grid": res["grid"],
-            "pixel_transfer": bf.pixel_transfer, "overlap_loss": bf.overlap_loss,
-            "coherent": {"aperture": [bf.coherent["aperture"], ap.coherent_transmittance],
-                         "particle": [bf.coherent["particle"], pa.coherent_transmittance]},
-            "diffuse_parseval": bf.diffuse_total["aperture"],
-            "model_total": float(ap.diffuse_transmittance()),
-            "expected_total": fa * (float(shape.self_overlap) - fa) if hard else None,
-            "particle_lobe_equal": res.get("particle_lobe_equal"),
-            "wavelengths": {str(k): v for k, v in res["wavelengths"].items()},
-            "figure": os.path.basename(fig), "seconds": time.perf_counter() - t0,
-            "brute_seconds": bf.seconds,
-        })
-        w = res["wavelengths"][550.0]
-        echo(f"{case.name:26s} M={bf.realisations:3d} grid={bf.grid.nx}x{bf.grid.ny} "
-             f"RMS={100 * w['rms']:.2f}% max={100 * w['max']:.2f}% noise={100 * w['noise']:.2f}% "
-             f"coh={bf.coherent['aperture']:.4f}/{ap.coherent_transmittance:.4f} "
-             f"({time.perf_counter() - t0:.0f} s)")
-        results.append(entry)
+    executor = executor or Executor(workers=0)
+    # here: the brute force's bars, case after case; on a cluster: one bar over the cases
+    inner = progress and executor.in_process
+
+    def store(o):
+        if not o.ok:
+            echo(f"[failed] {o.label}: {o.error}")
+            return
+        entry, figure, line = o.value
+        if figure is not None:
+            with open(os.path.join(out_dir, entry["figure"]), "wb") as f:
+                f.write(figure)
+        echo(line)
+
+    outcomes = executor.map(run_case, [(c.name, quick, M_default, n_scatterers, seed, inner)
+                                       for c in chosen],
+                            [c.name for c in chosen], desc="validate", progress=progress and not inner,
+                            on_result=store)
+    results, failed = [], []
+    for case, o in zip(chosen, outcomes):
+        if o.ok:
+            results.append(o.value[0])
+        else:
+            failed.append(f"{case.name}: {o.error}")
+            results.append({"name": case.name, "label": case.label, "kind": case.kind,
+                            "note": case.note, "overlaps": case.overlaps, "skipped": f"failed: {o.error}"})
     summary = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                "python": platform.python_version(), "cores": os.cpu_count(), "quick": quick,
                "seconds": time.perf_counter() - t_start, "wavelengths": list(WAVELENGTHS),
@@ -605,7 +589,75 @@ def run(out_dir: str = "out/validate", *, quick: bool = False, cases=None,
     with open(os.path.join(out_dir, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1, default=_json_default)
     write_report(out_dir, summary)
+    if failed:
+        raise CoronaError(f"{len(failed)} validation case(s) failed: {'; '.join(failed)} "
+                          f"(the others are in {out_dir})")
     return summary
+
+
+def run_case(name: str, quick: bool, realisations: int, n_scatterers: int | None, seed: int,
+             progress: bool = False):
+    """One case of :func:`run` (one task of the executor; runs on a worker).
+
+    Returns ``(entry, figure_png_bytes, log_line)``; ``figure`` is None for a
+    skipped case.  Depends only on its arguments (the brute force is seeded
+    by ``seed``), so any worker gives the same numbers.
+    """
+    from . import wave
+    from ..material import Material
+    case = _case_named(all_cases(quick), name)
+    t0 = time.perf_counter()
+    entry = {"name": case.name, "label": case.label, "kind": case.kind, "note": case.note,
+             "overlaps": case.overlaps}
+    try:
+        shape, process = case.build()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CoronaWarning)
+            ap = Material(shape, process, mode="aperture")
+            pa = Material(shape, process, mode="particle")
+    except CoronaError as err:
+        entry["skipped"] = str(err)
+        return entry, None, f"[skip] {case.name}: {err}"
+    M = case.realisations or realisations
+    R = ap.length_scale
+    q_keep = max(U_COMPARE, 2 * np.pi * R / (min(WAVELENGTHS) * 1e-3)) / R * 1.02
+    bf = wave.brute_force(ap, realisations=M, n_scatterers=n_scatterers or case.n_scatterers,
+                          q_max=q_keep, seed=seed, overlaps=case.overlaps, progress=progress)
+    res = compare(ap, bf, WAVELENGTHS, particle=pa)
+    res["length_scale"] = R
+    with tempfile.TemporaryDirectory() as tmp:     # the figure travels back as bytes
+        with open(case_figure(os.path.join(tmp, "case.png"), case.label, res), "rb") as f:
+            figure = f.read()
+    hard = _is_hard(process)
+    fa = ap.area_fraction
+    entry.update({
+        "material": repr(ap), "area_fraction": fa, "area_fraction_screen": bf.area_fraction_screen,
+        "packing_fraction": _packing(process, shape), "realisations": bf.realisations,
+        "n_scatterers": bf.n_scatterers, "positions": bf.positions, "grid": res["grid"],
+        "pixel_transfer": bf.pixel_transfer, "overlap_loss": bf.overlap_loss,
+        "coherent": {"aperture": [bf.coherent["aperture"], ap.coherent_transmittance],
+                     "particle": [bf.coherent["particle"], pa.coherent_transmittance]},
+        "diffuse_parseval": bf.diffuse_total["aperture"],
+        "model_total": float(ap.diffuse_transmittance()),
+        "expected_total": fa * (float(shape.self_overlap) - fa) if hard else None,
+        "particle_lobe_equal": res.get("particle_lobe_equal"),
+        "wavelengths": {str(k): v for k, v in res["wavelengths"].items()},
+        "figure": f"{case.name}.png", "seconds": time.perf_counter() - t0,
+        "brute_seconds": bf.seconds,
+    })
+    w = res["wavelengths"][550.0]
+    line = (f"{case.name:26s} M={bf.realisations:3d} grid={bf.grid.nx}x{bf.grid.ny} "
+            f"RMS={100 * w['rms']:.2f}% max={100 * w['max']:.2f}% noise={100 * w['noise']:.2f}% "
+            f"coh={bf.coherent['aperture']:.4f}/{ap.coherent_transmittance:.4f} "
+            f"({time.perf_counter() - t0:.0f} s)")
+    return entry, figure, line
+
+
+def _case_named(cases, name: str) -> Case:
+    for c in cases:
+        if c.name == name:
+            return c
+    raise CoronaError(f"case={name!r} is not a validation case; allowed: {', '.join(c.name for c in cases)}")
 
 
 def _json_default(o):
