@@ -86,6 +86,13 @@ def headline() -> list[str]:
         rows.append(("Brute force to 2 % / model lobe on the same grid",
                      f"{c['seconds']:.1f} s / {c['seconds'] / c['ratio_to_model_warm']:.3f} s = "
                      f"{c['ratio_to_model_warm']:.0f}×", "report"))
+    f = _load("fit")
+    if f:
+        for case, v in f["results"].items():
+            rows.append((f"corona fit, {case} ({v['megapixels']:.2f} MP): time in process (CPU); "
+                         "fresh `corona fit --json`",
+                         f"{v['fit_median_s']:.2f} s ({v['fit_cpu_median_s']:.2f} s CPU); {v['cli_s']:.1f} s; "
+                         f"radius {v['radius_error_percent']:+.2f} %", "≤ 5 s"))
     g = _load("gpu")
     if g:
         rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else

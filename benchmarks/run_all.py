@@ -21,6 +21,7 @@ FULL = {   # bigger runs: extra arguments per script
     "scaling": ["--repeats", "5"],
     "tables": ["--repeats", "20"],
     "wave": ["--max-m", "512"],
+    "fit": ["--repeats", "7"],
 }
 
 
