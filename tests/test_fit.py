@@ -175,12 +175,22 @@ def test_bootstrap_uncertainties(photographs):
     assert 0 < boot.radius_err < 10 * cov.radius_err + 1e-3 * cov.radius
 
 
-def test_diagnostic_png(fits, tmp_path):
+def test_diagnostic_png(fits, tmp_path, monkeypatch):
+    """Profiles and rings with matplotlib; without it the image with the rings, and a note."""
+    import sys
+
+    import imageio.v3 as iio
+
     from corona.fit import write_diagnostic
     path, note = write_diagnostic(fits[-1], str(tmp_path / "d.png"))
-    import imageio.v3 as iio
     img = iio.imread(path)
-    assert img.ndim == 3 and img.shape[0] > 200 and note is None
+    assert img.ndim == 3 and img.shape[1] > 2 * img.shape[0] > 400 and note is None
+    monkeypatch.setitem(sys.modules, "matplotlib", None)       # import matplotlib -> ImportError
+    path, note = write_diagnostic(fits[-1], str(tmp_path / "plain.png"))
+    assert "matplotlib is not installed" in note
+    ring = iio.imread(path)
+    assert min(ring.shape[:2]) >= 300
+    assert ((ring[..., 0] == 255) & (ring[..., 1] == 40)).any(), "the red rings are drawn"
 
 
 # ----------------------------------------------------------------------

@@ -295,7 +295,7 @@ class LightSource:
     y: float
     core: np.ndarray          # (H, W) bool: the blob that locates the source
     saturated: bool
-    peak: float               # linear luminance at the peak (1.0 for clipped data)
+    peak: float               # linear luminance at the peak (of the clipped values when clipped)
 
 
 def locate_source(photo: Photograph) -> LightSource:
@@ -1092,6 +1092,9 @@ def fit_photograph(image, fov_deg: float | None = None, *, deg_per_pixel: float 
     if fit_fa and not fa_ok:
         warnings.append(f"area_fraction is not constrained by this image (± {fa_err:.2g}); "
                         "the aureole and first dark ring are saturated, masked or too faint")
+    if T_err is not None and T_err > 0.25 * T:
+        warnings.append(f"temperature is not constrained by this image (± {T_err:.0f} K); "
+                        "give --temperature if the light is known")
     if abs(math.log(R / R0)) > math.log(WINDOW) - 1e-3:
         warnings.append("the radius ran to the edge of its search window; check the field of view")
 
