@@ -854,7 +854,8 @@ def _n_wavelengths(radius: float, rho_max: float) -> int:
 
 def _ring_radii(problem: _Problem, x, rho_max) -> tuple:
     """Angular radii [deg] of the model's red-chromaticity maxima (point source):
-    the aureole's red edge and the red rings, from the noise-free model."""
+    the aureole's red edge and the red rings, from the noise-free model (for a
+    one-channel image: (None, the luminance maxima))."""
     radius, spread, fa, temp = x
     rho = np.linspace(0.02 * problem.profile.bin_width, rho_max, 4000)
     W = problem.spectrum.weights(temp)
@@ -1123,7 +1124,7 @@ def fit_photograph(image, fov_deg: float | None = None, *, deg_per_pixel: float 
         rule_of_thumb_diameter=rule, n_bins=int(profile.rho.size), seconds=0.0, warnings=warnings,
         profile=profile, model_profile=model, photo=photo, camera=camera)
     if diagnostic:
-        result.diagnostic, result.diagnostic_note = write_diagnostic(result, diagnostic, source)
+        result.diagnostic, result.diagnostic_note = write_diagnostic(result, diagnostic)
     result.seconds = time.perf_counter() - t0
     return result
 
@@ -1184,7 +1185,7 @@ def _overlay(result: FitResult) -> np.ndarray:
     return np.asarray(im)
 
 
-def write_diagnostic(result: FitResult, path: str, source=None) -> tuple[str, str | None]:
+def write_diagnostic(result: FitResult, path: str) -> tuple[str, str | None]:
     """Write the diagnostic PNG; returns (path, note).
 
     With matplotlib (the ``reference`` extra): the profiles per channel (data
