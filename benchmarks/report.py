@@ -95,6 +95,13 @@ def headline() -> list[str]:
                      f"{c['command_s']:.1f} s vs {se['command_s']:.1f} s ({c['speedup_command']:.2f}×; "
                      f"cluster start {c['startup_s']:.1f} s), scheduling {1e3 * oh:.0f} ms per point",
                      "report (scales out)"))
+    f = _load("fit")
+    if f:
+        for case, v in f["results"].items():
+            rows.append((f"corona fit, {case} ({v['megapixels']:.2f} MP): time in process (CPU); "
+                         "fresh `corona fit --json`",
+                         f"{v['fit_median_s']:.2f} s ({v['fit_cpu_median_s']:.2f} s CPU); {v['cli_s']:.1f} s; "
+                         f"radius {v['radius_error_percent']:+.2f} %", "≤ 5 s"))
     g = _load("gpu")
     if g:
         rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else

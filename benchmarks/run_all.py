@@ -22,6 +22,7 @@ FULL = {   # bigger runs: extra arguments per script
     "sweep": ["--rounds", "4", "--res", "256", "--spp", "64"],
     "tables": ["--repeats", "20"],
     "wave": ["--max-m", "512"],
+    "fit": ["--repeats", "7"],
 }
 
 

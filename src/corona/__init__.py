@@ -15,6 +15,7 @@ the ``reference`` extra and is never imported from here.
 from . import _environment  # noqa: F401
 from ._environment import default_variant, set_default_variant
 from ._validation import CoronaError, CoronaWarning
+from .fit import fit_photograph
 from .material import Material
 from .micrograph import from_micrograph
 from .processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
@@ -28,7 +29,8 @@ __all__ = ["CoronaError", "CoronaWarning",
            "Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon", "Mask",
            "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture",
            "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk",
-           "Material", "GlassPane", "from_micrograph", "default_variant", "set_default_variant", "register"]
+           "Material", "GlassPane", "from_micrograph", "fit_photograph", "default_variant",
+           "set_default_variant", "register"]
 
 
 def register() -> None:

@@ -6,6 +6,7 @@
     corona tables info | clear
     corona doctor
     corona validate [--out DIR] [--quick] [--cases A,B] [--realisations N] [--workers N | --scheduler ADDRESS]
+    corona fit IMAGE (--fov DEG | --deg-per-pixel DEG) [--temperature K] [--json] ...
 
 Errors are one line on stderr and exit code 2.
 """
@@ -313,6 +314,68 @@ def validate(out_dir, quick, cases, realisations, scatterers, seed, no_progress,
         _fail(err)
     n = sum(1 for c in summary["cases"] if "skipped" not in c)
     click.echo(f"{os.path.join(out_dir, 'README.md')}  ({n} case(s), {summary['seconds']:.0f} s)")
+
+
+# ----------------------------------------------------------------------
+# fit
+# ----------------------------------------------------------------------
+@main.command()
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.option("--fov", "fov", type=float, default=None,
+              help="Horizontal field of view of the (pinhole) image [degree], in (0, 180).")
+@click.option("--deg-per-pixel", type=float, default=None,
+              help="Instead of --fov: the angle one pixel spans at the image centre [degree].")
+@click.option("--temperature", type=float, default=None,
+              help="Colour temperature of the light [K] (black body); fitted when not given.")
+@click.option("--area-fraction", type=float, default=None, help="Hold the area fraction F_a fixed.")
+@click.option("--size-spread", type=float, default=None, help="Hold the relative size spread fixed.")
+@click.option("--process", type=click.Choice(["hard-disk", "rsa", "poisson"]), default="hard-disk",
+              show_default=True, help="Point process of the scatterers.")
+@click.option("--mode", type=click.Choice(["particle", "aperture"]), default="particle", show_default=True,
+              help="Written to the material (the lobe is the same, by Babinet's principle).")
+@click.option("--shape", type=click.Choice(["circle", "sphere"]), default="circle", show_default=True,
+              help="Scatterer model (sphere: transparent droplets, planned).")
+@click.option("--source-diameter", type=float, default=0.0, show_default=True,
+              help="Angular diameter of the light [degree] (the moon: 0.52).")
+@click.option("--no-background", is_flag=True, help="Do not fit a constant background per channel.")
+@click.option("--bootstrap", type=int, default=0, show_default=True,
+              help="Uncertainties from N refits over resampled azimuthal sectors (0: fit covariance).")
+@click.option("--saturation", type=float, default=None,
+              help="Clipping level of a linear (EXR) image (default: a channel maximum shared by several pixels).")
+@click.option("--out", "out_dir", default="out", show_default=True,
+              help="Folder for IMAGE-STEM_fit.png (diagnostic) and IMAGE-STEM_fit.xml (the material).")
+@click.option("--no-diagnostic", is_flag=True, help="Skip the diagnostic PNG.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object on stdout.")
+def fit(image, fov, deg_per_pixel, temperature, area_fraction, size_spread, process, mode, shape,
+        source_diameter, no_background, bootstrap, saturation, out_dir, no_diagnostic, as_json):
+    """Fit a layer of scatterers (radius, size spread, area fraction) and the light's
+    temperature to a photograph of a corona around a light.
+
+    IMAGE: an 8-/16-bit sRGB PNG/JPEG/TIFF or a linear EXR, with the light inside the frame.
+    """
+    try:
+        from .fit import fit_photograph
+        stem = os.path.splitext(os.path.basename(image))[0]
+        diag = None if no_diagnostic else os.path.join(out_dir, f"{stem}_fit.png")
+        res = fit_photograph(image, fov, deg_per_pixel=deg_per_pixel, temperature=temperature,
+                             area_fraction=area_fraction, size_spread=size_spread, process=process,
+                             mode=mode, shape=shape, source_diameter_deg=source_diameter,
+                             background=not no_background, bootstrap=bootstrap, saturation=saturation,
+                             diagnostic=diag)
+        os.makedirs(out_dir, exist_ok=True)
+        xml_path = os.path.join(out_dir, f"{stem}_fit.xml")
+        with open(xml_path, "w", encoding="utf-8") as f:
+            f.write(res.xml() + "\n")
+    except (CoronaError, ValueError, OSError) as err:
+        _fail(err)
+    if res.diagnostic_note:
+        click.echo(f"corona: note: {res.diagnostic_note}", err=True)
+    if as_json:
+        click.echo(json.dumps({**res.to_dict(), "xml_file": xml_path}))
+        return
+    click.echo(res.summary())
+    click.echo(res.xml())
+    click.echo(f"{xml_path}" + (f"  {res.diagnostic}" if res.diagnostic else "") + f"  ({res.seconds:.1f} s)")
 
 
 def run() -> int:  # pragma: no cover - console entry

@@ -94,3 +94,62 @@ def street_light_scene(resolution: int = 256, bsdf: dict | None = None, *, fov: 
             "emitter": {"type": "area", "radiance": blackbody_spectrum(temperature)},
         },
     }
+
+
+def lamp_photograph_scene(resolution: int = 128, bsdf: dict | None = None, *, fov: float = 20.0,
+                          source_deg=(0.0, 0.0), source_radius_deg: float = 0.1,
+                          temperature: float = 3000.0) -> dict:
+    """A distant black-body lamp photographed through a layer facing the camera.
+
+    The geometry :func:`corona.fit.fit_photograph` assumes: a pinhole camera
+    at the origin looking along +z (horizontal field of view ``fov``), the
+    layer ``bsdf`` parallel to the sensor 0.1 m in front of it (beyond the
+    perspective sensor's near clip of 0.01 m) and 20 m wide, and a spherical
+    lamp 1 km away, so that the parallax between pane points is below 1e-4 of
+    an angle (the far field).
+
+    Parameters
+    ----------
+    resolution : int
+        Image width and height [pixels].
+    bsdf : dict, optional
+        The layer (default: ``corona`` droplets, hard disks, 5 µm, F_a 0.4).
+    fov : float
+        Horizontal field of view [degree].
+    source_deg : (float, float)
+        Direction of the lamp: angles [degree] about the camera's y and x axes
+        (tan of each is the offset per unit depth).
+    source_radius_deg : float
+        Angular radius of the lamp [degree].
+    temperature : float
+        Black-body temperature of the lamp [K].
+    """
+    import math
+
+    import mitsuba as mi
+    if bsdf is None:
+        bsdf = {"type": "corona", "radius": 5.0, "area_fraction": 0.4, "process": "hard-disk",
+                "mode": "particle"}
+    distance = 1000.0
+    tx, ty = (math.tan(math.radians(a)) for a in source_deg)
+    norm = math.sqrt(tx * tx + ty * ty + 1.0)
+    centre = [distance * tx / norm, distance * ty / norm, distance / norm]
+    T = mi.ScalarTransform4f
+    return {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": 3},
+        "sensor": {
+            "type": "perspective", "fov": fov, "fov_axis": "x",
+            "to_world": T().look_at(origin=[0, 0, 0], target=[0, 0, 1], up=[0, 1, 0]),
+            "film": {"type": "hdrfilm", "width": resolution, "height": resolution,
+                     "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+            "sampler": {"type": "independent"},
+        },
+        "pane": {"type": "rectangle", "to_world": T().translate([0, 0, 0.1]).scale([10, 10, 1]),
+                 "bsdf": bsdf},
+        "light": {
+            "type": "sphere", "center": centre,
+            "radius": distance * math.tan(math.radians(source_radius_deg)),
+            "emitter": {"type": "area", "radiance": {"type": "blackbody", "temperature": temperature}},
+        },
+    }
