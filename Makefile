@@ -8,16 +8,16 @@ PYTEST_ARGS ?=
 # make bench BENCH_ARGS=--full (bigger runs) or BENCH_ARGS="--only render sampling"
 BENCH_ARGS ?=
 
-.PHONY: all demo test venv llvm bench gallery clean clean-cache
+.PHONY: all demo test venv llvm chromium bench gallery clean clean-cache designer
 
 all: test
 
 # The virtual environment, created and filled idempotently: the runtime plus
-# the reference tier and the test tools (a plain `pip install .` is the light runtime).
+# the reference tier, the designer and the test tools (a plain `pip install .` is the light runtime).
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[reference,test]'
+	$(PY) -m pip install -q -e '.[reference,test,designer]'
 	@touch $(STAMP)
 
 venv: $(STAMP) llvm
@@ -26,16 +26,24 @@ venv: $(STAMP) llvm
 llvm:
 	@bash scripts/ensure_llvm.sh
 
+# Debian's headless Chromium and chromedriver for the designer's browser test.
+chromium:
+	@bash scripts/ensure_chromium.sh
+
 demo: venv
 	$(PY) scripts/demo.py
 
-test: venv
+test: venv chromium
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
 gallery: venv
 	$(PY) scripts/gallery.py
 	$(PY) scripts/demo.py out/demo --update-docs
+
+# the look-development page on http://127.0.0.1:8765/
+designer: venv
+	$(PY) -m corona.cli designer
 
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)

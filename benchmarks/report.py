@@ -86,6 +86,14 @@ def headline() -> list[str]:
         rows.append(("Brute force to 2 % / model lobe on the same grid",
                      f"{c['seconds']:.1f} s / {c['seconds'] / c['ratio_to_model_warm']:.3f} s = "
                      f"{c['ratio_to_model_warm']:.0f}×", "report"))
+    d = _load("designer")
+    if d:
+        radial = {k: v for k, v in d["results"].items() if v.get("radial")}
+        if radial:
+            name, worst = max(radial.items(), key=lambda kv: kv[1]["update_median_ms"])
+            rows.append((f"Designer update, picture + profiles (slowest radial: {name})",
+                         f"{worst['update_median_ms']:.0f} ms median (energy split {worst['energy_median_ms']:.0f} ms)",
+                         "≤ 100 ms"))
     g = _load("gpu")
     if g:
         rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else
