@@ -9,7 +9,10 @@ GET /api/material (energy split and exports: needs the material's full
 lobe table).  Writes benchmarks/results/designer.json.
 
 Goal (issue 16): each update <= 100 ms for radial materials on 2 cores;
-"update" = the picture and the profiles (what moves under the knob).
+"update" = the picture and the profiles (what moves under the knob).  Both
+wall-clock and CPU time (all threads of the process) are recorded: on a
+shared, loaded machine the wall clock measures the neighbours too, while
+the CPU time is what the update costs (numpy runs it on one core).
 
     python benchmarks/bench_designer.py [--steps 12]
 """
@@ -56,35 +59,43 @@ def main():
         else:
             material, view = spec
         times = {"picture": [], "profiles": [], "material": []}
+        cpu = {"picture": [], "profiles": [], "material": []}
         radial = None
         for step in range(args.steps):
             q = {**material, **view, "radius": round(material["radius"] * 1.01 ** (step + 1), 6)}
             for key, path in (("picture", "/api/corona.png"), ("profiles", "/api/profiles"),
                               ("material", "/api/material")):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 res = client.get(path, params=q if key != "material" else
                                  {k: v for k, v in q.items() if k in compute.DEFAULTS})
                 times[key].append(time.perf_counter() - t0)
+                cpu[key].append(time.process_time() - c0)
                 if res.status_code != 200:
                     raise SystemExit(f"{name}: {path} answered {res.status_code}: {res.text}")
                 if key == "material":
                     radial = res.json()["isotropic"]
         update = [a + b for a, b in zip(times["picture"], times["profiles"])]
+        update_cpu = [a + b for a, b in zip(cpu["picture"], cpu["profiles"])]
         results[name] = {
             "radial": radial,
             "picture_median_ms": 1e3 * statistics.median(times["picture"]),
             "profiles_median_ms": 1e3 * statistics.median(times["profiles"]),
             "update_median_ms": 1e3 * statistics.median(update),
             "update_max_ms": 1e3 * max(update),
+            "update_cpu_median_ms": 1e3 * statistics.median(update_cpu),
+            "picture_cpu_median_ms": 1e3 * statistics.median(cpu["picture"]),
             "energy_median_ms": 1e3 * statistics.median(times["material"]),
+            "energy_cpu_median_ms": 1e3 * statistics.median(cpu["material"]),
             "energy_max_ms": 1e3 * max(times["material"]),
-            "meets_100ms": bool(radial and statistics.median(update) <= 0.1),
+            "meets_100ms_wall": bool(radial and statistics.median(update) <= 0.1),
+            "meets_100ms_cpu": bool(radial and statistics.median(update_cpu) <= 0.1),
         }
         r = results[name]
         print(f"{name:48s} {'radial' if radial else '2-D   '}  update {r['update_median_ms']:6.1f} ms "
+              f"(cpu {r['update_cpu_median_ms']:6.1f}) "
               f"(picture {r['picture_median_ms']:5.1f}, profiles {r['profiles_median_ms']:5.1f}, "
               f"max {r['update_max_ms']:6.1f})  energy {r['energy_median_ms']:7.1f} ms", flush=True)
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None   # at the end of the run
     write("designer", {"steps": args.steps, "load_average_1min": load, "results": results,
                        "goal": "each update (picture + profiles) <= 100 ms for radial materials on 2 cores "
                                "(median over a drag of the radius slider; energy split reported apart)"})

@@ -301,12 +301,16 @@ def test_bad_parameters_are_one_line_400(client, query, words):
 def test_bad_kernel_and_request_shapes(client):
     one_line_400(client.get("/api/kernel.png", params={"kernel_size": 10}), "kernel_size=10", "odd")
     one_line_400(client.get("/api/kernel.exr", params={"pixel_scale": 5}), "pixel_scale=5")
+    one_line_400(client.get("/api/kernel.exr", params={"pixel_scale": 0.5, "kernel_size": 1001}),
+                 "pixel_scale=0.5", "±250°", "±60°")
     one_line_400(client.get("/api/corona.png?radius=1&radius=2"), "radius", "twice")
     one_line_400(client.get("/api/corona.png?mixture=" + "x" * 5000), "query", "4096")
     assert client.get("/api/kernel.tif").status_code == 404
     assert client.post("/api/corona.png").status_code == 405
     res = client.get("/api/parameters", headers={"Host": "corona.example.com"})
     assert res.status_code == 400                                  # not a loopback name
+    for host in ("localhost:8765", "[::1]:8765"):
+        assert client.get("/api/parameters", headers={"Host": host}).status_code == 200
 
 
 def test_compute_timeout_is_503(monkeypatch):

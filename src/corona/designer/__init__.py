@@ -46,7 +46,8 @@ def allowed_hosts_for(host: str) -> list[str]:
     ``host`` itself; everything when listening on all interfaces."""
     if host in ("0.0.0.0", "::", ""):
         return ["*"]
-    return sorted({"127.0.0.1", "localhost", host.strip("[]")})
+    host = host.strip("[]")
+    return sorted({"127.0.0.1", "localhost", "[::1]", f"[{host}]" if ":" in host else host})
 
 
 def warm_up() -> None:

@@ -45,7 +45,7 @@ MAX_UPLOADS = 64
 COMPUTE_TIMEOUT = 20.0
 MAX_CONCURRENT = 2
 
-LOOPBACK = ("127.0.0.1", "localhost")
+LOOPBACK = ("127.0.0.1", "localhost", "[::1]")
 
 
 def _error(status: int, message: str) -> JSONResponse:

@@ -15,8 +15,8 @@ around it, relative to the light's own, is
 with ``T_c`` the coherent transmittance and ``f`` the lobe [1/sr] at
 ``d = ω``.  Each pixel integrates its spectrum against the CIE 1931 colour
 matching functions to linear sRGB (:mod:`corona.color`); the exposure in
-stops scales it before the sRGB transfer curve (0 EV: the light itself,
-seen through a clear pane, is white).
+stops scales it before the sRGB transfer curve (0 EV: the light's own
+radiance, without the layer, is white).
 """
 from __future__ import annotations
 
@@ -61,6 +61,8 @@ KERNEL_PARAMETERS: tuple[Parameter, ...] = (
               low=3, high=1023),
 )
 KERNEL_SPEC = {p.name: p for p in KERNEL_PARAMETERS}
+#: Largest half-width of a kernel [degree] (a tangent plane beyond it distorts too much).
+KERNEL_MAX_HALF_WIDTH = 60.0
 
 #: Upper bounds the designer adds to the specification's ranges, so that no
 #: request can ask for unbounded work (a server must answer every request in time).
@@ -563,10 +565,14 @@ def kernel(params: dict, opts: dict) -> np.ndarray:
     puts the corona around every light of the plate.  Sum over the kernel:
     ``T_c`` + the lobe's energy within its field.
     """
-    m = material(params)
-    scale = math.radians(opts.get("pixel_scale") or KERNEL_SPEC["pixel_scale"].default)
+    scale_deg = opts.get("pixel_scale") or KERNEL_SPEC["pixel_scale"].default
     n = int(opts.get("kernel_size") or KERNEL_SPEC["kernel_size"].default)
     h = n // 2
+    if scale_deg * h > KERNEL_MAX_HALF_WIDTH:
+        raise CoronaError(f"pixel_scale={scale_deg:g} degree with kernel_size={n} spans ±{scale_deg * h:g}°; "
+                          f"allowed at most ±{KERNEL_MAX_HALF_WIDTH:g}° (pixel_scale × (kernel_size - 1)/2)")
+    m = material(params)
+    scale = math.radians(scale_deg)
     t = np.arange(-h, h + 1) * scale
     tx, ty = np.meshgrid(t, t[::-1], indexing="xy")
     # tangent plane x = tan θ: direction (x, y, 1)/|.|, d = its xy part

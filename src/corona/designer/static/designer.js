@@ -291,6 +291,7 @@ const chanMaterial = new Channel(async (res, ms, ctx) => {
   showTiming("energy", ms);
   state.material[ctx] = data;
   drawEnergy(ctx, data);
+  $("energy-" + ctx).classList.remove("stale");
   if (ctx === "a") showExport();
 });
 const chanMaterialB = new Channel(chanMaterial.handle);
@@ -302,6 +303,7 @@ function requestB() {
   chanB.request("/api/corona.png?" + query(["material", "light"], vals, extra), "b");
   chanProfilesB.request("/api/profiles?" + query(["material", "light"], vals, extra), "b");
   chanMaterialB.request("/api/material?" + query(["material"], vals), "b");
+  $("energy-b").classList.add("stale");
 }
 
 let scheduled = false;
@@ -317,6 +319,7 @@ function update() {
   chanA.request("/api/corona.png?" + q, "a");
   chanProfiles.request("/api/profiles?" + q, "a");
   chanMaterial.request("/api/material?" + query(["material"], state.values), "a");
+  $("energy-a").classList.add("stale");            // until the new numbers arrive (the table can take a while)
   const kq = query(["material", "kernel"], state.values);
   $("kernel-png").href = "/api/kernel.png?" + kq;
   $("kernel-exr").href = "/api/kernel.exr?" + kq;
