@@ -13,16 +13,16 @@ SPHINXOPTS ?=
 # make gallery VARIANT=llvm_ad_rgb
 VARIANT ?=
 
-.PHONY: all demo test venv llvm bench gallery docs clean clean-cache
+.PHONY: all demo test venv llvm chromium bench gallery docs clean clean-cache designer
 
 all: test
 
 # The virtual environment, created and filled idempotently: the runtime plus
-# the reference tier, the sweep executor (Dask) and the test tools (a plain `pip install .` is the light runtime).
+# the reference tier, the sweep executor (Dask), the designer and the test tools (a plain `pip install .` is the light runtime).
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[reference,sweep,test]'
+	$(PY) -m pip install -q -e '.[reference,sweep,designer,test]'
 	@touch $(STAMP)
 
 venv: $(STAMP) llvm
@@ -31,10 +31,14 @@ venv: $(STAMP) llvm
 llvm:
 	@bash scripts/ensure_llvm.sh
 
+# Debian's headless Chromium and chromedriver for the designer's browser test.
+chromium:
+	@bash scripts/ensure_chromium.sh
+
 demo: venv
 	$(PY) scripts/demo.py
 
-test: venv
+test: venv chromium
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
@@ -43,6 +47,10 @@ test: venv
 gallery: venv
 	$(PY) scripts/gallery.py $(if $(VARIANT),--variant $(VARIANT))
 	$(PY) scripts/demo.py out/demo --update-docs $(if $(VARIANT),--variant $(VARIANT))
+
+# the look-development page on http://127.0.0.1:8765/
+designer: venv
+	$(PY) -m corona.cli designer
 
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)

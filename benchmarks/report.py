@@ -102,6 +102,17 @@ def headline() -> list[str]:
                          "fresh `corona fit --json`",
                          f"{v['fit_median_s']:.2f} s ({v['fit_cpu_median_s']:.2f} s CPU); {v['cli_s']:.1f} s; "
                          f"radius {v['radius_error_percent']:+.2f} %", "≤ 5 s"))
+    d = _load("designer")
+    if d:
+        radial = {k: v for k, v in d["results"].items() if v.get("radial")}
+        if radial:
+            name, worst = max(radial.items(), key=lambda kv: kv[1]["update_median_ms"])
+            load = d.get("load_average_1min")
+            rows.append((f"Designer update, picture + profiles (slowest radial: {name})",
+                         f"{worst['update_median_ms']:.0f} ms wall, {worst.get('update_cpu_median_ms', float('nan')):.0f} ms "
+                         f"CPU (median; load {load:.1f} on {d['machine'].get('cores', '?')} cores); energy split "
+                         f"{worst['energy_median_ms']:.0f} ms" if load is not None else
+                         f"{worst['update_median_ms']:.0f} ms median", "≤ 100 ms"))
     g = _load("gpu")
     if g:
         rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else

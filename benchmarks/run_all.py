@@ -16,6 +16,7 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 FULL = {   # bigger runs: extra arguments per script
+    "designer": ["--steps", "40"],
     "render": ["--rounds", "5", "--repeats", "5"],
     "sampling": ["--res", "512", "--ref-spp", "8192"],
     "scaling": ["--repeats", "5"],

@@ -7,6 +7,7 @@
     corona doctor
     corona validate [--out DIR] [--quick] [--cases A,B] [--realisations N] [--workers N | --scheduler ADDRESS]
     corona fit IMAGE (--fov DEG | --deg-per-pixel DEG) [--temperature K] [--json] ...
+    corona designer [--host 127.0.0.1] [--port 8765] [--open]
 
 Errors are one line on stderr and exit code 2.
 """
@@ -376,6 +377,39 @@ def fit(image, fov, deg_per_pixel, temperature, area_fraction, size_spread, proc
     click.echo(res.summary())
     click.echo(res.xml())
     click.echo(f"{xml_path}" + (f"  {res.diagnostic}" if res.diagnostic else "") + f"  ({res.seconds:.1f} s)")
+# designer
+# ----------------------------------------------------------------------
+@main.command()
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to listen on (loopback by default: only this computer can connect).")
+@click.option("--port", type=click.IntRange(0, 65535), default=8765, show_default=True,
+              help="TCP port (0: any free port).")
+@click.option("--open", "open_browser", is_flag=True, help="Open the page in the web browser.")
+def designer(host, port, open_browser):
+    """A look-development page in the browser: knobs for every material parameter, the
+    corona, profiles, energy split, comparison, photograph overlay and exports."""
+    try:
+        import starlette  # noqa: F401
+        import uvicorn  # noqa: F401
+    except ImportError:
+        _fail("corona designer needs the 'designer' extra: pip install 'corona[designer]'")
+    from . import designer as d
+    try:
+        sock = d.bind(host, port)
+    except OSError as err:
+        _fail(f"cannot listen on {host}:{port} ({err.strerror or err}); choose another --port or --host")
+    real_port = sock.getsockname()[1]
+    url = f"http://{'[' + host + ']' if ':' in host else host}:{real_port}/"
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        click.echo(f"corona designer: listening on {host}, reachable from other computers", err=True)
+    click.echo(f"corona designer: {url}  (Ctrl-C to stop)", err=True)
+    if open_browser:
+        import webbrowser
+        webbrowser.open(url)
+    try:
+        d.serve(sock, host)
+    except KeyboardInterrupt:  # pragma: no cover - interactive
+        pass
 
 
 def run() -> int:  # pragma: no cover - console entry

@@ -1,0 +1,105 @@
+"""Latency of `corona designer`: one slider step, end to end through the HTTP API.
+
+For each material a "drag" of ``--steps`` slider steps (the radius grows by
+1 % per step, so every step is a new material, as when a user drags the
+radius knob) and, per step, the time of each view the page asks for,
+through Starlette's TestClient (routing, parsing, the worker thread, PNG
+encoding): GET /api/corona.png (256² picture), GET /api/profiles, and
+GET /api/material (energy split and exports: needs the material's full
+lobe table).  Writes benchmarks/results/designer.json.
+
+Goal (issue 16): each update <= 100 ms for radial materials on 2 cores;
+"update" = the picture and the profiles (what moves under the knob).  Both
+wall-clock and CPU time (all threads of the process) are recorded: on a
+shared, loaded machine the wall clock measures the neighbours too, while
+the CPU time is what the update costs (numpy runs it on one core).
+
+    python benchmarks/bench_designer.py [--steps 12]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+os.environ.setdefault("CORONA_CACHE_DIR", tempfile.mkdtemp(prefix="corona-bench-"))
+
+import corona  # noqa: E402,F401
+from common import write  # noqa: E402
+
+MATERIALS = {
+    "fogged window (circle 5 µm, hard-disk)": "fogged window",
+    "lycopodium 10× (circle 15 µm, 5 % spread, rsa)": "lycopodium 10×",
+    "droplets 2 µm, poisson": ({"radius": 2.0, "area_fraction": 0.2, "process": "poisson"},
+                               {"field": 20.0}),
+    "hexagons 3 µm, random orientation": ({"shape": "polygon", "sides": 6, "radius": 3.0,
+                                           "orientation": "random", "area_fraction": 0.3}, {}),
+    "voile fabric (square lattice, 2-D)": "voile fabric",
+}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--steps", type=int, default=12)
+    args = ap.parse_args()
+    from starlette.testclient import TestClient
+
+    from corona.designer import compute, create_app
+    client = TestClient(create_app(timeout=120.0), base_url="http://127.0.0.1")
+    # warm: imports, shipped tables, the first JIT of nothing (numpy only)
+    client.get("/api/corona.png", params={"radius": 1.0})
+    results = {}
+    for name, spec in MATERIALS.items():
+        if isinstance(spec, str):
+            material, view = compute.PRESETS[spec]["material"], compute.PRESETS[spec]["view"]
+        else:
+            material, view = spec
+        times = {"picture": [], "profiles": [], "material": []}
+        cpu = {"picture": [], "profiles": [], "material": []}
+        radial = None
+        for step in range(args.steps):
+            q = {**material, **view, "radius": round(material["radius"] * 1.01 ** (step + 1), 6)}
+            for key, path in (("picture", "/api/corona.png"), ("profiles", "/api/profiles"),
+                              ("material", "/api/material")):
+                t0, c0 = time.perf_counter(), time.process_time()
+                res = client.get(path, params=q if key != "material" else
+                                 {k: v for k, v in q.items() if k in compute.DEFAULTS})
+                times[key].append(time.perf_counter() - t0)
+                cpu[key].append(time.process_time() - c0)
+                if res.status_code != 200:
+                    raise SystemExit(f"{name}: {path} answered {res.status_code}: {res.text}")
+                if key == "material":
+                    radial = res.json()["isotropic"]
+        update = [a + b for a, b in zip(times["picture"], times["profiles"])]
+        update_cpu = [a + b for a, b in zip(cpu["picture"], cpu["profiles"])]
+        results[name] = {
+            "radial": radial,
+            "picture_median_ms": 1e3 * statistics.median(times["picture"]),
+            "profiles_median_ms": 1e3 * statistics.median(times["profiles"]),
+            "update_median_ms": 1e3 * statistics.median(update),
+            "update_max_ms": 1e3 * max(update),
+            "update_cpu_median_ms": 1e3 * statistics.median(update_cpu),
+            "picture_cpu_median_ms": 1e3 * statistics.median(cpu["picture"]),
+            "energy_median_ms": 1e3 * statistics.median(times["material"]),
+            "energy_cpu_median_ms": 1e3 * statistics.median(cpu["material"]),
+            "energy_max_ms": 1e3 * max(times["material"]),
+            "meets_100ms_wall": bool(radial and statistics.median(update) <= 0.1),
+            "meets_100ms_cpu": bool(radial and statistics.median(update_cpu) <= 0.1),
+        }
+        r = results[name]
+        print(f"{name:48s} {'radial' if radial else '2-D   '}  update {r['update_median_ms']:6.1f} ms "
+              f"(cpu {r['update_cpu_median_ms']:6.1f}) "
+              f"(picture {r['picture_median_ms']:5.1f}, profiles {r['profiles_median_ms']:5.1f}, "
+              f"max {r['update_max_ms']:6.1f})  energy {r['energy_median_ms']:7.1f} ms", flush=True)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None   # at the end of the run
+    write("designer", {"steps": args.steps, "load_average_1min": load, "results": results,
+                       "goal": "each update (picture + profiles) <= 100 ms for radial materials on 2 cores "
+                               "(median over a drag of the radius slider; energy split reported apart)"})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,415 @@
+"""`corona designer`: its HTTP API (Starlette's TestClient) and the physics of its
+pictures, checked against independent computations: corona.pictures'
+far-field corona, the table's CDF (energy within a disk), the Airy maxima,
+the material's own energies, and Mitsuba loading the exported XML / dict."""
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import types
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+pytest.importorskip("starlette")
+
+from click.testing import CliRunner  # noqa: E402
+from PIL import Image  # noqa: E402
+from starlette.testclient import TestClient  # noqa: E402
+
+from corona.color import blackbody, spectrum_to_linear_srgb  # noqa: E402
+from corona.designer import app as app_module  # noqa: E402
+from corona.designer import compute  # noqa: E402
+from corona.parameters import PARAMETERS, material_from_parameters  # noqa: E402
+from corona.pictures import far_field_corona  # noqa: E402
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+@pytest.fixture(scope="module")
+def client():
+    from corona.designer import create_app
+    with TestClient(create_app(), base_url="http://127.0.0.1") as c:
+        yield c
+
+
+def png(res) -> np.ndarray:
+    assert res.status_code == 200, res.text
+    assert res.headers["content-type"] == "image/png"
+    return np.asarray(Image.open(io.BytesIO(res.content)))
+
+
+def one_line_400(res, *words, status=400):
+    assert res.status_code == status, (res.status_code, res.text)
+    msg = res.json()["error"]
+    assert "\n" not in msg and "Traceback" not in msg
+    for w in words:
+        assert w in msg, msg
+    return msg
+
+
+# ----------------------------------------------------------------------
+# the package boundary
+# ----------------------------------------------------------------------
+def test_import_corona_does_not_import_the_web_libraries():
+    code = ("import sys, corona; bad = [m for m in ('starlette', 'uvicorn', 'corona.designer', 'PIL') "
+            "if m in sys.modules]; print(','.join(bad))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == ""
+
+
+def test_parameters_come_from_the_one_specification(client):
+    spec = client.get("/api/parameters").json()
+    served = {p["name"]: p for p in spec["parameters"] if p["group"] == "material"}
+    expected = [p for p in PARAMETERS if not p.plugin_only]
+    assert list(served) == [p.name for p in expected]
+    for p in expected:
+        s = served[p.name]
+        assert (s["kind"], s["unit"], s["default"], s["meaning"]) == (p.kind, p.unit, p.default, p.meaning)
+        if p.kind == "choice":
+            assert s["choices"] == list(p.choices)
+    assert {"temperature", "light_size", "exposure"} <= {p["name"] for p in spec["parameters"]}
+    assert {"fogged window", "lycopodium 10×", "voile fabric"} <= set(spec["presets"])
+    for pr in spec["presets"].values():       # every preset is a valid material
+        compute.parse({**pr["material"], **pr["view"]})
+
+
+def test_page_and_its_files_are_served(client):
+    page = client.get("/")
+    assert page.status_code == 200 and "corona designer" in page.text
+    for path in ("/static/designer.js", "/static/designer.css", "/favicon.ico"):
+        assert client.get(path).status_code == 200, path
+    # no external resource: the page works offline
+    for f in ("index.html", "designer.js", "designer.css"):
+        with open(os.path.join(app_module.STATIC, f), encoding="utf-8") as fh:
+            text = fh.read()
+        assert "http://" not in text and "https://" not in text and "//cdn" not in text, f
+
+
+# ----------------------------------------------------------------------
+# pictures
+# ----------------------------------------------------------------------
+def test_corona_png(client):
+    res = client.get("/api/corona.png", params={"radius": 5, "area_fraction": 0.4, "mode": "particle", "size": 64})
+    img = png(res)
+    assert img.shape == (64, 64, 3) and img.dtype == np.uint8
+    assert float(res.headers["X-Corona-Exposure"]) > 0            # the lobe is far fainter than the light
+    # rings: the picture is not flat, and it is symmetric about the light
+    assert img.std() > 10
+    assert np.abs(img.astype(int) - img[:, ::-1].astype(int)).max() <= 1
+    # a bigger radius draws a different picture; a fixed exposure is kept
+    other = client.get("/api/corona.png", params={"radius": 8, "area_fraction": 0.4, "mode": "particle",
+                                                  "size": 64, "exposure": 3})
+    assert float(other.headers["X-Corona-Exposure"]) == 3.0
+    assert not np.array_equal(png(other), img)
+
+
+@pytest.mark.parametrize("params", [
+    dict(radius=5.0, area_fraction=0.4, mode="particle"),
+    dict(radius=6.0, size_spread=0.05, area_fraction=0.35, process="rsa"),
+    dict(radius=3.0, area_fraction=0.3, process="poisson"),
+])
+def test_fast_radial_picture_matches_far_field_corona(params):
+    """The designer's radial path (exact lobe on one radial profile) against
+    corona.pictures.far_field_corona (the renderer's table at every pixel)."""
+    m = compute.material(params)
+    field, n = compute.auto_field(m), 64
+    ref = far_field_corona(m, field, n, 3000.0, compute.N_WAVELENGTHS)
+    d, _ = compute._pixel_offsets(field, n)
+    lams = compute.WAVELENGTHS
+    spd = blackbody(lams, 3000.0)
+    mine = compute.lobe_rgb(m, d, spd / spd.max(), lams)
+    assert np.abs(mine - ref).max() <= 2e-3 * np.abs(ref).max()
+
+
+def test_fft_convolution_is_scipys_direct_convolution():
+    from scipy import ndimage
+    rng = np.random.default_rng(1)
+    img = rng.random((40, 40, 3))
+    for n in (3, 9, 61):                    # kernels smaller and larger than the image
+        k = rng.random((n, n))
+        k[0] += 3.0                         # not symmetric: the orientation matters
+        ref = np.stack([ndimage.convolve(img[..., c], k, mode="constant") for c in range(3)], -1)
+        np.testing.assert_allclose(compute._fft_convolve_same(img, k), ref, rtol=1e-10, atol=1e-10)
+
+
+def test_light_disk_and_coherent_light_at_the_centre():
+    """At the centre of a light of radius 2°, the radiance relative to the light's is
+    T_c + the lobe's energy within 2° (from the table's CDF), luminance-weighted."""
+    params = dict(radius=5.0, area_fraction=0.2, process="poisson")
+    m = material_from_parameters(**params)
+    img, used = compute.corona_linear(compute.material(params),
+                                      {"field": 6.0, "size": 129, "light_size": 4.0, "temperature": 4000.0})
+    lams = compute.WAVELENGTHS
+    t = m.table
+    u_nodes = np.arange(t.values.size) * t.du
+    u_edge = 2 * np.pi * m.length_scale * math.sin(math.radians(2.0)) / (lams * 1e-3)
+    energy = m.lobe_weight * np.interp(u_edge, u_nodes, t.cdf) / (4 * np.pi**2)     # per λ
+    s = blackbody(lams, 4000.0)
+    expected = m.coherent_transmittance + (spectrum_to_linear_srgb(energy * s, lams) @ LUMA) / (
+        spectrum_to_linear_srgb(s, lams) @ LUMA)
+    got = img[64, 64] @ LUMA
+    assert got == pytest.approx(expected, rel=0.01)
+    assert m.coherent_transmittance < energy.min() < 0.9 * m.diffuse_transmittance()  # the lobe matters here
+    # far outside the light, only the lobe: much fainter
+    assert img[0, 64] @ LUMA < 0.1 * got
+
+
+def test_kernel_holds_the_energy_within_its_field(client):
+    """Sum of the kernel within 9° = T_c + the lobe's energy within 9°, per channel
+    (equal-energy normalisation), from the table's CDF; and the EXR holds the same numbers."""
+    params = dict(radius=5.0, area_fraction=0.3, process="hard-disk")
+    m = material_from_parameters(**params)
+    k = compute.kernel(params, {"pixel_scale": 0.05, "kernel_size": 401})
+    assert k.shape == (401, 401, 3) and k.dtype == np.float32 and np.all(np.isfinite(k))
+    i = np.arange(-200, 201) * math.radians(0.05)
+    tx, ty = np.meshgrid(i, i, indexing="xy")
+    cos_theta = 1 / np.sqrt(1 + np.tan(tx) ** 2 + np.tan(ty) ** 2)
+    inside = cos_theta >= math.cos(math.radians(9.0))
+    got = k[inside].sum(axis=0)
+    lams = compute.WAVELENGTHS
+    t = m.table
+    u_edge = 2 * np.pi * m.length_scale * math.sin(math.radians(9.0)) / (lams * 1e-3)
+    energy = m.lobe_weight * np.interp(u_edge, np.arange(t.values.size) * t.du, t.cdf) / (4 * np.pi**2)
+    w = spectrum_to_linear_srgb(np.eye(lams.size), lams)               # (nλ, 3) channel weights
+    expected = m.coherent_transmittance + (w * energy[:, None]).sum(0) / w.sum(0)
+    np.testing.assert_allclose(got, expected, rtol=0.01)
+    assert k[200, 200].min() > m.coherent_transmittance                 # the coherent light on the centre pixel
+
+    q = {**params, "pixel_scale": 0.05, "kernel_size": 33}
+    exr = client.get("/api/kernel.exr", params=q)
+    assert exr.status_code == 200 and exr.content[:4] == b"\x76\x2f\x31\x01"    # OpenEXR magic
+    import mitsuba as mi
+    path = os.path.join(app_module.designer_dir("tmp"), "check.exr")
+    with open(path, "wb") as f:
+        f.write(exr.content)
+    back = np.array(mi.Bitmap(path))
+    os.unlink(path)
+    np.testing.assert_allclose(back, compute.kernel(params, {"pixel_scale": 0.05, "kernel_size": 33}), rtol=1e-6)
+    assert png(client.get("/api/kernel.png", params=q)).shape == (33, 33, 3)
+
+
+# ----------------------------------------------------------------------
+# profiles, rings, energy, exports
+# ----------------------------------------------------------------------
+def test_profiles_and_rings_of_isolated_circles(client):
+    """Poisson circles: T_s = 1, T_a(0) = |A|/λ² = πR²/λ², the lobe is F_a T_a, and
+    the bright rings sit at the Airy maxima u = 5.13562, 8.41724, 11.61984."""
+    R, fa = 4.0, 0.2
+    res = client.get("/api/profiles", params={"radius": R, "area_fraction": fa, "process": "poisson"})
+    assert res.status_code == 200, res.text
+    p = res.json()
+    lam = 0.55
+    assert p["T_a"][0] == pytest.approx(math.pi * R**2 / lam**2, rel=1e-9)
+    np.testing.assert_allclose(p["T_s"], 1.0)
+    m = material_from_parameters(radius=R, area_fraction=fa, process="poisson")
+    theta = np.radians(p["angle"])
+    d = np.stack([np.sin(theta), 0 * theta], -1)
+    top = max(p["lobe"])
+    np.testing.assert_allclose(p["lobe"], m.lobe(d, 550.0), rtol=0, atol=1e-4 * top)
+    np.testing.assert_allclose(p["lobe"], fa * np.asarray(p["T_a"]), rtol=0, atol=1e-4 * top)
+    for lam_nm, radii in p["rings"].items():
+        airy = [5.13562, 8.41724, 11.61984]   # maxima of (2 J1(u)/u)²
+        expected = np.degrees(np.arcsin(np.asarray(airy) * float(lam_nm) * 1e-3 / (2 * math.pi * R)))
+        np.testing.assert_allclose(radii[:3], expected, rtol=2e-4)
+
+
+def test_energy_split_is_the_materials(client):
+    params = dict(radius=5.0, area_fraction=0.35, process="rsa", mode="particle", albedo=0.5)
+    res = client.get("/api/material", params=params)
+    assert res.status_code == 200, res.text
+    got = res.json()
+    m = material_from_parameters(**params)
+    assert got["coherent_transmittance"] == pytest.approx((1 - 0.35) ** 2)
+    assert got["coherent_transmittance"] == pytest.approx(m.coherent_transmittance)
+    assert got["diffuse_transmittance"] == pytest.approx(m.diffuse_transmittance(), rel=1e-12)
+    assert got["reflectance"] == pytest.approx(m.reflectance, rel=1e-12)
+    assert got["reflectance"] == pytest.approx(0.5 * 0.35)
+    total = got["coherent_transmittance"] + got["diffuse_transmittance"] + got["reflectance"] + got["absorbed"]
+    assert total == pytest.approx(1.0)
+    assert got["diffuse_transmittance"] == pytest.approx(0.35 * 0.65, rel=0.02)   # sum rule F_a (1 - F_a)
+
+
+@pytest.mark.parametrize("params", [
+    dict(radius=3.0, area_fraction=0.3),
+    dict(radius=2.0, area_fraction=0.5, process="rsa", mode="particle"),
+    dict(radius=2.0, area_fraction=0.4, size_spread=0.1),
+    dict(shape="square", radius=2.0, area_fraction=0.25, process="lattice-square", jitter=0.2),
+])
+def test_hard_core_lobe_weight_is_the_area_fraction(params):
+    """The designer skips the table for the lobe weight of hard-core processes."""
+    m = material_from_parameters(**params)
+    assert compute.lobe_weight(compute.material(params)) == m.area_fraction
+    assert m.lobe_weight == pytest.approx(m.area_fraction, rel=1e-12)
+
+
+def test_exports_load_in_mitsuba_and_rebuild_the_material(client, mi_variant):
+    import mitsuba as mi
+
+    import corona
+    mi.set_variant(mi_variant)
+    corona.register()
+    params = dict(radius=6.0, area_fraction=0.35, process="rsa", mode="particle", albedo=0.25,
+                  size_spread=0.02)
+    got = client.get("/api/material", params=params).json()
+    root = ET.fromstring(got["xml"])
+    assert root.tag == "bsdf" and root.get("type") == "corona"
+    from_xml = {e.get("name"): e.get("value") for e in root}
+    assert set(from_xml) == set(params)
+    m = material_from_parameters(**{k: (float(v) if k not in ("process", "mode") else v)
+                                    for k, v in from_xml.items()})
+    assert repr(m) == repr(material_from_parameters(**params))
+    assert got["load_dict"] == {"type": "corona", **params}
+    mi.load_dict(got["load_dict"])
+    mi.load_string(got["xml"].replace('<bsdf type="corona">', '<bsdf version="3.0.0" type="corona">', 1))
+    assert got["command"].startswith("corona lobe ") and "--size-spread 0.02" in got["command"]
+    assert got["load_dict_python"].startswith("mi.load_dict({'type': 'corona'")
+
+
+# ----------------------------------------------------------------------
+# bad input: HTTP 400 with one line naming the parameter; bounded work
+# ----------------------------------------------------------------------
+@pytest.mark.parametrize("query, words", [
+    ({"radius": -1}, ["radius=-1", "> 0"]),
+    ({"radius": "abc"}, ["radius", "not a number"]),
+    ({"radius": "nan"}, ["radius=nan"]),
+    ({"shape": "hexagon"}, ["shape='hexagon'", "circle"]),
+    ({"area_fraction": 1.5}, ["area_fraction=1.5", "(0, 1)"]),
+    ({"colour": "red"}, ["unknown parameter(s) colour"]),
+    ({"radius": 5000}, ["radius=5000", "designer", "1000"]),
+    ({"shape": "polygon", "sides": 1000000}, ["sides=1000000"]),
+    ({"size": 100000}, ["size=100000"]),
+    ({"light_size": 0}, ["light_size=0"]),
+    ({"temperature": 10}, ["temperature=10", "K"]),
+    ({"mixture": "circle:1:1," * 100, "shape": "mixture"}, ["mixture", "at most"]),
+    ({"shape": "mask", "filename": "/etc/passwd", "pixel_size": 1}, ["filename='/etc/passwd'", "upload"]),
+    ({"shape": "mask", "filename": "../" * 3 + "x.png", "pixel_size": 1}, ["filename=", "upload"]),
+    ({"shape": "mask", "filename": "0" * 32 + ".png", "pixel_size": 1}, ["no such upload"]),
+])
+def test_bad_parameters_are_one_line_400(client, query, words):
+    for path in ("/api/corona.png", "/api/material", "/api/profiles"):
+        one_line_400(client.get(path, params=query), *words)
+
+
+def test_bad_kernel_and_request_shapes(client):
+    one_line_400(client.get("/api/kernel.png", params={"kernel_size": 10}), "kernel_size=10", "odd")
+    one_line_400(client.get("/api/kernel.exr", params={"pixel_scale": 5}), "pixel_scale=5")
+    one_line_400(client.get("/api/kernel.exr", params={"pixel_scale": 0.5, "kernel_size": 1001}),
+                 "pixel_scale=0.5", "±250°", "±60°")
+    one_line_400(client.get("/api/corona.png?radius=1&radius=2"), "radius", "twice")
+    one_line_400(client.get("/api/corona.png?mixture=" + "x" * 5000), "query", "4096")
+    assert client.get("/api/kernel.tif").status_code == 404
+    assert client.post("/api/corona.png").status_code == 405
+    res = client.get("/api/parameters", headers={"Host": "corona.example.com"})
+    assert res.status_code == 400                                  # not a loopback name
+    for host in ("localhost:8765", "[::1]:8765"):
+        assert client.get("/api/parameters", headers={"Host": host}).status_code == 200
+
+
+def test_compute_timeout_is_503(monkeypatch):
+    import time
+    from corona.designer import create_app
+
+    def slow(*args):
+        time.sleep(2.0)
+    monkeypatch.setattr(compute, "corona_png", slow)
+    with TestClient(create_app(timeout=0.1), base_url="http://127.0.0.1") as c:
+        one_line_400(c.get("/api/corona.png"), "longer than 0.1 s", status=503)
+
+
+# ----------------------------------------------------------------------
+# uploads and the fit button
+# ----------------------------------------------------------------------
+def _png_bytes(a: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def test_mask_upload_is_stored_in_the_cache_and_usable(client):
+    yy, xx = np.mgrid[-16:16, -16:16]
+    disk = ((xx + 0.5) ** 2 + (yy + 0.5) ** 2 <= 10**2).astype(np.uint8) * 255
+    res = client.post("/api/upload?kind=mask&name=disk.png", content=_png_bytes(disk))
+    assert res.status_code == 200, res.text
+    up = res.json()
+    assert up["width"] == 32 and compute.UPLOAD_ID.match(up["id"])
+    stored = os.path.join(app_module.designer_dir("uploads"), up["id"])
+    assert os.path.isfile(stored)
+    from corona.tables import cache_dir
+    assert os.path.commonpath([stored, cache_dir()]) == cache_dir()
+    q = {"shape": "mask", "filename": up["id"], "pixel_size": 0.5, "orientation": "random",
+         "area_fraction": 0.3, "size": 48}
+    assert png(client.get("/api/corona.png", params=q)).shape == (48, 48, 3)
+    # the mask's disk of radius 10 px × 0.5 µm = 5 µm: the coherent weight is F_a²
+    got = client.get("/api/material", params=q).json()
+    assert got["coherent_transmittance"] == pytest.approx(0.09)
+    assert got["load_dict"]["filename"] == stored
+
+
+def test_bad_uploads(client, monkeypatch):
+    one_line_400(client.post("/api/upload?kind=mask", content=b"not an image"), "not a PNG or JPEG")
+    one_line_400(client.post("/api/upload?kind=photo", content=b""), "empty")
+    one_line_400(client.post("/api/upload?kind=script", content=b"x"), "kind='script'")
+    monkeypatch.setattr(app_module, "MAX_UPLOAD", 1000)
+    big = _png_bytes((np.random.default_rng(0).random((64, 64)) * 255).astype(np.uint8))
+    one_line_400(client.post("/api/upload?kind=photo", content=big), "allowed at most 1000", status=413)
+    monkeypatch.setattr(app_module, "MAX_POINTS", 10)
+    pts = "\n".join(f"{i} {i * 2}" for i in range(20)).encode()
+    one_line_400(client.post("/api/upload?kind=points", content=pts), "20 points", "at most 10")
+
+
+def test_fit_button_without_corona_fit_is_501(client, monkeypatch):
+    photo = client.post("/api/upload?kind=photo", content=_png_bytes(np.zeros((8, 8, 3), np.uint8))).json()
+    monkeypatch.setitem(sys.modules, "corona.fit", None)           # import corona.fit fails
+    one_line_400(client.post("/api/fit", json={"photo": photo["id"], "fov": 30}),
+                 "corona fit is not available", status=501)
+
+
+def test_fit_button_moves_the_knobs(client, monkeypatch):
+    photo = client.post("/api/upload?kind=photo", content=_png_bytes(np.zeros((8, 8, 3), np.uint8))).json()
+    calls = []
+
+    def fit_photograph(path, fov):
+        calls.append((path, fov))
+        return {"radius": 7.5, "radius_err": 0.1, "size_spread": 0.04, "temperature": 3100.0}
+    monkeypatch.setitem(sys.modules, "corona.fit", types.SimpleNamespace(fit_photograph=fit_photograph))
+    res = client.post("/api/fit", json={"photo": photo["id"], "fov": 30})
+    assert res.status_code == 200, res.text
+    assert res.json()["parameters"] == {"radius": 7.5, "size_spread": 0.04}
+    assert calls and os.path.basename(calls[0][0]) == photo["id"] and calls[0][1] == 30
+    one_line_400(client.post("/api/fit", json={"photo": photo["id"], "fov": 200}), "fov=200")
+    one_line_400(client.post("/api/fit", content=b"{"), "not JSON")
+
+
+# ----------------------------------------------------------------------
+# the command
+# ----------------------------------------------------------------------
+def test_designer_command_on_a_taken_port_is_one_line_error():
+    from corona.cli import main
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        res = CliRunner().invoke(main, ["designer", "--port", str(port)], catch_exceptions=False)
+    assert res.exit_code == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "cannot listen on 127.0.0.1:" in lines[0]
+    assert "designer" in CliRunner().invoke(main, ["--help"]).stdout
+
+
+def test_served_over_http_on_loopback():
+    """A real uvicorn server on 127.0.0.1 (what `corona designer` runs)."""
+    import urllib.request
+
+    from corona.designer import running
+    with running() as url:
+        assert url.startswith("http://127.0.0.1:")
+        with urllib.request.urlopen(url + "api/parameters", timeout=10) as r:
+            assert json.load(r)["parameters"]
