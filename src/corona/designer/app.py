@@ -194,18 +194,11 @@ class _App:
                                   '{"photo": "<upload id>", "fov": <degree>}') from None
             if not isinstance(req, dict):
                 raise CoronaError('the fit request must be a JSON object {"photo": ..., "fov": ...}')
-            try:
-                from .. import fit as fit_module          # corona fit (issue 13), optional
-            except ImportError:
-                return _error(501, "corona fit is not available in this installation (no module "
-                                   "corona.fit); the fit button needs it")
-            fit_photograph = getattr(fit_module, "fit_photograph", None)
-            if fit_photograph is None:
-                return _error(501, "corona.fit has no fit_photograph(path, fov=...) for the designer yet")
+            from ..fit import fit_photograph
             photo = compute._upload_path("photo", req.get("photo", ""), designer_dir("uploads"))
             fov = compute.check_fov(req.get("fov"))
-            result = await self._run(lambda: fit_photograph(photo, fov=fov))
-            fitted = {k: v for k, v in dict(result).items() if k in compute.DEFAULTS}
+            result = (await self._run(lambda: fit_photograph(photo, fov_deg=fov))).to_dict()
+            fitted = {k: v for k, v in result.items() if k in compute.DEFAULTS}
             return JSONResponse({"parameters": fitted, "result": _jsonable(result)})
         return await self._guard(go)
 
