@@ -140,6 +140,8 @@ class Ellipse(Shape):
     angle : float, default 0
         Rotation of the ellipse's x axis from the layer's x axis [rad].
 
+    Notes
+    -----
     ``length_scale = max(a, b)`` (circumradius), ``exclusion_diameter = 2 max(a, b)``.
     Isotropic only when a == b.
 
@@ -198,6 +200,8 @@ class Rectangle(Shape):
     angle : float, default 0
         Rotation of the rectangle's x axis from the layer's x axis [rad].
 
+    Notes
+    -----
     ``length_scale = √(W² + H²)/2`` (circumradius, half the diagonal).
 
     References

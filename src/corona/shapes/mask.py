@@ -108,6 +108,8 @@ class Mask(Shape):
     threshold : float in (0, 1), optional
         If given, the image is binarised as ``image >= threshold``.
 
+    Notes
+    -----
     ``length_scale`` is the largest distance from the centroid to a
     transmitting pixel centre plus half a pixel diagonal (``p/√2``).
 

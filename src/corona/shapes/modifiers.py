@@ -78,6 +78,8 @@ class SoftEdge(Modifier):
     edge_width : float
         Gaussian standard deviation w >= 0 [µm].
 
+    Notes
+    -----
     ``length_scale`` and ``exclusion_diameter`` are those of ``shape`` (the
     blur tail extends a few w beyond).
 
@@ -177,6 +179,8 @@ class RandomOrientation(Modifier):
         The profile to rotate (an isotropic shape is returned unchanged in
         value).
 
+    Notes
+    -----
     ``area``, ``length_scale``, ``exclusion_diameter`` and ``self_overlap``
     are those of ``shape``.
 
@@ -294,6 +298,8 @@ class SizeDistribution(Modifier):
     n_nodes : int, default 64
         Minimum number of quadrature nodes (8 … 100000).
 
+    Notes
+    -----
     ``length_scale``, ``exclusion_diameter`` and ``self_overlap`` are those of
     the mean shape (s = 1): the tables stay in u = q R of the mean particle,
     and a hard-core process built on ``exclusion_diameter`` lets the largest
@@ -512,6 +518,8 @@ class Mixture(Shape):
     components : sequence of (Shape, float)
         Shapes and their number weights (>= 0, not all 0).
 
+    Notes
+    -----
     ``isotropic`` if all components are.  ``length_scale`` and
     ``exclusion_diameter`` are the maxima over the components (the tables
     use u = q R of the largest, and a hard-core process keeps even the

@@ -122,6 +122,8 @@ class Polygon(Shape):
         repeated consecutive vertices are dropped.  The polygon is re-centred
         on its area centroid and stored counter-clockwise as ``vertices``.
 
+    Notes
+    -----
     ``length_scale`` is the circumradius (largest vertex distance from the
     centroid); ``exclusion_diameter`` twice that.
 
