@@ -85,14 +85,20 @@ class SphereBSDFMixin:
         self.x0, self.dx, self.n_rows = float(x[0]), float(x[1] - x[0]), int(x.size)
         self.ds = float(rows["ds"])
         self.K = int(rows["P_f"].shape[1])
-        self.Pf = _array(mi.Float, rows["P_f"].ravel())
-        self.Pb = _array(mi.Float, rows["P_b"].ravel())
         self.has_C = bool(rows["C_f"].size)
         if self.has_C:
             self.Cf = _array(mi.Float, rows["C_f"].ravel())
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
-        self.ef, self.eb = _array(mi.Float, der["e_f"]), _array(mi.Float, der["e_b"])
-        self.s0re, self.s0im = _array(mi.Float, rows["s0"][:, 0]), _array(mi.Float, rows["s0"][:, 1])
+        # per-row scalars packed 8 to a row, gathered as two Vector4f:
+        # (Re s0, Im s0, e_f, e_b), (T_f, T_b, 0, 0)
+        packed = np.zeros((x.size, 8))
+        packed[:, 0], packed[:, 1] = rows["s0"][:, 0], rows["s0"][:, 1]
+        packed[:, 2], packed[:, 3] = der["e_f"], der["e_b"]
+        packed[:, 4], packed[:, 5] = der["T_f"], der["T_b"]
+        self.row_data = _array(mi.Float, packed.ravel())
+        # both lobes in one array: forward rows, then backward rows
+        self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
+        self.back_offset = int(rows["P_f"].size)
         st = material.structure_table
         self.has_S = st is not None
         if self.has_S:
@@ -124,17 +130,23 @@ class SphereBSDFMixin:
         """Row, energies and lobe weight of one wavelength of the lane."""
         j, t, lam = self._row(lam_nm)
 
-        def lerp(arr):
-            return dr.lerp(_gather(mi.Float, arr, j, active), _gather(mi.Float, arr, j + 1, active), t)
+        if dr.is_array_v(mi.Float):
+            a0 = dr.gather(mi.Vector4f, self.row_data, 2 * j, active)
+            a1 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 2, active)
+            b0 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 1, active)
+            b1 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 3, active)
+        else:   # scalar variants
+            row = lambda k: mi.Vector4f(*[float(self.row_data[4 * k + c]) for c in range(4)])
+            a0, a1, b0, b1 = row(2 * j), row(2 * j + 2), row(2 * j + 1), row(2 * j + 3)
+        a = dr.lerp(a0, a1, t)
         fs = dr.minimum(self.fa / dr.maximum(mu_i, 1e-12), 1.0)
-        re = 1.0 - fs * lerp(self.s0re)
-        im = fs * lerp(self.s0im)
+        re = 1.0 - fs * a.x
+        im = fs * a.y
         coherent = dr.fma(re, re, im * im)
-        ef, eb = lerp(self.ef), lerp(self.eb)
+        ef, eb = a.z, a.w
         scattered = fs * (ef + eb)
         w = dr.minimum(1.0, dr.maximum(1.0 - coherent, 0.0) / dr.maximum(scattered, 1e-30))
-        Tf0, Tf1 = _gather(mi.Float, self.Tf, j, active), _gather(mi.Float, self.Tf, j + 1, active)
-        Tb0, Tb1 = _gather(mi.Float, self.Tb, j, active), _gather(mi.Float, self.Tb, j + 1, active)
+        Tf0, Tf1, Tb0, Tb1 = b0.x, b1.x, b0.y, b1.y
         return dict(j=j, t=t, lam=lam, fs=fs, coherent=coherent, w=w, e_f=fs * w * ef, e_b=fs * w * eb,
                     Tf=dr.lerp(Tf0, Tf1, t), Tb=dr.lerp(Tb0, Tb1, t), Tf1=Tf1, Tb1=Tb1, Tf0=Tf0, Tb0=Tb0)
 
@@ -172,19 +184,19 @@ class SphereBSDFMixin:
     # ------------------------------------------------------------------
     # tables
     # ------------------------------------------------------------------
-    def _value(self, arr, row, s, active):
-        """Row ``row`` of a chord table at chord ``s`` (linear; 0 beyond √2)."""
+    def _lerp_rows(self, arr, st, s, active, offset=0):
+        """Rows j, j+1 (weight t) of a chord table at chord ``s``: bilinear; 0 beyond √2."""
         g = s / self.ds
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), self.K - 2)
         f = dr.clip(g - mi.Float(i), 0.0, 1.0)
         inside = active & (g <= self.K - 1)
-        k = row * self.K + i
-        v0 = _gather(mi.Float, arr, k, inside)
-        v1 = _gather(mi.Float, arr, k + 1, inside)
-        return dr.select(inside, dr.maximum(dr.lerp(v0, v1, f), 0.0), 0.0)
-
-    def _lerp_rows(self, arr, st, s, active):
-        return dr.lerp(self._value(arr, st["j"], s, active), self._value(arr, st["j"] + 1, s, active), st["t"])
+        k = st["j"] * self.K + i + offset
+        v00 = _gather(mi.Float, arr, k, inside)
+        v01 = _gather(mi.Float, arr, k + 1, inside)
+        v10 = _gather(mi.Float, arr, k + self.K, inside)
+        v11 = _gather(mi.Float, arr, k + self.K + 1, inside)
+        v = dr.lerp(dr.lerp(v00, v01, f), dr.lerp(v10, v11, f), st["t"])
+        return dr.select(inside, dr.maximum(v, 0.0), 0.0)
 
     def _structure(self, u, active):
         x = u / self.S_du
@@ -220,10 +232,9 @@ class SphereBSDFMixin:
                        _gather(mi.Float, self.cdf_b, base_c + idx + 1, active))
         ds = self.ds
         s0 = mi.Float(idx) * ds
-        k = row * self.K + idx
-        a = dr.select(forward, _gather(mi.Float, self.Pf, k, active), _gather(mi.Float, self.Pb, k, active))
-        b = dr.select(forward, _gather(mi.Float, self.Pf, k + 1, active),
-                      _gather(mi.Float, self.Pb, k + 1, active)) - a
+        k = row * self.K + idx + dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
+        a = _gather(mi.Float, self.P, k, active)
+        b = _gather(mi.Float, self.P, k + 1, active) - a
         total = dr.select(forward, _gather(mi.Float, self.Tf, row, active), _gather(mi.Float, self.Tb, row, active))
         norm = 2.0 * dr.pi * ds / dr.maximum(total, 1e-30)
         k1 = norm * s0 * a
@@ -258,22 +269,21 @@ class SphereBSDFMixin:
         dxy = dr.sqrt(dr.square(wo.x + wi.x) + dr.square(wo.y + wi.y))
         values = []
         pdf = mi.Float(0.0)
+        s_any = dr.select(forward, s_f, s_b)
+        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
+        on = dr.select(forward, fwd_on, bwd_on)
         for st in states:
-            P_f = self._lerp_rows(self.Pf, st, s_f, a_f)
-            Z_f = P_f
+            P = self._lerp_rows(self.P, st, s_any, active, offset)       # P_f or P_b
+            Z = P
             if self.has_S:
                 S = self._structure((2.0 * dr.pi * self.radius) * dxy / st["lam"], a_f)
-                C_f = self._lerp_rows(self.Cf, st, s_f, a_f) if self.has_C else P_f
-                Z_f = dr.maximum(dr.fma(C_f, S - 1.0, P_f), 0.0)
-            P_b = self._lerp_rows(self.Pb, st, s_b, a_b)
-            scale = st["fs"] * st["w"]
-            v = dr.select(a_f, (Z_f * scale) if fwd_on else 0.0, 0.0)
-            v = dr.select(a_b, (P_b * scale) if bwd_on else 0.0, v)
-            values.append(v)
+                C_f = self._lerp_rows(self.Cf, st, s_f, a_f) if self.has_C else P
+                Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
+            values.append(dr.select(active & on, Z * (st["fs"] * st["w"]), 0.0))
             if self.sampling == "cosine":
                 continue
-            pdf += m * dr.select(a_f, p_f * P_f / dr.maximum(st["Tf"], 1e-30),
-                                 p_b * P_b / dr.maximum(st["Tb"], 1e-30))
+            pdf += m * P * dr.select(forward, p_f / dr.maximum(st["Tf"], 1e-30),
+                                     p_b / dr.maximum(st["Tb"], 1e-30))
         if self.sampling == "cosine":   # comparisons only: uniform sphere for both lobes
             pdf = dr.select(active, (p_f + p_b) * (0.25 * dr.inv_pi), 0.0)
         return self._spectrum(values), dr.select(active, pdf, 0.0)
