@@ -36,6 +36,11 @@ from .mitsuba_bsdf import NEWTON_STEPS, _array, _channel_response, _gather, _rea
 from .parameters import SPEC, material_from_parameters
 
 
+def _not(x):
+    """Logical not of a mask (a Dr.Jit Bool, or a Python bool in scalar variants, where ``~`` is wrong)."""
+    return ~x if dr.is_array_v(x) else (not x)
+
+
 def _cdf_rows(values: np.ndarray, ds: float):
     """Normalised float32 CDFs of the radial densities ``2π s v(s)`` of each row, guide tables,
     the bisection depth and the guide size (see ``CoronaBSDFMixin._set_cdf``)."""
@@ -265,7 +270,7 @@ class SphereBSDFMixin:
         s_b = dr.norm(wo - wi)
         forward = s_f <= s_b
         a_f = active & forward
-        a_b = active & ~forward
+        a_b = active & _not(forward)
         dxy = dr.sqrt(dr.square(wo.x + wi.x) + dr.square(wo.y + wi.y))
         values = []
         pdf = mi.Float(0.0)
@@ -303,8 +308,8 @@ class SphereBSDFMixin:
         states, m = self._states(si, active)
         p_coh, p_f, p_b = self._selection(ctx, states, m)
         pick_coh = active & (sample1 < p_coh)
-        pick_f = active & ~pick_coh & (sample1 < p_coh + p_f) & (p_f > 0)
-        pick_b = active & ~pick_coh & ~pick_f & (p_b > 0)
+        pick_f = active & _not(pick_coh) & (sample1 < p_coh + p_f) & (p_f > 0)
+        pick_b = active & _not(pick_coh) & _not(pick_f) & (p_b > 0)
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
         if self.sampling == "cosine":
