@@ -17,7 +17,7 @@ def layers(mi_variant):
         out = {
             "hd": mi.load_dict({"type": "corona", "shape": "sphere", "radius": 2.0, "area_fraction": 0.3,
                                 "process": "hard-disk"}),
-            "sd": mi.load_dict({"type": "corona", "shape": "sphere", "radius": 2.0, "area_fraction": 0.2,
+            "sd": mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.5, "area_fraction": 0.2,
                                 "process": "hard-disk", "size_spread": 0.1}),
             "poisson": mi.load_dict({"type": "corona", "shape": "sphere", "radius": 5.0,
                                      "area_fraction": 0.05, "process": "poisson"}),
