@@ -72,6 +72,15 @@ def headline() -> list[str]:
     if t:
         worst = max(t["results"].items(), key=lambda kv: kv[1]["build_median_s"])
         rows.append(("Slowest lobe table build (" + worst[0] + ")", f"{worst[1]['build_median_s']:.3f} s", "—"))
+    mie = _load("mie")
+    if mie:
+        b = mie["table_build"]
+        rows.append(("Mie sphere tables, build for a new radius (water 2 / 5 / 10 / 20 µm)",
+                     " / ".join(f"{v['median_s']:.2f} s" for k, v in b.items() if k.startswith("water")),
+                     f"≤ {mie['build_goal_s']:g} s"))
+        rows.append(("Render cost, sphere layer / opaque layer (5 µm, hard disk 0.4; BSDF call alone)",
+                     f"{mie['render_ratio']:.2f}× (medians; minima {mie['render_ratio_minima']:.2f}×); "
+                     f"per call {mie['bsdf_call']['ratio']:.2f}×", f"≤ {mie['render_goal']:g}×"))
     h = _load("hard_disk")
     if h:
         rows.append(("Hard-disk structure-factor lookup (cold, 2^18 points)",

@@ -24,6 +24,7 @@ FULL = {   # bigger runs: extra arguments per script
     "tables": ["--repeats", "20"],
     "wave": ["--max-m", "512"],
     "fit": ["--repeats", "7"],
+    "mie": ["--repeats", "5", "--rounds", "5"],
 }
 
 

@@ -83,6 +83,26 @@ STRIPS = [
            Panel("droplets outside", {"substrate_side": "front"}),
            Panel("no glass", {"substrate": "none"})],
           shared_exposure=0),
+    Strip("teaser_spheres", "Teaser with transparent droplets (Mie spheres)", "teaser.xml",
+          "The teaser's condensation (radius 5 µm, 40 % cover, hard disks) modelled two ways: left, opaque "
+          "disks (Fraunhofer diffraction); right, transparent water spheres (Mie theory, water's "
+          "dispersion, shape=sphere). The spheres' first dark ring sits about 8 % closer to the lamp and "
+          "the first bright ring is brighter relative to the aureole; the light they refract away "
+          "from the lamp adds a faint wide halo. Same exposure.",
+          [Panel("opaque disks", {"res": 256, "spp": 64}),
+           Panel("water spheres (Mie)", {"res": 256, "spp": 64, "shape": "sphere"})], shared_exposure=0),
+    Strip("lunar_corona", "Lunar corona through a thin cloud", "lunar_corona.xml",
+          "The full moon (4100 K, 0.52° across) through a thin cloud of water droplets of radius 5 µm "
+          "on 10 % of the layer, Poisson positions, under a dark night sky. Left: the droplets as Mie "
+          "spheres (shape=sphere); right: the same cloud as opaque disks. Same exposure.",
+          [Panel("water droplets (Mie)", {}), Panel("opaque disks", {"shape": "circle"})],
+          shared_exposure=0),
+    Strip("glory_fogbow", "Glory and fogbow in light reflected from fog", "glory_fogbow.xml",
+          "The sun behind the camera lights a fog bank of water droplets (radius 8 µm, 40 % cover, "
+          "Poisson); the camera sees their backward lobe. Left (100° field of view): the white fogbow "
+          "about 40° from the antisolar point, with a supernumerary inside, and the glory at the centre. "
+          "Right (12°): the glory's coloured rings around the camera's shadow.",
+          [Panel("fogbow, 100° field", {}), Panel("glory, 12° field", {"fov": 12})]),
     Strip("lobe_tables", "Single-aperture table and structure-factor table", None,
           "`corona lobe` for the teaser's droplets: the form-factor table T_a, the hard-disk "
           "structure-factor table T_s, their product (the lobe), and the far-field corona as seen "

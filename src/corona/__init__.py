@@ -20,14 +20,14 @@ from .material import Material
 from .micrograph import from_micrograph
 from .processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from .shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
-                     RegularPolygon, Shape, SizeDistribution, SoftEdge, Square)
+                     RegularPolygon, Shape, SizeDistribution, SoftEdge, Sphere, Square)
 from .substrate import GlassPane
 
 __version__ = "0.1.0"
 
 __all__ = ["CoronaError", "CoronaWarning",
            "Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon", "Mask",
-           "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture",
+           "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture", "Sphere",
            "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk",
            "Material", "GlassPane", "from_micrograph", "fit_photograph", "default_variant",
            "set_default_variant", "register"]

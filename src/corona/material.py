@@ -124,6 +124,16 @@ class Material:
     Material(Circle(radius=20), HardDisk(area_fraction=0.3), mode='aperture', albedo=0)
     """
 
+    def __new__(cls, shape=None, *args, **kwargs):
+        # a transparent sphere is a Mie scatterer, not a planar profile: its own material
+        # (docs/mie.md); everything else is this class
+        if cls is Material and isinstance(shape, Shape):
+            from .shapes.sphere import sphere_parts
+            if sphere_parts(shape) is not None:
+                from .sphere_material import SphereMaterial
+                return SphereMaterial(shape, *args, **kwargs)
+        return super().__new__(cls)
+
     def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
                  albedo: float = 0.0, use_cache: bool = True, substrate: GlassPane | None = None):
         if not isinstance(shape, Shape):

@@ -777,5 +777,12 @@ def register() -> None:
     if variant in _REGISTERED:
         return
     cls = bsdf_class()
-    mi.register_bsdf("corona", lambda props: cls(props))
+
+    def make(props):
+        # shape=sphere: the Mie layer's own code path (corona.mitsuba_sphere, docs/mie.md)
+        if "shape" in props and str(props["shape"]) == "sphere":
+            from .mitsuba_sphere import sphere_bsdf_class
+            return sphere_bsdf_class()(props)
+        return cls(props)
+    mi.register_bsdf("corona", make)
     _REGISTERED.add(variant)

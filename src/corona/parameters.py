@@ -92,7 +92,7 @@ class Parameter:
                            hi_open=self.high_open, unit=self.unit)
 
 
-SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon", "mask", "mixture")
+SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon", "mask", "mixture", "sphere")
 PROCESSES = ("poisson", "hard-disk", "rsa", "lattice-square", "lattice-hex", "points")
 ORIENTATIONS = ("fixed", "random")
 SIZE_DISTRIBUTIONS = ("lognormal", "schulz")
@@ -105,8 +105,13 @@ MAX_SIDES = 100_000
 #: Every parameter of a corona layer, in the order of the tables.
 PARAMETERS: tuple[Parameter, ...] = (
     Parameter("shape", "choice", "", "circle", "scatterer shape", SHAPES),
-    Parameter("radius", "float", "µm", 0.5, "circle radius; ellipse semi-axis x; square/rectangle "
+    Parameter("radius", "float", "µm", 0.5, "circle / sphere radius; ellipse semi-axis x; square/rectangle "
               "half-width; polygon circumradius", low=0.0, low_open=True, high_open=True),
+    Parameter("ior", "float", "", None, "shape=sphere: refractive index n of the droplets relative to "
+              "air; default water at 20 °C with its dispersion (Daimon & Masumura 2007)",
+              low=0.0, low_open=True, high_open=True),
+    Parameter("ior_imag", "float", "", 0.0, "shape=sphere: absorption index κ (m = n + iκ; needs ior)",
+              low=0.0, high_open=True),
     Parameter("aspect", "float", "", 1.0, "ellipse / rectangle: extent along y over x",
               low=0.0, low_open=True, high_open=True),
     Parameter("sides", "int", "", 6, "polygon: number of sides", low=3, high=MAX_SIDES),
@@ -253,6 +258,18 @@ def make_shape(p: dict):
                                for k, r, w in parse_mixture(p["mixture"]) if w > 0])
     if p.get("mixture"):
         raise CoronaError(f"mixture={p['mixture']!r} needs shape='mixture' (got shape={kind!r})")
+    if kind != "sphere" and (p.get("ior") is not None or p.get("ior_imag")):
+        raise CoronaError(f"ior={p.get('ior')!r}, ior_imag={p.get('ior_imag')!r} need shape='sphere' "
+                          f"(got shape={kind!r})")
+    if kind == "sphere":
+        if p.get("ior") is None and p.get("ior_imag"):
+            raise CoronaError(f"ior_imag={p['ior_imag']!r} needs ior=<real part> (the default, water, "
+                              "does not absorb)")
+        for name, off in (("edge_width", 0.0), ("orientation", "fixed")):
+            if p[name] != off:
+                raise CoronaError(f"{name}={p[name]!r} is out of range for shape='sphere'; allowed {off!r}")
+        ior = None if p.get("ior") is None else complex(p["ior"], p.get("ior_imag") or 0.0)
+        return _modified(shapes.Sphere(check_positive("radius", p["radius"], "µm"), ior=ior), p)
     if kind == "mask":
         if not p.get("filename"):
             raise CoronaError("shape='mask' needs filename=<image file>")
@@ -323,6 +340,13 @@ def material_from_parameters(**params):
     substrate = make_substrate(p["substrate"], p["substrate_ior"], p["substrate_side"])
     shape = make_shape(p)
     process = make_process(p, shape)
+    if p["shape"] == "sphere":   # droplets in air: particles; the mode given must say so
+        from .sphere_material import SphereMaterial
+        if p["process"] not in ("poisson", "hard-disk", "rsa"):
+            raise CoronaError(f"process={p['process']!r} is out of range for shape='sphere'; allowed "
+                              "poisson, hard-disk, rsa")
+        return SphereMaterial(shape, process, mode=params.get("mode") or "particle", albedo=p["albedo"],
+                              substrate=substrate)
     return Material(shape, process, mode=p["mode"], albedo=p["albedo"], substrate=substrate)
 
 

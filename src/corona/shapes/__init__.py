@@ -18,6 +18,8 @@ from .base import Shape
 from .mask import Mask
 from .modifiers import Mixture, Modifier, RandomOrientation, SizeDistribution, SoftEdge
 from .polygon import Polygon, RegularPolygon
+from .sphere import Sphere
 
 __all__ = ["Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon",
-           "Mask", "Modifier", "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture"]
+           "Mask", "Modifier", "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture",
+           "Sphere"]

@@ -1,0 +1,541 @@
+"""A layer of transparent spheres (Mie scatterers): the numpy reference BSDF (docs/mie.md).
+
+:class:`corona.Material` builds a :class:`SphereMaterial` when its shape is a
+:class:`corona.Sphere` (or a size distribution of one).  The layer is a single
+plane of spheres whose centres follow a 2D point process; every sphere
+scatters by Mie theory (:mod:`corona.mie`).
+
+Model (per unit layer area; ``μ_i = |cos θi|``; λ the wavelength in air)
+------------------------------------------------------------------------
+
+* number density ``n = F_a / ⟨π r²⟩``;
+* every direction ``wo`` on the sphere of directions is reached; its
+  scattering angle Θ from the undeviated direction ``wt = -wi`` splits the
+  pattern into a **forward lobe** (Θ < 90°, component 1) and a **backward
+  lobe** (Θ >= 90°, component 2, the glory and the fogbow), each of which can
+  fall on either side of the layer at oblique incidence;
+* the smooth BSDF times the cosine is
+
+      f |cos θo| = F_s · w · Z(Θ, λ),      Z = [P + C (S(q) - 1)]   (forward)
+                                           Z = P                    (backward)
+
+  with ``P = ⟨|S1|² + |S2|²⟩ / (2π ⟨x²⟩)`` and ``C = (|⟨S1⟩|² + |⟨S2⟩|²) / (2π ⟨x²⟩)``
+  per steradian (``x = 2π r/λ``; ``C = P`` for one size), so that ``F_a P``
+  is ``n dσ/dΩ`` and ``∫ P dΩ = Q_sca``; ``S(q)`` is the structure factor of
+  the centres at the in-plane momentum transfer ``q = 2π |(wo + wi).xy| / λ``
+  (decoupling rule, docs/physics.md#mixtures-and-size-distributions);
+* ``F_s = min(F_a / μ_i, 1)``: the spheres' shadow area per unit layer area
+  along the beam (their cross-section does not shrink with the angle as a
+  flat disk's does), saturated at full cover;
+* the coherent beam is the mean transmitted field (optical theorem,
+  van de Hulst §4.3): ``t = 1 - F_s s₀``, ``s₀ = 2⟨S(0)⟩/⟨x²⟩``, weight ``|t|²``
+  (``(1 - F_a)²`` for large spheres at normal incidence, as opaque disks);
+* ``w = min(1, (1 - |t|²) / (F_s (e_f + e_b)))`` caps the scattered energy
+  (``e_f``, ``e_b``: the forward lobe with S and the backward lobe integrated
+  at normal incidence) so that coherent + scattered never exceeds 1 (Poisson
+  centres overlap, as for the flat shapes: docs/physics.md#lobe-weight-cap).
+
+Tables (what the renderer evaluates and samples)
+------------------------------------------------
+
+Rows at size parameters ``x_j`` uniform (step ``ROW_DX``) from ``2π r/830 nm``
+to ``2π r/360 nm``; in each row the forward ``P`` (and ``C``) on a uniform grid
+of the chord ``s = |wo - wt| = 2 sin(Θ/2)`` in ``[0, √2]`` and the backward
+``P`` on the chord ``s' = |wo - wi| = 2 cos(Θ/2)`` from the backscatter
+direction.  Since ``dΩ = s ds dφ`` exactly, each row is a radial table in the
+chord (:class:`corona.tables.RadialTable`: density ``2π s P(s)``, exact CDF
+inversion) with the chord computed accurately in float32 as a vector norm.
+A wavelength between two rows interpolates them linearly in x
+(``(1 - t) P_j + t P_j+1``) and is sampled exactly by picking row j with
+probability ``(1 - t) T_j / ((1 - t) T_j + t T_j+1)`` (``T`` the rows' totals):
+the pdf is the interpolated P over the interpolated total, so sampling is
+proportional to the tabulated ``P``.
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from . import mie, tables
+from ._validation import CoronaError, check_choice, check_finite_array, check_range
+from .processes import Poisson, Process
+from .shapes.sphere import Sphere, sphere_parts
+
+#: Format of the sphere tables in the cache.
+SPHERE_FORMAT = 1
+#: Step of the rows in size parameter x.
+ROW_DX = 0.1
+#: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes per Airy ring).
+CHORD_DX = 0.25
+MIN_NODES, MAX_NODES = 512, 8192
+MIN_ROWS, MAX_ROWS = 8, 1024
+CHORD_MAX = math.sqrt(2.0)
+#: Size distributions: at most this many radii per row.
+MAX_SIZE_NODES = 96
+
+
+def _grid(radius: float, radius_max: float, spread: float = 0.0):
+    """(x rows, chord step ds, number of chord nodes) for spheres of mean radius ``radius`` [µm].
+
+    A size distribution of relative spread σ smears the pattern over ``σ x`` in size parameter:
+    its rows are ``min(2, σ x_lo / 4)`` apart (at least ``ROW_DX``)."""
+    lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
+    x_lo, x_hi = 2 * np.pi * radius / lam_hi, 2 * np.pi * radius / lam_lo
+    row_dx = max(ROW_DX, min(2.0, 0.25 * spread * x_lo))
+    n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
+    x_rows = np.linspace(x_lo, x_hi, n_rows)
+    x_top = 2 * np.pi * radius_max / lam_lo
+    n_nodes = int(np.clip(math.ceil(CHORD_MAX * x_top / CHORD_DX) + 1, MIN_NODES, MAX_NODES))
+    return x_rows, CHORD_MAX / (n_nodes - 1), n_nodes
+
+
+def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
+    """The Mie tables of a sphere (optionally a size distribution of it) over wavelength rows.
+
+    Returns
+    -------
+    dict of arrays
+        ``x`` (J,) size parameters of the mean sphere, ``wavelength`` (J,) [nm],
+        ``ds`` chord step, ``P_f``, ``C_f``, ``P_b`` (J, K) per steradian
+        (``C_f`` empty for one size), ``s0`` (J, 2) real and imaginary part of
+        ``2⟨S(0)⟩/⟨x²⟩``, ``q_sca``, ``q_ext`` (J,) efficiencies per ``⟨π r²⟩``.
+    """
+    r = sphere.radius
+    if sizes is None:
+        s_nodes, s_weights = np.ones(1), np.ones(1)
+    else:
+        k_max = 2 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
+        s_nodes, s_weights = sizes._nodes(2.0 * k_max)     # resolves Â(s q) up to q = 2k
+        if s_nodes.size > MAX_SIZE_NODES:                  # thin out, keeping the weights' sum
+            keep = np.unique(np.linspace(0, s_nodes.size - 1, MAX_SIZE_NODES).round().astype(int))
+            cdf = np.concatenate([[0.0], np.cumsum(s_weights)])
+            edges = np.concatenate([[0], (keep[1:] + keep[:-1] + 1) // 2, [s_nodes.size]])
+            s_weights = cdf[edges[1:]] - cdf[edges[:-1]]
+            s_nodes = s_nodes[keep]
+    spread = 0.0 if sizes is None else float(sizes.spread)
+    # chord resolution for the radii that carry the light (mean + 3 std); the rare larger
+    # droplets' forward peaks are narrower than the grid and get smoothed
+    x_rows, ds, K = _grid(r, r * min(float(s_nodes.max()), 1.0 + 3.0 * spread), spread)
+    lam = 2 * np.pi * r / x_rows * 1e3                                    # nm
+    m = sphere.index(lam)
+    chord = np.arange(K) * ds
+    mu = 1.0 - 0.5 * chord * chord                                        # cos Θ of the forward nodes
+    J = x_rows.size
+    x2_mean = x_rows**2 * float(np.sum(s_weights * s_nodes**2))
+    P_f = np.zeros((J, K))
+    P_b = np.zeros((J, K))
+    A1f = np.zeros((J, K), complex)
+    A2f = np.zeros((J, K), complex)
+    s0 = np.zeros(J, complex)
+    q_sca = np.zeros(J)
+    q_ext = np.zeros(J)
+    cache = {}
+    # group the (row, size) pairs in chunks of a few MB of coefficients
+    for s, w in zip(s_nodes, s_weights):
+        x = x_rows * s
+        a, b = mie.coefficients(m, x)
+        N = a.shape[-1]
+        if N not in cache:
+            pi, tau = mie.angular_functions(mu, N)
+            sign = (-1.0) ** np.arange(1, N + 1)
+            cache = {N: (pi, tau, sign)}
+        pi, tau, sign = cache[N]
+        n = np.arange(1, N + 1)
+        c = (2 * n + 1) / (n * (n + 1.0))
+        ca, cb = a * c, b * c
+        S1 = ca @ pi + cb @ tau
+        S2 = ca @ tau + cb @ pi
+        # backward: π_n(-μ) = (-1)^(n-1) π_n(μ), τ_n(-μ) = (-1)^n τ_n(μ)
+        S1b = -(ca * sign) @ pi + (cb * sign) @ tau
+        S2b = (ca * sign) @ tau - (cb * sign) @ pi
+        P_f += w * (np.abs(S1) ** 2 + np.abs(S2) ** 2)
+        P_b += w * (np.abs(S1b) ** 2 + np.abs(S2b) ** 2)
+        A1f += w * S1
+        A2f += w * S2
+        s0 += w * 0.5 * np.sum((2 * n + 1) * (a + b), axis=-1)
+        q_sca += w * 2 * np.sum((2 * n + 1) * (np.abs(a) ** 2 + np.abs(b) ** 2), axis=-1)
+        q_ext += w * 2 * np.sum((2 * n + 1) * (a + b).real, axis=-1)
+    norm = 1.0 / (2 * np.pi * x2_mean[:, None])
+    out = {"x": x_rows, "wavelength": lam, "ds": np.array(ds),
+           "P_f": P_f * norm, "P_b": P_b * norm,
+           "C_f": ((np.abs(A1f) ** 2 + np.abs(A2f) ** 2) * norm) if sizes is not None else np.zeros((0, K)),
+           "s0": np.stack([2 * s0.real / x2_mean, 2 * s0.imag / x2_mean], -1),
+           "q_sca": q_sca / x2_mean, "q_ext": q_ext / x2_mean}
+    return out
+
+
+def _lerp_rows(values, j, t, i, f):
+    """Linear in the row (j, t) and in the node (i, f) of ``values[row, node]``."""
+    v0 = values[j, i] * (1 - f) + values[j, i + 1] * f
+    v1 = values[j + 1, i] * (1 - f) + values[j + 1, i + 1] * f
+    return v0 * (1 - t) + v1 * t
+
+
+class SphereMaterial:
+    """A layer of Mie spheres: coherent beam, forward and backward lobes (see the module docstring).
+
+    Parameters
+    ----------
+    shape : corona.Sphere or corona.SizeDistribution of a Sphere
+    process : corona.Process, default Poisson()
+        An isotropic process of the centres (poisson, hard-disk, rsa).
+    mode : "particle"
+        Spheres are particles in clear air; ``"aperture"`` is refused.
+    albedo : 0
+        Spheres reflect by Mie theory (the backward lobe), not diffusely.
+    use_cache : bool
+        Keep the tables in the on-disk cache.
+
+    Examples
+    --------
+    Water droplets of 5 µm radius at ``F_a = 0.05``, centres uncorrelated.
+    At normal incidence the coherent beam is ``|1 - F_a s₀|² ≈ (1 - F_a Q_ext/2)²``
+    (Q_ext = 2.19 here), the lobes carry ``F_a Q_sca``, 96 % of it forward, and the cap
+    ``w`` trims their sum by the ``O(F_a²)`` that overlapping Poisson droplets would add:
+
+    >>> import corona
+    >>> m = corona.Material(corona.Sphere(5.0), corona.Poisson(0.05))
+    >>> m
+    SphereMaterial(Sphere(radius=5, ior='water'), Poisson(area_fraction=0.05))
+    >>> e = m.directional_albedo(1.0, 550.0)
+    >>> round(e["coherent"], 3), round(e["forward"], 3), round(e["backward"], 4)
+    (0.898, 0.097, 0.0047)
+    """
+
+    mode = "particle"
+    albedo = 0.0
+    substrate = None
+    isotropic = True
+
+    def __init__(self, shape, process: Process | None = None, mode: str = "particle",
+                 albedo: float = 0.0, use_cache: bool = True, substrate=None):
+        parts = sphere_parts(shape)
+        if parts is None:
+            raise CoronaError(f"shape={shape!r} is not a sphere (corona.Sphere)")
+        self.sphere, self.sizes = parts
+        if process is None:
+            process = Poisson()
+        if not isinstance(process, Process):
+            raise CoronaError(f"process={process!r} is not a corona point process (e.g. corona.Poisson())")
+        if not process.isotropic:
+            raise CoronaError(f"process={process!r} is not isotropic; shape='sphere' takes poisson, "
+                              "hard-disk or rsa")
+        if check_choice("mode", mode, ("aperture", "particle")) != "particle":
+            raise CoronaError("mode='aperture' is out of range for shape='sphere'; allowed: particle "
+                              "(droplets in clear air)")
+        if check_range("albedo", albedo, 0.0, 1.0) != 0.0:
+            raise CoronaError(f"albedo={albedo!r} is out of range for shape='sphere'; allowed 0 (a sphere "
+                              "reflects by Mie theory: the backward lobe)")
+        if substrate is not None:
+            raise CoronaError("substrate is out of range for shape='sphere'; allowed: none")
+        self.shape = shape
+        self.process = process
+        self.use_cache = bool(use_cache)
+        process.validate(shape)
+        fa = float(process.area_fraction(shape))
+        if not (0.0 < fa < 1.0):
+            raise CoronaError(f"area_fraction={fa:g} (from {process!r} with {shape!r}) is out of range; "
+                              "allowed (0, 1)")
+        self.area_fraction = fa
+
+    def __repr__(self):
+        return f"SphereMaterial({self.shape!r}, {self.process!r})"
+
+    @property
+    def length_scale(self) -> float:
+        return float(self.sphere.radius)
+
+    # ------------------------------------------------------------------
+    # tables
+    # ------------------------------------------------------------------
+    def table_params(self) -> dict:
+        return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(), "row_dx": ROW_DX,
+                "chord_dx": CHORD_DX, "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
+                "size_nodes": MAX_SIZE_NODES, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+
+    @functools.cached_property
+    def rows(self) -> dict:
+        """The Mie rows (:func:`build_mie_rows`, cached on disk), float64."""
+        arrays = tables.cached(self.table_params(), lambda: build_mie_rows(self.sphere, self.sizes),
+                               use_cache=self.use_cache)
+        return {k: np.asarray(v) for k, v in arrays.items()}
+
+    @functools.cached_property
+    def structure_table(self):
+        """``S`` on a radial grid of ``u = q r`` (RADIAL_DU), or None for Poisson (S = 1)."""
+        if isinstance(self.process, Poisson):
+            return None
+        u_max = tables.u_max_for(self.length_scale)
+        n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
+        du = u_max / (n - 1)
+        u = np.arange(n) * du
+        S = self.process.structure_factor_radial(u / self.length_scale, self.shape)
+        return du, np.maximum(np.asarray(S, dtype=np.float64), 0.0)
+
+    def structure_factor(self, u) -> np.ndarray:
+        """Tabulated ``S`` at ``u = q r`` (linear; 1 beyond the table and for Poisson)."""
+        st = self.structure_table
+        u = np.asarray(u, dtype=np.float64)
+        if st is None:
+            return np.ones_like(u)
+        du, S = st
+        return np.interp(u, np.arange(S.size) * du, S, right=1.0)
+
+    @functools.cached_property
+    def _derived(self) -> dict:
+        """Totals per row: T_f, T_b (∫ P dΩ of the tabulated rows) and e_f (the forward lobe with S
+        at normal incidence)."""
+        r = self.rows
+        ds = float(r["ds"])
+        s = np.arange(r["P_f"].shape[1]) * ds
+        C = r["C_f"] if r["C_f"].size else r["P_f"]
+        T_f = np.array([tables.RadialTable(ds, row).total for row in r["P_f"]])
+        T_b = np.array([tables.RadialTable(ds, row).total for row in r["P_b"]])
+        if self.structure_table is None:
+            e_f = T_f.copy()
+        else:    # normal incidence: |d| = sin Θ = s √(1 - s²/4), u = x_j |d|; as eval interpolates
+            ref = 4
+            sf = np.linspace(0.0, s[-1], ref * (s.size - 1) + 1)
+            sin_t = sf * np.sqrt(1 - 0.25 * sf * sf)
+            wgt = 2 * np.pi * sf * (sf[1] - sf[0])
+            wgt[0] *= 0.5
+            wgt[-1] *= 0.5
+            e_f = np.array([np.sum(wgt * np.maximum(np.interp(sf, s, P) + np.interp(sf, s, Cj)
+                                                    * (self.structure_factor(xj * sin_t) - 1), 0.0))
+                            for P, Cj, xj in zip(r["P_f"], C, r["x"])])
+        return {"T_f": T_f, "T_b": T_b, "e_f": e_f, "e_b": T_b, "s": s}
+
+    def _row(self, wavelength):
+        """Row index j and weight t of the wavelength(s) [nm] between rows (linear in x)."""
+        lam = np.clip(np.asarray(wavelength, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
+        xr = self.rows["x"]
+        x = 2 * np.pi * self.length_scale / (lam * 1e-3)
+        f = (x - xr[0]) / (xr[1] - xr[0])
+        j = np.clip(np.floor(f).astype(np.int64), 0, xr.size - 2)
+        return j, f - j
+
+    def _node(self, s):
+        ds = float(self.rows["ds"])
+        K = self.rows["P_f"].shape[1]
+        g = np.asarray(s, dtype=np.float64) / ds
+        i = np.clip(np.floor(g).astype(np.int64), 0, K - 2)
+        return i, np.clip(g - i, 0.0, 1.0), g <= K - 1
+
+    # ------------------------------------------------------------------
+    # energies
+    # ------------------------------------------------------------------
+    def _slant(self, cos_theta_i):
+        mu = np.abs(np.asarray(cos_theta_i, dtype=np.float64))
+        return np.minimum(self.area_fraction / np.maximum(mu, 1e-12), 1.0)
+
+    def energies(self, cos_theta_i, wavelength) -> dict:
+        """``coherent`` ``|t|²``, the lobe weight ``w``, and the energies of the forward and backward
+        lobes ``F_s w e_f``, ``F_s w e_b`` (at normal-incidence S) for light from ``cos_theta_i``."""
+        j, t = self._row(wavelength)
+        d = self._derived
+        r = self.rows
+        lerp = lambda a: a[j] * (1 - t) + a[j + 1] * t
+        fs = self._slant(cos_theta_i)
+        s0 = lerp(r["s0"][:, 0]) + 1j * lerp(r["s0"][:, 1])
+        coherent = np.abs(1.0 - fs * s0) ** 2
+        e_f, e_b = lerp(d["e_f"]), lerp(d["e_b"])
+        scattered = fs * (e_f + e_b)
+        w = np.minimum(1.0, np.maximum(1.0 - coherent, 0.0) / np.maximum(scattered, 1e-300))
+        return {"coherent": coherent, "weight": w, "forward": fs * w * e_f, "backward": fs * w * e_b,
+                "slant": fs}
+
+    def coherent_transmission(self, cos_theta_i, wavelength=550.0):
+        """Weight of the delta transmission along ``-wi``: ``|1 - F_s s₀(λ)|²``."""
+        return self.energies(cos_theta_i, wavelength)["coherent"]
+
+    @property
+    def coherent_transmittance(self) -> float:
+        """The coherent weight at normal incidence and 550 nm (it depends on both)."""
+        return float(self.coherent_transmission(1.0, 550.0))
+
+    # ------------------------------------------------------------------
+    # the BSDF
+    # ------------------------------------------------------------------
+    def _lobes(self, wi, wo, wavelength, exact=False):
+        """(forward Z, backward Z, forward mask) at the directions, per steradian."""
+        wi = check_finite_array("wi", wi)
+        wo = check_finite_array("wo", wo)
+        if wi.shape[-1:] != (3,) or wo.shape[-1:] != (3,):
+            raise CoronaError(f"wi and wo must have shape (..., 3), got {wi.shape} and {wo.shape}")
+        wi, wo = np.broadcast_arrays(wi, wo)
+        lam = np.broadcast_to(np.asarray(wavelength, dtype=np.float64), wi.shape[:-1])
+        s_f = np.linalg.norm(wo + wi, axis=-1)           # |wo - wt|, wt = -wi
+        s_b = np.linalg.norm(wo - wi, axis=-1)
+        forward = s_f <= s_b
+        dxy = np.linalg.norm((wo + wi)[..., :2], axis=-1)
+        u = 2 * np.pi * self.length_scale * dxy / (np.clip(lam, tables.WAVELENGTH_MIN,
+                                                           tables.WAVELENGTH_MAX) * 1e-3)
+        S = self.structure_factor(u)
+        if exact:
+            P_f, C_f, P_b = self._exact(s_f, s_b, lam)
+        else:
+            r = self.rows
+            j, t = self._row(lam)
+            i, f, inside = self._node(s_f)
+            P_f = np.where(inside, _lerp_rows(r["P_f"], j, t, i, f), 0.0)
+            C_f = np.where(inside, _lerp_rows(r["C_f"], j, t, i, f), 0.0) if r["C_f"].size else P_f
+            i, f, inside = self._node(s_b)
+            P_b = np.where(inside, _lerp_rows(r["P_b"], j, t, i, f), 0.0)
+        Z_f = np.maximum(P_f + C_f * (S - 1.0), 0.0)
+        return Z_f, P_b, forward
+
+    def _exact(self, s_f, s_b, lam):
+        """Mie P, C (forward) and P (backward) computed directly at each direction (float64)."""
+        r = self.sphere.radius
+        s_nodes, s_w = (np.ones(1), np.ones(1)) if self.sizes is None else \
+            self.sizes._nodes(2.0 * 2 * np.pi / (tables.WAVELENGTH_MIN * 1e-3))
+        out = [np.zeros(s_f.shape) for _ in range(3)]
+        A1, A2 = np.zeros(s_f.shape, complex), np.zeros(s_f.shape, complex)
+        flat = lam.ravel()
+        for lv in np.unique(flat):
+            sel = lam == lv
+            x0 = 2 * np.pi * r / (lv * 1e-3)
+            m = complex(self.sphere.index(lv))
+            x2 = x0 * x0 * float(np.sum(s_w * s_nodes**2))
+            mu_f = 1 - 0.5 * s_f[sel] ** 2
+            mu_b = -(1 - 0.5 * s_b[sel] ** 2)
+            for s, w in zip(s_nodes, s_w):
+                S1, S2 = mie.amplitudes(m, x0 * s, np.concatenate([mu_f, mu_b]))
+                k = mu_f.size
+                out[0][sel] += w * (np.abs(S1[:k]) ** 2 + np.abs(S2[:k]) ** 2) / (2 * np.pi * x2)
+                out[2][sel] += w * (np.abs(S1[k:]) ** 2 + np.abs(S2[k:]) ** 2) / (2 * np.pi * x2)
+                A1[sel] += w * S1[:k] / math.sqrt(2 * np.pi * x2)
+                A2[sel] += w * S2[:k] / math.sqrt(2 * np.pi * x2)
+        out[1] = np.abs(A1) ** 2 + np.abs(A2) ** 2
+        out[0] = np.where(s_f <= CHORD_MAX, out[0], 0.0)
+        out[1] = np.where(s_f <= CHORD_MAX, out[1], 0.0)
+        out[2] = np.where(s_b <= CHORD_MAX, out[2], 0.0)
+        return out
+
+    def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
+        """The smooth BSDF times the cosine, ``f |cos θo| = F_s w Z`` (forward or backward lobe).
+
+        ``wi``, ``wo`` (..., 3) unit vectors (Mitsuba's convention), ``wavelength`` [nm].
+        ``exact=True`` evaluates Mie theory at each direction instead of the tables
+        (the weight ``w`` still comes from the tables' energies).
+        """
+        Z_f, Z_b, forward = self._lobes(wi, wo, wavelength, exact)
+        wi = np.asarray(wi, dtype=np.float64)
+        e = self.energies(np.broadcast_to(wi[..., 2], Z_f.shape), wavelength)
+        return e["slant"] * e["weight"] * np.where(forward, Z_f, Z_b)
+
+    def lobe(self, d, wavelength) -> np.ndarray:
+        """The transmitted lobe at normal incidence per unit ``d²d`` (docs/physics.md's ``lobe(d)``).
+
+        ``wi = +z``, ``wo = (d, -√(1 - |d|²))``: ``lobe = f = eval / |cos θo|`` (0 for ``|d| >= 1``).
+        """
+        d = check_finite_array("d", d)
+        if d.ndim == 0 or d.shape[-1] != 2:
+            raise CoronaError(f"d must have shape (..., 2), got {d.shape}")
+        r2 = np.sum(d * d, axis=-1)
+        cz = np.sqrt(np.maximum(1.0 - r2, 0.0))
+        wo = np.concatenate([d, -cz[..., None]], axis=-1)
+        val = self.eval(np.array([0.0, 0.0, 1.0]), wo, wavelength)
+        return np.where(r2 < 1.0, val / np.maximum(cz, 1e-300), 0.0)
+
+    # ------------------------------------------------------------------
+    # sampling (the plugin's scheme in float64)
+    # ------------------------------------------------------------------
+    @functools.lru_cache(maxsize=64)
+    def _radial(self, which: str, j: int) -> tables.RadialTable:
+        return tables.RadialTable(float(self.rows["ds"]), self.rows["P_f" if which == "f" else "P_b"][j])
+
+    def pdf_lobe(self, which: str, wi, wo, wavelength) -> np.ndarray:
+        """Solid-angle density of :meth:`sample_lobe` (``which`` "f" or "b") at one wavelength [nm]:
+        the rows' interpolated P over their interpolated total."""
+        wi = np.asarray(wi, dtype=np.float64)
+        wo = np.asarray(wo, dtype=np.float64)
+        s = np.linalg.norm(wo + wi if which == "f" else wo - wi, axis=-1)
+        j, t = self._row(wavelength)
+        i, f, inside = self._node(s)
+        key = "P_f" if which == "f" else "P_b"
+        T = self._derived["T_f" if which == "f" else "T_b"]
+        val = np.where(inside, _lerp_rows(self.rows[key], j, t, i, f), 0.0)
+        return val / (T[j] * (1 - t) + T[j + 1] * t)
+
+    def sample_lobe(self, which: str, wi, xi, wavelength: float) -> np.ndarray:
+        """Directions ``wo`` (n, 3) of the forward ("f") or backward ("b") lobe for one ``wi`` (3,).
+
+        ``xi`` (n, 3) uniform: xi[:, 0] picks the row, xi[:, 1:] the chord and azimuth.
+        """
+        wi = np.asarray(wi, dtype=np.float64)
+        xi = np.asarray(xi, dtype=np.float64)
+        j, t = self._row(float(wavelength))
+        j, t = int(j), float(t)
+        T = self._derived["T_f" if which == "f" else "T_b"]
+        p_next = t * T[j + 1] / ((1 - t) * T[j] + t * T[j + 1])
+        rows = np.where(xi[:, 0] < p_next, j + 1, j)
+        s = np.empty(len(xi))
+        for row in np.unique(rows):
+            sel = rows == row
+            s[sel] = self._radial(which, int(row)).sample_radius(xi[sel, 1])
+        phi = 2 * np.pi * xi[:, 2]
+        axis = -wi if which == "f" else wi
+        cos_t = 1 - 0.5 * s * s
+        sin_t = s * np.sqrt(np.maximum(1 - 0.25 * s * s, 0.0))
+        e1, e2 = _frame(axis)
+        return (cos_t[:, None] * axis + sin_t[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2))
+
+    # ------------------------------------------------------------------
+    # energy checks
+    # ------------------------------------------------------------------
+    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, n_phi: int = 256) -> dict:
+        """Energy of each component for light from ``cos_theta_i`` (the white furnace).
+
+        The tabulated lobes are integrated over the sphere of directions on
+        their own chord grids (``dΩ = s ds dφ``, trapezoid in s at twice the
+        table's resolution, midpoint in φ).
+
+        Returns
+        -------
+        dict: ``coherent``, ``forward``, ``backward`` (by lobe), ``transmission``,
+        ``reflection`` (by side of the layer, lobes only) and ``total`` (<= 1).
+        """
+        ci = check_range("cos_theta_i", cos_theta_i, -1.0, 1.0)
+        if ci == 0.0:
+            raise CoronaError("cos_theta_i=0 is out of range; allowed [-1, 0) or (0, 1]")
+        wi = np.array([math.sqrt(max(0.0, 1 - ci * ci)), 0.0, ci])
+        K = self.rows["P_f"].shape[1]
+        s = np.linspace(0.0, CHORD_MAX, 2 * K - 1)
+        ws = np.full(s.size, s[1] - s[0])
+        ws[0] = ws[-1] = 0.5 * ws[0]
+        phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
+        out = {"coherent": float(self.coherent_transmission(ci, wavelength)), "forward": 0.0, "backward": 0.0,
+               "transmission": 0.0, "reflection": 0.0}
+        for which, axis in (("forward", -wi), ("backward", wi)):
+            e1, e2 = _frame(axis)
+            cos_t = 1 - 0.5 * s * s
+            sin_t = s * np.sqrt(1 - 0.25 * s * s)
+            wo = (cos_t[:, None, None] * axis + sin_t[:, None, None]
+                  * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2))
+            val = self.eval(wi, wo, wavelength)
+            dw = (ws * s)[:, None] * (2 * np.pi / n_phi)
+            # the chord s = √2 is shared by both lobes: eval assigns it to one, the other's
+            # trapezoid end weight there is 0.5 of a thin ring, negligible
+            out[which] = float(np.sum(val * dw))
+            side = np.sign(wo[..., 2]) == np.sign(ci)
+            out["reflection"] += float(np.sum(np.where(side, val, 0.0) * dw))
+            out["transmission"] += float(np.sum(np.where(side, 0.0, val) * dw))
+        out["total"] = out["coherent"] + out["forward"] + out["backward"]
+        return out
+
+    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=1.0):
+        """The energy of both lobes (forward + backward) for light from ``cos_theta_i``."""
+        e = self.energies(cos_theta_i, wavelength)
+        return e["forward"] + e["backward"]
+
+
+def _frame(n):
+    """Two unit vectors completing ``n`` (3,) to an orthonormal frame (Duff et al. 2017)."""
+    sign = math.copysign(1.0, n[2])
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    return (np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]]),
+            np.array([b, sign + n[1] * n[1] * a, -n[1]]))

@@ -1,0 +1,147 @@
+"""Mie amplitudes and efficiencies (corona.mie) against miepython, published values and limits."""
+import numpy as np
+import pytest
+from scipy import special
+
+from corona import CoronaError, mie
+
+miepython = pytest.importorskip("miepython")  # the test extra installs it
+
+CASES = [(1.33, 0.5), (1.33, 5.0), (1.33, 57.1), (1.5, 10.0), (1.55 + 0.1j, 3.0),
+         (1.5 + 1.0j, 1.0), (1.33 + 1e-5j, 100.0), (0.75, 10.0), (2.5 + 0.3j, 25.0)]
+
+
+@pytest.mark.parametrize("m,x", CASES)
+def test_amplitudes_match_miepython(m, x):
+    # miepython uses m = n - iκ (e^{+iωt}): its amplitudes are the complex conjugates of ours
+    mu = np.cos(np.linspace(0.0, np.pi, 181))
+    s1, s2 = mie.amplitudes(m, x, mu)
+    r1, r2 = miepython.S1_S2(np.conj(m), x, mu, norm="wiscombe")
+    scale = np.abs(r1).max()
+    assert np.max(np.abs(s1 - np.conj(r1))) < 1e-9 * scale
+    assert np.max(np.abs(s2 - np.conj(r2))) < 1e-9 * scale
+
+
+@pytest.mark.parametrize("m,x", CASES)
+def test_efficiencies_match_miepython(m, x):
+    e = mie.efficiencies(m, x)
+    qext, qsca, qback, g = miepython.efficiencies_mx(np.conj(m), x)
+    assert e["q_ext"] == pytest.approx(qext, rel=1e-9)
+    assert e["q_sca"] == pytest.approx(qsca, rel=1e-9)
+    # Q_back is a cancelling sum: the two codes agree to 1.3e-8 at (2.5+0.3i, 25), where ours
+    # moves by 1.4e-9 with 20 more terms and miepython sits 1.3e-8 off that converged value
+    assert e["q_back"] == pytest.approx(qback, rel=1e-7, abs=1e-14)
+    assert e["g"] == pytest.approx(g, rel=1e-8, abs=1e-12)
+
+
+# Published values.  Wiscombe 1979 (NCAR/TN-140+STR, test cases of MIEV0; m = n - iκ there,
+# conjugated here) and the BHMIE example of Bohren & Huffman 1983, Appendix A.
+PUBLISHED = [
+    # m, x, Q_ext, Q_sca, g  (None: not quoted)
+    (0.75, 10.0, 2.232265, 2.232265, 0.896473),
+    (0.75, 1000.0, 1.997908, 1.997908, 0.844944),
+    (1.33 + 1e-5j, 1.0, None, 0.093923, 0.184517),
+    (1.33 + 1e-5j, 100.0, None, 2.096594, 0.868959),
+    (1.5 + 1j, 0.055, 0.101491, 0.000011, 0.000491),
+    (1.5 + 1j, 1.0, 2.336321, 0.663454, 0.192136),
+    (1.5 + 1j, 100.0, 2.097502, None, None),
+    (10 + 10j, 1.0, None, 2.049405, -0.110664),
+    (10 + 10j, 100.0, None, 1.836785, 0.556215),
+]
+
+
+@pytest.mark.parametrize("m,x,qext,qsca,g", PUBLISHED)
+def test_wiscombe_published_values(m, x, qext, qsca, g):
+    e = mie.efficiencies(m, x)
+    for key, ref in (("q_ext", qext), ("q_sca", qsca), ("g", g)):
+        if ref is not None:
+            assert e[key] == pytest.approx(ref, abs=1.5e-6), key
+
+
+def test_bohren_huffman_bhmie_example():
+    # m = 1.55, r = 0.525 µm, λ = 0.6328 µm (x = 5.213): Q_ext = Q_sca = 3.10543, Q_back = 2.92534,
+    # g = 0.63314 (Bohren & Huffman 1983, Appendix A)
+    e = mie.efficiencies(1.55, 2 * np.pi * 0.525 / 0.6328)
+    assert e["q_ext"] == pytest.approx(3.10543, abs=1e-5)
+    assert e["q_sca"] == pytest.approx(3.10543, abs=1e-5)
+    assert e["q_back"] == pytest.approx(2.92534, abs=1e-5)
+    assert e["g"] == pytest.approx(0.63314, abs=1e-5)
+
+
+def test_wiscombe_amplitude_table():
+    # Wiscombe 1979, m = 1.5 - 1i (conjugated: 1.5 + 1i), x = 1, Θ = 0, 30, ..., 180°
+    s1_ref = [0.584080 + 0.190515j, 0.565702 + 0.187200j, 0.517525 + 0.178443j, 0.456340 + 0.167167j,
+              0.400212 + 0.156643j, 0.362157 + 0.149391j, 0.348844 + 0.146829j]
+    s2_ref = [0.584080 + 0.190515j, 0.500161 + 0.145611j, 0.287964 + 0.041054j, 0.0362285 - 0.0618265j,
+              -0.174875 - 0.122959j, -0.305682 - 0.143846j, -0.348844 - 0.146829j]
+    s1, s2 = mie.amplitudes(1.5 + 1j, 1.0, np.cos(np.radians(np.arange(0, 181, 30))))
+    assert np.max(np.abs(s1 - np.conj(s1_ref))) < 1.5e-6
+    assert np.max(np.abs(s2 - np.conj(s2_ref))) < 1.5e-6
+
+
+def test_extinction_paradox():
+    # Q_ext -> 2 at large x (van de Hulst §8.2), approached like x^(-2/3) (edge term)
+    xs = [100.0, 1000.0, 10000.0]
+    dev = [abs(mie.efficiencies(1.33, x)["q_ext"] - 2.0) for x in xs]
+    assert dev[0] > dev[1] > dev[2]
+    assert dev[2] < 0.01
+    # van de Hulst's edge correction 2 + 1.992 x^(-2/3) (m -> 1 excluded: here the ripple is small)
+    assert mie.efficiencies(1.33, 10000.0)["q_ext"] == pytest.approx(2 + 1.992 * 1e4 ** (-2 / 3), abs=3e-3)
+
+
+@pytest.mark.parametrize("m,x", [(1.33, 30.0), (1.33 + 0.05j, 30.0), (1.5 + 1j, 8.0)])
+def test_energy_closure(m, x):
+    # ∫ dσ/dΩ dΩ = Q_sca π r² by quadrature of the amplitudes (independent of the Q_sca series);
+    # Q_abs = Q_ext - Q_sca is 0 without absorption and > 0 with it; g = <cos Θ> likewise
+    mu, w = special.roots_legendre(int(4 * x) + 200)
+    s1, s2 = mie.amplitudes(m, x, mu)
+    i = 0.5 * (np.abs(s1) ** 2 + np.abs(s2) ** 2)
+    q_sca = 2 * np.pi * np.sum(w * i) / (np.pi * x * x)          # k = 1, r = x
+    g = 2 * np.pi * np.sum(w * mu * i) / (np.pi * x * x) / q_sca
+    e = mie.efficiencies(m, x)
+    assert q_sca == pytest.approx(e["q_sca"], rel=1e-10)
+    assert g == pytest.approx(e["g"], rel=1e-9)
+    if np.imag(m) == 0:
+        assert abs(e["q_abs"]) < 1e-12
+    else:
+        assert e["q_abs"] > 0.01
+    # the optical theorem: Q_ext = 4 Re S(0) / x²
+    assert e["q_ext"] == pytest.approx(4 * e["s0"].real / x**2, rel=1e-12)
+
+
+def test_large_sphere_forward_lobe_is_airy():
+    # at large x the forward lobe is the Fraunhofer diffraction of the geometric cross-section:
+    # S(Θ) -> x² J1(u)/u, u = x sin Θ (van de Hulst §8.3); inside the central peak (u < 3)
+    # the refracted light adds O(1/x²) relative to it and the edge terms O(x^(-2/3))
+    x = 2000.0
+    u = np.linspace(0.05, 3.0, 40)
+    mu = np.sqrt(1 - (u / x) ** 2)
+    s1, s2 = mie.amplitudes(1.33, x, mu)
+    mie_i = 0.5 * (np.abs(s1) ** 2 + np.abs(s2) ** 2)
+    airy = (x * x * special.j1(u) / u) ** 2
+    rel = np.abs(mie_i / airy - 1)
+    assert rel.max() < 0.03
+    # and the diffraction peak (u < 10) holds about half of the extinction: ≈ πr² of σ_ext ≈ 2πr²
+    uu = np.linspace(1e-4, 10.0, 4000)
+    s1, s2 = mie.amplitudes(1.33, x, np.sqrt(1 - (uu / x) ** 2))
+    ii = 0.5 * (np.abs(s1) ** 2 + np.abs(s2) ** 2)
+    # dΩ = 2π sin Θ dΘ ≈ 2π u du / x²;  σ/(πr²) with k = 1, r = x
+    peak = np.trapezoid(2 * np.pi * uu * ii / x**2, uu) / (np.pi * x * x)
+    airy_peak = 1 - special.j0(10.0) ** 2 - special.j1(10.0) ** 2       # Rayleigh's encircled energy
+    assert peak == pytest.approx(airy_peak, rel=0.03)
+
+
+def test_water_ior_against_tabulated():
+    # water at 20 °C relative to air (Tilton & Taylor 1938; CRC Handbook): F, D, C lines
+    n = mie.water_ior([486.13, 589.29, 656.27])
+    assert n == pytest.approx([1.33712, 1.33299, 1.33115], abs=5e-5)
+    assert np.all(np.diff(mie.water_ior(np.linspace(360, 830, 50))) < 0)    # normal dispersion
+
+
+def test_bad_input():
+    with pytest.raises(CoronaError, match="x=.*-1"):
+        mie.efficiencies(1.33, -1.0)
+    with pytest.raises(CoronaError, match="κ >= 0"):
+        mie.efficiencies(1.33 - 0.1j, 5.0)
+    with pytest.raises(CoronaError, match="mu="):
+        mie.amplitudes(1.33, 5.0, [1.5])
