@@ -128,7 +128,7 @@ def test_reference_white_furnace_at_most_the_layer_alone(pane_material, cos_i):
     alone = material_from_parameters(**LAYER).directional_albedo(abs(cos_i), 550.0)["total"]
     with_pane = pane_material.directional_albedo(cos_i, 550.0)["total"]
     assert with_pane <= 1.0
-    if cos_i > 0:   # meeting the layer first, the pane only removes energy (docs/substrate.md)
+    if cos_i > 0:   # meeting the layer first, the pane only removes energy (docs/physics.md#the-layer-on-glass-substrateglass)
         assert with_pane <= alone + 1e-12
 
 

@@ -52,7 +52,7 @@ class Material:
         A thin glass pane the layer sits on (default: none, the layer
         alone).  It adds a specular reflection and weights every other
         component with the pane's Fresnel factors; see :meth:`eval` and
-        ``docs/substrate.md``.
+        ``docs/physics.md#the-layer-on-glass-substrateglass``.
 
     Notes
     -----
@@ -126,7 +126,7 @@ class Material:
 
     def __new__(cls, shape=None, *args, **kwargs):
         # a transparent sphere is a Mie scatterer, not a planar profile: its own material
-        # (docs/mie.md); everything else is this class
+        # (docs/physics.md#transparent-droplets-mie-spheres); everything else is this class
         if cls is Material and isinstance(shape, Shape):
             from .shapes.sphere import sphere_parts
             if sphere_parts(shape) is not None:
@@ -542,7 +542,7 @@ class Material:
         return pu * (2 * np.pi * self.length_scale / lam) ** 2
 
     # ------------------------------------------------------------------
-    # the whole BSDF: the layer, alone or on its pane (docs/substrate.md)
+    # the whole BSDF: the layer, alone or on its pane (docs/physics.md#the-layer-on-glass-substrateglass)
     # ------------------------------------------------------------------
     def _pane(self, cos_theta):
         """(R', T') of the substrate at |cos θ|: (0, 1) without one."""
@@ -608,7 +608,7 @@ class Material:
         The delta parts are :meth:`coherent_transmission` and
         :meth:`specular_reflection`.  Paths that meet the layer again after a
         reflection off the pane are kept only where they cross the layer
-        coherently once (the reflected lobe); ``docs/substrate.md`` lists what
+        coherently once (the reflected lobe); ``docs/physics.md#the-layer-on-glass-substrateglass`` lists what
         is dropped.  Every entry is symmetric under ``wi ↔ wo`` with the sides
         swapped (reciprocity).
         """

@@ -1,4 +1,4 @@
-"""Mie theory: the scattering of a plane wave by a homogeneous sphere (docs/mie.md).
+"""Mie theory: the scattering of a plane wave by a homogeneous sphere (docs/physics.md#transparent-droplets-mie-spheres).
 
 A sphere of radius ``r`` and complex refractive index ``m = n + iκ`` (relative
 to the surrounding medium; ``κ >= 0`` absorbs, the convention of Bohren &

@@ -40,7 +40,7 @@ Paths that meet the layer a second time after a reflection off the pane are
 dropped unless they are one of the above (the scattered-twice paths, and
 light the pane returns onto the layer's opaque part), so the layer on glass
 reflects plus transmits at most what the layer alone would: the white
-furnace stays <= 1.  ``docs/substrate.md`` lists the approximations.
+furnace stays <= 1.  ``docs/physics.md#the-layer-on-glass-substrateglass`` lists the approximations.
 
 Textures: ``area_fraction``, ``radius`` and ``albedo`` take a float or any
 Mitsuba texture, evaluated at the shading point.  ``mi.traverse`` exposes
@@ -215,7 +215,7 @@ class CoronaBSDFMixin:
         self.radius_ref = ranges[1][1]
         self._setup(*ranges)
 
-        # --- the pane under the layer (docs/substrate.md) ----------------------
+        # --- the pane under the layer (docs/physics.md#the-layer-on-glass-substrateglass) ----------------------
         pane = self.material.substrate
         self.has_pane = pane is not None
         if self.has_pane:
@@ -779,7 +779,7 @@ def register() -> None:
     cls = bsdf_class()
 
     def make(props):
-        # shape=sphere: the Mie layer's own code path (corona.mitsuba_sphere, docs/mie.md)
+        # shape=sphere: the Mie layer's own code path (corona.mitsuba_sphere, docs/physics.md#transparent-droplets-mie-spheres)
         if "shape" in props and str(props["shape"]) == "sphere":
             from .mitsuba_sphere import sphere_bsdf_class
             return sphere_bsdf_class()(props)

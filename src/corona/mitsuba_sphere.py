@@ -1,4 +1,4 @@
-"""The ``corona`` plugin's code path for ``shape=sphere``: a layer of Mie droplets (docs/mie.md).
+"""The ``corona`` plugin's code path for ``shape=sphere``: a layer of Mie droplets (docs/physics.md#transparent-droplets-mie-spheres).
 
 ``mi.load_dict({'type': 'corona', 'shape': 'sphere', ...})`` builds this BSDF
 (:func:`corona.mitsuba_bsdf.register` dispatches on ``shape``).  It evaluates

@@ -1,4 +1,4 @@
-"""A layer of transparent spheres (Mie scatterers): the numpy reference BSDF (docs/mie.md).
+"""A layer of transparent spheres (Mie scatterers): the numpy reference BSDF (docs/physics.md#transparent-droplets-mie-spheres).
 
 :class:`corona.Material` builds a :class:`SphereMaterial` when its shape is a
 :class:`corona.Sphere` (or a size distribution of one).  The layer is a single

@@ -2,7 +2,7 @@
 
 A fogged window is droplets on glass, and glass reflects.  :class:`GlassPane`
 is the sheet of glass the corona layer sits on; :class:`corona.Material`
-combines the two (see ``docs/substrate.md`` for which inter-reflections the
+combines the two (see ``docs/physics.md#the-layer-on-glass-substrateglass`` for which inter-reflections the
 combination keeps and which it drops).
 """
 from __future__ import annotations

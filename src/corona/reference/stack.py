@@ -1,6 +1,6 @@
 """Brute force for a layer on a glass pane: a Monte Carlo random walk through the stack.
 
-:class:`corona.Material` with a substrate (``docs/substrate.md``) keeps the
+:class:`corona.Material` with a substrate (``docs/physics.md#the-layer-on-glass-substrateglass``) keeps the
 paths that cross the layer at most twice with at most one scattering event,
 and drops the rest.  This walk follows every path, to any order, with the
 layer's and the pane's own statistics only:

@@ -1,4 +1,4 @@
-"""A transparent (optionally absorbing) sphere: the Mie scatterer (docs/mie.md).
+"""A transparent (optionally absorbing) sphere: the Mie scatterer (docs/physics.md#transparent-droplets-mie-spheres).
 
 Unlike the flat shapes, a sphere's far field is not the Fourier transform of
 a profile in the layer plane: it depends on the size parameter
