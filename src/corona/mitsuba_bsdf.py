@@ -122,7 +122,9 @@ class CoronaBSDFMixin:
 
         # --- component energies (wavelength-independent) ---------------------
         self.w_coherent = float(material.coherent_transmittance)
-        self.w_lobe = float(material.diffuse_transmittance())      # F_a ∫v d²u / 4π²
+        # the lobe's energy over the tables the plugin evaluates and samples
+        # (|d| <= 2.1 at 360 nm: all it has), F_a ∫v d²u / 4π²
+        self.w_lobe = float(material.tabulated_transmittance)
         self.lobe_scale = float(material.lobe_weight)                # f = F_a (R/λ)² v(u), capped
         self.w_reflect = float(material.reflectance)                 # ρ · opaque fraction, capped
         self.albedo = mi.Float(material.albedo)                      # exposed through mi.traverse
@@ -135,13 +137,11 @@ class CoronaBSDFMixin:
             self.values = _array(mi.Float, table.values)
             self._set_cdf(table.cdf)
         else:
-            self.n = int(table.n)
-            self.lo = float(table.lo)                 # first vertex [u]
-            self.cell = float(table.cell)
-            self.span = float(table.cell * (table.n - 1))
-            self.values = _array(mi.Float, table.values.ravel())
-            # exact sampling of the bilinear density (marginal y, conditional x)
-            self.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(table.values, dtype=np.float32))
+            # the lobe as exact as the model (analytic form factors or cubic
+            # form-factor grids × radial S; bilinear for lattices), sampled
+            # exactly from the bilinear table(s): corona.lobe_kernels
+            from .lobe_kernels import LobeKernel
+            self.kernel = LobeKernel(material)
 
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
@@ -191,35 +191,21 @@ class CoronaBSDFMixin:
         return dr.clip(lam, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
 
     def _table_value(self, ux, uy, active):
-        """v(u): linear in |u| (radial) or bilinear in (u_x, u_y) (grid)."""
-        if self.isotropic:
-            x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.du
-            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
-            t = x - mi.Float(i)
-            inside = active & (x <= self.n - 1)
-            v0 = _gather(mi.Float, self.values, i, inside)
-            v1 = _gather(mi.Float, self.values, i + 1, inside)
-            return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
-        fx = (ux - self.lo) / self.cell
-        fy = (uy - self.lo) / self.cell
-        inside = active & (fx >= 0) & (fx <= self.n - 1) & (fy >= 0) & (fy <= self.n - 1)
-        x0 = dr.clip(dr.floor(fx), 0, self.n - 2)
-        y0 = dr.clip(dr.floor(fy), 0, self.n - 2)
-        tx = dr.clip(fx - x0, 0.0, 1.0)
-        ty = dr.clip(fy - y0, 0.0, 1.0)
-        k = mi.UInt32(y0) * self.n + mi.UInt32(x0)
-        v00 = _gather(mi.Float, self.values, k, inside)
-        v01 = _gather(mi.Float, self.values, k + 1, inside)
-        v10 = _gather(mi.Float, self.values, k + self.n, inside)
-        v11 = _gather(mi.Float, self.values, k + self.n + 1, inside)
-        v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
-        return dr.select(inside, dr.maximum(v, 0.0), 0.0)
+        """v(u): linear in |u| (radial table) or the kernel (anisotropic lobes)."""
+        if not self.isotropic:
+            return self.kernel.value(ux, uy, active)
+        x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.du
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
+        t = x - mi.Float(i)
+        inside = active & (x <= self.n - 1)
+        v0 = _gather(mi.Float, self.values, i, inside)
+        v1 = _gather(mi.Float, self.values, i + 1, inside)
+        return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
 
     def _sample_u(self, s, active):
         """Invert the table's CDF: s (Vector2f) -> u (Vector2f)."""
         if not self.isotropic:
-            p01, _ = self.distr.sample(s, active=active)
-            return mi.Vector2f(self.lo + p01.x * self.span, self.lo + p01.y * self.span)
+            return self.kernel.sample(s, active)
         target = s.x
         # guide table, then bisection with cdf[lo] <= target < cdf[hi]
         j = mi.UInt32(dr.minimum(target * self.guide_size, self.guide_size - 1))
@@ -272,8 +258,10 @@ class CoronaBSDFMixin:
             ux, uy = dx * k, dy * k
             v = self._table_value(ux, uy, active)
             values.append(self.lobe_scale * dr.square(self.R / lam) * v)   # F_a (R/λ)² v
-            # p_d = p_u k²; the tables are sampled exactly ∝ v, so p_u = v / ∫v d²u
-            pdf += m * (v * (1.0 / self.table_total)) * dr.square(k)
+            # p_d = p_u k²; radial tables are sampled exactly ∝ v, so p_u = v / ∫v d²u;
+            # 2D lobes: the exact density of the (bilinear) sampling tables
+            p_u = v * (1.0 / self.table_total) if self.isotropic else self.kernel.pdf(ux, uy, active)
+            pdf += m * p_u * dr.square(k)
         if mi.is_spectral:
             f = mi.Spectrum(values)
         else:
