@@ -65,8 +65,25 @@ def row_settings(eta: float) -> dict:
         # long runs; snapshots (all wave vectors below qσ = 15) less often
         n_eq, n_sw, every = 15000, 55000, 400
     return dict(n_disks=N_DISKS, n_sweeps=n_sw, n_equilibration=n_eq, sample_every=every,
-                n_chains=N_CHAINS, q_sigma_max=Q_SIGMA_MAX, bin_width=BIN_WIDTH,
+                n_chains=chains_for(eta), q_sigma_max=Q_SIGMA_MAX, bin_width=BIN_WIDTH,
                 seed=SEED + int(round(1000 * eta)))
+
+
+#: Rows run with more independent chains (issue 18: the smoothed rows' own
+#: error bars below 0.003), {η: chains}.  The first two chains of a row are
+#: those of the two-chain runs (``SeedSequence.spawn``), so the extra chains
+#: only add statistics.  The other rows keep ``N_CHAINS``: regenerating every
+#: row this way (≈ 8× the statistics at η ≥ 0.52) would take ≈ 3 CPU hours.
+EXTRA_CHAINS = {0.05: 4, 0.1: 4, 0.15: 4, 0.2: 4, 0.25: 4, 0.3: 4,
+                0.35: 8, 0.4: 8, 0.45: 8, 0.5: 8, 0.65: 20}
+
+
+def chains_for(eta: float) -> int:
+    """Independent chains of the row ``eta``."""
+    for e, n in EXTRA_CHAINS.items():
+        if abs(eta - e) < 1e-6:
+            return n
+    return N_CHAINS
 
 
 def row_file(work_dir: str, eta: float) -> str:
@@ -129,7 +146,14 @@ def smooth_row(r: dict) -> dict:
                                           float(r["eta"]), Z=float(r["Z"]))
 
 
-def assemble(work_dir: str, out: str, old: dict | None) -> None:
+def row_error(r: dict, n_resamples: int) -> np.ndarray:
+    """Standard error of the smoothed row (parametric bootstrap of the smoothing)."""
+    ok = np.isfinite(r["S"])
+    return hd.smoothed_row_error(r["q"][ok], r["S"][ok], r["S_err"][ok], float(r["eta"]), Z=float(r["Z"]),
+                                 n_resamples=n_resamples, seed=int(round(1000 * float(r["eta"]))))
+
+
+def assemble(work_dir: str, out: str, old: dict | None, n_resamples: int = 12) -> None:
     q_grid = hd.TABLE_Q_SIGMA
     rows, missing = [], []
     for eta in ETA_GRID:
@@ -145,6 +169,7 @@ def assemble(work_dir: str, out: str, old: dict | None) -> None:
     n_eta, n_q = len(ETA_GRID), q_grid.size
     n_bins = int(round(Q_SIGMA_MAX / BIN_WIDTH))
     S = np.ones((n_eta, n_q))
+    S_err = np.zeros((n_eta, n_q))
     tail = np.zeros((n_eta, 3))
     S0 = np.ones(n_eta)
     out_d = {k: np.zeros(n_eta) for k in ("Z", "Z_err", "contact_value", "contact_value_err",
@@ -168,6 +193,9 @@ def assemble(work_dir: str, out: str, old: dict | None) -> None:
             continue
         row = smooth_row(r)
         S[i] = row["S"]
+        S_err[i] = row_error(r, n_resamples)
+        print(f"η={eta:.4f}: smoothed row's error max {S_err[i].max():.4f} (at qσ = "
+              f"{q_grid[np.argmax(S_err[i])]:.2f}), median {np.median(S_err[i]):.4f}", flush=True)
         tail[i] = row["tail"]
         S0[i] = row["S0"]
         out_d["Z"][i], out_d["Z_err"][i] = r["Z"], r["Z_err"]
@@ -186,14 +214,17 @@ def assemble(work_dir: str, out: str, old: dict | None) -> None:
             g_err = np.zeros((n_eta, r_sigma.size), np.float32)
         g[i], g_err[i] = r["g"], r["g_err"]
         settings.append(str(r["settings"]))
-    meta = dict(format_version=hd.TABLE_FORMAT_VERSION, n_disks=N_DISKS, n_chains=N_CHAINS,
+    meta = dict(format_version=hd.TABLE_FORMAT_VERSION, n_disks=N_DISKS, n_chains=N_CHAINS,  # per row: "chains"
                 seed=SEED, date=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                 generator="scripts/make_hard_disk_table.py", method=hd.TABLE_METHOD,
+                S_err=f"standard error of each smoothed row (parametric bootstrap of the smoothing, "
+                      f"{n_resamples} resamples of the binned data within their blocking errors)",
+                chains={f"{e:g}": chains_for(float(e)) for e in ETA_GRID if e > 0},
                 python=platform.python_version(), numpy=np.__version__,
                 total_cpu_seconds=float(out_d["cpu_seconds"].sum()))
     os.makedirs(os.path.dirname(out), exist_ok=True)
     tmp = out + ".tmp.npz"
-    np.savez_compressed(tmp, eta=ETA_GRID, q_sigma=q_grid, S=S, S0=S0, tail=tail,
+    np.savez_compressed(tmp, eta=ETA_GRID, q_sigma=q_grid, S=S, S_err=S_err.astype(np.float32), S0=S0, tail=tail,
                         raw_q=raw_q, raw_S=raw_S, raw_S_err=raw_S_err, raw_n_vectors=raw_nv,
                         r_sigma=r_sigma, g=g, g_err=g_err, settings=np.array(settings),
                         metadata=json.dumps(meta), **out_d)
@@ -216,6 +247,8 @@ def main(argv=None):
                     help="table that provides the rows not simulated now (default: --out if it "
                          "exists, else the shipped table)")
     ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--error-resamples", type=int, default=12,
+                    help="bootstrap resamples of each row's smoothing for its error bars")
     a = ap.parse_args(argv)
     old = None
     base = a.base or (a.out if os.path.exists(a.out) else DEFAULT_OUT)
@@ -238,7 +271,7 @@ def main(argv=None):
                 simulate_row(eta, a.jobs, a.work_dir, progress=not a.quiet)
         print(f"simulated {len(etas)} row(s) in {time.perf_counter() - t0:.1f} s wall", flush=True)
     if not a.no_assemble:
-        assemble(a.work_dir, a.out, old)
+        assemble(a.work_dir, a.out, old, a.error_resamples)
 
 
 if __name__ == "__main__":

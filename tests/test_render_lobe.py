@@ -100,7 +100,7 @@ def test_old_bilinear_table_fails_the_bound(mask_file):
 @pytest.mark.parametrize("theta", [0, 70])
 def test_chi2_warped_sampling_table(mi_variant, theta):
     """Scatterers larger than ~1.75 µm: the sampling table is uniform in
-    t = s asinh(u/s) and reaches u_max; still exact w.r.t. its pdf."""
+    t = u / (1 + |u|/c) and reaches u_max; still exact w.r.t. its pdf."""
     params = dict(shape="rectangle", radius=2.0, aspect=0.3, angle=25, process="hard-disk", area_fraction=0.2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", corona.CoronaWarning)

@@ -18,8 +18,8 @@ the (few) outlines and polygon edges only, never over lanes.
 * ``table``: the bilinear table (lattices).
 
 Sampling: Mitsuba's ``MarginalContinuous2D0`` on the bilinear table of ``v``
-(uniform in u, or in ``t = s asinh(u/s)`` for lobes reaching beyond it); the
-pdf is the exact density of that table (divided by the Jacobian ``du/dt``).
+(uniform in u, or in ``t = u / (1 + |u|/c)`` for lobes reaching beyond it);
+the pdf is the exact density of that table (divided by the Jacobian ``d²u/d²t``).
 
 References
 ----------
@@ -175,9 +175,9 @@ class LobeKernel:
         v1 = _gather(mi.Float, self.s_values, i + 1, inside)
         return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
 
-    def _cubic(self, coef, ux, uy, active):
-        """Cubic B-spline of the grid ``coef`` at u (mirror boundary, by the
-        padding); 0 outside the vertex square."""
+    def _cubic(self, grids, ux, uy, active):
+        """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
+        and weights for all; mirror boundary by the padding); 0 outside."""
         n = self.g_n
         fx = (ux - self.g_lo) / self.g_cell
         fy = (uy - self.g_lo) / self.g_cell
@@ -198,13 +198,16 @@ class LobeKernel:
         wx, wy = weights(tx), weights(ty)
         m = n + 3                                   # padded row length
         base = mi.UInt32(iy) * m + mi.UInt32(ix)    # tap (-1, -1) in the padded array
-        acc = mi.Float(0.0)
+        acc = [mi.Float(0.0) for _ in grids]
         for b in range(4):
-            racc = mi.Float(0.0)
+            racc = [mi.Float(0.0) for _ in grids]
             for a in range(4):
-                racc = dr.fma(wx[a], _gather(mi.Float, coef, base + (b * m + a), inside), racc)
-            acc = dr.fma(wy[b], racc, acc)
-        return dr.select(inside, acc, 0.0)
+                k = base + (b * m + a)
+                for g, coef in enumerate(grids):
+                    racc[g] = dr.fma(wx[a], _gather(mi.Float, coef, k, inside), racc[g])
+            for g in range(len(grids)):
+                acc[g] = dr.fma(wy[b], racc[g], acc[g])
+        return [dr.select(inside, x, 0.0) for x in acc]
 
     def _term_amplitude(self, term, qx, qy):
         """(re, im) of ``Â`` of one outline at q [rad/µm] (im None when real)."""
@@ -285,10 +288,12 @@ class LobeKernel:
         if self.kind == "table":
             return self._bilinear(self.near, ux, uy, active)
         if self.kind == "grid":
-            P = self._cubic(self.g_P, ux, uy, active)
-            if not self.has_s:          # S = 1: v = P
-                return dr.select(active, dr.maximum(P, 0.0), 0.0)
-            C = P if self.g_C is None else self._cubic(self.g_C, ux, uy, active)
+            if not self.has_s or self.g_C is None:      # v = P (S = 1) or P S (C = P)
+                P = C = self._cubic([self.g_P], ux, uy, active)[0]
+                if not self.has_s:
+                    return dr.select(active, dr.maximum(P, 0.0), 0.0)
+            else:
+                P, C = self._cubic([self.g_P, self.g_C], ux, uy, active)
         else:
             qx, qy = ux * (1.0 / self.R), uy * (1.0 / self.R)
             inten = mi.Float(0.0)
@@ -312,12 +317,12 @@ class LobeKernel:
         """Density in the u plane of :meth:`sample`."""
         if self.warp == 0.0:
             return self._bilinear(self.near, ux, uy, active) * (1.0 / self.near["total"])
-        s = self.warp
-        ax, ay = dr.abs(ux) * (1.0 / s), dr.abs(uy) * (1.0 / s)
-        jx, jy = dr.sqrt(dr.fma(ax, ax, 1.0)), dr.sqrt(dr.fma(ay, ay, 1.0))      # cosh(t/s)
-        tx = dr.mulsign(s * dr.log(ax + jx), ux)                                 # s asinh(u/s)
-        ty = dr.mulsign(s * dr.log(ay + jy), uy)
-        return self._bilinear(self.near, tx, ty, active) * (1.0 / self.near["total"]) / (jx * jy)
+        inv_c = 1.0 / self.warp
+        gx = dr.fma(dr.abs(ux), inv_c, 1.0)         # 1 + |u|/c = du/dt^(1/2)
+        gy = dr.fma(dr.abs(uy), inv_c, 1.0)
+        rx, ry = dr.rcp(gx), dr.rcp(gy)
+        p = self._bilinear(self.near, ux * rx, uy * ry, active)      # t = u / (1 + |u|/c)
+        return p * (1.0 / self.near["total"]) * dr.square(rx * ry)
 
     def sample(self, s, active):
         """``s`` (Point2f in [0, 1)²) -> u (Vector2f) with density :meth:`pdf`."""
@@ -326,10 +331,5 @@ class LobeKernel:
         tx, ty = tb["lo"] + p01.x * tb["span"], tb["lo"] + p01.y * tb["span"]
         if self.warp == 0.0:
             return mi.Vector2f(tx, ty)
-        w = self.warp
-
-        def sinh(x):   # s sinh(t/s)
-            e = dr.exp(x * (1.0 / w))
-            return 0.5 * w * (e - dr.rcp(e))
-
-        return mi.Vector2f(sinh(tx), sinh(ty))
+        inv_c = 1.0 / self.warp        # u = t / (1 - |t|/c)
+        return mi.Vector2f(tx / (1.0 - dr.abs(tx) * inv_c), ty / (1.0 - dr.abs(ty) * inv_c))

@@ -327,19 +327,19 @@ class Material:
                                     s_du=s_du, s_minus_one=None if poisson else s1)
         if kind == "analytic" and u_max > u_range * (1 + 1e-9):
             # the analytic lobe reaches beyond the grid: sample it from a table
-            # uniform in t = s asinh(u/s) instead (cells of 0.25 near u = 0,
-            # the last vertex at u_max), each vertex the local mean of the
+            # uniform in t = u / (1 + |u|/c) instead (cells of 0.25 near u = 0,
+            # the outer vertices at u_max), each vertex the local mean of the
             # density in t over its cell (positive wherever the lobe is)
-            warp = tables.warp_for(u_range, u_max)
+            g = tables.GridTable(u_range, np.zeros((2, 2)), tables.warp_for(c[-1], u_max))   # last vertex at u_max
             k = rlobe.SUPERSAMPLE
             sub = ((np.arange(k) + 0.5) / k - 0.5) * cell
             acc = np.zeros((n, n))
             for sy in sub:
                 for sx in sub:
                     tx, ty = np.meshgrid(c + sx, c + sy, indexing="xy")
-                    uu = warp * np.sinh(np.stack([tx, ty], -1) / warp)
-                    acc += rl.eval(uu) * np.cosh(tx / warp) * np.cosh(ty / warp)
-            out = tables.GridTable(u_range, acc / k**2, warp).arrays()
+                    uu = g.to_u(np.stack([tx, ty], -1))
+                    acc += rl.eval(uu) * g.jacobian(uu)
+            out = tables.GridTable(u_range, acc / k**2, g.warp).arrays()
         else:
             v = np.maximum(P + C * rl.s1(np.hypot(ux, uy)), 0.0) / R**2
             out = tables.GridTable(u_range, v).arrays()

@@ -36,8 +36,8 @@ Sampling stays on the bilinear N×N table of ``v`` (:class:`corona.tables.GridTa
 exact with respect to its own density, so ``eval / pdf`` is unbiased).  Where
 the analytic lobe reaches beyond a uniform grid of cells <= 0.25
 (``u_max > 64``, scatterers larger than ~1.75 µm), the table is uniform in
-``t = s asinh(u/s)`` instead (``s`` such that the last vertex sits at
-``u_max``: cells of 0.25 near ``u = 0`` growing outwards), its vertices the
+``t = u / (1 + |u|/c)`` instead (``c`` such that its outer vertices sit at ``u_max``:
+cells of 0.25 near ``u = 0`` growing as ``(1 + |u|/c)²``), its vertices the
 local means of the density over their cells (:data:`SUPERSAMPLE`² points),
 so the sampled region covers every evaluated direction.
 """

@@ -59,18 +59,11 @@ def u_max_for(length_scale: float, wavelength_min: float = WAVELENGTH_MIN) -> fl
 
 
 def warp_for(t_range: float, u_max: float) -> float:
-    """The scale ``s`` with ``s sinh(t_range / s) = u_max`` (0 when ``u_max <= t_range``):
-    a warped :class:`GridTable` of range ``t_range`` in t then reaches ``u_max``."""
+    """The scale ``c`` with ``t_range / (1 - t_range / c) = u_max`` (0 when ``u_max <= t_range``):
+    a warped :class:`GridTable` whose outer vertices sit at ``t_range`` in t then reaches ``u_max``."""
     if u_max <= t_range * (1 + 1e-12):
         return 0.0
-    lo, hi = 1e-3 * t_range, 1e6 * t_range     # s sinh(T/s) falls from ∞ to T as s grows
-    for _ in range(200):
-        mid = math.sqrt(lo * hi)
-        if mid * math.sinh(min(t_range / mid, 700.0)) > u_max:
-            lo = mid
-        else:
-            hi = mid
-    return hi
+    return t_range / (1.0 - t_range / u_max)
 
 
 # --------------------------------------------------------------------------
@@ -189,12 +182,13 @@ class GridTable:
     :meth:`pdf` ∝ :meth:`eval` — the same scheme as Mitsuba's
     ``MarginalContinuous2D0`` that the plugin uses.
 
-    With ``warp = s > 0`` the grid is uniform in ``t = s asinh(u/s)`` per
-    axis (cells of ``cell`` near u = 0, growing as ``√(1 + (u/s)²)``), so one
-    N×N table reaches far (``U`` is then the range in t): ``values`` is the
-    density in t, ``v(u(t)) · J(t)`` with ``J = cosh(t_x/s) cosh(t_y/s)``,
-    the bilinear density is sampled in t and mapped to ``u = s sinh(t/s)``,
-    and :meth:`eval` returns ``table(t(u)) / J``, the density in u.
+    With ``warp = c > 0`` the grid is uniform in ``t = u / (1 + |u|/c)`` per
+    axis (cells of ``cell`` near u = 0, growing as ``(1 + |u|/c)²``), so one
+    N×N table reaches far (``U`` is then the range in t, ``U < c``):
+    ``values`` is the density in t, ``v(u(t)) · J`` with the Jacobian
+    ``J = (1 + |u_x|/c)² (1 + |u_y|/c)²``, the bilinear density is sampled in
+    t and mapped to ``u = t / (1 - |t|/c)``, and :meth:`eval` returns
+    ``table(t(u)) / J``, the density in u.
     """
 
     u_range: float
@@ -204,21 +198,21 @@ class GridTable:
     marg_cdf: np.ndarray = field(init=False)  # (N,): ∫_0^{y_j} m(y) dy
 
     def to_t(self, u):
-        """Grid coordinate ``t = s asinh(u/s)`` (``t = u`` without warp)."""
+        """Grid coordinate ``t = u / (1 + |u|/c)`` (``t = u`` without warp)."""
         u = np.asarray(u, dtype=np.float64)
-        return self.warp * np.arcsinh(u / self.warp) if self.warp > 0 else u
+        return u / (1.0 + np.abs(u) / self.warp) if self.warp > 0 else u
 
     def to_u(self, t):
-        """``u = s sinh(t/s)``."""
+        """``u = t / (1 - |t|/c)``."""
         t = np.asarray(t, dtype=np.float64)
-        return self.warp * np.sinh(t / self.warp) if self.warp > 0 else t
+        return t / (1.0 - np.abs(t) / self.warp) if self.warp > 0 else t
 
     def jacobian(self, u) -> np.ndarray:
         """``d²u / d²t`` at u (..., 2)."""
         u = np.asarray(u, dtype=np.float64)
         if self.warp <= 0:
             return np.ones(u.shape[:-1])
-        return np.sqrt(1.0 + (u[..., 0] / self.warp) ** 2) * np.sqrt(1.0 + (u[..., 1] / self.warp) ** 2)
+        return ((1.0 + np.abs(u[..., 0]) / self.warp) * (1.0 + np.abs(u[..., 1]) / self.warp)) ** 2
 
     @property
     def reach(self) -> float:
