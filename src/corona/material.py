@@ -279,8 +279,12 @@ class Material:
     def _build_table(self) -> dict:
         u_max = tables.u_max_for(self.length_scale)
         R = self.length_scale
+        # a process whose S is itself piecewise linear on a q grid (a measured
+        # point set) gets a u step of a quarter of that grid's, so the kinks cost
+        # little in the linear tables (RADIAL_DU otherwise)
+        du_target = min(tables.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
         if self.isotropic:
-            n = int(np.ceil(u_max / tables.RADIAL_DU)) + 1
+            n = int(np.ceil(u_max / du_target)) + 1
             n = min(n, tables.RADIAL_MAX_SAMPLES)
             du = u_max / (n - 1)
             u = np.arange(n) * du
@@ -319,7 +323,7 @@ class Material:
             out["form_total"] = np.array(form_total)
             return out
         # isotropic process: S - 1 on the radial tables' step, the sampling grid of v
-        ns = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
+        ns = min(int(np.ceil(u_max / du_target)) + 1, tables.RADIAL_MAX_SAMPLES)
         s_du = u_max / (ns - 1)
         s1 = self.process.structure_factor_radial(np.arange(ns) * s_du / R, self.shape) - 1.0
         poisson = bool(np.all(s1 == 0.0))

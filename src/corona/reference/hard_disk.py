@@ -1234,3 +1234,31 @@ def smoothing_bias(q, S_err, eta, truth, n_resamples=10, seed=0):
     d = np.array([smooth_structure_factor_row(q, tq + rng.normal(size=q.size) * e, e, eta)["S"] - tg
                   for _ in range(int(n_resamples))])
     return d.mean(axis=0), d.std(axis=0, ddof=1)
+
+
+def raw_minus_smoothed(eta, half_width=0.5, n_peaks=3):
+    """Shipped row against its own raw data around the first ``n_peaks`` peaks.
+
+    For the table row ``eta``: in windows ``q_k ± half_width`` around the
+    row's local maxima, the weighted (``1/err²``) mean of raw - smoothed over
+    the simulation's bins, its standard error and z-score.  A smoother that
+    flattens peaks shows up as negative means, z < 0.
+    """
+    t = load_table()
+    i = int(np.flatnonzero(np.isclose(t["eta"], eta))[0])
+    q, S, e = t["raw_q"][i], t["raw_S"][i], t["raw_S_err"][i]
+    ok = np.isfinite(S) & np.isfinite(e) & (e > 0)
+    q, S, e = q[ok], S[ok], e[ok]
+    row = t["S"][i]
+    qg = t["q_sigma"]
+    peaks = [j for j in range(1, qg.size - 1) if row[j] > row[j - 1] and row[j] >= row[j + 1]
+             and row[j] > 1.0][:n_peaks]
+    out = []
+    for j in peaks:
+        sel = np.abs(q - qg[j]) <= half_width
+        w = 1.0 / e[sel] ** 2
+        d = S[sel] - np.interp(q[sel], qg, row)
+        mean = float(np.sum(w * d) / np.sum(w))
+        err = float(1.0 / math.sqrt(np.sum(w)))
+        out.append(dict(eta=float(eta), q_peak=float(qg[j]), mean=mean, err=err, z=mean / err))
+    return out

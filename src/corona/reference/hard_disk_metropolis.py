@@ -255,3 +255,27 @@ def metropolis_structure_factor(eta, windows, n_disks=2000, n_sweeps=40000, n_eq
                 settings=dict(n_disks=n_disks, n_sweeps=n_sweeps, n_equilibration=n_equilibration,
                               sample_every=sample_every, n_chains=n_chains, n_blocks=n_blocks,
                               max_vectors=max_vectors, seed=seed))
+
+
+def compare_with_table(run: dict) -> list[dict]:
+    """The shipped table against one stored Metropolis run (a record of
+    ``tests/data/hard_disk_metropolis.json``): per window, the table averaged
+    over the run's own wave vectors, the table's error bar there (the largest
+    stored ``S_err`` of the row in the window, interpolated in η), the
+    difference and its z-score against the combined error."""
+    from ..processes.hard_disk import load_table, structure_factor_table
+    t = load_table()
+    eta = float(run["eta"])
+    out = []
+    for (lo, hi), S_m, e_m, k in zip(run["windows"], run["S"], run["S_err"], run["k_vectors"]):
+        S_t = float(np.mean(structure_factor_table(np.asarray(k), eta)))
+        sel = (t["q_sigma"] >= lo) & (t["q_sigma"] <= hi)
+        if "S_err" in t:
+            e_rows = np.array([np.interp(eta, t["eta"], t["S_err"][:, j]) for j in np.flatnonzero(sel)])
+            e_t = float(e_rows.max())
+        else:
+            e_t = float("nan")
+        comb = math.hypot(e_m, e_t) if math.isfinite(e_t) else float(e_m)
+        out.append(dict(eta=eta, window=[float(lo), float(hi)], table=S_t, table_err=e_t, metropolis=float(S_m),
+                        metropolis_err=float(e_m), diff=S_t - float(S_m), z=(S_t - float(S_m)) / comb))
+    return out
