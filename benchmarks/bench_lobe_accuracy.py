@@ -13,7 +13,9 @@ disk where the model's lobe is above 1e-3 of its peak
 
 the renderer's kind, the bytes of the arrays the plugin holds for the lobe
 (before: the 512² float32 table and Mitsuba's sampling CDFs of it; after:
-plus the ``S - 1`` table and the form-factor grids) and the table build time.
+plus the ``S - 1`` table and the form-factor grids), the table build time,
+and the kernel's cost: value + pdf at one wavelength for 2^19 lanes against
+one bilinear lookup of the table (all the plugin did before; fastest of 7).
 Goal: <= 0.5 % RMS and <= 2 % max for every shape, orientation and process.
 Writes benchmarks/results/lobe_accuracy.json.
 
@@ -122,9 +124,24 @@ def main():
     folder = tempfile.mkdtemp(prefix="corona-bench-files-")
     mask, points = _files(folder)
     if not args.no_kernel:
+        import drjit as dr
         import mitsuba as mi
         mi.set_variant("llvm_ad_spectral")
         from corona.lobe_kernels import LobeKernel
+        rng = np.random.default_rng(0)
+        global LANES, _time
+        LANES = (mi.Float(rng.uniform(-30, 30, 1 << 19)), mi.Float(rng.uniform(-30, 30, 1 << 19)))
+        dr.eval(LANES)
+
+        def _time(f, reps=7):
+            best = np.inf
+            for _ in range(reps):
+                t0 = time.perf_counter()
+                r = f()
+                dr.eval(r)
+                dr.sync_thread()
+                best = min(best, time.perf_counter() - t0)
+            return best * 1e3
     results = {}
     for name, p in CASES.items():
         p = dict(p)
@@ -154,6 +171,11 @@ def main():
                                    mi.Bool(True)))
             kk = render_lobe.relative_error(val, v)
             row.update(rms_kernel=kk["rms"], max_kernel=kk["max"])
+            # cost of value + pdf at one wavelength, per 2^19 lanes, against one
+            # bilinear lookup of the sampling table (what the plugin did before)
+            row["kernel_ms"] = _time(lambda: k.value(*LANES, mi.Bool(True)) + k.pdf(*LANES, mi.Bool(True)))
+            row["bilinear_ms"] = _time(lambda: k._bilinear(k.near, *LANES, mi.Bool(True)))
+            row["cost_ratio"] = row["kernel_ms"] / row["bilinear_ms"]
         row.update(bytes_before=int(plugin_bytes(m) if m.isotropic else 3 * 512 * 512 * 4),
                    bytes_after=plugin_bytes(m), build_s=build)
         results[name] = row

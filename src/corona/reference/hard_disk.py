@@ -667,7 +667,7 @@ def _contact_fit(r, g, Z):
 def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, progress=True, *,
                         n_equilibration=None, sample_every=100, n_chains=1, jobs=1,
                         q_sigma_max=42.0, bin_width=0.05, r_max=5.0, dr=0.005,
-                        n_blocks=10, n_keep=4, start="lattice"):
+                        n_blocks=10, n_keep=4, start="lattice", first_chain=0):
     """Event-chain Monte Carlo of hard disks in a periodic square box.
 
     Parameters
@@ -704,6 +704,10 @@ def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, 
         Start from a triangular lattice at η (with random vacancies), or from
         a fluid at η = 0.55 compressed in steps of 0.01 (overlaps removed by
         pushing pairs apart, a few hundred sweeps at each step).
+    first_chain : int
+        Index of the first chain in the seed sequence of ``seed``: chains
+        ``first_chain … first_chain + n_chains - 1`` are run, so a run can be
+        extended later by further, independent chains.
 
     Returns
     -------
@@ -721,7 +725,9 @@ def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, 
     sample_every = int(sample_every)
     n_chains = max(1, int(n_chains))
     jobs = max(1, min(int(jobs), n_chains))
-    seeds = [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(n_chains)]
+    first_chain = max(0, int(first_chain))
+    seeds = [int(s.generate_state(1)[0])
+             for s in np.random.SeedSequence(seed).spawn(first_chain + n_chains)[first_chain:]]
     args = [(eta, n_disks, n_sweeps, n_equilibration, sample_every, sd, q_sigma_max, bin_width,
              r_max, dr, n_blocks, n_keep, start) for sd in seeds]
     t0 = time.perf_counter()
