@@ -15,7 +15,15 @@ Writes ``benchmarks/results/hard_disk.json`` with
 * ``percus_yevick``: per row, the largest ``|S_table - S_PY|`` over
   ``qσ ∈ [0, 40]``, the first-peak heights, and the PY contact value;
 * ``interpolation``: leave-one-row-out error of the η interpolation;
-* ``tail``: error of the large-q tail model, tested on PY data.
+* ``tail``: error of the large-q tail model, tested on PY data;
+* ``error_bars``: per row, the largest stored standard error of the smoothed
+  row (issue 18: < 0.003 in the rows run with more chains);
+* ``raw_vs_smoothed``: raw data minus the smoothed row around the first three
+  peaks of every row η <= 0.69 (z-scores: the smoothing must not bias peaks);
+* ``smoothing_bias``: the smoother on synthetic rows (Percus-Yevick at η + 0.01
+  with the real rows' bins and errors): bias against noise per qσ band;
+* ``metropolis``: the table against the independent Metropolis runs of
+  ``tests/data/hard_disk_metropolis.json`` (scripts/check_hard_disk_table.py).
 
 Usage: ``python benchmarks/bench_hard_disk.py [--eta 0.72] [--skip-regenerate]``
 """
@@ -196,6 +204,56 @@ def bench_tail():
     return out
 
 
+def bench_error_bars():
+    """Per row: the largest stored standard error of the smoothed row and where."""
+    t = hd.load_table()
+    if "S_err" not in t:
+        return []
+    return [dict(eta=float(e), max_err=float(t["S_err"][i].max()),
+                 at_q_sigma=float(t["q_sigma"][np.argmax(t["S_err"][i])]),
+                 median_err=float(np.median(t["S_err"][i])),
+                 chains=int(json.loads(str(t["settings"][i])).get("n_chains", 0)))
+            for i, e in enumerate(t["eta"]) if e > 0]
+
+
+def bench_raw_vs_smoothed():
+    """Raw binned data minus the smoothed row around the first three peaks (z-scores)."""
+    t = hd.load_table()
+    return [w for e in t["eta"] if 0 < e <= 0.69 + 1e-9 for w in hd.raw_minus_smoothed(float(e))]
+
+
+def bench_smoothing_bias(n_resamples=8):
+    """Bias of the smoother on synthetic rows: truth = Percus-Yevick at η + 0.01
+    (more structure in the residual than the real rows), the real rows' bins
+    and errors; max |mean(smoothed - truth)| and the noise, per band."""
+    t = hd.load_table()
+    out = []
+    for eta in (0.3, 0.5, 0.65):
+        i = int(np.flatnonzero(np.isclose(t["eta"], eta))[0])
+        ok = np.isfinite(t["raw_S"][i])
+        bias, sd = hd.smoothing_bias(t["raw_q"][i][ok], t["raw_S_err"][i][ok], eta,
+                                     lambda q, e=eta: hd.structure_factor_percus_yevick(q, e + 0.01),
+                                     n_resamples=n_resamples)
+        q = hd.TABLE_Q_SIGMA
+        for lo, hi in ((4.0, 8.0), (10.0, 14.0), (16.0, 20.0), (20.0, 40.0)):
+            sel = (q >= lo) & (q < hi)
+            out.append(dict(eta=eta, band=[lo, hi], max_abs_bias=float(np.abs(bias[sel]).max()),
+                            max_noise=float(sd[sel].max()),
+                            bias_standard_error=float(sd[sel].max() / np.sqrt(n_resamples))))
+    return out
+
+
+def bench_metropolis():
+    """The table against the independent Metropolis runs of tests/data."""
+    from corona.reference import hard_disk_metropolis as hm
+    path = os.path.join(ROOT, "tests", "data", "hard_disk_metropolis.json")
+    if not os.path.exists(path):
+        return []
+    with open(path) as f:
+        runs = json.load(f)["runs"]
+    return [dict(c, metropolis_cpu_seconds=r["cpu_seconds"]) for r in runs for c in hm.compare_with_table(r)]
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--eta", type=float, default=0.72, help="row to regenerate")
@@ -215,6 +273,14 @@ def main(argv=None):
     print("PY", [(r["eta"], round(r["max_abs_err"], 4)) for r in res["percus_yevick"]], flush=True)
     res["interpolation"] = bench_interpolation()
     res["tail"] = bench_tail()
+    res["error_bars"] = bench_error_bars()
+    res["raw_vs_smoothed"] = bench_raw_vs_smoothed()
+    print("raw - smoothed at peaks: max |z|", max((abs(w["z"]) for w in res["raw_vs_smoothed"]), default=None))
+    res["smoothing_bias"] = bench_smoothing_bias()
+    print("smoothing bias", [(r["eta"], r["band"], round(r["max_abs_bias"], 4), round(r["max_noise"], 4))
+                             for r in res["smoothing_bias"]], flush=True)
+    res["metropolis"] = bench_metropolis()
+    print("metropolis", [(r["eta"], r["window"], round(r["diff"], 4), round(r["z"], 2)) for r in res["metropolis"]])
     if not a.skip_regenerate:
         res["regenerate_row"] = bench_regenerate(a.eta)
         print("regenerate", res["regenerate_row"], flush=True)

@@ -59,6 +59,23 @@ def headline() -> list[str]:
                      "≤ 1.3×"))
         rows.append(("First-render JIT compile, corona / roughdielectric",
                      f"{c['jit_compile_s']:.2f} s / {r['results']['roughdielectric']['jit_compile_s']:.2f} s", "—"))
+        for name, v in r["results"].items():
+            if name.startswith("corona-"):
+                rows.append((f"Render cost, {name} / roughdielectric (same run)",
+                             f"{v['ratio_to_roughdielectric']:.2f}× (medians; minima {v['ratio_of_minima']:.2f}×)",
+                             "≤ 1.3× (issue 18 asks ≤ 1.1×)"))
+    a = _load("lobe_accuracy")
+    if a:
+        res = a["results"]
+        key = "rms_kernel"
+        worst_rms = max(v.get(key, v["rms_after"]) for v in res.values())
+        worst_max = max(v.get("max_kernel", v["max_after"]) for v in res.values())
+        before = [v["rms_before"] for v in res.values() if v["kind"] != "radial"]
+        rows.append((f"Renderer's lobe vs Material.lobe, worst of {len(res)} shapes/processes "
+                     "(where v > 1e-3 peak)",
+                     f"RMS {100 * worst_rms:.3f} %, max {100 * worst_max:.2f} % "
+                     f"(2D tables before: RMS {100 * min(before):.1f}–{100 * max(before):.0f} %)",
+                     "≤ 0.5 % RMS, ≤ 2 % max"))
     s = _load("sampling")
     if s:
         for k, v in s["results"].items():

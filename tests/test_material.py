@@ -54,11 +54,25 @@ def test_wavelength_scaling():
 
 
 def test_diffuse_transmittance_poisson_integrates_to_fa():
-    """∫T_a = 1 (within |u| <= U: the encircled energy) so a Poisson layer's lobe carries F_a (minus the tail beyond the table)."""
+    """∫T_a = 1 over the plane, so a Poisson layer's lobe carries F_a; the tables
+    (|u| <= U) hold Rayleigh's encircled energy of it, the evanescent Airy tail
+    J0(U)² + J1(U)² is added analytically (issue 18)."""
     m = Material(corona.Circle(5.0), corona.Poisson(0.25))
     U = m.table.u_max
     encircled = 1 - special.j0(U) ** 2 - special.j1(U) ** 2  # Rayleigh's encircled energy
-    assert m.diffuse_transmittance() == pytest.approx(0.25 * encircled, rel=1e-5)
+    assert m.tabulated_transmittance == pytest.approx(0.25 * encircled, rel=1e-5)
+    assert m.diffuse_transmittance() == pytest.approx(0.25, rel=1e-6)
+
+
+@pytest.mark.parametrize("radius, fa", [(2.0, 0.3), (0.5, 0.5), (5.0, 0.1)])
+def test_diffuse_transmittance_meets_the_sum_rule_for_hard_disks(radius, fa):
+    """Hard circles: ∫T_a T_s = 1 - F_a over the plane, so the lobe carries
+    F_a (1 - F_a) (issue 18: 0.2073 instead of 0.21 for Circle(2) + HardDisk(0.3)
+    before the evanescent tail was added).  The table's own sum-rule error is
+    <= 0.05 % (tests/test_hard_disk.py)."""
+    m = Material(corona.Circle(radius), corona.HardDisk(fa))
+    assert m.diffuse_transmittance() == pytest.approx(fa * (1 - fa), rel=1e-3)
+    assert m.tabulated_transmittance < m.diffuse_transmittance()
 
 
 def test_propagating_transmittance_is_at_most_plane_integral():
@@ -78,7 +92,7 @@ def test_propagating_transmittance_against_monte_carlo():
     d = m.sample(rng.random((400000, 2)), 600.0)
     s = np.sin(np.radians(50))
     inside = np.hypot(d[:, 0] - s, d[:, 1]) <= 1.0
-    mc = m.diffuse_transmittance() * inside.mean()
+    mc = m.tabulated_transmittance * inside.mean()
     assert m.diffuse_transmittance(600.0, cos_theta_i=np.cos(np.radians(50))) == pytest.approx(mc, rel=5e-3)
 
 
@@ -108,7 +122,7 @@ def test_pdf_is_lobe_over_its_integral():
     d = np.random.default_rng(7).uniform(-1, 1, (1000, 2))
     ratio = m.lobe_tabulated(d, 480) / m.pdf(d, 480)
     keep = m.pdf(d, 480) > 0
-    np.testing.assert_allclose(ratio[keep], m.diffuse_transmittance(), rtol=1e-9)
+    np.testing.assert_allclose(ratio[keep], m.tabulated_transmittance, rtol=1e-9)
 
 
 def test_bad_input_errors():

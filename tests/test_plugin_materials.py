@@ -87,13 +87,16 @@ def test_eval_matches_reference_table_and_model(mi_variant, data_files, name):
     tab = m.lobe_tabulated(d, 550.0) * cos
     np.testing.assert_allclose(val, tab, rtol=1e-4, atol=1e-5 * tab.max())
     exact = m.lobe(d, 550.0) * cos
-    err = np.abs(tab - exact)[exact > 0.01 * exact.max()] / exact[exact > 0.01 * exact.max()]
+    sel = exact > 1e-3 * exact.max()
+    err = np.abs(val - exact)[sel] / exact[sel]
     rms = float(np.sqrt(np.mean(err**2)))
-    # radial tables: du = 0.01 in u; 2D tables: bilinear on cells of <= 0.25 in u
-    limit = 1e-4 if m.isotropic else 2e-2
+    # radial tables: du = 0.01 in u; 2D lobes: closed forms or cubic form-factor
+    # grids × the radial S table (issue 18: <= 0.5 % RMS, <= 2 % max)
+    limit = (1e-4, 1e-3) if m.isotropic else (5e-3, 2e-2)
     if name == "points":
-        limit = 5e-3  # the measured S is itself interpolated from a q grid with kinks
+        limit = (5e-3, 2e-2)  # the measured S is itself interpolated from a q grid with kinks
     if name.startswith("lattice"):
         limit = None  # tables hold cell means of the Bragg peaks, not point values
     if limit is not None:
-        assert rms < limit, f"{name}: rms relative error of the table {rms:.2e}"
+        assert rms < limit[0] and err.max() < limit[1], \
+            f"{name}: relative error of the plugin's lobe rms {rms:.2e}, max {err.max():.2e}"

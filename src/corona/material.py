@@ -10,6 +10,7 @@ import warnings
 
 import numpy as np
 
+from . import render_lobe as rlobe
 from . import tables
 from ._validation import CoronaError, CoronaWarning, check_choice, check_finite_array, check_range
 from .processes import Poisson, Process
@@ -201,8 +202,16 @@ class Material:
         """
         fa = self.area_fraction
         budget = max(0.0, 1.0 - self.coherent_transmittance)
-        plane = fa * self.table.total / (4 * np.pi**2)
+        plane = fa * self._plane_integral / (4 * np.pi**2)
         return float(fa if plane <= budget else fa * budget / plane)
+
+    @functools.cached_property
+    def _plane_integral(self) -> float:
+        """``∫ v d²u`` over the whole plane: the tables' integral plus the form
+        factor's (evanescent) tail beyond them, ``4π² self_overlap - ∫_table P/R²``
+        (Parseval; ``S → 1`` there)."""
+        tail = max(0.0, 4 * np.pi**2 * self.shape.self_overlap - float(self._arrays["form_total"]))
+        return float(self.table.total + tail)
 
     @property
     def reflectance(self) -> float:
@@ -345,70 +354,162 @@ class Material:
         return {"shape": self.shape.key(), "process": self.process.key(),
                 "isotropic": self.isotropic, "du": tables.RADIAL_DU,
                 "max_samples": tables.RADIAL_MAX_SAMPLES, "grid": tables.GRID2D_SIZE,
-                "wavelength_min": tables.WAVELENGTH_MIN}
+                "wavelength_min": tables.WAVELENGTH_MIN, "render": self.render_kind,
+                "supersample": rlobe.SUPERSAMPLE}
+
+    @functools.cached_property
+    def _arrays(self) -> dict:
+        """Every table of this material, from the on-disk cache or built."""
+        return tables.cached(self.table_params(), self._build_table, use_cache=self.use_cache)
 
     @functools.cached_property
     def table(self) -> tables.RadialTable | tables.GridTable:
-        """The dimensionless lobe table ``v(u)`` (cached on disk)."""
-        arrays = tables.cached(self.table_params(), self._build_table, use_cache=self.use_cache)
-        return tables.table_from_arrays(arrays)
+        """The dimensionless lobe table ``v(u)`` (cached on disk) that the
+        renderer samples (and, for radial and lattice tables, evaluates)."""
+        return tables.table_from_arrays(self._arrays)
+
+    @functools.cached_property
+    def analytic_terms(self):
+        """The shape as closed-form outlines (:func:`corona.render_lobe.analytic_terms`), or None."""
+        return rlobe.analytic_terms(self.shape)
+
+    @property
+    def render_kind(self) -> str:
+        """How the renderer evaluates the lobe: "radial", "analytic", "grid" or
+        "table" (see :mod:`corona.render_lobe`)."""
+        if self.isotropic:
+            return "radial"
+        if not self.process.isotropic:
+            return "table"
+        return "analytic" if self.analytic_terms is not None else "grid"
+
+    @functools.cached_property
+    def render_lobe(self) -> rlobe.RenderLobe:
+        """The lobe ``v(u)`` as the renderer evaluates it (:mod:`corona.render_lobe`)."""
+        a = self._arrays
+        kind = self.render_kind
+        rl = rlobe.RenderLobe(kind, self.length_scale, float(self.shape.area))
+        if kind == "radial":
+            rl.radial = self.table
+        elif kind == "table":
+            rl.table = self.table
+        else:
+            if "s_minus_one" in a:
+                rl.s_du, rl.s_minus_one = float(a["s_du"]), np.array(a["s_minus_one"])
+            if kind == "analytic":
+                rl.terms = self.analytic_terms
+            else:
+                t = self.table
+                rl.P = rlobe.CubicGrid(t.lo, t.cell, np.array(a["P_coef"]))
+                rl.C = rlobe.CubicGrid(t.lo, t.cell, np.array(a["C_coef"])) if "C_coef" in a else None
+        return rl
 
     def _build_table(self) -> dict:
         u_max = tables.u_max_for(self.length_scale)
+        R = self.length_scale
+        # a process whose S is itself piecewise linear on a q grid (a measured
+        # point set) gets a u step of a quarter of that grid's, so the kinks cost
+        # little in the linear tables (RADIAL_DU otherwise)
+        du_target = min(tables.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
         if self.isotropic:
-            n = int(np.ceil(u_max / tables.RADIAL_DU)) + 1
+            n = int(np.ceil(u_max / du_target)) + 1
             n = min(n, tables.RADIAL_MAX_SAMPLES)
             du = u_max / (n - 1)
             u = np.arange(n) * du
-            return tables.RadialTable(du, self.lobe_dimensionless_radial(u)).arrays()
+            out = tables.RadialTable(du, self.lobe_dimensionless_radial(u)).arrays()
+            P = self.shape.form_factor_radial(u / R) / R**2
+            out["form_total"] = np.array(tables.RadialTable(du, P).total)
+            return out
         n = tables.GRID2D_SIZE
         u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
         cell = 2 * u_range / n
         c = -u_range + (np.arange(n) + 0.5) * cell
         ux, uy = np.meshgrid(c, c, indexing="xy")
         u = np.stack([ux, uy], -1)
-        # cell means: Bragg peaks narrower than a cell keep their exact weight
-        return tables.GridTable(u_range, self.lobe_terms(u, cell=cell, structure_factor=False)["v"]).arrays()
+        q = u / R
+        kind = self.render_kind
+        if kind == "analytic":
+            inten, amp = rlobe.terms_amplitudes(self.analytic_terms, q)
+            P, C = inten / self.shape.area, np.abs(amp) ** 2 / self.shape.area
+        else:
+            inten, amp = self.shape._both(q)
+            P, C = inten / self.shape.area, np.abs(amp) ** 2 / self.shape.area
+        edge = np.ones(n)
+        edge[0] = edge[-1] = 0.5
+        form_total = float(np.sum(P * np.outer(edge, edge)) * cell**2 / R**2)   # trapezoid = bilinear
+        if kind == "table":
+            # Bragg peaks narrower than a cell: each vertex carries the cell mean of
+            # the lobe, P + C (S_bg - 1) + Σ_G C(G) W_G ⟨g_G⟩_cell, i.e. every peak
+            # with its exact weight C(G) W_G (C at the peak, not at the cell centre)
+            if hasattr(self.process, "bragg_cell_mean"):
+                S_bg = self.process.background_cell_mean(q, cell / R)
+                bragg = self.process.bragg_cell_mean(q, cell / R, peak_factor=self.shape.coherent_form_factor)
+                v = np.maximum(P + C * (S_bg - 1.0) + bragg, 0.0) / R**2
+            else:
+                v = np.maximum(P + C * (self.process.structure_factor_at(q, self.shape) - 1.0), 0.0) / R**2
+            out = tables.GridTable(u_range, v).arrays()
+            out["form_total"] = np.array(form_total)
+            return out
+        # isotropic process: S - 1 on the radial tables' step, the sampling grid of v
+        ns = min(int(np.ceil(u_max / du_target)) + 1, tables.RADIAL_MAX_SAMPLES)
+        s_du = u_max / (ns - 1)
+        s1 = self.process.structure_factor_radial(np.arange(ns) * s_du / R, self.shape) - 1.0
+        poisson = bool(np.all(s1 == 0.0))
+        rl = rlobe.RenderLobe(kind, R, float(self.shape.area), terms=self.analytic_terms or [],
+                                    s_du=s_du, s_minus_one=None if poisson else s1)
+        if kind == "analytic" and u_max > u_range * (1 + 1e-9):
+            # the analytic lobe reaches beyond the grid: sample it from a table
+            # uniform in t = u / (1 + |u|/c) instead (cells of 0.25 near u = 0,
+            # the outer vertices at u_max), each vertex the local mean of the
+            # density in t over its cell (positive wherever the lobe is)
+            g = tables.GridTable(u_range, np.zeros((2, 2)), tables.warp_for(c[-1], u_max))   # last vertex at u_max
+            k = rlobe.SUPERSAMPLE
+            sub = ((np.arange(k) + 0.5) / k - 0.5) * cell
+            acc = np.zeros((n, n))
+            for sy in sub:
+                for sx in sub:
+                    tx, ty = np.meshgrid(c + sx, c + sy, indexing="xy")
+                    uu = g.to_u(np.stack([tx, ty], -1))
+                    acc += rl.eval(uu) * g.jacobian(uu)
+            out = tables.GridTable(u_range, acc / k**2, g.warp).arrays()
+        else:
+            v = np.maximum(P + C * rl.s1(np.hypot(ux, uy)), 0.0) / R**2
+            out = tables.GridTable(u_range, v).arrays()
+        out["form_total"] = np.array(form_total)
+        if not poisson:
+            out["s_du"], out["s_minus_one"] = np.array(s_du), s1
+        if kind == "grid":
+            out["P_coef"] = rlobe.CubicGrid.from_values(c[0], cell, P / R**2).coef
+            if not self.shape._deterministic:
+                out["C_coef"] = rlobe.CubicGrid.from_values(c[0], cell, C / R**2).coef
+        return out
+
 
     # ------------------------------------------------------------------
     # rows over the area fraction (layers whose F_a varies over a surface)
     # ------------------------------------------------------------------
     def _table_grid(self):
-        """The u sample points of :attr:`table` ((n,) radial or (n, n, 2) grid) and its geometry."""
+        """The u samples of the radial :attr:`table` and its step."""
         u_max = tables.u_max_for(self.length_scale)
-        if self.isotropic:
-            n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
-            du = u_max / (n - 1)
-            return np.arange(n) * du, du
-        n = tables.GRID2D_SIZE
-        u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
-        cell = 2 * u_range / n
-        c = -u_range + (np.arange(n) + 0.5) * cell
-        ux, uy = np.meshgrid(c, c, indexing="xy")
-        return np.stack([ux, uy], -1), u_range
+        n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
+        du = u_max / (n - 1)
+        return np.arange(n) * du, du
 
     def _row_values(self, u, area_fractions):
-        """``v(u)`` of this material at each area fraction (P and C computed once)."""
+        """Radial ``v(u)`` of this material at each area fraction (P and C computed once)."""
         R = self.length_scale
-        if self.isotropic:
-            q = u / R
-            P = self.shape.form_factor_radial(q)
-            C = self.shape.coherent_form_factor_radial(q)
-            S_of = lambda proc: proc.structure_factor_radial(q, self.shape)
-        else:
-            q = u / R
-            P = self.shape.form_factor(q)
-            C = self.shape.coherent_form_factor(q)
-            S_of = lambda proc: proc.structure_factor_at(q, self.shape)
+        q = u / R
+        P = self.shape.form_factor_radial(q)
+        C = self.shape.coherent_form_factor_radial(q)
         out = []
         for fa in area_fractions:
-            S = 1.0 if fa <= 0.0 else S_of(self.process.with_area_fraction(float(fa)))
+            S = 1.0 if fa <= 0.0 else self.process.with_area_fraction(float(fa)).structure_factor_radial(q, self.shape)
             out.append(np.maximum(P + C * (S - 1.0), 0.0) / R**2)
         return out
 
     def area_fraction_rows(self, lo: float = 0.0, hi: float | None = None,
                            tolerance: float = ROW_TOLERANCE, max_rows: int = 160, include=()):
-        """Lobe tables at rows of area fraction, for layers whose ``F_a`` varies.
+        """Radial lobe tables at rows of area fraction, for layers whose ``F_a`` varies.
 
         Between two rows the renderer interpolates the dimensionless lobe
         linearly in ``F_a``.  The rows cover ``[lo, hi]`` (default: 0 to
@@ -429,7 +530,8 @@ class Material:
         error : float
             The largest relative midpoint error of the final rows.
         """
-        if not self.process.varying_area_fraction:
+        if not (self.process.varying_area_fraction and self.isotropic):
+            # anisotropic lobes (corona.render_lobe) and processes whose geometry F_a sets: one row
             return np.array([self.area_fraction]), [self.table], 0.0
         limit = float(self.process.area_fraction_limit(self.shape))
         hi = limit if hi is None else min(float(hi), limit)
@@ -442,8 +544,7 @@ class Material:
         fas = np.asarray(arrays["area_fraction"], dtype=np.float64)
         vals = np.asarray(arrays["values"], dtype=np.float64)
         geo = float(arrays["geometry"])
-        make = (lambda v: tables.RadialTable(geo, v)) if self.isotropic else (lambda v: tables.GridTable(geo, v))
-        return fas, [make(v) for v in vals], float(arrays["error"])
+        return fas, [tables.RadialTable(geo, v) for v in vals], float(arrays["error"])
 
     def _build_rows(self, lo, hi, tolerance, max_rows, include=()):
         u, geo = self._table_grid()
@@ -475,26 +576,36 @@ class Material:
                 "geometry": np.array(geo), "error": np.array(worst if not todo else np.inf)}
 
     def lobe_tabulated(self, d, wavelength) -> np.ndarray:
-        """The lobe as the renderer evaluates it: interpolated from :attr:`table`."""
+        """The lobe as the renderer evaluates it (:attr:`render_lobe`)."""
         u, lam = self._u(d, wavelength)
-        t = self.table
-        v = t.eval(np.hypot(u[..., 0], u[..., 1])) if self.isotropic else t.eval(u)
-        return self.lobe_weight * (self.length_scale / lam) ** 2 * v
+        return self.lobe_weight * (self.length_scale / lam) ** 2 * self.render_lobe.eval(u)
+
+    @property
+    def tabulated_transmittance(self) -> float:
+        """The diffuse transmittance the renderer holds: ``F_a ∫ v d²u / 4π²``
+        over its tables (``|u| <= u_max``, i.e. ``|d| <= 2.1`` at 360 nm, so
+        every propagating direction at every incidence and wavelength), by the
+        sampling table's quadrature.  The plugin chooses between its
+        components with it."""
+        return self.lobe_weight * self.table.total / (4 * np.pi**2)
 
     def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=None, phi_i=0.0) -> float | np.ndarray:
         """Integral of the lobe (the diffuse transmittance).
 
-        With ``cos_theta_i=None``: over the whole d plane covered by the table,
-        ``F_a ∫ v d²u / (4π²)`` (wavelength-independent; ``F_a (1 - F_a)`` for
-        hard, non-overlapping scatterers).  With an incident direction
-        (``cos_theta_i``, azimuth ``phi_i`` [rad]): only over the propagating
-        directions ``|d - wi.xy| <= 1``, i.e. the energy the BSDF transmits
-        diffusely at that wavelength [nm].
+        With ``cos_theta_i=None``: over the whole d plane,
+        ``F_a ∫ v d²u / (4π²)`` (wavelength-independent): the tables' integral
+        plus the form factor's tail beyond them, ``4π² ∫T_a - ∫_table P/R²``
+        (Parseval: ``∫T_a d²d = self_overlap``; ``S → 1`` there), which is
+        evanescent (``|d| > 2``).  This is ``F_a (1 - F_a)`` for hard,
+        non-overlapping scatterers (the sum rule), ``F_a`` for Poisson.  With an
+        incident direction (``cos_theta_i``, azimuth ``phi_i`` [rad]): only over
+        the propagating directions ``|d - wi.xy| <= 1``, i.e. the energy the
+        BSDF transmits diffusely at that wavelength [nm].
         """
         t = self.table
         fa = self.lobe_weight
         if cos_theta_i is None:
-            return fa * t.total / (4 * np.pi**2)
+            return fa * self._plane_integral / (4 * np.pi**2)
         lam = self._wavelength(wavelength)
         ct = check_range("cos_theta_i", cos_theta_i, 0.0, 1.0)
         s = np.sqrt(max(0.0, 1.0 - ct * ct))
@@ -506,7 +617,7 @@ class Material:
             integrand = 2 * np.pi * u[None, :] * t.values[None, :] * frac
             val = np.trapezoid(integrand, u, axis=-1) * fa / (4 * np.pi**2)
         else:
-            c = t.centres()
+            c = t.to_u(t.centres())
             ux, uy = np.meshgrid(c, c, indexing="xy")
             # trapezoid weights: exact for the bilinear table (the same integral as t.total)
             edge = np.ones(t.n)

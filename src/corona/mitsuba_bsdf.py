@@ -300,12 +300,15 @@ class CoronaBSDFMixin:
             raise CoronaError(f"corona BSDF: area_fraction cannot be a texture with process="
                               f"{self.params.get('process', SPEC['process'].default)!r} (the area fraction "
                               "sets its geometry); use poisson, hard-disk or rsa")
+        if not material.isotropic and (fa_lo != fa_hi or "area_fraction" in self._textured):
+            raise CoronaError("corona BSDF: area_fraction can be a texture only for a radial lobe "
+                              "(a circle, or orientation='random'); this shape's lobe is anisotropic")
         self.material = material
         self.isotropic = material.isotropic
         self.radius_cover = float(params.get("radius", SPEC["radius"].default))
         self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
         self.mode_aperture = material.mode == "aperture"
-        if process.varying_area_fraction:
+        if process.varying_area_fraction and material.isotropic:
             # rows over the texture's range; a uniform value gets ± FA_WINDOW around it, so that an
             # optimiser's steps need no rebuild (leaving the rows rebuilds them: parameters_changed)
             include = ()
@@ -326,20 +329,11 @@ class CoronaBSDFMixin:
             self.values = _array(mi.Float, np.concatenate([t.values for t in tabs]))
             self._set_cdf([t.cdf for t in tabs])
         else:
-            t0 = tabs[0]
-            self.n = int(t0.n)
-            self.lo = float(t0.lo)                 # first vertex [u]
-            self.cell = float(t0.cell)
-            self.span = float(t0.cell * (t0.n - 1))
-            self.values = _array(mi.Float, np.concatenate([t.values.ravel() for t in tabs]))
-            # exact sampling of the bilinear density (marginal y, conditional x); with several
-            # rows Mitsuba interpolates the normalised slices linearly in F_a: the same mixture
-            # (1 - t) p_j + t p_j+1 that pdf() returns
-            data = np.ascontiguousarray(np.stack([t.values for t in tabs]), dtype=np.float32)
-            if self.n_rows == 1:
-                self.distr = mi.MarginalContinuous2D0(data[0])
-            else:
-                self.distr = mi.MarginalContinuous2D1(data, [fas.astype(np.float32).tolist()])
+            # the lobe as exact as the model (analytic form factors or cubic form-factor
+            # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
+            # table: corona.lobe_kernels; one row of F_a (an update of it rebuilds)
+            from .lobe_kernels import LobeKernel
+            self.kernel = LobeKernel(material)
         self.fa_cover = (float(fas[0]), float(fas[-1]))
 
     def _set_cdf(self, cdfs):
@@ -415,7 +409,7 @@ class CoronaBSDFMixin:
                     coherent=coherent, lobe=lobe, reflect=reflect)
 
     def _table_value(self, ux, uy, row, active):
-        """v(u) of one row: linear in |u| (radial) or bilinear in (u_x, u_y) (grid)."""
+        """v(u) of one row: linear in |u| (radial table) or the kernel (anisotropic lobes)."""
         if self.isotropic:
             x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
             i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
@@ -425,31 +419,14 @@ class CoronaBSDFMixin:
             v0 = _gather(mi.Float, self.values, k, inside)
             v1 = _gather(mi.Float, self.values, k + 1, inside)
             return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
-        fx = (ux - self.lo) / self.cell
-        fy = (uy - self.lo) / self.cell
-        inside = active & (fx >= 0) & (fx <= self.n - 1) & (fy >= 0) & (fy <= self.n - 1)
-        x0 = dr.clip(dr.floor(fx), 0, self.n - 2)
-        y0 = dr.clip(dr.floor(fy), 0, self.n - 2)
-        tx = dr.clip(fx - x0, 0.0, 1.0)
-        ty = dr.clip(fy - y0, 0.0, 1.0)
-        k = row * (self.n * self.n) + mi.UInt32(y0) * self.n + mi.UInt32(x0)
-        v00 = _gather(mi.Float, self.values, k, inside)
-        v01 = _gather(mi.Float, self.values, k + 1, inside)
-        v10 = _gather(mi.Float, self.values, k + self.n, inside)
-        v11 = _gather(mi.Float, self.values, k + self.n + 1, inside)
-        v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
-        return dr.select(inside, dr.maximum(v, 0.0), 0.0)
+        return self.kernel.value(ux, uy, active)      # anisotropic: corona.lobe_kernels (one row)
 
     def _sample_u(self, s, row, fa, active):
         """Invert the CDF of table row ``row``: s (Vector2f) -> u (Vector2f).
 
         (2D tables: Mitsuba's distribution samples the F_a-interpolated mixture itself.)"""
         if not self.isotropic:
-            if self.n_rows == 1:
-                p01, _ = self.distr.sample(s, active=active)
-            else:
-                p01, _ = self.distr.sample(s, [fa], active=active)
-            return mi.Vector2f(self.lo + p01.x * self.span, self.lo + p01.y * self.span)
+            return self.kernel.sample(s, active)
         target = s.x
         # guide table of the row, then bisection with cdf[lo] <= target < cdf[hi]
         base_c = row * (self.n_bins + 1)
@@ -505,13 +482,16 @@ class CoronaBSDFMixin:
             k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
             ux, uy = dx * k, dy * k
             v = self._table_value(ux, uy, j, active)
-            p_u = v / dr.maximum(layer["total"], 1e-30)
+            if self.isotropic:                         # each row is sampled exactly ∝ v
+                p_u = v / dr.maximum(layer["total"], 1e-30)
+            else:                                      # the exact density of the kernel's sampling table
+                p_u = self.kernel.pdf(ux, uy, active)
             if interpolate:                            # linear in F_a between two rows
                 v_next = self._table_value(ux, uy, j + 1, active)
                 p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
                 v = dr.lerp(v, v_next, t)
             values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
-            # p_d = p_u k²: each row is sampled exactly ∝ v, so p_u = v / ∫v d²u, mixed by t
+            # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
             pdf += m * p_u * dr.square(k)
         if mi.is_spectral:
             f = mi.Spectrum(values)

@@ -33,7 +33,7 @@ def far_field_corona(material, half_angle_deg: float = 10.0, size: int = 256,
 def _u_extent(material, u_cap: float = 40.0) -> float:
     """Largest |u| to plot: the table's reach, at most ``u_cap``."""
     t = material.table
-    reach = t.u_max if hasattr(t, "u_max") else t.u_range
+    reach = t.u_max if hasattr(t, "u_max") else t.reach
     return float(min(reach, u_cap))
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import tempfile
 import warnings
@@ -36,7 +37,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-FORMAT_VERSION = 2   # 2: lattice tables weight each Bragg peak by C at the peak
+FORMAT_VERSION = 3   # 2: lattice tables weight each Bragg peak by C at the peak;
+#                      3: renderer's lobe (S - 1, form-factor grids, warped sampling table, form_total)
 
 #: Shortest and longest wavelength the tables are built for [nm].
 WAVELENGTH_MIN = 360.0
@@ -54,6 +56,14 @@ GRID2D_SIZE = 512           # default N of an N×N table
 def u_max_for(length_scale: float, wavelength_min: float = WAVELENGTH_MIN) -> float:
     """Largest u reachable for |d| <= 2 at the shortest wavelength [dimensionless]."""
     return max(RADIAL_MIN_UMAX, 1.05 * 2.0 * np.pi * length_scale * D_MAX / (wavelength_min * 1e-3))
+
+
+def warp_for(t_range: float, u_max: float) -> float:
+    """The scale ``c`` with ``t_range / (1 - t_range / c) = u_max`` (0 when ``u_max <= t_range``):
+    a warped :class:`GridTable` whose outer vertices sit at ``t_range`` in t then reaches ``u_max``."""
+    if u_max <= t_range * (1 + 1e-12):
+        return 0.0
+    return t_range / (1.0 - t_range / u_max)
 
 
 # --------------------------------------------------------------------------
@@ -171,12 +181,43 @@ class GridTable:
     in x, each piecewise linear, inverted in closed form), so
     :meth:`pdf` ∝ :meth:`eval` — the same scheme as Mitsuba's
     ``MarginalContinuous2D0`` that the plugin uses.
+
+    With ``warp = c > 0`` the grid is uniform in ``t = u / (1 + |u|/c)`` per
+    axis (cells of ``cell`` near u = 0, growing as ``(1 + |u|/c)²``), so one
+    N×N table reaches far (``U`` is then the range in t, ``U < c``):
+    ``values`` is the density in t, ``v(u(t)) · J`` with the Jacobian
+    ``J = (1 + |u_x|/c)² (1 + |u_y|/c)²``, the bilinear density is sampled in
+    t and mapped to ``u = t / (1 - |t|/c)``, and :meth:`eval` returns
+    ``table(t(u)) / J``, the density in u.
     """
 
     u_range: float
     values: np.ndarray  # (N, N), index [iy, ix]
+    warp: float = 0.0
     row_cdf: np.ndarray = field(init=False)   # (N, N): ∫_0^{x_i} v(x, y_j) dx per vertex row
     marg_cdf: np.ndarray = field(init=False)  # (N,): ∫_0^{y_j} m(y) dy
+
+    def to_t(self, u):
+        """Grid coordinate ``t = u / (1 + |u|/c)`` (``t = u`` without warp)."""
+        u = np.asarray(u, dtype=np.float64)
+        return u / (1.0 + np.abs(u) / self.warp) if self.warp > 0 else u
+
+    def to_u(self, t):
+        """``u = t / (1 - |t|/c)``."""
+        t = np.asarray(t, dtype=np.float64)
+        return t / (1.0 - np.abs(t) / self.warp) if self.warp > 0 else t
+
+    def jacobian(self, u) -> np.ndarray:
+        """``d²u / d²t`` at u (..., 2)."""
+        u = np.asarray(u, dtype=np.float64)
+        if self.warp <= 0:
+            return np.ones(u.shape[:-1])
+        return ((1.0 + np.abs(u[..., 0]) / self.warp) * (1.0 + np.abs(u[..., 1]) / self.warp)) ** 2
+
+    @property
+    def reach(self) -> float:
+        """Largest ``|u_x|``, ``|u_y|`` covered (the outer vertices)."""
+        return float(self.to_u(self.lo + (self.n - 1) * self.cell))
 
     def __post_init__(self):
         v = np.maximum(np.asarray(self.values, dtype=np.float64), 0.0)
@@ -202,15 +243,23 @@ class GridTable:
 
     @property
     def total(self) -> float:
-        """``∫ v d²u`` of the bilinear interpolant."""
+        """``∫ v d²u`` of the bilinear interpolant (``∫ table d²t`` when warped)."""
         return float(self.marg_cdf[-1])
 
     def centres(self) -> np.ndarray:
+        """Vertex coordinates (in t when warped)."""
         return self.lo + np.arange(self.n) * self.cell
 
     def eval(self, u) -> np.ndarray:
-        """Bilinear interpolation at ``u`` (..., 2); 0 outside the vertex square."""
+        """Bilinear interpolation at ``u`` (..., 2); 0 outside the vertex square
+        (with a warp: in t, divided by the Jacobian)."""
         u = np.asarray(u, dtype=np.float64)
+        if self.warp > 0:
+            t = self.to_t(u)
+            return self._eval_t(t) / self.jacobian(u)
+        return self._eval_t(u)
+
+    def _eval_t(self, u) -> np.ndarray:
         fx = (u[..., 0] - self.lo) / self.cell
         fy = (u[..., 1] - self.lo) / self.cell
         inside = (fx >= 0) & (fx <= self.n - 1) & (fy >= 0) & (fy <= self.n - 1)
@@ -252,10 +301,11 @@ class GridTable:
         vrow0 = (1 - ty) * self.values[j, i] + ty * self.values[j + 1, i]
         vrow1 = (1 - ty) * self.values[j, i + 1] + ty * self.values[j + 1, i + 1]
         tx = _linear_segment_inverse(vrow0 * h, vrow1 * h, tx_target - take(crow, i))
-        return np.stack([self.lo + (i + tx) * h, self.lo + (j + ty) * h], axis=-1)
+        return self.to_u(np.stack([self.lo + (i + tx) * h, self.lo + (j + ty) * h], axis=-1))
 
     def arrays(self) -> dict:
-        return {"kind": np.array("grid"), "u_range": np.array(self.u_range), "values": self.values}
+        return {"kind": np.array("grid"), "u_range": np.array(self.u_range), "values": self.values,
+                "warp": np.array(self.warp)}
 
 
 def table_from_arrays(arrays) -> RadialTable | GridTable:
@@ -263,7 +313,8 @@ def table_from_arrays(arrays) -> RadialTable | GridTable:
     if kind == "radial":
         return RadialTable(float(arrays["du"]), np.array(arrays["values"]))
     if kind == "grid":
-        return GridTable(float(arrays["u_range"]), np.array(arrays["values"]))
+        warp = float(arrays["warp"]) if "warp" in arrays else 0.0
+        return GridTable(float(arrays["u_range"]), np.array(arrays["values"]), warp)
     raise ValueError(f"unknown table kind {kind!r}")
 
 

@@ -162,8 +162,19 @@ class HardDisk(Process):
     :func:`smooth_structure_factor_row`):
 
     * rows η = 0, 0.05 … 0.5, 0.52 … 0.6, 0.61 … 0.72, each N = 2000 disks,
-      two chains of 1.4·10⁴ – 7·10⁴ sweeps, S(k) on the box wave vectors
-      binned in ``qσ`` (0.05), smoothed, ``qσ ∈ [0, 40]`` on a 0.05 grid;
+      independent chains of 1.4·10⁴ – 7·10⁴ sweeps (two per row; four at
+      η ≤ 0.3, eight at 0.35–0.5 and twenty at 0.65, issue 18), S(k) on the
+      box wave vectors binned in ``qσ`` (0.05), smoothed, ``qσ ∈ [0, 40]`` on
+      a 0.05 grid;
+    * each row's standard error is stored with it (``S_err`` in the table
+      file, a parametric bootstrap of the smoothing): below 0.003 everywhere
+      in the rows with more chains, up to ~0.006–0.008 at the first peak of
+      the two-chain rows 0.52–0.64 and 0.66–0.68;
+    * the smoothing does not flatten the peaks: around the first three peaks
+      of every row η <= 0.69 the raw data minus the row average to within
+      2.1 standard errors (``reference.hard_disk.raw_minus_smoothed``);
+      synthetic rows with more structure than the real ones come out with
+      biases below their noise (``smoothing_bias``);
     * between rows: monotone cubic (PCHIP) interpolation in η, then a
       cubic Hermite interpolant in ``qσ`` (fourth-order slopes, ``S'(0) = 0``);
     * beyond ``qσ = 40``: ``S - 1 = -8η [g(σ⁺) J1(qσ)/qσ + b J0(qσ)/(qσ)²]``
@@ -192,15 +203,27 @@ class HardDisk(Process):
       3.11 at η = 0.5), and fails
       near freezing (first peak 5.9 vs 12.0 at 0.72).
 
-    Above η ≈ 0.69 the N = 2000 system in a square box is in the
-    fluid–hexatic coexistence / hexatic range (mean ``|ψ6|`` 0.14, 0.35,
-    0.62, 0.71 at η = 0.69 … 0.72): the first peak is sharp and size
-    dependent, Bragg-like spots appear, and these rows describe that finite
-    system (started from a triangular lattice; a compressed-fluid start
-    reaches the same ``ψ6`` and pressure at 0.72), with their peak area
-    kept by a kernel average rather than resolved.  The interpolation
+    * a second, independent sampler (plain Metropolis with local moves,
+      disks grown from random points: ``reference.hard_disk_metropolis``)
+      agrees with the table averaged over the same wave vectors within 3
+      combined standard errors around the peaks at η = 0.3, 0.5 and 0.65
+      (``tests/test_hard_disk_table.py``).
+
+    **What the rows at η ≥ 0.69 represent** (decided for issue 18): not the
+    equilibrium bulk fluid.  Above η ≈ 0.69 the N = 2000 system in a
+    periodic square box is in the fluid–hexatic coexistence / hexatic range
+    (mean ``|ψ6|`` 0.14, 0.35, 0.62, 0.71 at η = 0.69 … 0.72): the first
+    peak is sharp and depends on N and on the box, Bragg-like spots appear.
+    These rows are the structure factor of *that finite, partly ordered
+    system* (started from a triangular lattice; a compressed-fluid start
+    reaches the same ``ψ6`` and pressure at 0.72), with the peaks' area kept
+    by a kernel average of width 0.1 in ``qσ`` rather than resolved (their
+    heights are 1–2 % below the raw data, ~0.06–0.1), so that the model
+    stays continuous up to :data:`ETA_MAX` and gives the strongly peaked
+    rings of a nearly crystalline layer.  They carry no accuracy claim: the
+    error bars and checks above hold for η ≤ 0.68, and the interpolation
     between rows is least certain there (the peak grows from 5 to 12 over
-    η = 0.69 … 0.72).
+    η = 0.69 … 0.72).  Use :class:`Lattice` for a crystalline layer.
 
     Parameters
     ----------

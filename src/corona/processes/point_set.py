@@ -202,6 +202,12 @@ class PointSet(Process):
             raise CoronaError(f"PointSet: area fraction N|A|/box area = {fa:.4g} is out of range; "
                               "expected < 1 (shape too large for these centres)")
 
+    @property
+    def q_step(self) -> float:
+        """Step [rad/µm] of the q grid on which the radial ``S`` is tabulated
+        (linear in between): ``π / max(Lx, Ly)``."""
+        return np.pi / max(self.box_size)
+
     # --- structure factor ----------------------------------------------------
     def _window(self):
         (x0, x1), (y0, y1) = self.box

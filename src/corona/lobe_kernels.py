@@ -1,0 +1,335 @@
+"""Dr.Jit kernels of the renderer's lobe for anisotropic materials (issue 18).
+
+The plugin (:mod:`corona.mitsuba_bsdf`) evaluates, samples and gives the pdf
+of the lobe ``v(u)`` of :class:`corona.render_lobe.RenderLobe` through
+:class:`LobeKernel` whenever the lobe is not radial.  Everything inside the
+methods is Dr.Jit (float32), traced once per variant; Python loops run over
+the (few) outlines and polygon edges only, never over lanes.
+
+* ``analytic``: ``Â`` of circles (Airy; ``J1`` by Abramowitz & Stegun 9.4.4
+  and 9.4.6, |error| < 4e-8), ellipses (Airy of the scaled wave vector),
+  rectangles (sinc × sinc) and polygons (edge sum; Taylor series of order
+  :data:`corona.render_lobe.TAYLOR_ORDER` near q = 0), times the Gaussian of
+  a soft edge, combined as ``P = Σ w_i |Â_i|² / ⟨|A|⟩``, ``C = |Σ w_i Â_i|² /
+  ⟨|A|⟩``;
+* ``grid``: ``P`` (and ``C``) by a 4×4-tap cubic B-spline of the prefiltered
+  grid (mirror boundary, as :func:`scipy.ndimage.map_coordinates`);
+* both times ``1 + (S - 1)`` from the radial ``S - 1`` table (linear);
+* ``table``: the bilinear table (lattices).
+
+Sampling: Mitsuba's ``MarginalContinuous2D0`` on the bilinear table of ``v``
+(uniform in u, or in ``t = u / (1 + |u|/c)`` for lobes reaching beyond it);
+the pdf is the exact density of that table (divided by the Jacobian ``d²u/d²t``).
+
+References
+----------
+M. Abramowitz, I. A. Stegun, *Handbook of Mathematical Functions* (1964),
+9.4.4 and 9.4.6 (polynomial approximations of J1).
+"""
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .render_lobe import TAYLOR_ORDER, TAYLOR_U
+
+# Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
+_J1_SMALL = (0.5, -0.56249985, 0.21093573, -0.03954289, 0.00443319, -0.00031761, 0.00001109)
+# 9.4.6: J1(x) = x^{-1/2} f1 cos θ1, x >= 3, in powers of 3/x
+_J1_F1 = (0.79788456, 0.00000156, 0.01659667, 0.00017105, -0.00249511, 0.00113653, -0.00020033)
+_J1_TH = (-2.35619449, 0.12499612, 0.00005650, -0.00637879, 0.00074348, 0.00079824, -0.00029166)
+
+
+def _array(dtype, values):
+    """A Dr.Jit array of ``values`` (float32 / int32); numpy in scalar variants."""
+    a = np.asarray(values, dtype=np.int32 if dtype is mi.Int32 else np.float32)
+    return dtype(a) if dr.is_array_v(dtype) else a
+
+
+def _gather(dtype, source, index, active=True):
+    if dr.is_array_v(dtype):
+        return dr.gather(dtype, source, index, active)
+    return dtype(source[int(index)]) if active else dtype(0)
+
+
+def _poly(coeffs, x):
+    acc = mi.Float(coeffs[-1])
+    for c in coeffs[-2::-1]:
+        acc = dr.fma(acc, x, c)
+    return acc
+
+
+def airy(v):
+    """``2 J1(v)/v`` (limit 1 at v = 0), Abramowitz & Stegun 9.4.4 / 9.4.6."""
+    x = dr.abs(v)
+    small = 2.0 * _poly(_J1_SMALL, dr.square(x * (1.0 / 3.0)))
+    xb = dr.maximum(x, 3.0)
+    t = 3.0 / xb
+    f1 = _poly(_J1_F1, t)
+    th = xb + _poly(_J1_TH, t)
+    big = 2.0 * f1 * dr.cos(th) * dr.rsqrt(xb) / xb
+    return dr.select(x <= 3.0, small, big)
+
+
+def sinc(x):
+    """``sin(x)/x`` (limit 1 at 0)."""
+    tiny = dr.abs(x) < 1e-3
+    xs = dr.select(tiny, 1.0, x)
+    return dr.select(tiny, 1.0 - dr.square(x) * (1.0 / 6.0), dr.sin(xs) / xs)
+
+
+class LobeKernel:
+    """The renderer's lobe of a non-radial material in Dr.Jit (see the module docstring)."""
+
+    def __init__(self, material):
+        rl = material.render_lobe
+        self.kind = rl.kind
+        self.R = float(rl.R)
+        self.inv_area_R2 = 1.0 / (float(rl.area) * self.R**2)
+        # --- S - 1 (radial) ----------------------------------------------------
+        self.has_s = rl.kind in ("analytic", "grid") and rl.s_minus_one is not None
+        if self.has_s:
+            self.s_du = float(rl.s_du)
+            self.s_n = int(rl.s_minus_one.size)
+            self.s_values = _array(mi.Float, rl.s_minus_one)
+        # --- analytic outlines ----------------------------------------------------
+        self.terms = []
+        if rl.kind == "analytic":
+            for t in rl.terms:
+                p = dict(t.params)
+                if "angle" in p:
+                    p["cos"], p["sin"] = math.cos(p["angle"]), math.sin(p["angle"])
+                if t.kind == "polygon":
+                    v = np.asarray(p["vertices"], dtype=np.float64)
+                    w = np.roll(v, -1, axis=0)
+                    p["edges"] = (w - v).tolist()
+                    p["mids"] = (0.5 * (w + v)).tolist()
+                    p["v0"] = v.tolist()
+                    p["v1"] = w.tolist()
+                    p["cross"] = (v[:, 0] * w[:, 1] - v[:, 1] * w[:, 0]).tolist()
+                    p["circumradius"] = float(np.max(np.hypot(v[:, 0], v[:, 1])))
+                    # centrosymmetric (v_{k+n/2} = -v_k): Â is real, and edge k+n/2
+                    # doubles edge k's sine term (and cancels its cosine term)
+                    h = len(v) // 2
+                    p["centrosymmetric"] = bool(len(v) % 2 == 0 and np.allclose(
+                        v[h:], -v[:h], rtol=0.0, atol=1e-9 * p["circumradius"]))
+                    if p["centrosymmetric"]:
+                        for key in ("edges", "mids", "v0", "v1", "cross"):
+                            p[key] = p[key][:h]
+                self.terms.append((t.kind, p, float(t.weight), float(t.area), float(t.blur)))
+        # --- form-factor grids --------------------------------------------------------
+        if rl.kind == "grid":
+            self.g_n = int(rl.P.n)
+            self.g_lo = float(rl.P.lo)
+            self.g_cell = float(rl.P.cell)
+            # coefficients padded by their mirror images (1 before, 2 after each
+            # axis): the 4×4 taps of any point inside index the array directly
+            self.g_P = _array(mi.Float, self._padded(rl.P.coef).ravel())
+            self.g_C = None if rl.C is None else _array(mi.Float, self._padded(rl.C.coef).ravel())
+        # --- the sampling table (bilinear, in u or in the warped t) -----------------------
+        t = material.table
+        self.near = dict(n=int(t.n), lo=float(t.lo), cell=float(t.cell), span=float(t.cell * (t.n - 1)),
+                         total=float(t.total), values=_array(mi.Float, t.values.ravel()))
+        self.warp = float(t.warp)
+        self.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(t.values, dtype=np.float32))
+
+    @staticmethod
+    def _padded(coef):
+        n = coef.shape[0]
+        idx = np.arange(-1, n + 2)
+        idx = np.where(idx < 0, -idx, idx)
+        idx = np.where(idx > n - 1, 2 * (n - 1) - idx, idx)
+        return np.ascontiguousarray(coef[np.ix_(idx, idx)])
+
+    # ------------------------------------------------------------------
+    # pieces
+    # ------------------------------------------------------------------
+    @staticmethod
+    def _bilinear(tb, ux, uy, active):
+        n = tb["n"]
+        fx = (ux - tb["lo"]) / tb["cell"]
+        fy = (uy - tb["lo"]) / tb["cell"]
+        inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
+        x0 = dr.clip(dr.floor(fx), 0, n - 2)
+        y0 = dr.clip(dr.floor(fy), 0, n - 2)
+        tx = dr.clip(fx - x0, 0.0, 1.0)
+        ty = dr.clip(fy - y0, 0.0, 1.0)
+        k = mi.UInt32(y0) * n + mi.UInt32(x0)
+        vals = tb["values"]
+        v00 = _gather(mi.Float, vals, k, inside)
+        v01 = _gather(mi.Float, vals, k + 1, inside)
+        v10 = _gather(mi.Float, vals, k + n, inside)
+        v11 = _gather(mi.Float, vals, k + n + 1, inside)
+        v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
+        return dr.select(inside, dr.maximum(v, 0.0), 0.0)
+
+    def _s_minus_one(self, ux, uy, active):
+        x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.s_du
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
+        t = x - mi.Float(i)
+        inside = active & (x <= self.s_n - 1)
+        v0 = _gather(mi.Float, self.s_values, i, inside)
+        v1 = _gather(mi.Float, self.s_values, i + 1, inside)
+        return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
+
+    def _cubic(self, grids, ux, uy, active):
+        """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
+        and weights for all; mirror boundary by the padding); 0 outside."""
+        n = self.g_n
+        fx = (ux - self.g_lo) / self.g_cell
+        fy = (uy - self.g_lo) / self.g_cell
+        inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
+        ix = dr.clip(dr.floor(fx), 0, n - 1)
+        iy = dr.clip(dr.floor(fy), 0, n - 1)
+        tx = fx - ix
+        ty = fy - iy
+
+        def weights(t):
+            t2 = t * t
+            t3 = t2 * t
+            return ((1.0 - t) * (1.0 - t) * (1.0 - t) * (1.0 / 6.0),
+                    (4.0 - 6.0 * t2 + 3.0 * t3) * (1.0 / 6.0),
+                    (1.0 + 3.0 * t + 3.0 * t2 - 3.0 * t3) * (1.0 / 6.0),
+                    t3 * (1.0 / 6.0))
+
+        wx, wy = weights(tx), weights(ty)
+        m = n + 3                                   # padded row length
+        base = mi.UInt32(iy) * m + mi.UInt32(ix)    # tap (-1, -1) in the padded array
+        acc = [mi.Float(0.0) for _ in grids]
+        for b in range(4):
+            racc = [mi.Float(0.0) for _ in grids]
+            for a in range(4):
+                k = base + (b * m + a)
+                for g, coef in enumerate(grids):
+                    racc[g] = dr.fma(wx[a], _gather(mi.Float, coef, k, inside), racc[g])
+            for g in range(len(grids)):
+                acc[g] = dr.fma(wy[b], racc[g], acc[g])
+        return [dr.select(inside, x, 0.0) for x in acc]
+
+    def _term_amplitude(self, term, qx, qy):
+        """(re, im) of ``Â`` of one outline at q [rad/µm] (im None when real)."""
+        kind, p, _, area, blur = term
+        if "cos" in p:
+            c, s = p["cos"], p["sin"]
+            qxr, qyr = c * qx + s * qy, -s * qx + c * qy
+        else:
+            qxr, qyr = qx, qy
+        im = None
+        if kind == "circle":
+            re = area * airy(dr.sqrt(dr.fma(qx, qx, qy * qy)) * p["radius"])
+        elif kind == "ellipse":
+            ax, by = p["a"] * qxr, p["b"] * qyr
+            re = area * airy(dr.sqrt(dr.fma(ax, ax, by * by)))
+        elif kind == "rect":
+            re = area * sinc(0.5 * p["width"] * qxr) * sinc(0.5 * p["height"] * qyr)
+        else:
+            re, im = self._polygon(p, qx, qy)
+        if blur > 0:
+            g = dr.exp(-0.5 * blur * blur * dr.fma(qx, qx, qy * qy))
+            re = re * g
+            im = None if im is None else im * g
+        return re, im
+
+    @staticmethod
+    def _polygon(p, qx, qy):
+        """``Â`` of a polygon: the edge sum ``(i/|q|²) Σ (q × e) sinc(q·e/2) e^{-i q·m}``
+        (Lee & Mittra 1983), and the Taylor series of the fan of triangles
+        ``Σ_n (-i)^n/(n+2)! 2|T| Σ_{i+j=n} α^i β^j`` near q = 0."""
+        qq = dr.fma(qx, qx, qy * qy)
+        small = qq * (p["circumradius"] ** 2) < TAYLOR_U**2
+        sym = p["centrosymmetric"]
+        sw = mi.Float(0.0)   # Σ w sin φ
+        cw = mi.Float(0.0)   # Σ w cos φ
+        for (ex, ey), (mx, my) in zip(p["edges"], p["mids"]):
+            w = (qx * ey - qy * ex) * sinc(0.5 * (qx * ex + qy * ey))
+            if sym:
+                sw = dr.fma(w, dr.sin(qx * mx + qy * my), sw)
+            else:
+                s, c = dr.sincos(qx * mx + qy * my)
+                sw = dr.fma(w, s, sw)
+                cw = dr.fma(w, c, cw)
+        inv = (2.0 if sym else 1.0) / dr.select(small, 1.0, qq)
+        re_e, im_e = sw * inv, cw * inv
+        # Taylor: (-i)^n cycles 1, -i, -1, i
+        re_t = mi.Float(0.0)
+        im_t = mi.Float(0.0)
+        for (ax, ay), (bx, by), cr in zip(p["v0"], p["v1"], p["cross"]):
+            alpha = qx * ax + qy * ay
+            beta = qx * bx + qy * by
+            h = mi.Float(1.0)
+            apow = mi.Float(1.0)
+            re_t += 0.5 * cr * (2.0 if sym else 1.0)
+            for n in range(1, TAYLOR_ORDER + 1):
+                apow = apow * alpha
+                h = dr.fma(beta, h, apow)
+                if sym and n % 2 == 1:
+                    continue          # odd moments vanish; even ones double
+                term = h * (cr * (2.0 if sym else 1.0) / math.factorial(n + 2))
+                if n % 4 == 0:
+                    re_t += term
+                elif n % 4 == 1:
+                    im_t -= term
+                elif n % 4 == 2:
+                    re_t -= term
+                else:
+                    im_t += term
+        if sym:
+            return dr.select(small, re_t, re_e), None
+        return dr.select(small, re_t, re_e), dr.select(small, im_t, im_e)
+
+    # ------------------------------------------------------------------
+    # interface
+    # ------------------------------------------------------------------
+    def value(self, ux, uy, active):
+        """The renderer's ``v(u)`` (>= 0)."""
+        if self.kind == "table":
+            return self._bilinear(self.near, ux, uy, active)
+        if self.kind == "grid":
+            if not self.has_s or self.g_C is None:      # v = P (S = 1) or P S (C = P)
+                P = C = self._cubic([self.g_P], ux, uy, active)[0]
+                if not self.has_s:
+                    return dr.select(active, dr.maximum(P, 0.0), 0.0)
+            else:
+                P, C = self._cubic([self.g_P, self.g_C], ux, uy, active)
+        else:
+            qx, qy = ux * (1.0 / self.R), uy * (1.0 / self.R)
+            inten = mi.Float(0.0)
+            re = mi.Float(0.0)
+            im = mi.Float(0.0)
+            for term in self.terms:
+                a_re, a_im = self._term_amplitude(term, qx, qy)
+                w = term[2]
+                if a_im is None:
+                    inten = dr.fma(w * a_re, a_re, inten)
+                else:
+                    inten = dr.fma(w * a_re, a_re, dr.fma(w * a_im, a_im, inten))
+                    im = dr.fma(w, a_im, im)
+                re = dr.fma(w, a_re, re)
+            P = inten * self.inv_area_R2
+            C = dr.fma(re, re, im * im) * self.inv_area_R2
+        s1 = self._s_minus_one(ux, uy, active) if self.has_s else 0.0
+        return dr.select(active, dr.maximum(P + C * s1, 0.0), 0.0)
+
+    def pdf(self, ux, uy, active):
+        """Density in the u plane of :meth:`sample`."""
+        if self.warp == 0.0:
+            return self._bilinear(self.near, ux, uy, active) * (1.0 / self.near["total"])
+        inv_c = 1.0 / self.warp
+        gx = dr.fma(dr.abs(ux), inv_c, 1.0)         # 1 + |u|/c = du/dt^(1/2)
+        gy = dr.fma(dr.abs(uy), inv_c, 1.0)
+        rx, ry = dr.rcp(gx), dr.rcp(gy)
+        p = self._bilinear(self.near, ux * rx, uy * ry, active)      # t = u / (1 + |u|/c)
+        return p * (1.0 / self.near["total"]) * dr.square(rx * ry)
+
+    def sample(self, s, active):
+        """``s`` (Point2f in [0, 1)²) -> u (Vector2f) with density :meth:`pdf`."""
+        tb = self.near
+        p01, _ = self.distr.sample(s, active=active)
+        tx, ty = tb["lo"] + p01.x * tb["span"], tb["lo"] + p01.y * tb["span"]
+        if self.warp == 0.0:
+            return mi.Vector2f(tx, ty)
+        inv_c = 1.0 / self.warp        # u = t / (1 - |t|/c)
+        return mi.Vector2f(tx / (1.0 - dr.abs(tx) * inv_c), ty / (1.0 - dr.abs(ty) * inv_c))
