@@ -335,6 +335,8 @@ class CoronaBSDFMixin:
             from .lobe_kernels import LobeKernel
             self.kernel = LobeKernel(material)
         self.fa_cover = (float(fas[0]), float(fas[-1]))
+        # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
+        self.tail = float(material._plane_integral - material.table.total)
 
     def _set_cdf(self, cdfs):
         """Normalised CDFs of the rows (float32) plus guide tables that narrow each search.
@@ -391,16 +393,17 @@ class CoronaBSDFMixin:
             t = (fa - f0) / dr.maximum(f1 - f0, 1e-12)
             total = _gather(mi.Float, self.totals, j, active)
             total_next = _gather(mi.Float, self.totals, j + 1, active)
-        plane = fa * dr.lerp(total, total_next, t) * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π²
+        held = fa * dr.lerp(total, total_next, t) * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
+        plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
         coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
         budget = dr.maximum(1.0 - coherent, 0.0)
         # lobe weight F_a, lowered where coherent + lobe would exceed 1 (Poisson, see Material.lobe_weight)
         scale = dr.select(plane > budget, budget / dr.maximum(plane, 1e-30), 1.0)
         weight = fa * scale
-        lobe = plane * scale
+        lobe = held * scale                  # the energy the tables hold: chooses the component
         opaque = (1.0 - fa) if self.mode_aperture else fa
         albedo = dr.clip(self.albedo_tex.eval_1(si, active), 0.0, 1.0)
-        reflect = dr.minimum(albedo * opaque, dr.maximum(1.0 - coherent - lobe, 0.0))
+        reflect = dr.minimum(albedo * opaque, dr.maximum(1.0 - coherent - plane * scale, 0.0))
         if self.fixed_radius:
             L = mi.Float(self.L_per_radius * self.radius_cover)
         else:
