@@ -13,10 +13,12 @@ is ``S = Σ_pixels W · image`` with a fixed weight image ``W``:
 
 ``W`` is zero on the few pixels that see the lamp itself through the
 coherent beam: Mitsuba's PRB differentiates a path by re-evaluating
-``bsdf.eval`` along it, which is 0 for a delta component, so the derivative
-of the coherent weight (1 - F_a)² is not part of any ``prb`` gradient (for
-any delta BSDF, not only this one).  Everything else (the lobe, the diffuse
-reflection, textured or not) is.
+``bsdf.eval`` along it, which is 0 along a delta component's direction, so
+the derivative of the coherent weight (1 - F_a)² is not part of any ``prb``
+gradient (for any delta BSDF, not only this one).  Everything else (the
+lobe, the diffuse reflection, textured or not) is.  The last test adds the
+coherent beam's derivative by hand in front of a bright sky, where every
+pixel sees through it.
 
 The finite differences use the same seed at ``x ± h`` (correlated
 sampling); the area-fraction steps stay inside one interval between the
@@ -260,3 +262,36 @@ def forward(mi_variant):
 def test_forward_mode_render_gradient_matches_finite_differences(forward, name):
     fd, ad = forward[name]
     _agree(name, fd, ad)
+
+
+def test_coherent_paths_add_nothing_spurious(mi_variant):
+    """The pane against a uniformly bright sky: every pixel sees the sky through the coherent beam.
+
+    ``prb`` leaves the derivative of the delta paths out entirely, so its
+    gradient plus the coherent beam's own derivative, ``∂(1 - F_a)²/∂F_a · B``
+    (B the sky as the camera sees it without the pane), must equal the finite
+    differences of the renders: about -1 per unit F_a, the layer transmitting
+    ``1 - F_a``.  Before the plugin returned 0 for ``eval`` along the delta
+    directions, ``prb`` re-evaluated the lobe there and added ``L ∂ ln f(0)/∂F_a``
+    along every coherent path: 7× the true lobe derivative at F_a = 0.1.
+    """
+    import mitsuba as mi
+    T = mi.ScalarTransform4f
+    sky = {"type": "constant", "radiance": {"type": "uniform", "value": 1.0}}
+    sensor = {"type": "perspective", "fov": FOV, "to_world": T().look_at([0, 0, 0], [0, 0, 1], [0, 1, 0]),
+              "film": {"type": "hdrfilm", "width": RES, "height": RES, "rfilter": {"type": "box"},
+                       "pixel_format": "rgb"},
+              "sampler": {"type": "independent", "sample_count": SPP}}
+    clear = mi.load_dict({"type": "scene", "integrator": {"type": "prb"}, "sensor": sensor, "sky": sky})
+    b = float(dr.mean(mi.render(clear, spp=4 * SPP), axis=None).array[0])
+    scene = mi.load_dict({"type": "scene", "integrator": {"type": "prb", "max_depth": 3}, "sensor": sensor,
+                          "sky": sky, "pane": {"type": "rectangle", "to_world": T().translate([0, 0, 0.5]),
+                                               "bsdf": {"type": "corona", "radius": RADIUS, "process": "hard-disk",
+                                                        "mode": "particle", "area_fraction": 0.1}}})
+    fa, h = _fa_step(scene, 0.1 + 1e-3)
+    setup = Setup(scene, {"area_fraction": ("pane.bsdf.area_fraction.value", fa, h, "all", None)},
+                  {"all": np.ones((RES, RES)) / (RES * RES * 3)})
+    fd = setup.finite_differences("area_fraction")
+    ad = setup.derivatives("reverse")["area_fraction"] - 2 * (1 - fa) * b
+    _agree("area_fraction against the sky", fd, ad)
+    assert abs(fd.mean() / b + 1) < 0.03          # the layer transmits 1 - F_a (hard disks)

@@ -125,7 +125,8 @@ def texture_range(texture) -> tuple[float | None, float]:
     """(min, max) of a scalar texture's values.
 
     Evaluated at the texel centres of a bitmap (``texture.resolution()``) or
-    on a 64×64 grid of uv for procedural textures; where the texture cannot
+    on a 64×64 grid of uv for procedural textures (scalar variants: every
+    k-th of these points, at most 256×256); where the texture cannot
     be evaluated without a mesh (``mesh_attribute``) the minimum is unknown
     (None) and the maximum is ``texture.max()``.
     """
@@ -136,9 +137,18 @@ def texture_range(texture) -> tuple[float | None, float]:
     nx, ny = min(max(res[0], 64), 4096), min(max(res[1], 64), 4096)
     uu, vv = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(ny) + 0.5) / ny)
     try:
-        si = dr.zeros(mi.SurfaceInteraction3f, uu.size)
-        si.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
-        vals = np.asarray(dr.detach(texture.eval_1(si)), dtype=np.float64).ravel()
+        if dr.is_array_v(mi.Float):
+            si = dr.zeros(mi.SurfaceInteraction3f, uu.size)
+            si.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
+            vals = np.asarray(dr.detach(texture.eval_1(si)), dtype=np.float64).ravel()
+        else:   # scalar variants: one point at a time, on at most 256×256 of the points
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            step = max(1, -(-max(nx, ny) // 256))
+            vals = []
+            for u, v in zip(uu[::step, ::step].ravel(), vv[::step, ::step].ravel()):
+                si.uv = mi.Point2f(float(u), float(v))
+                vals.append(float(texture.eval_1(si)))
+            vals = np.asarray(vals)
         if vals.size and np.all(np.isfinite(vals)):
             return float(vals.min()), float(vals.max())
     except Exception:  # noqa: BLE001 - textures that need a mesh
@@ -580,8 +590,14 @@ class CoronaBSDFMixin:
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
-        transmit = active & (cos_i * cos_o < 0)
-        reflect = active & (cos_i * cos_o > 0)
+        # the delta components' own directions (d = (wo + wi).xy = 0: the coherent beam, the pane's
+        # mirror image), where the smooth ones are a set of measure zero: 0 there, so that an
+        # integrator re-evaluating `eval` along a sampled delta path (Mitsuba's prb) does not
+        # differentiate the lobe or the diffuse value as if they carried that path.  1e-6 is 4x
+        # the float32 round trip of -wi through a shading frame.
+        off_delta = dr.fma(wo.x + wi.x, wo.x + wi.x, dr.square(wo.y + wi.y)) >= 1e-12
+        transmit = active & (cos_i * cos_o < 0) & off_delta
+        reflect = active & (cos_i * cos_o > 0) & off_delta
         if layer is None:
             layer = self._layer(si, active)
         p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
