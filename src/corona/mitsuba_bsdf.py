@@ -331,7 +331,7 @@ class CoronaBSDFMixin:
         if self.n_rows > 1:
             # a uniform grid over the rows, its cells (at most 4096) narrower than the closest two
             # rows where possible: a cell's first row and `row_steps` (usually 1) comparisons find
-            # F_a's row (a bisection's dependent gathers cost a quarter of a uniform layer's render)
+            # F_a's row (a bisection's dependent gathers cost a sixth of the sample + eval)
             span = float(fas[-1] - fas[0])
             cells = int(min(np.ceil(span / np.min(np.diff(fas))) + 1, 4096))
             edges = fas[0] + span * np.arange(cells + 1) / cells
@@ -405,7 +405,7 @@ class CoronaBSDFMixin:
         else:
             # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
             # first row, or the next one where that lies inside the cell below fa (float32
-            # rounding at a cell's edge may leave fa an ulp below fa_rows[j]: t = -1e-7, harmless)
+            # rounding at a cell's edge may leave fa an ulp below fa_rows[j]: t ~ -1e-6, harmless)
             cell = dr.clip(dr.floor((fa - self.fa_cover[0]) * self.row_cell_scale), 0, self.row_cells - 1)
             j = _gather(mi.UInt32, self.row_guide, mi.UInt32(cell), active)
             for _ in range(self.row_steps - 1):
