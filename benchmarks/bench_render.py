@@ -1,7 +1,10 @@
 """Render cost of corona vs Mitsuba's built-in roughdielectric / thindielectric.
 
 One scene (a small bright emitter seen through a screen, `street_light_scene`),
-256², 64 spp, `path` integrator, llvm_ad_spectral by default.
+256², 64 spp, `path` integrator, llvm_ad_spectral by default; the screen is
+``corona`` with a uniform layer, ``corona`` with the area fraction from a
+bitmap (scenes/textures/wiped_fog.png), ``roughdielectric`` or
+``thindielectric``.
 
 Each measurement runs in its own process that loads only one BSDF's scene
 (with several scenes alive, Dr.Jit's symbolic calls would compile every
@@ -27,6 +30,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
+FOG = os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, "scenes", "textures", "wiped_fog.png")
 BSDFS = {
     # condensation on a pane: 5 µm droplets, hard-disk positions, particle mode
     "corona": {"type": "corona", "radius": 5.0, "area_fraction": 0.4, "process": "hard-disk",
@@ -40,6 +44,10 @@ BSDFS = {
                        "area_fraction": 0.3, "process": "hard-disk"},
     "corona-square-spread": {"type": "corona", "shape": "square", "radius": 2.5, "size_spread": 0.2,
                              "area_fraction": 0.3, "process": "hard-disk"},
+    # the same with the area fraction from a bitmap (the wiped window's fog, F_a 0.005 to 0.6:
+    # about 100 table rows, looked up per shading point)
+    "corona_textured": {"type": "corona", "radius": 5.0, "process": "hard-disk", "mode": "particle",
+                        "area_fraction": {"type": "bitmap", "filename": os.path.normpath(FOG), "raw": True}},
     "roughdielectric": {"type": "roughdielectric", "alpha": 0.05, "int_ior": 1.5},
     "thindielectric": {"type": "thindielectric", "int_ior": 1.5},
 }
@@ -119,12 +127,14 @@ def main():
               f"(JIT compile {res['jit_compile_s']:6.3f} s)  ratio {res['ratio_to_roughdielectric']:.3f}")
     for name in names:
         if name.startswith("corona"):
+            goal = {"corona": 1.1, "corona_textured": 1.5}.get(name, 1.3)
             print(f"{name} / roughdielectric = {results[name]['ratio_to_roughdielectric']:.3f} (medians), "
-                  f"{results[name]['ratio_of_minima']:.3f} (minima); goal <= 1.3")
+                  f"{results[name]['ratio_of_minima']:.3f} (minima); goal <= {goal}")
     write(args.name, {"scene": "street_light_scene", "bsdfs": {n: BSDFS[n] for n in names}, "resolution": args.res,
                       "spp": args.spp, "integrator": "path", "rounds": args.rounds,
                       "repeats": args.repeats, "results": results,
-                      "goal": "corona <= 1.3 x roughdielectric (JIT compile excluded)"})
+                      "goal": "corona (uniform) <= 1.1 x, corona_textured (F_a bitmap) <= 1.5 x "
+                              "roughdielectric (JIT compile excluded)"})
 
 
 if __name__ == "__main__":

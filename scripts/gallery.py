@@ -103,6 +103,21 @@ STRIPS = [
           "about 40° from the antisolar point, with a supernumerary inside, and the glory at the centre. "
           "Right (12°): the glory's coloured rings around the camera's shadow.",
           [Panel("fogbow, 100° field", {}), Panel("glory, 12° field", {"fov": 12})]),
+    Strip("wiped_window", "A wiped window: area fraction from a bitmap", "wiped_window.xml",
+          "Five identical street lights (2700 K) behind a fogged pane whose area fraction is a texture "
+          "(scenes/textures/wiped_fog.png): droplets of radius 6 µm, hard disks, F_a = 0.22 in the middle "
+          "rising to 0.55 at the frame, and a streak wiped clean (F_a = 0.015) from the lower left to the "
+          "upper right. Each lamp's corona follows the glass it is seen through: the two lamps in the "
+          "streak are sharp with a faint aureole and wear their rings only where these reach the fog "
+          "beside it; the lamps near the corners drown in their corona.",
+          [Panel("F_a from a bitmap, R = 6 µm", {})]),
+    Strip("condensation_gradient", "Condensation gradient: droplet radius from a bitmap",
+          "condensation_gradient.xml",
+          "Four identical 3000 K street lights behind a pane whose droplets grow from 3 µm at the left "
+          "edge to 12 µm at the right (radius texture scenes/textures/condensation_radius.exr; F_a = 0.35, "
+          "hard disks). The radius scales the whole layer, so the lobe stays exact: the rings shrink as "
+          "1/R across the pane, first dark ring at about 4.7°, 3.1°, 2.3° and 1.8°.",
+          [Panel("R = 3 → 12 µm, left to right", {})]),
     Strip("lobe_tables", "Single-aperture table and structure-factor table", None,
           "`corona lobe` for the teaser's droplets: the form-factor table T_a, the hard-disk "
           "structure-factor table T_s, their product (the lobe), and the far-field corona as seen "

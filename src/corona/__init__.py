@@ -38,9 +38,11 @@ def register() -> None:
 
     Examples
     --------
-    Load the plugin in a spectral variant and evaluate it opposite to
-    ``wi``: ``eval`` is the lobe times ``|cos θo|``, here the material's
-    ``F_a T_a(0) T_s(0)`` (up to the table's float32 rounding):
+    Load the plugin in a spectral variant and evaluate it 0.01 rad off the
+    direction opposite to ``wi`` (exactly there lives the coherent beam, a
+    delta component, and ``eval`` is 0): ``eval`` is the lobe at
+    ``d = (wo + wi).xy`` times ``|cos θo|`` (up to the table's float32
+    rounding and its linear interpolation in u):
 
     >>> import mitsuba as mi, corona
     >>> mi.set_variant("scalar_spectral")
@@ -49,10 +51,11 @@ def register() -> None:
     >>> si = mi.SurfaceInteraction3f()
     >>> si.wi = mi.Vector3f(0.0, 0.0, 1.0)
     >>> si.wavelengths = mi.Spectrum(550.0, 550.0, 550.0, 550.0)
-    >>> value = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(0.0, 0.0, -1.0))
+    >>> cos_o = (1 - 0.01**2) ** 0.5
+    >>> value = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(0.01, 0.0, -cos_o))
     >>> from corona.parameters import material_from_parameters
-    >>> f0 = material_from_parameters(radius=5.0, area_fraction=0.3).lobe([[0.0, 0.0]], 550.0)[0]
-    >>> round(float(value[0] / f0), 4)
+    >>> f = material_from_parameters(radius=5.0, area_fraction=0.3).lobe([[0.01, 0.0]], 550.0)[0]
+    >>> round(float(value[0] / (f * cos_o)), 3)
     1.0
     """
     from .mitsuba_bsdf import register as _register

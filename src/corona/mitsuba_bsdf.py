@@ -125,7 +125,8 @@ def texture_range(texture) -> tuple[float | None, float]:
     """(min, max) of a scalar texture's values.
 
     Evaluated at the texel centres of a bitmap (``texture.resolution()``) or
-    on a 64×64 grid of uv for procedural textures; where the texture cannot
+    on a 64×64 grid of uv for procedural textures (scalar variants: every
+    k-th of these points, at most 256×256); where the texture cannot
     be evaluated without a mesh (``mesh_attribute``) the minimum is unknown
     (None) and the maximum is ``texture.max()``.
     """
@@ -136,9 +137,18 @@ def texture_range(texture) -> tuple[float | None, float]:
     nx, ny = min(max(res[0], 64), 4096), min(max(res[1], 64), 4096)
     uu, vv = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(ny) + 0.5) / ny)
     try:
-        si = dr.zeros(mi.SurfaceInteraction3f, uu.size)
-        si.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
-        vals = np.asarray(dr.detach(texture.eval_1(si)), dtype=np.float64).ravel()
+        if dr.is_array_v(mi.Float):
+            si = dr.zeros(mi.SurfaceInteraction3f, uu.size)
+            si.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
+            vals = np.asarray(dr.detach(texture.eval_1(si)), dtype=np.float64).ravel()
+        else:   # scalar variants: one point at a time, on at most 256×256 of the points
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            step = max(1, -(-max(nx, ny) // 256))
+            vals = []
+            for u, v in zip(uu[::step, ::step].ravel(), vv[::step, ::step].ravel()):
+                si.uv = mi.Point2f(float(u), float(v))
+                vals.append(float(texture.eval_1(si)))
+            vals = np.asarray(vals)
         if vals.size and np.all(np.isfinite(vals)):
             return float(vals.min()), float(vals.max())
     except Exception:  # noqa: BLE001 - textures that need a mesh
@@ -321,7 +331,17 @@ class CoronaBSDFMixin:
         self.fa_rows_np = fas
         self.n_rows = len(fas)
         self.fa_rows = _array(mi.Float, fas)
-        self.row_steps = max(1, int(np.ceil(np.log2(max(self.n_rows - 1, 1)))))
+        if self.n_rows > 1:
+            # a uniform grid over the rows, its cells (at most 4096) narrower than the closest two
+            # rows where possible: a cell's first row and `row_steps` (usually 1) comparisons find
+            # F_a's row (a bisection's dependent gathers cost a sixth of the sample + eval)
+            span = float(fas[-1] - fas[0])
+            cells = int(min(np.ceil(span / np.min(np.diff(fas))) + 1, 4096))
+            edges = fas[0] + span * np.arange(cells + 1) / cells
+            guide = np.clip(np.searchsorted(fas, edges, side="right") - 1, 0, self.n_rows - 2)
+            self.row_guide = _array(mi.UInt32, guide[:-1])
+            self.row_cells, self.row_cell_scale = cells, cells / span
+            self.row_steps = max(1, int(np.max(guide[1:] - guide[:-1])))   # rows inside one cell
         self.totals = _array(mi.Float, [t.total for t in tabs])
         if self.isotropic:
             self.du = float(tabs[0].du)
@@ -379,15 +399,21 @@ class CoronaBSDFMixin:
             total = _gather(mi.Float, self.totals, j, active)
             total_next = total
         else:
-            lo, hi = mi.UInt32(0), mi.UInt32(self.n_rows - 1)
-            for _ in range(self.row_steps):          # fa_rows[lo] <= fa <= fa_rows[hi]
-                mid = (lo + hi) >> 1
-                right = _gather(mi.Float, self.fa_rows, mid, active) <= fa
-                lo = dr.select(right, mid, lo)
-                hi = dr.select(right, hi, mid)
-            j = dr.minimum(lo, self.n_rows - 2)
+            # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
+            # first row, or the next one where that lies inside the cell below fa (float32
+            # rounding at a cell's edge may leave fa an ulp below fa_rows[j]: t ~ -1e-6, harmless)
+            cell = dr.clip(dr.floor((fa - self.fa_cover[0]) * self.row_cell_scale), 0, self.row_cells - 1)
+            j = _gather(mi.UInt32, self.row_guide, mi.UInt32(cell), active)
+            for _ in range(self.row_steps - 1):
+                up = (_gather(mi.Float, self.fa_rows, j + 1, active) <= fa) & (j < self.n_rows - 2)
+                j = dr.select(up, j + 1, j)
+            # the last step reads the three rows at once (no gather waits for another)
             f0 = _gather(mi.Float, self.fa_rows, j, active)
             f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
+            f2 = _gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
+            up = (f1 <= fa) & (j < self.n_rows - 2)
+            j = dr.select(up, j + 1, j)
+            f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
             # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
             # the derivative at a row is the next interval's slope, not zero
             t = (fa - f0) / dr.maximum(f1 - f0, 1e-12)
@@ -563,8 +589,14 @@ class CoronaBSDFMixin:
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
-        transmit = active & (cos_i * cos_o < 0)
-        reflect = active & (cos_i * cos_o > 0)
+        # the delta components' own directions (d = (wo + wi).xy = 0: the coherent beam, the pane's
+        # mirror image), where the smooth ones are a set of measure zero: 0 there, so that an
+        # integrator re-evaluating `eval` along a sampled delta path (Mitsuba's prb) does not
+        # differentiate the lobe or the diffuse value as if they carried that path.  1e-6 is 4x
+        # the float32 round trip of -wi through a shading frame.
+        off_delta = dr.fma(wo.x + wi.x, wo.x + wi.x, dr.square(wo.y + wi.y)) >= 1e-12
+        transmit = active & (cos_i * cos_o < 0) & off_delta
+        reflect = active & (cos_i * cos_o > 0) & off_delta
         if layer is None:
             layer = self._layer(si, active)
         p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)

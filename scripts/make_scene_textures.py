@@ -1,0 +1,60 @@
+"""Write the textures of scenes/textures/ (small, deterministic): ``python scripts/make_scene_textures.py``.
+
+* ``wiped_fog.png`` (96×96, 8-bit grey, read with ``raw=true``): the area
+  fraction F_a = value / 255 of the condensation on the pane of
+  ``scenes/wiped_window.xml``, as the camera sees it (row 0 at the top):
+  0.22 in the middle of the pane rising to 0.55 at the frame (the glass is
+  coldest there), a wiped streak from the lower left to the upper right with
+  F_a = 0.015 left in it and soft edges, and ±0.015 of noise.
+* ``condensation_radius.exr`` (64×4, one float channel): the droplet radius
+  [µm] of ``scenes/condensation_gradient.xml``, growing from 3 µm at the
+  left of the pane to 12 µm at the right (the droplets grow where the glass
+  is coldest), linear in x.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, "scenes", "textures")
+
+
+def smoothstep(e0, e1, x):
+    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+def wiped_fog(n: int = 96, seed: int = 12) -> np.ndarray:
+    """F_a on an n×n grid, row 0 at the top of the pane as seen from the camera."""
+    y, x = (np.mgrid[:n, :n] + 0.5) / n                 # x to the right, y down
+    frame = np.maximum(np.abs(x - 0.5), np.abs(y - 0.5)) * 2   # 0 in the middle, 1 at the frame
+    fa = 0.22 + 0.33 * smoothstep(0.35, 1.0, frame)
+    centre = 0.8 - 0.55 * x + 0.12 * np.sin(np.pi * x)   # the wipe's path
+    dist = np.abs(y - centre)
+    wiped = 1.0 - smoothstep(0.08, 0.12, dist)
+    fa = fa * (1 - wiped) + 0.015 * wiped
+    fa += np.random.default_rng(seed).normal(0.0, 0.015, fa.shape)
+    return np.clip(fa, 0.005, 0.6)
+
+
+def condensation_radius(width: int = 64, height: int = 4) -> np.ndarray:
+    x = (np.arange(width) + 0.5) / width
+    return np.tile(3.0 + 9.0 * x, (height, 1))
+
+
+def main() -> None:
+    import imageio.v3 as iio
+    import mitsuba as mi
+    import corona  # noqa: F401  (libLLVM before drjit)
+    from corona.render import setup_variant
+    setup_variant("scalar_rgb")
+    os.makedirs(HERE, exist_ok=True)
+    iio.imwrite(os.path.join(HERE, "wiped_fog.png"), np.round(wiped_fog() * 255).astype(np.uint8))
+    mi.Bitmap(condensation_radius().astype(np.float32)[..., None]).write(
+        os.path.join(HERE, "condensation_radius.exr"))
+    print(f"wrote {os.path.normpath(HERE)}/wiped_fog.png, condensation_radius.exr")
+
+
+if __name__ == "__main__":
+    main()
