@@ -22,6 +22,8 @@ MODES = ("aperture", "particle")
 #: :class:`corona.CoronaWarning` per process: scalar Fraunhofer diffraction
 #: loses accuracy there, but the model stays computable.
 SMALL_RADIUS_WAVELENGTHS = 2.0
+#: Table builds longer than this [s] show a progress bar on stderr.
+PROGRESS_DELAY = 2.0
 _small_radius_warned = False
 
 
@@ -156,8 +158,7 @@ class Material:
         u = np.asarray(u, dtype=np.float64)
         R = self.length_scale
         q = u / R
-        P = self.shape.form_factor(q)
-        C = self.shape.coherent_form_factor(q)
+        P, C = self._form_factors(q, radial=False)
         S = self.process.structure_factor_at(q, self.shape)
         return np.maximum(P + C * (S - 1.0), 0.0) / R**2
 
@@ -166,10 +167,16 @@ class Material:
         u = np.asarray(u, dtype=np.float64)
         R = self.length_scale
         q = u / R
-        P = self.shape.form_factor_radial(q)
-        C = self.shape.coherent_form_factor_radial(q)
+        P, C = self._form_factors(q, radial=True)
         S = self.process.structure_factor_radial(q, self.shape)
         return np.maximum(P + C * (S - 1.0), 0.0) / R**2
+
+    def _form_factors(self, q, radial: bool):
+        """(form factor ``⟨|Â|²⟩/⟨|A|⟩``, coherent form factor ``|⟨Â⟩|²/⟨|A|⟩``) [µm²]
+        at ``q`` (..., 2), or at ``|q|`` when ``radial``, from one pass over the shape."""
+        intensity, amplitude = self.shape._both_radial(q) if radial else self.shape._both(q)
+        area = float(self.shape.area)
+        return intensity / area, np.abs(amplitude) ** 2 / area
 
     def _u(self, d, wavelength):
         d = check_finite_array("d", d)
@@ -232,7 +239,7 @@ class Material:
             n = min(n, tables.RADIAL_MAX_SAMPLES)
             du = u_max / (n - 1)
             u = np.arange(n) * du
-            return tables.RadialTable(du, self.lobe_dimensionless_radial(u)).arrays()
+            return tables.RadialTable(du, self._in_chunks(self.lobe_dimensionless_radial, u)).arrays()
         n = tables.GRID2D_SIZE
         u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
         cell = 2 * u_range / n
@@ -240,17 +247,52 @@ class Material:
         ux, uy = np.meshgrid(c, c, indexing="xy")
         u = np.stack([ux, uy], -1)
         if not hasattr(self.process, "bragg_cell_mean"):
-            return tables.GridTable(u_range, self.lobe_dimensionless(u)).arrays()
+            return tables.GridTable(u_range, self._in_chunks(self.lobe_dimensionless, u)).arrays()
         # Bragg peaks narrower than a cell: each vertex carries the cell mean of
         # the lobe, P + C (S_bg - 1) + Σ_G C(G) W_G ⟨g_G⟩_cell, i.e. every peak
         # with its exact weight C(G) W_G (C at the peak, not at the cell centre)
         R = self.length_scale
         q = u / R
-        P = self.shape.form_factor(q)
-        C = self.shape.coherent_form_factor(q)
+        P, C = np.moveaxis(self._in_chunks(lambda x: np.stack(self._form_factors(x, radial=False), -1), q),
+                           -1, 0)
         S_bg = self.process.background_cell_mean(q, cell / R)
         bragg = self.process.bragg_cell_mean(q, cell / R, peak_factor=self.shape.coherent_form_factor)
         return tables.GridTable(u_range, np.maximum(P + C * (S_bg - 1.0) + bragg, 0.0) / R**2).arrays()
+
+    def _in_chunks(self, f, points) -> np.ndarray:
+        """``f(points)`` evaluated in blocks, with a progress bar (on stderr) when
+        the table takes longer than ``PROGRESS_DELAY`` seconds.
+
+        ``points`` is (n,) (radial) or a centred (rows, cols, 2) grid (the
+        table's vertices, ``u[n-1-i, n-1-j] = -u[i, j]``).  Radial blocks run
+        from the largest u down, so that a process caching its structure factor
+        up to the largest q (a measured point set) computes it once.  On a grid
+        only the first half of the rows is evaluated: the lobe of a real
+        profile and a real point pattern is even, ``v(-u) = v(u)``
+        (``Â(-q) = Â(q)*``, ``S(-q) = S(q)``), so the other half is its mirror.
+        """
+        from tqdm import tqdm
+        points = np.asarray(points)
+        n = points.shape[0]
+        grid = points.ndim == 3
+        rows = (n + 1) // 2 if grid else n
+        per_block = max(1, 8192 // (points.shape[1] if grid else 1))
+        starts = list(range(0, rows, per_block))
+        if not grid:
+            starts.reverse()
+        out = None
+        with tqdm(total=rows * (points.shape[1] if grid else 1), unit="pt", leave=False,
+                  delay=PROGRESS_DELAY, desc="corona: building the lobe table") as bar:
+            for a in starts:
+                b = min(a + per_block, rows)
+                block = np.asarray(f(points[a:b]))
+                if out is None:
+                    out = np.empty((n,) + block.shape[1:], dtype=block.dtype)
+                out[a:b] = block
+                bar.update(block.shape[0] * (block.shape[1] if grid else 1))
+        if grid:
+            out[rows:] = out[:n - rows][::-1, ::-1]
+        return out
 
     def lobe_tabulated(self, d, wavelength) -> np.ndarray:
         """The lobe as the renderer evaluates it: interpolated from :attr:`table`."""

@@ -55,6 +55,8 @@ def _read_props(props) -> dict:
             raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(SPEC))}")
         value = props.get(name)
         if SPEC[name].kind in ("float", "int"):
+            if isinstance(value, bool):   # <boolean name="radius" value="true"/> is no size
+                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; allowed {SPEC[name].allowed}")
             try:
                 value = float(value)
             except (TypeError, ValueError):
@@ -93,6 +95,12 @@ def _array(dtype, values):
     else:
         a = np.asarray(values, dtype=np.float32)
     return a if dr.is_array_v(dtype) is False else dtype(a)
+
+
+def _positive(x):
+    """``x`` where it is > 0, else 1: a divisor safe in scalar variants too, where
+    ``dr.select`` evaluates both branches (``value / pdf`` raised ZeroDivisionError)."""
+    return dr.select(x > 0, x, 1.0)
 
 
 def _gather(dtype, source, index, active=True):
@@ -392,7 +400,7 @@ class CoronaBSDFMixin:
 
         value, pdf = self._eval_pdf(ctx, si, bs.wo, (lobe_valid | pick_refl))
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
-        weight = dr.select(pdf > 0, value / pdf, 0.0)
+        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)
         weight = dr.select(pick_coh, self.w_coherent / dr.maximum(p_coh, 1e-30), weight)
         ok = pick_coh | ((lobe_valid | pick_refl) & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
