@@ -41,10 +41,12 @@ CASES = {
     "mask random, 25 µm (max)": dict(shape="mask", filename="@mask", pixel_size=0.199,
                                      orientation="random"),
     "square random, spread 0.5, largest 25 µm": dict(shape="square", orientation="random",
-                                                     size_spread=0.5, radius=25.0 / 2**0.5 / 13.6),
+                                                     size_spread=0.5, radius=1.28),
     "hexagon spread 0.5 (2D table)": dict(shape="polygon", sides=6, size_spread=0.5),
-    "polygon 50 sides, spread 0.5 (2D table)": dict(shape="polygon", sides=50, size_spread=0.5),
-    "ellipse aspect 5, spread 0.5 (2D table)": dict(shape="ellipse", aspect=5.0, size_spread=0.5),
+    "heptagon spread 0.5 (2D table, at the work maximum)": dict(shape="polygon", sides=7, size_spread=0.5),
+    "polygon 50 sides, spread 0.1 (2D table)": dict(shape="polygon", sides=50, size_spread=0.1),
+    "ellipse aspect 5, spread 0.5 (2D table)": dict(shape="ellipse", aspect=5.0, size_spread=0.5,
+                                                    process="poisson"),
     "mask 1024 px (max), fixed": dict(shape="mask", filename="@mask1024", pixel_size=0.01),
 }
 

@@ -72,6 +72,13 @@ def headline() -> list[str]:
     if t:
         worst = max(t["results"].items(), key=lambda kv: kv[1]["build_median_s"])
         rows.append(("Slowest lobe table build (" + worst[0] + ")", f"{worst[1]['build_median_s']:.3f} s", "—"))
+    si = _load("slow_inputs")
+    if si:
+        done = {k: v for k, v in si["results"].items() if v.get("seconds") is not None}
+        if done:
+            worst = max(done.items(), key=lambda kv: kv[1]["seconds"])
+            rows.append(("Slowest accepted input's table build (" + worst[0] + ")",
+                         f"{worst[1]['seconds']:.1f} s", "about a minute at most, progress bar > 2 s"))
     h = _load("hard_disk")
     if h:
         rows.append(("Hard-disk structure-factor lookup (cold, 2^18 points)",

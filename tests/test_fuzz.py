@@ -1,7 +1,9 @@
 """Fuzz test over XML scenes and CLI arguments (issue 15).
 
 A fixed, derandomized set of cases (``random.Random(15)``): corona BSDF
-properties of random types and values in a tiny scene, ``corona lobe`` options,
+properties of random types and values in a tiny scene (sometimes without its
+integrator, emitter or sensor, with an empty film, cut in half),
+``corona lobe`` options,
 ``corona render`` options (``--spp --seed --exposure --name --out -D``) and the
 table cache.  Whatever the input:
 
@@ -105,7 +107,9 @@ def _cases():
                 tag = rng.choice(["float", "integer", "string", "boolean"] if rng.random() < 0.3 else
                                  [{"float": "float", "int": "integer"}.get(p.kind, "string")])
                 props[p.name] = (tag, _value(p, rng))
-            cases.append(("scene", props, rng.choice(["1", "2"])))
+            mutation = rng.choice(["", "", "", "", "no-integrator", "no-emitter", "no-sensor", "film-0",
+                                   "not-xml", "wrong-version"])
+            cases.append(("scene", props, (rng.choice(["1", "2"]), mutation)))
         elif kind == "lobe":
             opts = {p.name: _value(p, rng) for p in rng.sample([p for p in specs if not p.plugin_only],
                                                                rng.randint(1, 4))}
@@ -181,9 +185,18 @@ def test_fuzz(case, tmp_path, monkeypatch, inputs, mi_variant):
     if kind == "scene":
         props = "\n".join(f'            <{tag} name="{name}" value="{sub(v)}"/>'
                           for name, (tag, v) in a.items())
+        text = SCENE.replace("{props}", props)
+        spp, mutation = b
+        text = {"no-integrator": lambda t: re.sub(r"<integrator.*?</integrator>", "", t, flags=re.S),
+                "no-emitter": lambda t: re.sub(r"<emitter.*?</emitter>", "", t, flags=re.S),
+                "no-sensor": lambda t: re.sub(r"<sensor.*?</sensor>", "", t, flags=re.S),
+                "film-0": lambda t: t.replace('name="res" value="4"', 'name="res" value="0"'),
+                "not-xml": lambda t: t[: len(t) // 2],
+                "wrong-version": lambda t: t.replace('version="3.0.0"', 'version="9.9"')}.get(
+            mutation, lambda t: t)(text)
         scene = tmp_path / "scene.xml"
-        scene.write_text(SCENE.replace("{props}", props))
-        args = ["render", str(scene), "--spp", b, "--out", str(out), "--name", "img"]
+        scene.write_text(text)
+        args = ["render", str(scene), "--spp", spp, "--out", str(out), "--name", "img"]
     elif kind == "lobe":
         args = ["lobe"] + [x for k, v in a.items() for x in (f"--{k.replace('_', '-')}", sub(v))]
         args += ["--json"] if b else ["--out", str(out / "lobe.png")]

@@ -56,25 +56,39 @@ class OneLineErrorGroup(click.Group):
     def invoke(self, ctx):
         with _one_line_usage_errors(), _one_line_warnings():
             try:
-                return super().invoke(ctx)
+                out = super().invoke(ctx)
             except KeyboardInterrupt:
                 raise Interrupted() from None
+            _flush_warnings()
+            return out
+
+
+_pending_warnings: list = []
 
 
 @contextlib.contextmanager
 def _one_line_warnings():
-    """Python warnings (e.g. CoronaWarning about unused parameters) as one line on stderr."""
+    """Python warnings (e.g. CoronaWarning about unused parameters) as one line each on
+    stderr, ``corona: warning: ...``, shown once the input is accepted (before a render
+    starts, or at the end): a command that fails prints its one error line only."""
     import warnings
     old = warnings.showwarning
 
     def show(message, category, filename, lineno, file=None, line=None):
-        text = " ".join(str(message).split())
-        click.echo(f"corona: warning: {text}", err=True)
+        _pending_warnings.append(" ".join(str(message).split()))
     warnings.showwarning = show
+    _pending_warnings.clear()
     try:
         yield
     finally:
         warnings.showwarning = old
+        _pending_warnings.clear()
+
+
+def _flush_warnings() -> None:
+    for text in _pending_warnings:
+        click.echo(f"corona: warning: {text}", err=True)
+    _pending_warnings.clear()
 
 
 @contextlib.contextmanager
@@ -171,6 +185,7 @@ def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
                 _fail(f"{scene}: the scene's sample_count={spp} is out of range; allowed [1, {SPP_MAX}] "
                       "(or pass --spp N)")
         how = "" if variant else " (the fastest available: cuda > llvm > scalar)"
+        _flush_warnings()
         click.echo(f"corona: rendering with variant {v}{how}", err=True)  # after loading: errors stay one line
         res = render_to_files(loaded, out_dir, name, spp=spp, seed=seed, exposure=exposure)
     except (CoronaError, RuntimeError, ValueError, OSError) as err:
@@ -212,9 +227,12 @@ def lobe(out_path, as_json, wavelength, **params):
     # defaults, and a parameter the shape or process does not use is warned about)
     params = {k: v for k, v in params.items()
               if ctx.get_parameter_source(k) != click.core.ParameterSource.DEFAULT}
-    if not as_json and os.path.isdir(out_path):
-        _fail(f"--out {out_path!r} is a folder; expected a file path such as "
-              f"{os.path.join(out_path, 'lobe.png')!r}")
+    if not as_json:
+        if not out_path or os.path.isdir(out_path):
+            _fail(f"--out {out_path!r} is {'a folder' if out_path else 'empty'}; expected a file path "
+                  f"such as {os.path.join(out_path, 'lobe.png')!r}")
+        if not os.path.splitext(out_path)[1]:
+            out_path += ".png"          # what matplotlib would write: say so
     try:
         from .parameters import material_from_parameters
         m = material_from_parameters(**params)

@@ -162,12 +162,13 @@ SIZE_SPREAD_MAX = 0.5
 #: orientation=random: largest scatterer [µm] (circumradius × s_top, the 1 - 1e-7 quantile
 #: of s p(s) up to which the size average resolves the lobe; 1 without a size spread): the
 #: rotation average needs ~2.2 u R / symmetry angles at each of the radial table's u, a cost
-#: ∝ (R_max / λ)² (benchmarks/bench_slow_inputs.py: about a minute for a mask here).
+#: ∝ (R_max / λ)² (benchmarks/bench_slow_inputs.py at 25 µm: 7 s for a mask, 9 s for a heptagon).
 ROTATION_RADIUS_MAX = 25.0
 #: size_spread > 0 with a fixed anisotropic shape (a 2D table): the size average at each
 #: of the table's 131072 independent vertices costs (quadrature nodes) × (the shape's
 #: cost: its number of edges, 1 for an ellipse, 2 for a rectangle, 8 for a mask);
-#: above this many terms it is refused (about 30 s here, bench_slow_inputs.py).
+#: above this many terms it is refused (a heptagon at size_spread 0.5, right at the bound: ~40 s
+#: here, bench_slow_inputs.py).
 SIZE_AVERAGE_WORK_MAX = 1.2e9
 #: Largest lengths of the layer that are not sizes of the scatterer [µm].
 LENGTH_MAX = 2 * RADIUS_MAX

@@ -92,6 +92,8 @@ def load_scene(path: str, defines: dict | None = None):
     sensors = scene.sensors()
     if not sensors:
         raise CoronaError(f"{path}: the scene has no sensor")
+    if scene.integrator() is None:
+        raise CoronaError(f"{path}: the scene has no integrator (e.g. <integrator type=\"path\"/>)")
     size = [int(v) for v in sensors[0].film().size()]
     if min(size) < 1:
         raise CoronaError(f"{path}: film size {size[0]}x{size[1]} is empty; width and height must be >= 1")
@@ -126,7 +128,7 @@ def render_linear(scene, spp: int, seed: int = 0, progress: bool = True, desc: s
     for i, s in enumerate(tqdm(spp_pass, desc=desc, unit="pass", disable=not progress, leave=False)):
         try:
             img = np.array(mi.render(scene, spp=s, seed=seed * 1000 + i), dtype=np.float64)
-        except RuntimeError as err:
+        except Exception as err:  # RuntimeError mostly; a bare Exception for some scene problems
             if is_interrupt(err):
                 raise KeyboardInterrupt from None
             msg = one_line_error(err)
