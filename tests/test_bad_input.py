@@ -175,10 +175,10 @@ def test_python_api_rejects(files, name):
 # flat parameters: material_from_parameters (plugin and CLI vocabulary)
 # --------------------------------------------------------------------------
 PARAM_CASES = {
-    "radius-negative": ({"radius": -1.0}, ["radius=-1.0", "(0, 1000] µm"]),
-    "radius-zero": ({"radius": 0.0}, ["radius=0.0", "(0, 1000] µm"]),
-    "radius-nan": ({"radius": NAN}, ["radius=nan", "(0, 1000] µm"]),
-    "radius-inf": ({"radius": INF}, ["radius=inf", "(0, 1000] µm"]),
+    "radius-negative": ({"radius": -1.0}, ["radius=-1.0", "[0.001, 1000] µm"]),
+    "radius-zero": ({"radius": 0.0}, ["radius=0.0", "[0.001, 1000] µm"]),
+    "radius-nan": ({"radius": NAN}, ["radius=nan", "[0.001, 1000] µm"]),
+    "radius-inf": ({"radius": INF}, ["radius=inf", "[0.001, 1000] µm"]),
     "aspect-negative": ({"shape": "ellipse", "aspect": -1.0}, ["aspect=-1.0", "[0.2, 5]"]),
     "sides-two": ({"shape": "polygon", "sides": 2}, ["sides=2", ">= 3"]),
     "sides-fraction": ({"shape": "polygon", "sides": 3.5}, ["sides=3.5", ">= 3"]),
@@ -303,7 +303,7 @@ def test_plugin_accepts_mask_with_points(mi_variant, files):
 # (tests/test_cli.py covers: --radius -2, unknown options and commands, a
 # missing scene file, bad -D values and plugin parameters inside a scene)
 CLI_CASES = {
-    "radius-nan": (["lobe", "--radius", "nan"], ["radius=nan", "(0, 1000] µm"]),
+    "radius-nan": (["lobe", "--radius", "nan"], ["radius=nan", "[0.001, 1000] µm"]),
     "radius-not-a-number": (["lobe", "--radius", "big"], ["--radius", "'big'", "not a valid float"]),
     "unknown-process": (["lobe", "--process", "blob"], ["--process", "'blob'", "'poisson'"]),
     "unknown-shape": (["lobe", "--shape", "blob"], ["--shape", "'blob'", "'circle'"]),
@@ -342,7 +342,7 @@ def test_cli_rejects(files, name):
 
 @pytest.mark.parametrize("scene,fragments", [
     ("corrupt_xml", ["corrupt.xml", "Error parsing"]),
-    ("bad_bsdf_xml", ["bad_bsdf.xml (line 3", "radius=-1.0 is out of range", "(0, 1000] µm"]),
+    ("bad_bsdf_xml", ["bad_bsdf.xml (line 3", "radius=-1.0 is out of range", "[0.001, 1000] µm"]),
 ])
 def test_cli_render_bad_scene_one_line(files, scene, fragments):
     """The real console entry point (a separate process): Mitsuba's errors come out as one line."""
