@@ -110,6 +110,13 @@ def headline() -> list[str]:
         rows.append(("Render cost, sphere layer / opaque layer (5 µm, hard disk 0.4; BSDF call alone)",
                      f"{mie['render_ratio']:.2f}× (medians; minima {mie['render_ratio_minima']:.2f}×); "
                      f"per call {mie['bsdf_call']['ratio']:.2f}×", f"≤ {mie['render_goal']:g}×"))
+    si = _load("slow_inputs")
+    if si:
+        done = {k: v for k, v in si["results"].items() if v.get("seconds") is not None}
+        if done:
+            worst = max(done.items(), key=lambda kv: kv[1]["seconds"])
+            rows.append(("Slowest accepted input's table build (" + worst[0] + ")",
+                         f"{worst[1]['seconds']:.1f} s", "about a minute at most, progress bar > 2 s"))
     h = _load("hard_disk")
     if h:
         rows.append(("Hard-disk structure-factor lookup (cold, 2^18 points)",

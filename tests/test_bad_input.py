@@ -153,7 +153,7 @@ API_CASES = {
     "points-header-only": (lambda f: corona.PointSet.from_file(f["header_csv"]),
                            ["header.csv", "contains no points"]),
     "points-garbage": (lambda f: corona.PointSet.from_file(f["garbage_txt"]),
-                       ["garbage.txt", "line 2", "'three four'"]),
+                       ["garbage.txt", "line 2"]),
     "points-binary": (lambda f: corona.PointSet.from_file(f["binary_txt"]), ["binary.txt", "not a text file"]),
     "points-broken-npy": (lambda f: corona.PointSet.from_file(f["broken_npy"]),
                           ["broken.npy", "not a readable .npy"]),
@@ -175,16 +175,16 @@ def test_python_api_rejects(files, name):
 # flat parameters: material_from_parameters (plugin and CLI vocabulary)
 # --------------------------------------------------------------------------
 PARAM_CASES = {
-    "radius-negative": ({"radius": -1.0}, ["radius=-1.0", "> 0"]),
-    "radius-zero": ({"radius": 0.0}, ["radius=0.0", "> 0"]),
-    "radius-nan": ({"radius": NAN}, ["radius=nan", "> 0"]),
-    "radius-inf": ({"radius": INF}, ["radius=inf", "> 0"]),
-    "aspect-negative": ({"shape": "ellipse", "aspect": -1.0}, ["aspect=-1.0", "> 0"]),
+    "radius-negative": ({"radius": -1.0}, ["radius=-1.0", "[0.001, 1000] µm"]),
+    "radius-zero": ({"radius": 0.0}, ["radius=0.0", "[0.001, 1000] µm"]),
+    "radius-nan": ({"radius": NAN}, ["radius=nan", "[0.001, 1000] µm"]),
+    "radius-inf": ({"radius": INF}, ["radius=inf", "[0.001, 1000] µm"]),
+    "aspect-negative": ({"shape": "ellipse", "aspect": -1.0}, ["aspect=-1.0", "[0.2, 5]"]),
     "sides-two": ({"shape": "polygon", "sides": 2}, ["sides=2", ">= 3"]),
     "sides-fraction": ({"shape": "polygon", "sides": 3.5}, ["sides=3.5", ">= 3"]),
     "angle-huge": ({"shape": "square", "angle": 1e9}, ["angle=1000000000.0", "[-360, 360]"]),
-    "edge-width-negative": ({"edge_width": -0.1}, ["edge_width=-0.1", "[0, inf)"]),
-    "size-spread": ({"size_spread": 2.0}, ["size_spread=2.0", "[0, 1]"]),
+    "edge-width-negative": ({"edge_width": -0.1}, ["edge_width=-0.1", "[0, 1000] µm"]),
+    "size-spread": ({"size_spread": 2.0}, ["size_spread=2.0", "[0, 0.5]"]),
     "poisson-zero": ({"process": "poisson", "area_fraction": 0.0}, ["area_fraction=0.0", "(0, 1)"]),
     "poisson-one": ({"process": "poisson", "area_fraction": 1.0}, ["area_fraction=1.0", "(0, 1)"]),
     "hard-disk-eta": ({"process": "hard-disk", "area_fraction": 0.8}, ["area_fraction=0.8", "≤ 0.72"]),
@@ -198,7 +198,7 @@ PARAM_CASES = {
                                ["area_fraction=0.8", "lattice-square", "(0, 0.7854]"]),
     "lattice-hex-overlap": ({"process": "lattice-hex", "area_fraction": 0.95},
                             ["area_fraction=0.95", "lattice-hex", "(0, 0.9069]"]),
-    "jitter-negative": ({"process": "lattice-square", "jitter": -1.0}, ["jitter=-1.0", "[0, inf)"]),
+    "jitter-negative": ({"process": "lattice-square", "jitter": -1.0}, ["jitter=-1.0", "[0, 2000] µm"]),
     "albedo": ({"albedo": 2.0}, ["albedo=2.0", "[0, 1]"]),
     "unknown-shape": ({"shape": "blob"}, ["shape='blob'", "'circle'"]),
     "unknown-process": ({"process": "blob"}, ["process='blob'", "'poisson'", "'hard-disk'"]),
@@ -303,7 +303,7 @@ def test_plugin_accepts_mask_with_points(mi_variant, files):
 # (tests/test_cli.py covers: --radius -2, unknown options and commands, a
 # missing scene file, bad -D values and plugin parameters inside a scene)
 CLI_CASES = {
-    "radius-nan": (["lobe", "--radius", "nan"], ["radius=nan", "> 0"]),
+    "radius-nan": (["lobe", "--radius", "nan"], ["radius=nan", "[0.001, 1000] µm"]),
     "radius-not-a-number": (["lobe", "--radius", "big"], ["--radius", "'big'", "not a valid float"]),
     "unknown-process": (["lobe", "--process", "blob"], ["--process", "'blob'", "'poisson'"]),
     "unknown-shape": (["lobe", "--shape", "blob"], ["--shape", "'blob'", "'circle'"]),
@@ -342,7 +342,7 @@ def test_cli_rejects(files, name):
 
 @pytest.mark.parametrize("scene,fragments", [
     ("corrupt_xml", ["corrupt.xml", "Error parsing"]),
-    ("bad_bsdf_xml", ["bad_bsdf.xml (line 3", "radius=-1.0 is out of range", "> 0"]),
+    ("bad_bsdf_xml", ["bad_bsdf.xml (line 3", "radius=-1.0 is out of range", "[0.001, 1000] µm"]),
 ])
 def test_cli_render_bad_scene_one_line(files, scene, fragments):
     """The real console entry point (a separate process): Mitsuba's errors come out as one line."""

@@ -159,7 +159,7 @@ def test_writer_killed_mid_write_leaves_no_table(tmp_path, monkeypatch):
 def test_cache_clear_counts_tables_not_temporaries(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     tables.cached({"clear-test": 1}, lambda: {"values": np.ones(3)})
-    (tmp_path / ".tmp-deadbeef-x.npz").write_bytes(b"half")
+    (tmp_path / f".tmp-{'deadbeef' * 4}-x1y2.npz").write_bytes(b"half")   # a killed writer's
     assert tables.cache_info()["tables"] == 1
     assert tables.cache_clear() == 1 and os.listdir(tmp_path) == []
 

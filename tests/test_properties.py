@@ -1,7 +1,14 @@
 """Property tests (hypothesis) over random valid materials (issue 8).
 
-For every shape (circle, square, hexagon, ellipse), radius 0.2–500 µm
-(log-uniform), area fraction from near 0 up to each process's limit
+Over the whole accepted range of every parameter (issue 15; the ranges come
+from ``corona.parameters.SPEC``, ends included): every shape (circle, square,
+rectangle, ellipse, polygons of 3–50 sides), radius from the smallest to the
+largest allowed circumradius (log-uniform), aspect, angle, soft edges up to the
+circumradius, exclusion diameters and jitters up to their maxima; a quarter of
+the draws add a size spread (0–0.5, both distributions) and/or random
+orientation, at sizes where their tables build in well under a second (the
+slowest corners are timed by benchmarks/bench_slow_inputs.py); area fraction
+from near 0 up to each process's limit
 (Poisson, hard disks, RSA, jittered square and hexagonal lattices), both modes, incidence up to 89.9° and
 wavelengths over the tables' whole range [360, 830] nm:
 
@@ -28,7 +35,7 @@ from hypothesis import strategies as st
 import corona
 from corona import processes
 from corona.processes import hard_disk
-from corona.parameters import make_shape, material_from_parameters, DEFAULTS
+from corona.parameters import DEFAULTS, RADIUS_MAX, SPEC, _outline, make_shape, material_from_parameters
 
 from bsdf_checks import interaction
 
@@ -53,23 +60,60 @@ def _max_area_fraction(params: dict) -> float:
         return shape.area / (sd * sd)
     if params["process"] == "lattice-hex":         # cell (√3/2) σ²
         return 2.0 * shape.area / (math.sqrt(3.0) * sd * sd)
-    return LIMITS[params["process"]] * shape.area / (math.pi * sd * sd / 4.0)
+    sd = params.get("exclusion_diameter", sd)
+    return min(LIMITS[params["process"]] * shape.area / (math.pi * sd * sd / 4.0), 1 - 1e-6)
+
+
+def _log_uniform(lo, hi):
+    """Log-uniform in [lo, hi], the ends drawn often."""
+    return st.one_of(st.sampled_from([lo, hi]), st.floats(math.log(lo), math.log(hi)).map(math.exp)
+                     .map(lambda v: min(max(v, lo), hi)))
+
+
+def _uniform(lo, hi):
+    return st.one_of(st.sampled_from([lo, hi]), st.floats(lo, hi))
 
 
 @st.composite
 def materials(draw):
-    """Flat parameters of a random valid material."""
-    kind = draw(st.sampled_from(["circle", "square", "hexagon", "ellipse"]))
-    p = {"shape": "polygon" if kind == "hexagon" else kind, "sides": 6}
-    p["radius"] = draw(st.one_of(st.sampled_from([0.2, 500.0]),
-                                 st.floats(math.log(0.2), math.log(500.0)).map(math.exp)))
+    """Flat parameters of a random valid material (the whole range of each parameter)."""
+    kind = draw(st.sampled_from(["circle", "square", "hexagon", "polygon", "ellipse", "rectangle"]))
+    p = {"shape": "polygon" if kind == "hexagon" else kind}
+    if kind == "hexagon":
+        p["sides"] = 6
+    elif kind == "polygon":
+        p["sides"] = draw(_uniform(SPEC["sides"].low, SPEC["sides"].high).map(int))
     if kind != "circle":
-        p["angle"] = draw(st.floats(-90.0, 90.0))
-    if kind == "ellipse":
-        p["aspect"] = draw(st.floats(0.4, 2.5))
+        p["angle"] = draw(_uniform(SPEC["angle"].low, SPEC["angle"].high))
+    if kind in ("ellipse", "rectangle"):
+        p["aspect"] = draw(_log_uniform(SPEC["aspect"].low, SPEC["aspect"].high))
+    modified = kind in ("circle", "square", "hexagon") and draw(st.integers(0, 3)) == 0
+    if modified:   # size spread / random orientation, at sizes whose tables build quickly
+        p["size_spread"] = draw(_uniform(0.0, SPEC["size_spread"].high))
+        if p["size_spread"] > 0:
+            p["size_distribution"] = draw(st.sampled_from(SPEC["size_distribution"].choices))
+        if kind != "circle":
+            p["orientation"] = draw(st.sampled_from(["fixed", "random"]))
+            if p["orientation"] == "fixed":          # a 2D size average: small spreads only
+                p["size_spread"] = min(p["size_spread"], 0.1)
+        top = 50.0 if kind == "circle" else 2.0
+        p["radius"] = draw(_log_uniform(SPEC["radius"].low, top))
+    else:
+        p["radius"] = draw(_log_uniform(SPEC["radius"].low, SPEC["radius"].high))
+    R = _outline(p["shape"], p["radius"], {**DEFAULTS, **p}).length_scale   # the circumradius <= its maximum
+    if R > RADIUS_MAX:
+        p["radius"] *= RADIUS_MAX / R * (1 - 1e-9)
+        R = RADIUS_MAX * (1 - 1e-9)
+    if draw(st.integers(0, 3)) == 0:
+        p["edge_width"] = draw(_uniform(0.0, 1.0)) * R * (1 - 1e-9)
     p["process"] = draw(st.sampled_from(["poisson", "hard-disk", "rsa", "lattice-square", "lattice-hex"]))
     if p["process"].startswith("lattice"):
-        p["jitter"] = draw(st.floats(0.0, 0.5)) * p["radius"]
+        p["jitter"] = draw(_log_uniform(1e-6, SPEC["jitter"].high)) if draw(st.booleans()) else 0.0
+    if p["process"] in ("hard-disk", "rsa") and draw(st.booleans()):
+        sd = make_shape({**DEFAULTS, **p}).exclusion_diameter
+        p["exclusion_diameter"] = min(sd * draw(_log_uniform(1.0, 4.0)), SPEC["exclusion_diameter"].high)
+        if p["exclusion_diameter"] < sd:
+            del p["exclusion_diameter"]
     # relative to the process limit: near 0, in between, at the limit
     t = draw(st.one_of(st.sampled_from([1e-6, 1e-3, 0.999, 1.0]), st.floats(1e-6, 1.0)))
     p["area_fraction"] = t * _max_area_fraction(p)

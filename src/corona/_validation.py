@@ -17,6 +17,9 @@ class CoronaWarning(UserWarning):
 
 
 def check_positive(name: str, value, unit: str = "") -> float:
+    if isinstance(value, (bool, np.bool_)):          # float(True) would be 1.0
+        raise CoronaError(f"{name}={value!r} is not a number; expected a finite value > 0"
+                          + (f" {unit}" if unit else ""))
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -30,6 +33,8 @@ def check_positive(name: str, value, unit: str = "") -> float:
 
 def check_range(name: str, value, lo: float, hi: float, *, lo_open: bool = False,
                 hi_open: bool = False, unit: str = "") -> float:
+    if isinstance(value, (bool, np.bool_)):          # float(True) would be 1.0
+        raise CoronaError(f"{name}={value!r} is not a number")
     try:
         v = float(value)
     except (TypeError, ValueError):

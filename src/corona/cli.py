@@ -36,17 +36,62 @@ def _fail(err) -> None:
     raise CoronaUsageError(one_line_error(err))
 
 
+class Interrupted(click.ClickException):
+    """Ctrl-C: one line, exit code 130 (128 + SIGINT), as shells report it."""
+    exit_code = 130
+
+    def __init__(self):
+        super().__init__("interrupted")
+
+    def show(self, file=None):
+        click.echo("\ncorona: interrupted", err=True, file=file)
+
+
 class OneLineErrorGroup(click.Group):
     """Usage errors (bad option values, unknown choices or commands) as one
-    line on stderr, exit code 2, like every other corona error."""
+    line on stderr, exit code 2, like every other corona error; Ctrl-C exits
+    130 wherever it lands; warnings are one line too (``corona: warning: ...``)."""
 
     def make_context(self, *args, **kwargs):
         with _one_line_usage_errors():
             return super().make_context(*args, **kwargs)
 
     def invoke(self, ctx):
-        with _one_line_usage_errors():
-            return super().invoke(ctx)
+        with _one_line_usage_errors(), _one_line_warnings():
+            try:
+                out = super().invoke(ctx)
+            except KeyboardInterrupt:
+                raise Interrupted() from None
+            _flush_warnings()
+            return out
+
+
+_pending_warnings: list = []
+
+
+@contextlib.contextmanager
+def _one_line_warnings():
+    """Python warnings (e.g. CoronaWarning about unused parameters) as one line each on
+    stderr, ``corona: warning: ...``, shown once the input is accepted (before a render
+    starts, or at the end): a command that fails prints its one error line only."""
+    import warnings
+    old = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        _pending_warnings.append(" ".join(str(message).split()))
+    warnings.showwarning = show
+    _pending_warnings.clear()
+    try:
+        yield
+    finally:
+        warnings.showwarning = old
+        _pending_warnings.clear()
+
+
+def _flush_warnings() -> None:
+    for text in _pending_warnings:
+        click.echo(f"corona: warning: {text}", err=True)
+    _pending_warnings.clear()
 
 
 @contextlib.contextmanager
@@ -68,17 +113,57 @@ def main():
 # ----------------------------------------------------------------------
 # render
 # ----------------------------------------------------------------------
+#: Largest samples per pixel (``--spp`` or the scene's ``sample_count``).
+SPP_MAX = 1 << 16
+#: Largest ``--seed``: the passes use the seeds ``seed·1000 + i`` (i < 256 passes), a uint32.
+SEED_MAX = (2**32 - 1 - 255) // 1000
+
+
+def _finite_positive(ctx, param, value):
+    """``--exposure``: a finite number > 0 (click's FloatRange lets nan and inf through)."""
+    import math
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise click.BadParameter(f"{value!r} is out of range; allowed a finite value > 0", ctx, param)
+    return value
+
+
+def _plain_name(name: str) -> str:
+    """``--name``: a plain file name (no folder part), else one error line."""
+    bad = (not name or name in (".", "..") or "/" in name or (os.altsep and os.altsep in name)
+           or os.sep in name or "\0" in name)
+    if bad:
+        _fail(f"--name {name!r} is not a plain file name; expected a name without a folder "
+              "(the files go into --out)")
+    return name
+
+
+def _output_folder(out_dir: str) -> str:
+    """``--out``: created if missing and writable, else one error line."""
+    if not out_dir:
+        _fail("--out '' is empty; expected a folder")
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        _fail(f"--out {out_dir!r} is a file, not a folder")
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+        import tempfile
+        with tempfile.TemporaryFile(dir=out_dir):
+            pass
+    except OSError as err:
+        _fail(f"--out {out_dir!r} is not a writable folder: {err.strerror or err}")
+    return out_dir
+
+
 @main.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--spp", type=click.IntRange(min=1), default=None,
+@click.option("--spp", type=click.IntRange(min=1, max=SPP_MAX), default=None,
               help="Samples per pixel (default: the scene's sample_count, e.g. -D spp=N).")
 @click.option("--variant", default=None, help="Mitsuba variant (default: the fastest, cuda > llvm > scalar spectral).")
 @click.option("--out", "out_dir", default="out", show_default=True, help="Output folder.")
 @click.option("--name", default=None, help="Output file stem (default: the scene file's name).")
-@click.option("--exposure", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--exposure", type=float, default=None, callback=_finite_positive,
               help="PNG: scale of the linear values (default: the 99.5th luminance percentile maps to white).")
 @click.option("-D", "defines", multiple=True, metavar="KEY=VALUE", help="Scene parameter ($KEY in the XML).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, show_default=True)
 def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
     """Render SCENE.xml to EXR (linear sRGB) and PNG (tonemapped sRGB), with a progress bar."""
     if not os.path.isfile(scene):
@@ -91,16 +176,25 @@ def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
             _fail(f"-D {d!r}: expected KEY=VALUE")
         k, v = d.split("=", 1)
         kv[k.strip()] = v.strip()
+    name = _plain_name(name if name is not None else os.path.splitext(os.path.basename(scene))[0])
+    _output_folder(out_dir)
     try:
         from .render import load_scene, render_to_files, scene_spp, setup_variant
         v = setup_variant(variant)
         loaded = load_scene(scene, kv)
-        spp = spp or scene_spp(loaded)
+        if spp is None:
+            spp = scene_spp(loaded)
+            if not 1 <= spp <= SPP_MAX:
+                _fail(f"{scene}: the scene's sample_count={spp} is out of range; allowed [1, {SPP_MAX}] "
+                      "(or pass --spp N)")
         how = "" if variant else " (the fastest available: cuda > llvm > scalar)"
+        _flush_warnings()
         click.echo(f"corona: rendering with variant {v}{how}", err=True)  # after loading: errors stay one line
-        name = name or os.path.splitext(os.path.basename(scene))[0]
         res = render_to_files(loaded, out_dir, name, spp=spp, seed=seed, exposure=exposure)
-    except (CoronaError, RuntimeError, ValueError) as err:
+    except (CoronaError, RuntimeError, ValueError, OSError) as err:
+        from .render import is_interrupt
+        if is_interrupt(err):
+            raise KeyboardInterrupt from None
         _fail(err)
     click.echo(f"{res['png']}  ({res['exr']}, {res['seconds']:.1f} s, {spp} spp, {res['variant']})")
 
@@ -192,6 +286,17 @@ def material_options(f):
 def lobe(out_path, as_json, wavelength, **params):
     """Pictures (or numbers) of a material's form factor, structure factor, lobe and corona."""
     import numpy as np
+    ctx = click.get_current_context()
+    # only the options given on the command line count as given (the others keep their
+    # defaults, and a parameter the shape or process does not use is warned about)
+    params = {k: v for k, v in params.items()
+              if ctx.get_parameter_source(k) != click.core.ParameterSource.DEFAULT}
+    if not as_json:
+        if not out_path or os.path.isdir(out_path):
+            _fail(f"--out {out_path!r} is {'a folder' if out_path else 'empty'}; expected a file path "
+                  f"such as {os.path.join(out_path, 'lobe.png')!r}")
+        if not os.path.splitext(out_path)[1]:
+            out_path += ".png"          # what matplotlib would write: say so
     try:
         from .parameters import material_from_parameters
         m = material_from_parameters(**params)
@@ -238,17 +343,24 @@ def tables():
 def tables_info():
     """Show where the cache is, how many tables and how big."""
     from . import tables as t
-    info = t.cache_info()
+    try:
+        info = t.cache_info()
+    except CoronaError as err:
+        _fail(err)
     click.echo(f"cache: {info['path']}\ntables: {info['tables']}\nsize: {info['bytes'] / 1e6:.2f} MB\n"
                f"format: {info['format']}")
 
 
 @tables.command("clear")
 def tables_clear():
-    """Delete every cached table."""
+    """Delete every cached table (only the files the cache wrote)."""
     from . import tables as t
-    n = t.cache_clear()
-    click.echo(f"removed {n} table(s) from {t.cache_dir()}")
+    try:
+        n = t.cache_clear()
+        folder = t.cache_dir()
+    except CoronaError as err:
+        _fail(err)
+    click.echo(f"removed {n} table(s) from {folder}")
 
 
 # ----------------------------------------------------------------------
@@ -277,7 +389,7 @@ def doctor():
         info = t.cache_info()
         lines.append(f"table cache: {info['path']} ({info['tables']} tables, {info['bytes'] / 1e6:.2f} MB, "
                      f"format {info['format']})")
-    except OSError as err:
+    except (OSError, CoronaError) as err:
         lines.append(f"table cache: NOT usable ({err})")
     click.echo("\n".join(lines))
 

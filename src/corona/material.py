@@ -28,6 +28,8 @@ SMALL_RADIUS_WAVELENGTHS = 2.0
 #: Largest relative change of the lobe from interpolating between area-fraction rows
 #: (:meth:`Material.area_fraction_rows`).
 ROW_TOLERANCE = 0.001
+#: Table builds longer than this [s] show a progress bar on stderr.
+PROGRESS_DELAY = 2.0
 _small_radius_warned = False
 
 
@@ -283,14 +285,12 @@ class Material:
         if radial:
             if not self.isotropic:
                 raise CoronaError(f"radial lobe terms need an isotropic material; {self!r} is not")
-            P = shape.form_factor_radial(q)
-            C = shape.coherent_form_factor_radial(q)
+            P, C = self._form_factors(q, radial=True)
             S = S_smooth = process.structure_factor_radial(q, shape)
         else:
             if q.ndim == 0 or q.shape[-1] != 2:
                 raise CoronaError(f"u must have shape (..., 2), got {q.shape}")
-            P = shape.form_factor(q)
-            C = shape.coherent_form_factor(q)
+            P, C = self._form_factors(q, radial=False)
             if cell is not None and not process.isotropic and hasattr(process, "bragg_cell_mean"):
                 S_smooth = process.background_cell_mean(q, cell / R)
                 S = S_smooth + process.bragg_cell_mean(q, cell / R) if structure_factor else None
@@ -307,6 +307,13 @@ class Material:
     def lobe_dimensionless_radial(self, u) -> np.ndarray:
         """Exact radial ``v(|u|)`` for isotropic materials (:meth:`lobe_terms`)."""
         return self.lobe_terms(u, radial=True)["v"]
+
+    def _form_factors(self, q, radial: bool):
+        """(form factor ``⟨|Â|²⟩/⟨|A|⟩``, coherent form factor ``|⟨Â⟩|²/⟨|A|⟩``) [µm²]
+        at ``q`` (..., 2), or at ``|q|`` when ``radial``, from one pass over the shape."""
+        intensity, amplitude = self.shape._both_radial(q) if radial else self.shape._both(q)
+        area = float(self.shape.area)
+        return intensity / area, np.abs(amplitude) ** 2 / area
 
     def _u(self, d, wavelength):
         d = check_finite_array("d", d)
@@ -416,7 +423,7 @@ class Material:
             n = min(n, tables.RADIAL_MAX_SAMPLES)
             du = u_max / (n - 1)
             u = np.arange(n) * du
-            out = tables.RadialTable(du, self.lobe_dimensionless_radial(u)).arrays()
+            out = tables.RadialTable(du, self._in_chunks(self.lobe_dimensionless_radial, u)).arrays()
             P = self.shape.form_factor_radial(u / R) / R**2
             out["form_total"] = np.array(tables.RadialTable(du, P).total)
             return out
@@ -431,9 +438,9 @@ class Material:
         if kind == "analytic":
             inten, amp = rlobe.terms_amplitudes(self.analytic_terms, q)
             P, C = inten / self.shape.area, np.abs(amp) ** 2 / self.shape.area
-        else:
-            inten, amp = self.shape._both(q)
-            P, C = inten / self.shape.area, np.abs(amp) ** 2 / self.shape.area
+        else:   # in blocks, with a progress bar for slow shapes (half the grid: v(-u) = v(u))
+            P, C = np.moveaxis(self._in_chunks(lambda x: np.stack(self._form_factors(x, radial=False), -1), q),
+                               -1, 0)
         edge = np.ones(n)
         edge[0] = edge[-1] = 0.5
         form_total = float(np.sum(P * np.outer(edge, edge)) * cell**2 / R**2)   # trapezoid = bilinear
@@ -574,6 +581,41 @@ class Material:
                 if i == 0 or np.float32(k) != np.float32(sorted(vals)[i - 1])]
         return {"area_fraction": np.array(keys), "values": np.stack([vals[k] for k in keys]).astype(np.float32),
                 "geometry": np.array(geo), "error": np.array(worst if not todo else np.inf)}
+
+    def _in_chunks(self, f, points) -> np.ndarray:
+        """``f(points)`` evaluated in blocks, with a progress bar (on stderr) when
+        the table takes longer than ``PROGRESS_DELAY`` seconds.
+
+        ``points`` is (n,) (radial) or a centred (rows, cols, 2) grid (the
+        table's vertices, ``u[n-1-i, n-1-j] = -u[i, j]``).  Radial blocks run
+        from the largest u down, so that a process caching its structure factor
+        up to the largest q (a measured point set) computes it once.  On a grid
+        only the first half of the rows is evaluated: the lobe of a real
+        profile and a real point pattern is even, ``v(-u) = v(u)``
+        (``Â(-q) = Â(q)*``, ``S(-q) = S(q)``), so the other half is its mirror.
+        """
+        from tqdm import tqdm
+        points = np.asarray(points)
+        n = points.shape[0]
+        grid = points.ndim == 3
+        rows = (n + 1) // 2 if grid else n
+        per_block = max(1, 8192 // (points.shape[1] if grid else 1))
+        starts = list(range(0, rows, per_block))
+        if not grid:
+            starts.reverse()
+        out = None
+        with tqdm(total=rows * (points.shape[1] if grid else 1), unit="pt", leave=False,
+                  delay=PROGRESS_DELAY, desc="corona: building the lobe table") as bar:
+            for a in starts:
+                b = min(a + per_block, rows)
+                block = np.asarray(f(points[a:b]))
+                if out is None:
+                    out = np.empty((n,) + block.shape[1:], dtype=block.dtype)
+                out[a:b] = block
+                bar.update(block.shape[0] * (block.shape[1] if grid else 1))
+        if grid:
+            out[rows:] = out[:n - rows][::-1, ::-1]
+        return out
 
     def lobe_tabulated(self, d, wavelength) -> np.ndarray:
         """The lobe as the renderer evaluates it (:attr:`render_lobe`)."""

@@ -106,6 +106,8 @@ def _read_props(props) -> tuple[dict, dict]:
             textures[name] = value
             continue
         if SPEC[name].kind in ("float", "int"):
+            if isinstance(value, bool):   # <boolean name="radius" value="true"/> is no size
+                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; allowed {SPEC[name].allowed}")
             try:
                 value = float(value)
             except (TypeError, ValueError):
@@ -183,6 +185,12 @@ def _array(dtype, values):
     else:
         a = np.asarray(values, dtype=np.float32)
     return a if dr.is_array_v(dtype) is False else dtype(a)
+
+
+def _positive(x):
+    """``x`` where it is > 0, else 1: a divisor safe in scalar variants too, where
+    ``dr.select`` evaluates both branches (``value / pdf`` raised ZeroDivisionError)."""
+    return dr.select(x > 0, x, 1.0)
 
 
 def _gather(dtype, source, index, active=True):
@@ -722,7 +730,7 @@ class CoronaBSDFMixin:
 
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, layer)
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
-        weight = value / dr.select(pdf > 0, pdf, 1.0)                    # no 0/0 (scalar variants too)
+        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)          # no 0/0 (scalar variants too)
         if self.has_pane:
             w_coh, w_spec = self._delta_weights(layer, cos_i)
             bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)

@@ -13,6 +13,7 @@ here, at the boundary, with one clear error (name, value, allowed range).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 from ._validation import CoronaError, check_choice, check_positive, check_range
@@ -39,6 +40,12 @@ class Parameter:
         Allowed range of a number; ``low_open`` / ``high_open`` exclude the ends.
     plugin_only : bool
         A rendering option of the Mitsuba plugin, not a property of the material.
+    applies : tuple of str
+        When the parameter is used: any one of the conditions ``"shape=ellipse"``,
+        ``"process=points"``, ``"size_spread>0"`` suffices; empty: always.  A
+        parameter given where none holds is ignored, with one
+        :class:`corona.CoronaWarning` naming it (as Mitsuba warns about unused
+        properties).
     """
 
     name: str
@@ -52,6 +59,37 @@ class Parameter:
     low_open: bool = False
     high_open: bool = False
     plugin_only: bool = False
+    applies: tuple = ()
+
+    def applies_to(self, params: dict) -> bool:
+        """True when this parameter is used by the layer described by ``params``."""
+        for cond in self.applies:
+            if ">" in cond:
+                name, limit = cond.split(">")
+                try:
+                    if float(params.get(name) or 0.0) > float(limit):
+                        return True
+                except (TypeError, ValueError):
+                    return True     # a bad value is reported by its own check
+            else:
+                name, value = cond.split("=")
+                if params.get(name) == value:
+                    return True
+        return not self.applies
+
+    @property
+    def used_with(self) -> str:
+        """The conditions of :attr:`applies` as a short text (``shape: ellipse, rectangle``)."""
+        if not self.applies:
+            return "all"
+        groups: dict[str, list] = {}
+        for cond in self.applies:
+            if ">" in cond:
+                groups.setdefault(cond.replace(">", " > "), [])
+            else:
+                name, value = cond.split("=")
+                groups.setdefault(name, []).append(value)
+        return "; ".join(f"{k}: {', '.join(v)}" if v else k for k, v in groups.items())
 
     @property
     def allowed(self) -> str:
@@ -75,7 +113,7 @@ class Parameter:
                 raise CoronaError(f"{self.name}={value!r} is not a text; expected a {self.allowed}")
             return value
         if self.kind == "int":
-            ok = not isinstance(value, bool)
+            ok = not _is_bool(value)
             try:
                 ok = ok and float(value).is_integer() and self.low <= float(value) <= self.high
             except (TypeError, ValueError, OverflowError):
@@ -84,12 +122,15 @@ class Parameter:
                 raise CoronaError(f"{self.name}={value!r} is out of range; allowed integers "
                                   f">= {self.low:g} and <= {self.high:g}")
             return int(value)
-        if isinstance(value, bool):
+        if _is_bool(value):
             raise CoronaError(f"{self.name}={value!r} is not a number; allowed {self.allowed}{unit}")
-        if self.low == 0.0 and self.low_open and self.high == math.inf:
-            return check_positive(self.name, value, self.unit)        # "a finite value > 0"
         return check_range(self.name, value, self.low, self.high, lo_open=self.low_open,
                            hi_open=self.high_open, unit=self.unit)
+
+
+def _is_bool(value) -> bool:
+    import numpy as np
+    return isinstance(value, (bool, np.bool_))
 
 
 SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon", "mask", "mixture", "sphere")
@@ -100,53 +141,99 @@ MODES = ("aperture", "particle")
 SAMPLINGS = ("lobe", "cosine")
 SUBSTRATES = ("none", "glass")
 SUBSTRATE_SIDES = ("front", "back")
-MAX_SIDES = 100_000
+#: Largest circumradius of a scatterer [µm] (the length R of ``u = 2π R |d| / λ``).
+#: The radial table (``tables.RADIAL_MAX_SAMPLES`` samples up to |d| = 2 at 360 nm)
+#: has a step of 0.14 in u there, which resolves the Airy core (first zero at
+#: u = 3.83) to 0.1 % in energy; at 1 mm the diffraction lobe is already narrower
+#: than 0.03°, below what a render resolves (docs/physics.md).
+RADIUS_MAX = 1000.0
+#: Smallest radius [µm] (1 nm, far below where scalar diffraction means anything):
+#: below ~1e-90 µm the area R² underflows and the lobe turns NaN.
+RADIUS_MIN = 1e-3
+#: Ellipse / rectangle aspect ratios: the 2D table spans |u| <= 64 along the
+#: long axis, so more elongated shapes lose more of their lobe's energy outside
+#: it than a square does (3 %; 6 % at aspect 10, 67 % at 100).
+ASPECT_MIN, ASPECT_MAX = 0.2, 5.0
+#: More sides than this: the regular polygon is the circle of equal area within the 2D table's
+#: range (|u| <= 64) to 3.5e-4 of the lobe (L1 norm; 6e-3 at 20 sides): use shape=circle.
+MAX_SIDES = 50
+#: Relative std of the size: the s⁴-weighted sizes that dominate the lobe reach
+#: 45 × the mean at 0.5 (lognormal, 1 - 1e-10 quantile), where a hard core built on
+#: the mean shape no longer keeps them apart, and the table cost grows with them.
+SIZE_SPREAD_MAX = 0.5
+#: orientation=random: largest scatterer [µm] (circumradius × s_top, the 1 - 1e-7 quantile
+#: of s p(s) up to which the size average resolves the lobe; 1 without a size spread): the
+#: rotation average needs ~2.2 u R / symmetry angles at each of the radial table's u, a cost
+#: ∝ (R_max / λ)² (benchmarks/bench_slow_inputs.py: about a minute for a mask here).
+ROTATION_RADIUS_MAX = 25.0
+#: size_spread > 0 with a fixed anisotropic shape (a 2D table): the size average at each
+#: of the table's 131072 independent vertices costs (quadrature nodes) × (the shape's
+#: cost: its number of edges, 1 for an ellipse, 2 for a rectangle, 8 for a mask);
+#: above this many terms it is refused (about 30 s here, bench_slow_inputs.py).
+SIZE_AVERAGE_WORK_MAX = 1.2e9
+#: Largest lengths of the layer that are not sizes of the scatterer [µm].
+LENGTH_MAX = 2 * RADIUS_MAX
+
+_SHAPES_WITH_RADIUS = tuple(f"shape={s}" for s in ("circle", "ellipse", "square", "rectangle", "polygon",
+                                                   "sphere"))
+_ORIENTED = tuple(f"shape={s}" for s in ("ellipse", "square", "rectangle", "polygon", "mixture"))
+_ANISOTROPIC = tuple(f"shape={s}" for s in ("ellipse", "square", "rectangle", "polygon", "mask", "mixture"))
 
 #: Every parameter of a corona layer, in the order of the tables.
 PARAMETERS: tuple[Parameter, ...] = (
     Parameter("shape", "choice", "", "circle", "scatterer shape", SHAPES),
     Parameter("radius", "float", "µm", 0.5, "circle / sphere radius; ellipse semi-axis x; square/rectangle "
-              "half-width; polygon circumradius", low=0.0, low_open=True, high_open=True),
+              "half-width; polygon circumradius (the scatterer's circumradius must stay <= "
+              f"{RADIUS_MAX:g} µm)", low=RADIUS_MIN, high=RADIUS_MAX, applies=_SHAPES_WITH_RADIUS),
     Parameter("ior", "float", "", None, "shape=sphere: refractive index n of the droplets relative to "
               "air; default water at 20 °C with its dispersion (Daimon & Masumura 2007)",
-              low=0.0, low_open=True, high_open=True),
+              low=0.0, low_open=True, high_open=True, applies=("shape=sphere",)),
     Parameter("ior_imag", "float", "", 0.0, "shape=sphere: absorption index κ (m = n + iκ; needs ior)",
-              low=0.0, high_open=True),
+              low=0.0, high_open=True, applies=("shape=sphere",)),
     Parameter("aspect", "float", "", 1.0, "ellipse / rectangle: extent along y over x",
-              low=0.0, low_open=True, high_open=True),
-    Parameter("sides", "int", "", 6, "polygon: number of sides", low=3, high=MAX_SIDES),
-    Parameter("angle", "float", "degree", 0.0, "rotation of anisotropic shapes", low=-360.0, high=360.0),
+              low=ASPECT_MIN, high=ASPECT_MAX,
+              applies=("shape=ellipse", "shape=rectangle", "shape=mixture")),
+    Parameter("sides", "int", "", 6, "polygon: number of sides", low=3, high=MAX_SIDES,
+              applies=("shape=polygon", "shape=mixture")),
+    Parameter("angle", "float", "degree", 0.0, "rotation of anisotropic shapes", low=-360.0, high=360.0,
+              applies=_ORIENTED),
     Parameter("filename", "file", "", None, "mask image (shape=mask), or point file (process=points "
-              "with any other shape)"),
+              "with any other shape)", applies=("shape=mask", "process=points")),
     Parameter("points_filename", "file", "", None, "point file of process=points; needed with "
-              "shape=mask, where filename is the image"),
+              "shape=mask, where filename is the image", applies=("process=points",)),
     Parameter("pixel_size", "float", "µm", None, "mask: size of one image pixel",
-              low=0.0, low_open=True, high_open=True),
-    Parameter("edge_width", "float", "µm", 0.0, "soft edge: std of a Gaussian apodisation",
-              low=0.0, high_open=True),
-    Parameter("orientation", "choice", "", "fixed", "fixed, or random (rotational average: radial lobe)",
-              ORIENTATIONS),
-    Parameter("size_spread", "float", "", 0.0, "relative std of the scatterer size", low=0.0, high=1.0),
+              low=RADIUS_MIN, high=RADIUS_MAX, applies=("shape=mask",)),
+    Parameter("edge_width", "float", "µm", 0.0, "soft edge: std of a Gaussian apodisation "
+              "(at most the scatterer's circumradius)", low=0.0, high=RADIUS_MAX),
+    Parameter("orientation", "choice", "", "fixed", "fixed, or random (rotational average: radial lobe; "
+              f"scatterers up to {ROTATION_RADIUS_MAX:g} µm including the largest of a size spread)",
+              ORIENTATIONS, applies=_ANISOTROPIC),
+    Parameter("size_spread", "float", "", 0.0, "relative std of the scatterer size", low=0.0,
+              high=SIZE_SPREAD_MAX),
     Parameter("size_distribution", "choice", "", "lognormal", "distribution of the size (with "
-              "size_spread > 0)", SIZE_DISTRIBUTIONS),
+              "size_spread > 0)", SIZE_DISTRIBUTIONS, applies=("size_spread>0",)),
     Parameter("area_fraction", "float", "", 0.3, "F_a = n |A|, the fraction of the layer covered",
-              low=0.0, high=1.0, low_open=True, high_open=True),
+              low=0.0, high=1.0, low_open=True, high_open=True,
+              applies=tuple(f"process={p}" for p in PROCESSES if p != "points")),
     Parameter("process", "choice", "", "hard-disk", "point process of the centres", PROCESSES),
     Parameter("exclusion_diameter", "float", "µm", None, "hard-core diameter σ (hard-disk, rsa); "
-              "default the shape's circumscribed diameter", low=0.0, low_open=True, high_open=True),
-    Parameter("jitter", "float", "µm", 0.0, "lattice: rms displacement per axis", low=0.0, high_open=True),
+              "default the shape's circumscribed diameter", low=0.0, high=LENGTH_MAX, low_open=True,
+              applies=("process=hard-disk", "process=rsa")),
+    Parameter("jitter", "float", "µm", 0.0, "lattice: rms displacement per axis", low=0.0, high=LENGTH_MAX,
+              applies=("process=lattice-square", "process=lattice-hex")),
     Parameter("mode", "choice", "", "aperture", "aperture: scatterers transmit in an opaque screen; "
               "particle: they block light in a clear layer", MODES),
     Parameter("albedo", "float", "", 0.0, "diffuse reflectance of the opaque part", low=0.0, high=1.0),
     Parameter("mixture", "string", "", None, "shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (radius µm, "
-              "number weights; decoupling approximation)"),
+              "number weights; decoupling approximation)", applies=("shape=mixture",)),
     Parameter("substrate", "choice", "", "none", "none, or glass: the layer sits on a thin "
               "non-absorbing pane (Fresnel reflection of both faces, thin-slab inter-reflections)",
               SUBSTRATES),
     Parameter("substrate_ior", "float", "", None, "index of refraction of the pane (substrate=glass); "
-              "default 1.52", low=1.0, high_open=True),
+              "default 1.52", low=1.0, high_open=True, applies=("substrate=glass",)),
     Parameter("substrate_side", "choice", "", "front", "face of the pane that carries the layer: front "
-              "(+z, where the shading normal points) or back (-z)", SUBSTRATE_SIDES),
+              "(+z, where the shading normal points) or back (-z)", SUBSTRATE_SIDES,
+              applies=("substrate=glass",)),
     Parameter("sampling", "choice", "", "lobe", "how the lobe is sampled: lobe (T_a T_s exactly) or "
               "cosine (for comparisons only)", SAMPLINGS, plugin_only=True),
 )
@@ -163,23 +250,24 @@ def _cell(text: str) -> str:
 
 def markdown_table(plugin: bool = True) -> str:
     """The parameter table in Markdown (the README's)."""
-    rows = ["| parameter | unit | default | allowed | meaning |", "|---|---|---|---|---|"]
+    rows = ["| parameter | unit | default | allowed | used with | meaning |", "|---|---|---|---|---|---|"]
     for p in PARAMETERS:
         if p.plugin_only and not plugin:
             continue
         default = "—" if p.default is None else f"`{p.default}`"
-        rows.append(f"| `{p.name}` | {p.unit or '—'} | {default} | {_cell(p.allowed)} | {_cell(p.meaning)} |")
+        rows.append(f"| `{p.name}` | {p.unit or '—'} | {default} | {_cell(p.allowed)} | {_cell(p.used_with)} "
+                    f"| {_cell(p.meaning)} |")
     return "\n".join(rows)
 
 
 def rst_table() -> str:
     """The parameter table as a reStructuredText list-table (docstrings)."""
     lines = [".. list-table::", "   :header-rows: 1", "", "   * - parameter", "     - unit",
-             "     - default", "     - allowed", "     - meaning"]
+             "     - default", "     - allowed", "     - used with", "     - meaning"]
     for p in PARAMETERS:
         default = "—" if p.default is None else f"``{p.default}``"
         lines += [f"   * - ``{p.name}``", f"     - {p.unit or '—'}", f"     - {default}",
-                  f"     - {p.allowed}", f"     - {p.meaning}"]
+                  f"     - {p.allowed}", f"     - {p.used_with}", f"     - {p.meaning}"]
     return "\n".join(lines)
 
 
@@ -192,24 +280,24 @@ MIXTURE_SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon")
 def _outline(kind: str, r: float, p: dict):
     """The bare shape ``kind`` of size ``r`` [µm] (aspect, sides, angle from ``p``)."""
     from . import shapes
-    angle = math.radians(check_range("angle", p["angle"], -360.0, 360.0, unit="degree"))
-    aspect = check_positive("aspect", p["aspect"])
+    angle = math.radians(SPEC["angle"].check(p["angle"]))
     if kind == "circle":
         return shapes.Circle(r)
     if kind == "ellipse":
-        return shapes.Ellipse(r, r * aspect, angle=angle)
+        return shapes.Ellipse(r, r * SPEC["aspect"].check(p["aspect"]), angle=angle)
     if kind == "square":
         return shapes.Square(2 * r, angle=angle)
     if kind == "rectangle":
-        return shapes.Rectangle(2 * r, 2 * r * aspect, angle=angle)
-    sides = p["sides"]
-    if int(sides) != sides or int(sides) < 3:
-        raise CoronaError(f"sides={sides!r} is out of range; allowed integers >= 3")
-    return shapes.RegularPolygon(int(sides), r, angle=angle)
+        return shapes.Rectangle(2 * r, 2 * r * SPEC["aspect"].check(p["aspect"]), angle=angle)
+    return shapes.RegularPolygon(SPEC["sides"].check(p["sides"]), r, angle=angle)
 
 
 def parse_mixture(spec) -> list[tuple[str, float, float]]:
-    """``"circle:5:0.5, square:4.43:0.5"`` -> [(shape, radius µm, number weight), ...]."""
+    """``"circle:5:0.5, square:4.43:0.5"`` -> [(shape, radius µm, number weight), ...].
+
+    The weights are returned relative to the largest (so that even weights near
+    the float maximum sum to a finite total).
+    """
     form = "mixture='SHAPE:RADIUS:WEIGHT, ...' (e.g. 'circle:5:0.5, square:4.43:0.5')"
     if not isinstance(spec, str) or not spec.strip():
         raise CoronaError(f"shape='mixture' needs {form}")
@@ -224,38 +312,99 @@ def parse_mixture(spec) -> list[tuple[str, float, float]]:
         except ValueError:
             raise CoronaError(f"mixture item {item.strip()!r}: radius and weight must be numbers; "
                               f"expected {form}") from None
-        out.append((kind, check_positive("mixture radius", r, "µm"),
+        out.append((kind, check_range("mixture radius", r, RADIUS_MIN, RADIUS_MAX, unit="µm"),
                     check_range("mixture weight", w, 0.0, math.inf, hi_open=True)))
-    if sum(w for _, _, w in out) <= 0:
+    top = max(w for _, _, w in out)
+    if top <= 0:
         raise CoronaError(f"mixture={spec!r}: the number weights are all 0; at least one must be > 0")
-    return out
+    return [(k, r, w / top) for k, r, w in out]
 
 
 def _modified(base, p: dict):
-    """``base`` with the soft edge, size spread and random orientation of ``p``."""
+    """``base`` with the soft edge, random orientation and size spread of ``p``.
+
+    The size average is outermost: averaging the rotated shape over sizes gives
+    the same ensemble as rotating the size-averaged one (size and orientation are
+    independent), and needs far fewer evaluations (the rotation average resolves
+    the shape at its own size, not at the largest size of the distribution).
+    """
     from . import shapes
-    w = check_range("edge_width", p["edge_width"], 0.0, math.inf, hi_open=True, unit="µm")
+    w = SPEC["edge_width"].check(p["edge_width"])
+    if w > base.length_scale * (1 + 1e-12):
+        raise CoronaError(f"edge_width={p['edge_width']!r} µm is out of range for {base!r}; allowed "
+                          f"[0, {base.length_scale:.4g}] µm (at most the circumradius: a wider blur is no "
+                          "longer an edge)")
     if w > 0:
         base = shapes.SoftEdge(base, w)
-    spread = check_range("size_spread", p["size_spread"], 0.0, 1.0, unit="(relative std)")
+    spread = SPEC["size_spread"].check(p["size_spread"])
+    rotate = check_choice("orientation", p["orientation"], ORIENTATIONS) == "random" and not base.isotropic
+    if rotate:
+        base = shapes.RandomOrientation(base)
     if spread > 0:
         dist = check_choice("size_distribution", p["size_distribution"], SIZE_DISTRIBUTIONS)
         base = shapes.SizeDistribution(base, spread, distribution=dist)
-    if check_choice("orientation", p["orientation"], ORIENTATIONS) == "random" and not base.isotropic:
-        base = shapes.RandomOrientation(base)
+    if rotate:
+        largest = base.length_scale * (base._s_top if spread > 0 else 1.0)
+        if largest > ROTATION_RADIUS_MAX * (1 + 1e-12):
+            of = f" × {base._s_top:.3g} (size_spread={spread:g})" if spread > 0 else ""
+            of = f"{of} = {largest:.4g} µm" if spread > 0 else ""
+            raise CoronaError(f"orientation='random': the largest scatterers, circumradius {base.length_scale:.4g} µm"
+                              f"{of}, are out of range; allowed <= {ROTATION_RADIUS_MAX:g} µm "
+                              "(or orientation='fixed')")
     return base
 
 
+def _check_size(shape, p: dict):
+    """``shape`` if its circumradius is at most :data:`RADIUS_MAX`, else one clear error."""
+    R = float(shape.length_scale)
+    if not R <= RADIUS_MAX * (1 + 1e-12):
+        given = {k: p[k] for k in ("radius", "aspect", "pixel_size", "mixture") if SPEC[k].applies_to(p)}
+        what = ", ".join(f"{k}={v!r}" for k, v in given.items())
+        raise CoronaError(f"shape={p['shape']!r} with {what}: the circumradius {R:.6g} µm is out of range; "
+                          f"allowed <= {RADIUS_MAX:g} µm")
+    return shape
+
+
+def _size_average_work(shape) -> float:
+    """Terms of the size averages over a 2D table (see :data:`SIZE_AVERAGE_WORK_MAX`)."""
+    from . import shapes, tables
+    if isinstance(shape, shapes.Mixture):
+        return sum(_size_average_work(sh) for sh, _ in shape.components)
+    if shape.isotropic:
+        return 0.0              # a radial table: log-grid size average, cheap
+    if isinstance(shape, shapes.SizeDistribution):
+        R = shape.length_scale
+        q_max = math.sqrt(2.0) * min(tables.u_max_for(R), 0.25 * tables.GRID2D_SIZE / 2) / R
+        vertices = tables.GRID2D_SIZE ** 2 / 2
+        return vertices * len(shape._nodes(q_max)[0]) * shape.shape._cost
+    if isinstance(shape, shapes.SoftEdge):
+        return _size_average_work(shape.shape)
+    return 0.0
+
+
 def make_shape(p: dict):
+    shape = _make_shape(p)
+    work = _size_average_work(shape)
+    if work > SIZE_AVERAGE_WORK_MAX:
+        what = ", ".join(f"{k}={p[k]!r}" for k in ("shape", "sides", "size_spread", "size_distribution")
+                         if SPEC[k].applies_to(p))
+        raise CoronaError(f"{what} with orientation='fixed': the size average over the 2D lobe table needs "
+                          f"{work:.3g} terms; allowed <= {SIZE_AVERAGE_WORK_MAX:.3g} (use fewer sides, a smaller "
+                          "size_spread, or orientation='random')")
+    return shape
+
+
+def _make_shape(p: dict):
     from . import shapes
     kind = check_choice("shape", p["shape"], SHAPES)
-    check_range("angle", p["angle"], -360.0, 360.0, unit="degree")
+    SPEC["angle"].check(p["angle"])
     if kind == "mixture":
         # each component carries the edge / spread / orientation modifiers; the
         # layer's lobe follows the decoupling approximation (docs/physics.md#the-model)
         # (types of weight 0 are left out: they would still set the exclusion diameter)
-        return shapes.Mixture([(_modified(_outline(k, r, p), p), w)
-                               for k, r, w in parse_mixture(p["mixture"]) if w > 0])
+        comps = [(_check_size(_outline(k, r, p), {**p, "shape": k, "radius": r}), w)
+                 for k, r, w in parse_mixture(p["mixture"]) if w > 0]
+        return shapes.Mixture([(_modified(sh, p), w) for sh, w in comps])
     if p.get("mixture"):
         raise CoronaError(f"mixture={p['mixture']!r} needs shape='mixture' (got shape={kind!r})")
     if kind != "sphere" and (p.get("ior") is not None or p.get("ior_imag")):
@@ -275,39 +424,39 @@ def make_shape(p: dict):
             raise CoronaError("shape='mask' needs filename=<image file>")
         if p.get("pixel_size") is None:
             raise CoronaError("shape='mask' needs pixel_size=<µm per pixel>")
-        base = shapes.Mask(p["filename"], check_positive("pixel_size", p["pixel_size"], "µm"))
+        base = shapes.Mask(p["filename"], SPEC["pixel_size"].check(p["pixel_size"]))
     else:
-        base = _outline(kind, check_positive("radius", p["radius"], "µm"), p)
-    return _modified(base, p)
+        base = _outline(kind, SPEC["radius"].check(p["radius"]), p)
+    return _modified(_check_size(base, p), p)
 
 
 def make_process(p: dict, shape):
     from . import processes
     kind = check_choice("process", p["process"], PROCESSES)
-    fa = check_range("area_fraction", p["area_fraction"], 0.0, 1.0, lo_open=True, hi_open=True)
+    if kind == "points":
+        return processes.PointSet.from_file(points_file(p))
+    fa = SPEC["area_fraction"].check(p["area_fraction"])
     sigma = p.get("exclusion_diameter")
     if sigma is not None:
-        sigma = check_positive("exclusion_diameter", sigma, "µm")
+        sigma = SPEC["exclusion_diameter"].check(sigma)
     if kind == "poisson":
         return processes.Poisson(fa)
     if kind == "hard-disk":
         return processes.HardDisk(fa, exclusion_diameter=sigma)
     if kind == "rsa":
         return processes.SequentialAdsorption(fa, exclusion_diameter=sigma)
-    if kind in ("lattice-square", "lattice-hex"):
-        jitter = check_range("jitter", p["jitter"], 0.0, math.inf, hi_open=True, unit="µm")
-        # spacing from the area fraction: cell area = |A| / F_a; neighbours at
-        # the shape's exclusion diameter σ give the largest F_a without overlaps
-        sd = shape.exclusion_diameter
-        fmax = shape.area / (sd * sd) if kind == "lattice-square" else 2 * shape.area / (math.sqrt(3) * sd * sd)
-        if fa > fmax * (1.0 + 1e-12):
-            raise CoronaError(f"area_fraction={fa:g} is out of range for process={kind!r} with this shape; "
-                              f"allowed (0, {fmax:.4g}] (neighbours would overlap)")
-        cell = shape.area / fa
-        if kind == "lattice-square":
-            return processes.Lattice("square", math.sqrt(cell), jitter=jitter)
-        return processes.Lattice("hexagonal", math.sqrt(2 * cell / math.sqrt(3)), jitter=jitter)
-    return processes.PointSet.from_file(points_file(p))
+    jitter = SPEC["jitter"].check(p["jitter"])
+    # spacing from the area fraction: cell area = |A| / F_a; neighbours at
+    # the shape's exclusion diameter σ give the largest F_a without overlaps
+    sd = shape.exclusion_diameter
+    fmax = shape.area / (sd * sd) if kind == "lattice-square" else 2 * shape.area / (math.sqrt(3) * sd * sd)
+    if fa > fmax * (1.0 + 1e-12):
+        raise CoronaError(f"area_fraction={fa:g} is out of range for process={kind!r} with this shape; "
+                          f"allowed (0, {fmax:.4g}] (neighbours would overlap)")
+    cell = shape.area / fa
+    if kind == "lattice-square":
+        return processes.Lattice("square", math.sqrt(cell), jitter=jitter)
+    return processes.Lattice("hexagonal", math.sqrt(2 * cell / math.sqrt(3)), jitter=jitter)
 
 
 def points_file(p: dict) -> str:
@@ -323,11 +472,31 @@ def points_file(p: dict) -> str:
     return p["filename"]
 
 
+def unused_parameters(given, p: dict) -> list[str]:
+    """The names in ``given`` that the layer ``p`` (all parameters) does not use."""
+    return [k for k in given if k in SPEC and not SPEC[k].applies_to(p)]
+
+
+def warn_unused(given, p: dict, stacklevel: int = 3) -> None:
+    """One :class:`corona.CoronaWarning` naming the parameters of ``given`` that
+    the layer ``p`` ignores (e.g. ``aspect`` with a circle), as Mitsuba does for
+    unused properties."""
+    unused = unused_parameters(given, p)
+    if unused:
+        from ._validation import CoronaWarning
+        why = "; ".join(f"{k} (used with {SPEC[k].used_with})" for k in unused)
+        warnings.warn(f"unused parameter(s) with shape={p['shape']!r}, process={p['process']!r}: {why}; "
+                      "ignored", CoronaWarning, stacklevel=stacklevel)
+
+
 def material_from_parameters(**params):
     """A :class:`corona.Material` from the named parameters of :data:`PARAMETERS`.
 
     Each value is checked against its specification (type, allowed values or
-    range); None means "not given" (the default).
+    range); None means "not given" (the default).  Given parameters that the
+    chosen shape or process does not use (``aspect`` with a circle, ``jitter``
+    with hard disks, ...) are ignored with one :class:`corona.CoronaWarning`
+    naming them.
 
     Unknown names raise a :class:`corona.CoronaError` listing the known ones.
     """
@@ -335,7 +504,8 @@ def material_from_parameters(**params):
     unknown = sorted(set(params) - set(DEFAULTS))
     if unknown:
         raise CoronaError(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
-    p = {**DEFAULTS, **{k: SPEC[k].check(v) for k, v in params.items() if v is not None}}
+    given = {k: v for k, v in params.items() if v is not None}
+    p = {**DEFAULTS, **{k: SPEC[k].check(v) for k, v in given.items()}}
     from .substrate import make_substrate
     substrate = make_substrate(p["substrate"], p["substrate_ior"], p["substrate_side"])
     shape = make_shape(p)
@@ -345,9 +515,12 @@ def material_from_parameters(**params):
         if p["process"] not in ("poisson", "hard-disk", "rsa"):
             raise CoronaError(f"process={p['process']!r} is out of range for shape='sphere'; allowed "
                               "poisson, hard-disk, rsa")
-        return SphereMaterial(shape, process, mode=params.get("mode") or "particle", albedo=p["albedo"],
-                              substrate=substrate)
-    return Material(shape, process, mode=p["mode"], albedo=p["albedo"], substrate=substrate)
+        material = SphereMaterial(shape, process, mode=params.get("mode") or "particle", albedo=p["albedo"],
+                                  substrate=substrate)
+    else:
+        material = Material(shape, process, mode=p["mode"], albedo=p["albedo"], substrate=substrate)
+    warn_unused(given, p)
+    return material
 
 
 if __name__ == "__main__":   # python -m corona.parameters: the README's table

@@ -61,6 +61,19 @@ def one_line_error(err) -> str:
     return first
 
 
+def is_interrupt(err) -> bool:
+    """True when ``err`` is, or wraps, a KeyboardInterrupt (Mitsuba turns a Ctrl-C
+    inside a Python plugin into a RuntimeError whose text ends in the traceback)."""
+    while err is not None:
+        if isinstance(err, KeyboardInterrupt):
+            return True
+        lines = [ln.strip() for ln in str(err).splitlines() if ln.strip()]
+        if lines and lines[-1].startswith("KeyboardInterrupt"):
+            return True
+        err = err.__cause__ or err.__context__
+    return False
+
+
 def load_scene(path: str, defines: dict | None = None):
     """``mi.load_file(path, **defines)`` with one-line :class:`CoronaError` messages."""
     import mitsuba as mi
@@ -69,6 +82,8 @@ def load_scene(path: str, defines: dict | None = None):
     try:
         scene = mi.load_file(path, **{k: str(v) for k, v in (defines or {}).items()})
     except Exception as err:  # Mitsuba raises RuntimeError for every kind of problem
+        if is_interrupt(err):
+            raise KeyboardInterrupt from None
         unused = re.findall(r"^\s*-\s*\$(\w+)=", str(err), flags=re.M)
         if "unused parameters" in str(err) and unused:
             raise CoronaError(f"{path} has no parameter {', '.join(unused)} "
@@ -77,6 +92,8 @@ def load_scene(path: str, defines: dict | None = None):
     sensors = scene.sensors()
     if not sensors:
         raise CoronaError(f"{path}: the scene has no sensor")
+    if scene.integrator() is None:
+        raise CoronaError(f"{path}: the scene has no integrator (e.g. <integrator type=\"path\"/>)")
     size = [int(v) for v in sensors[0].film().size()]
     if min(size) < 1:
         raise CoronaError(f"{path}: film size {size[0]}x{size[1]} is empty; width and height must be >= 1")
@@ -99,14 +116,21 @@ def render_linear(scene, spp: int, seed: int = 0, progress: bool = True, desc: s
     """
     import mitsuba as mi
     from tqdm import tqdm
-    passes = max(1, min(spp // 16, 64))
+    if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or not 1 <= spp <= 2**32 - 1:
+        raise CoronaError(f"spp={spp!r} is out of range; allowed integers >= 1")
+    # passes of ~16 spp (a progress bar), each at most 2^24 samples where possible (the
+    # wavefront's memory), at most 256 (the seeds seed·1000 + i stay distinct uint32s)
+    npix = int(np.prod([int(v) for v in scene.sensors()[0].film().size()]))
+    passes = int(min(256, spp, max(1, min(spp // 16, 64), -(-spp * npix // 2**24))))
     spp_pass = [spp // passes + (1 if i < spp % passes else 0) for i in range(passes)]
     acc = None
     t0 = time.perf_counter()
     for i, s in enumerate(tqdm(spp_pass, desc=desc, unit="pass", disable=not progress, leave=False)):
         try:
             img = np.array(mi.render(scene, spp=s, seed=seed * 1000 + i), dtype=np.float64)
-        except RuntimeError as err:
+        except Exception as err:  # RuntimeError mostly; a bare Exception for some scene problems
+            if is_interrupt(err):
+                raise KeyboardInterrupt from None
             msg = one_line_error(err)
             if "non-spectral" in msg:
                 msg += f" (variant {mi.variant()}; this scene needs a *_spectral variant)"

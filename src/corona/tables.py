@@ -23,13 +23,15 @@ y, conditional in x, each piecewise linear).
 Tables are cached under a content-addressed key (all parameters plus
 ``FORMAT_VERSION``) in :func:`cache_dir`, written atomically (temporary file
 + ``os.replace``) under a file lock, with a checksum that detects damaged
-files, which are rebuilt.
+files, which are rebuilt.  A cache that cannot be written (read-only, full,
+a lock path that is a folder) builds tables in memory with one warning.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import os
+import re
 import tempfile
 import warnings
 from dataclasses import dataclass, field
@@ -320,14 +322,44 @@ def table_from_arrays(arrays) -> RadialTable | GridTable:
 # --------------------------------------------------------------------------
 # Cache
 # --------------------------------------------------------------------------
+#: Names of the files the cache writes: ``<key>.npz``, its lock ``<key>.npz.lock`` and
+#: the temporary files of a writer ``.tmp-<key>-<random>.npz`` (key: 32 hex digits).
+#: ``cache_clear`` deletes these and nothing else.
+CACHE_FILE = re.compile(r"^(?:[0-9a-f]{32}\.npz(?:\.lock)?|\.tmp-[0-9a-f]{32}-[A-Za-z0-9_]+\.npz)$")
+TABLE_FILE = re.compile(r"^[0-9a-f]{32}\.npz$")
+
+_warned_folders: set = set()
+
+
 def cache_dir() -> str:
-    """Folder of cached tables: ``$CORONA_CACHE_DIR`` or the user cache dir."""
+    """Folder of cached tables: ``$CORONA_CACHE_DIR`` or the user cache dir.
+
+    Created if missing; one :class:`corona.CoronaError` line if it is not a
+    folder or cannot be created.
+    """
+    from ._validation import CoronaError
     path = os.environ.get("CORONA_CACHE_DIR")
+    source = "CORONA_CACHE_DIR" if path else "the user cache folder"
     if not path:
         import platformdirs
         path = platformdirs.user_cache_dir("corona")
-    os.makedirs(path, exist_ok=True)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise CoronaError(f"table cache {path!r} ({source}) is not a folder")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as err:
+        raise CoronaError(f"table cache {path!r} ({source}) cannot be created: "
+                          f"{err.strerror or err}") from None
     return path
+
+
+def _warn_once(folder: str, why: str) -> None:
+    """One RuntimeWarning per cache folder and process: tables are built in memory."""
+    if folder in _warned_folders:
+        return
+    _warned_folders.add(folder)
+    warnings.warn(f"corona: table cache unusable: {folder} ({why}); building tables in memory "
+                  "(warned once)", RuntimeWarning, stacklevel=3)
 
 
 def cache_key(params: dict) -> str:
@@ -386,26 +418,35 @@ def cached(params: dict, build, *, use_cache: bool = True) -> dict:
     if not use_cache:
         return build()
     from filelock import FileLock
+
+    from ._validation import CoronaError
     key = cache_key(params)
     try:
         folder = cache_dir()
-    except OSError as err:  # an unusable cache folder must not stop rendering either
-        warnings.warn(f"corona: table cache unusable ({err}); building without it", RuntimeWarning)
+    except CoronaError as err:  # an unusable cache folder must not stop rendering either
+        _warn_once(os.environ.get("CORONA_CACHE_DIR") or "user cache", str(err))
         return build()
     path = os.path.join(folder, f"{key}.npz")
-    data = _read(path, key) if os.path.exists(path) else None
+    data = _read(path, key) if os.path.isfile(path) else None
     if data is not None:
         return data
+    # a read-only cache (or a lock path that is not a file) must not stop rendering:
+    # try the lock file first (FileLock would retry until its timeout on some errors)
+    try:
+        os.close(os.open(path + ".lock", os.O_RDWR | os.O_CREAT, 0o644))
+    except OSError as err:
+        _warn_once(folder, f"{os.path.basename(path)}.lock: {err.strerror or err}")
+        return build()
     with FileLock(path + ".lock", timeout=600):
-        data = _read(path, key) if os.path.exists(path) else None
+        data = _read(path, key) if os.path.isfile(path) else None
         if data is not None:
             return data
         _remove_stale_temporaries(folder, key)
         arrays = build()
         try:
             _write_atomic(path, key, arrays)
-        except OSError as err:  # a read-only cache must not stop rendering
-            warnings.warn(f"corona: could not write table cache {path}: {err}", RuntimeWarning)
+        except OSError as err:  # a full or read-only cache must not stop rendering
+            _warn_once(folder, f"could not write {os.path.basename(path)}: {err.strerror or err}")
         return arrays
 
 
@@ -424,23 +465,44 @@ def _remove_stale_temporaries(folder: str, key: str) -> None:
                 pass
 
 
+def _cache_files(folder: str) -> list[str]:
+    """The names in ``folder`` that the cache itself writes (:data:`CACHE_FILE`)."""
+    from ._validation import CoronaError
+    try:
+        return sorted(f for f in os.listdir(folder) if CACHE_FILE.match(f))
+    except OSError as err:
+        raise CoronaError(f"table cache {folder!r} cannot be read: {err.strerror or err}") from None
+
+
 def cache_info() -> dict:
     """Location, number of tables and total size [bytes] of the cache."""
     folder = cache_dir()
-    files = [f for f in os.listdir(folder) if f.endswith(".npz") and not f.startswith(".tmp-")]
-    size = sum(os.path.getsize(os.path.join(folder, f)) for f in files)
+    files = [f for f in _cache_files(folder) if TABLE_FILE.match(f)]
+    size = 0
+    for f in files:
+        try:
+            size += os.path.getsize(os.path.join(folder, f))
+        except OSError:
+            pass
     return {"path": folder, "tables": len(files), "bytes": size, "format": FORMAT_VERSION}
 
 
 def cache_clear() -> int:
-    """Delete every cached table; return how many were removed."""
+    """Delete the cached tables (and their locks and temporaries); return how many tables.
+
+    Only names the cache writes are touched (:data:`CACHE_FILE`): other files in
+    the folder, e.g. a user's own ``data.npz``, stay.  A file that cannot be
+    removed (read-only cache) is one :class:`corona.CoronaError`.
+    """
+    from ._validation import CoronaError
     folder = cache_dir()
     n = 0
-    for f in os.listdir(folder):
-        if f.endswith(".npz") or f.endswith(".lock"):
-            try:
-                os.unlink(os.path.join(folder, f))
-                n += f.endswith(".npz") and not f.startswith(".tmp-")
-            except FileNotFoundError:
-                pass
+    for f in _cache_files(folder):
+        try:
+            os.unlink(os.path.join(folder, f))
+        except FileNotFoundError:
+            continue
+        except OSError as err:
+            raise CoronaError(f"table cache {folder!r}: cannot remove {f}: {err.strerror or err}") from None
+        n += bool(TABLE_FILE.match(f))
     return n

@@ -9,6 +9,19 @@ from .._validation import CoronaError, check_range
 from .base import Process
 
 
+#: Largest |coordinate| of a point file [µm] (1 km): beyond, the window and the
+#: periodogram's phases lose their meaning in float64.
+COORDINATE_MAX = 1e9
+
+
+#: The angle-averaged periodogram costs points × directions × wave numbers
+#: complex multiply-adds (wave numbers: 1.25 q_max L / π); above this it is refused
+#: (about a minute here), and points × directions is bounded by the memory of its
+#: two complex arrays (16 B each).
+PERIODOGRAM_MAX_WORK = 2e10
+PERIODOGRAM_MAX_TERMS = 1.6e7
+
+
 def _hann_ft(k, L):
     """Fourier transform of the Hann window ``sin²(π x/L)`` on ``[-L/2, L/2]``
     shifted to be centred at 0: ``∫ w(x) e^{-ikx} dx`` (real)."""
@@ -32,13 +45,15 @@ def _windowed_sk(px, py, w, sumw2, nbar, Lx, Ly, qx, qy, chunk=2048):
 def _radial_periodogram(px, py, w, sumw2, nbar, Lx, Ly, dq, nq, n_ang):
     """Tapered periodogram on the polar grid ``|q| = k dq`` (k < nq),
     ``θ_a = π (a + 1/2) / n_ang``; returns (n_ang, nq).  Along each ray the
-    phases advance by the recurrence ``z_j ← z_j e^{-i dq p_j}``."""
+    phases advance by the recurrence ``z_j ← z_j e^{-i dq p_j}`` (a progress
+    bar on stderr when it takes more than 2 s)."""
+    from tqdm import tqdm
     th = np.pi * (np.arange(n_ang) + 0.5) / n_ang
     c, s = np.cos(th), np.sin(th)
     step = np.exp(-1j * dq * (np.outer(c, px) + np.outer(s, py)))       # (n_ang, N)
     z = np.broadcast_to(w.astype(np.complex128), step.shape).copy()
     acc = np.empty((n_ang, nq), dtype=np.complex128)
-    for k in range(nq):
+    for k in tqdm(range(nq), desc="corona: point-set structure factor", unit="q", leave=False, delay=2.0):
         acc[:, k] = z.sum(axis=1)
         z *= step
     q = np.arange(nq) * dq
@@ -142,19 +157,22 @@ class PointSet(Process):
         centred on the points.
         """
         path = os.fspath(path)
-        if not os.path.exists(path):
-            raise CoronaError(f"point file {path!r} does not exist")
         if os.path.isdir(path):
             raise CoronaError(f"point file {path!r} is a directory")
+        if not os.path.exists(path):
+            raise CoronaError(f"point file {path!r} does not exist")
+        if not os.path.isfile(path):     # a device (/dev/zero), a FIFO, a socket ...
+            raise CoronaError(f"point file {path!r} is not a regular file")
         if path.lower().endswith(".npy"):
             try:
                 arr = np.load(path, allow_pickle=False)
             except Exception as e:  # noqa: BLE001
-                raise CoronaError(f"point file {path!r} is not a readable .npy array: {e}") from None
-            try:
-                arr = np.asarray(arr, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise CoronaError(f"point file {path!r} does not hold numbers") from None
+                first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+                raise CoronaError(f"point file {path!r} is not a readable .npy array: {first}") from None
+            if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+                raise CoronaError(f"point file {path!r} holds {arr.dtype} values; expected real numbers "
+                                  "(integer or floating point)")
+            arr = np.asarray(arr, dtype=np.float64)
             if arr.size == 0:
                 raise CoronaError(f"point file {path!r} contains no points")
             if arr.ndim != 2 or arr.shape[1] < 2:
@@ -165,6 +183,11 @@ class PointSet(Process):
             pts = _read_point_text(path)
         if not np.all(np.isfinite(pts)):
             raise CoronaError(f"point file {path!r} contains non-finite coordinates")
+        big = np.abs(pts) > COORDINATE_MAX
+        if np.any(big):
+            k = int(np.argmax(big.any(axis=1)))
+            raise CoronaError(f"point file {path!r}: point {k + 1} has a coordinate of "
+                              f"{float(pts[k][np.argmax(big[k])]):g} µm; allowed |x|, |y| <= {COORDINATE_MAX:g} µm")
         if box is None:
             n = len(pts)
             if n < 2:
@@ -239,6 +262,13 @@ class PointSet(Process):
         dq = np.pi / L
         nq = int(np.ceil(1.25 * q_max / dq)) + 3
         n_ang = 256 if self.n_angles is None else self.n_angles
+        n = len(self.points)
+        if n * n_ang > PERIODOGRAM_MAX_TERMS or float(n) * n_ang * nq > PERIODOGRAM_MAX_WORK:
+            raise CoronaError(
+                f"PointSet: {n} points in a {Lx:.4g} x {Ly:.4g} µm window need {n} x {n_ang} directions x "
+                f"{nq} wave numbers = {float(n) * n_ang * nq:.3g} terms for S(q) up to {q_max:.3g} rad/µm; "
+                f"allowed at most {PERIODOGRAM_MAX_WORK:.3g} (and points x directions <= "
+                f"{PERIODOGRAM_MAX_TERMS:.3g}): use fewer points or a smaller window")
         sw2 = float(np.sum(w * w))
         P = _radial_periodogram(px, py, w, sw2, self.number_density, Lx, Ly, dq, nq, n_ang)
         S = P.mean(axis=0)
@@ -284,8 +314,9 @@ def _read_point_text(path) -> np.ndarray:
                             _is_number(t) for t in tokens[:2]):
                         header_skipped = True  # a header line such as "x,y"
                         continue
+                    # the line itself is not echoed: the file may be anything (a secret)
                     raise CoronaError(f"point file {path!r}, line {lineno}: cannot read two numbers "
-                                      f"(x, y) from {line.strip()!r}") from None
+                                      "(x, y)") from None
                 rows.append(vals)
     except UnicodeDecodeError:
         raise CoronaError(f"point file {path!r} is not a text file (use .npy for binary arrays)") from None

@@ -210,6 +210,7 @@ class Rectangle(Shape):
     """
 
     _symmetry = 2
+    _cost = 2.0
 
     def __init__(self, width: float, height: float, angle: float = 0.0):
         self.width = check_positive("width", width, "µm")

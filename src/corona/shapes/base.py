@@ -132,6 +132,9 @@ class Shape:
     _symmetry: int = 1
     #: True when the profile is fixed (no orientation / size / type average).
     _deterministic: bool = True
+    #: Relative cost of one evaluation of Â (1: one Bessel or exponential; a
+    #: polygon's edge count); bounds the work of size averages (corona.parameters).
+    _cost: float = 1.0
 
     @property
     def area(self) -> float:

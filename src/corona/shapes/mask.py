@@ -13,14 +13,30 @@ from .base import _TWO_PI, Shape, _q_array
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 
+#: Largest side [pixels] of the opening's bounding box: its zero-padded FFT
+#: (4 × per axis, complex128) and spline coefficients then take ~0.7 GB.
+MASK_MAX_PIXELS = 1024
+#: Largest image file [pixels] read at all (the opening may be a small part of it).
+IMAGE_MAX_PIXELS = 64_000_000
+
+
+def _reader_error(exc) -> str:
+    """imageio's message on one line: its first line (the rest are install hints)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    return lines[0].replace("``", "`") if lines else type(exc).__name__
+
 
 def _load_image(image) -> tuple[np.ndarray, str | None]:
     """Return a float64 2-D array in [0, 1] and the source path (or None)."""
     source = None
     if isinstance(image, (str, os.PathLike)):
         source = os.fspath(image)
-        if not os.path.isfile(source):
+        if os.path.isdir(source):
+            raise CoronaError(f"image={source!r} is a directory; expected an image file")
+        if not os.path.exists(source):
             raise CoronaError(f"image={source!r}: no such file")
+        if not os.path.isfile(source):
+            raise CoronaError(f"image={source!r} is not a regular file; expected an image file")
         if os.path.getsize(source) == 0:
             raise CoronaError(f"image={source!r} is an empty file")
         try:
@@ -29,9 +45,16 @@ def _load_image(image) -> tuple[np.ndarray, str | None]:
             import imageio.v3 as iio
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", DeprecationWarning)
+                props = iio.improps(source)
+                if int(np.prod(props.shape)) > IMAGE_MAX_PIXELS * (4 if len(props.shape) == 3 else 1):
+                    raise CoronaError(f"image={source!r} has shape {props.shape}; allowed at most "
+                                      f"{IMAGE_MAX_PIXELS:.3g} pixels")
                 arr = np.asarray(iio.imread(source))
+        except CoronaError:
+            raise
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad file
-            raise CoronaError(f"image={source!r} could not be read as an image ({exc})") from None
+            raise CoronaError(f"image={source!r} could not be read as an image ({_reader_error(exc)})") \
+                from None
         if arr.ndim == 3 and arr.shape[-1] in (1, 2, 3, 4):
             arr = _normalise_levels(arr, source)
             if arr.shape[-1] >= 3:        # RGB(A): Rec. 709 luminance, alpha ignored
@@ -113,11 +136,18 @@ class Mask(Shape):
     ``length_scale`` is the largest distance from the centroid to a
     transmitting pixel centre plus half a pixel diagonal (``p/√2``).
 
+    The opening's bounding box may span at most ``MASK_MAX_PIXELS`` (1024)
+    pixels per side (its padded FFT then needs ~0.7 GB), and an image file at
+    most ``IMAGE_MAX_PIXELS``; larger ones are refused before any allocation
+    (downsample the image and scale ``pixel_size`` by the same factor).
+
     References
     ----------
     Goodman, *Introduction to Fourier Optics*, §2.4 and §4.2 (sampling and
     FFT evaluation of Fraunhofer patterns).
     """
+
+    _cost = 8.0   # two cubic-spline lookups
 
     def __init__(self, image, pixel_size: float, threshold: float | None = None):
         self.pixel_size = check_positive("pixel_size", pixel_size, "µm")
@@ -143,6 +173,12 @@ class Mask(Shape):
         cols = np.nonzero(img.any(axis=0))[0]
         crop = img[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
         ny, nx = crop.shape
+        if max(ny, nx) > MASK_MAX_PIXELS:
+            src = "image" if self._source is None else f"image={self._source!r}"
+            raise CoronaError(f"{src}: the opening spans {nx} x {ny} pixels; allowed at most "
+                              f"{MASK_MAX_PIXELS} per side (the FFT would need "
+                              f"{16 * 4 * nx * 4 * ny / 2**30:.1f} GiB): downsample the image and scale "
+                              "pixel_size by the same factor")
         total = float(crop.sum())
         ii, jj = np.indices(crop.shape)
         ci = float(np.sum(ii * crop)) / total

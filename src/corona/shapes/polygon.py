@@ -197,6 +197,10 @@ class Polygon(Shape):
         return self._radius
 
     @property
+    def _cost(self) -> float:
+        return float(len(self.vertices))
+
+    @property
     def perimeter(self) -> float:
         """Perimeter [µm]."""
         return float(np.sum(np.hypot(self._edges[:, 0], self._edges[:, 1])))
