@@ -78,11 +78,11 @@ def row_settings(eta: float) -> dict:
 #: (``SeedSequence.spawn``), so extra chains only add statistics, and
 #: ``--top-up`` adds them to stored rows.  The smoothed row's error falls more
 #: slowly than 1/√chains (the smoother sharpens as the data improve), hence 12,
-#: 30 and 26 chains there; the rows 0.05–0.45 got 4–8 chains (error bars
+#: 45 and 26 chains there; the rows 0.05–0.45 got 4–8 chains (error bars
 #: ~0.004–0.005 at the first peak), the rest keep ``N_CHAINS``: every row at
 #: < 0.003 would take ≈ 3–4 CPU hours.
 EXTRA_CHAINS = {0.05: 4, 0.1: 4, 0.15: 4, 0.2: 4, 0.25: 4, 0.3: 12,
-                0.35: 8, 0.4: 8, 0.45: 8, 0.5: 30, 0.65: 26}
+                0.35: 8, 0.4: 8, 0.45: 8, 0.5: 45, 0.65: 26}
 
 
 def chains_for(eta: float) -> int:
@@ -299,7 +299,7 @@ def assemble(work_dir: str, out: str, old: dict | None, n_resamples: int = 12) -
                 total_cpu_seconds=float(out_d["cpu_seconds"].sum()))
     os.makedirs(os.path.dirname(out), exist_ok=True)
     tmp = out + ".tmp.npz"
-    np.savez_compressed(tmp, eta=ETA_GRID, q_sigma=q_grid, S=S, S_err=S_err.astype(np.float32), S0=S0, tail=tail,
+    np.savez_compressed(tmp, eta=ETA_GRID, q_sigma=q_grid, S=S, S_err=S_err.astype(np.float16), S0=S0, tail=tail,
                         raw_q=raw_q, raw_S=raw_S, raw_S_err=raw_S_err, raw_n_vectors=raw_nv,
                         r_sigma=r_sigma, g=g, g_err=g_err, settings=np.array(settings),
                         metadata=json.dumps(meta), **out_d)

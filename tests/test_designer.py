@@ -276,13 +276,13 @@ def test_exports_load_in_mitsuba_and_rebuild_the_material(client, mi_variant):
 # bad input: HTTP 400 with one line naming the parameter; bounded work
 # ----------------------------------------------------------------------
 @pytest.mark.parametrize("query, words", [
-    ({"radius": -1}, ["radius=-1", "> 0"]),
+    ({"radius": -1}, ["radius=-1", "allowed [0.001, 1000]"]),
     ({"radius": "abc"}, ["radius", "not a number"]),
     ({"radius": "nan"}, ["radius=nan"]),
     ({"shape": "hexagon"}, ["shape='hexagon'", "circle"]),
     ({"area_fraction": 1.5}, ["area_fraction=1.5", "(0, 1)"]),
     ({"colour": "red"}, ["unknown parameter(s) colour"]),
-    ({"radius": 5000}, ["radius=5000", "designer", "1000"]),
+    ({"radius": 5000}, ["radius=5000", "1000"]),
     ({"shape": "polygon", "sides": 1000000}, ["sides=1000000"]),
     ({"size": 100000}, ["size=100000"]),
     ({"light_size": 0}, ["light_size=0"]),

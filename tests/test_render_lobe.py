@@ -112,7 +112,7 @@ def test_chi2_warped_sampling_table(mi_variant, theta):
 def test_warped_table_covers_every_evaluated_direction():
     """Where the kernel's lobe is positive (anywhere the reachable disk), the
     sampling pdf is positive too: eval / pdf is unbiased."""
-    m = material_from_parameters(shape="rectangle", radius=4.0, aspect=0.1, angle=30, process="poisson")
+    m = material_from_parameters(shape="rectangle", radius=4.0, aspect=0.2, angle=30, process="poisson")
     t = m.table
     assert t.warp > 0 and t.reach >= 2 * np.pi * 4.0 * 2 / 0.36
     rng = np.random.default_rng(3)

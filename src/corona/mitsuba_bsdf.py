@@ -296,19 +296,25 @@ class CoronaBSDFMixin:
         # tables in u = 2π L |d| / λ cover the largest radius (uniform: 25 % headroom, so that
         # an optimiser can grow it without a rebuild); a smaller one scales L down
         cover = radius_range[1] * (1.0 if "radius" in self._textured else 1.25)
-        if not self.fixed_radius:
-            params["radius"] = cover
-            for name in ("edge_width", "exclusion_diameter", "jitter"):
-                if params.get(name) is not None:
-                    params[name] = params[name] * cover / self.radius_ref
-        params["area_fraction"] = min(max(fa_hi, 1e-6), 1.0 - 1e-6)
+        if params.get("process") != "points":       # (a point file sets its own area fraction)
+            params["area_fraction"] = min(max(fa_hi, 1e-6), 1.0 - 1e-6)
         params["albedo"] = albedo_range[1]
+        lengths = ("edge_width", "exclusion_diameter", "jitter")
+
+        def at(radius):      # the parameters with the layer scaled to `radius` (σ/R fixed)
+            if self.fixed_radius:
+                return params
+            return {**params, "radius": radius, **{k: params[k] * radius / self.radius_ref
+                                                   for k in lengths if params.get(k) is not None}}
         try:
             # checked at the values given (their messages name those), built at the table's cover
-            material_from_parameters(**{**params, **({} if self.fixed_radius else {
-                "radius": radius_range[1], **{k: self.params[k] for k in ("edge_width", "exclusion_diameter",
-                                                                          "jitter") if k in self.params}})})
-            material = material_from_parameters(**params)
+            material = material_from_parameters(**at(radius_range[1]))
+            if not self.fixed_radius and cover != radius_range[1]:
+                try:
+                    material = material_from_parameters(**at(cover))
+                except CoronaError:      # the headroom would pass the largest size: none
+                    cover = radius_range[1]
+            params = at(cover)
         except CoronaError as err:
             if "area_fraction" in str(err) and fa_hi > 0 and self.fa_tex.is_spatially_varying():
                 raise CoronaError(f"corona BSDF: the area_fraction texture reaches {fa_hi:g}: {err}") from None

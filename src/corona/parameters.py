@@ -140,6 +140,9 @@ SIZE_DISTRIBUTIONS = ("lognormal", "schulz")
 MODES = ("aperture", "particle")
 SAMPLINGS = ("lobe", "cosine")
 SUBSTRATES = ("none", "glass")
+#: Largest refractive (and absorption) index accepted: above any dielectric at visible
+#: wavelengths (diamond 2.42, rutile 2.9; silicon's n ≈ 4 is not transparent there).
+IOR_MAX = 5.0
 SUBSTRATE_SIDES = ("front", "back")
 #: Largest circumradius of a scatterer [µm] (the length R of ``u = 2π R |d| / λ``).
 #: The radial table (``tables.RADIAL_MAX_SAMPLES`` samples up to |d| = 2 at 360 nm)
@@ -187,9 +190,9 @@ PARAMETERS: tuple[Parameter, ...] = (
               f"{RADIUS_MAX:g} µm)", low=RADIUS_MIN, high=RADIUS_MAX, applies=_SHAPES_WITH_RADIUS),
     Parameter("ior", "float", "", None, "shape=sphere: refractive index n of the droplets relative to "
               "air; default water at 20 °C with its dispersion (Daimon & Masumura 2007)",
-              low=0.0, low_open=True, high_open=True, applies=("shape=sphere",)),
+              low=0.0, high=IOR_MAX, low_open=True, applies=("shape=sphere",)),
     Parameter("ior_imag", "float", "", 0.0, "shape=sphere: absorption index κ (m = n + iκ; needs ior)",
-              low=0.0, high_open=True, applies=("shape=sphere",)),
+              low=0.0, high=IOR_MAX, applies=("shape=sphere",)),
     Parameter("aspect", "float", "", 1.0, "ellipse / rectangle: extent along y over x",
               low=ASPECT_MIN, high=ASPECT_MAX,
               applies=("shape=ellipse", "shape=rectangle", "shape=mixture")),
@@ -230,7 +233,7 @@ PARAMETERS: tuple[Parameter, ...] = (
               "non-absorbing pane (Fresnel reflection of both faces, thin-slab inter-reflections)",
               SUBSTRATES),
     Parameter("substrate_ior", "float", "", None, "index of refraction of the pane (substrate=glass); "
-              "default 1.52", low=1.0, high_open=True, applies=("substrate=glass",)),
+              "default 1.52", low=1.0, high=IOR_MAX, applies=("substrate=glass",)),
     Parameter("substrate_side", "choice", "", "front", "face of the pane that carries the layer: front "
               "(+z, where the shading normal points) or back (-z)", SUBSTRATE_SIDES,
               applies=("substrate=glass",)),

@@ -1050,6 +1050,15 @@ TABLE_METHOD = (
     "and b fitted to the data at q sigma >= 20.")
 
 
+#: Extra stretch (first, second peak) of the near band's warped coordinate,
+#: reached at η = 0.6 (scaled by (η - 0.2)/0.4 below): (4, 1) from η = 0.6 on;
+#: (2, 0.5) below since issue 18, where with 4–22× the chains generalised
+#: cross-validation smoothed the first peak so little that its error stayed
+#: at 0.004 (η = 0.5, 30 chains; 0.0026 with (2, 0.5) and 45 chains), with a
+#: bias of synthetic rows of 0.002 or less (:func:`smoothing_bias`).
+PEAK_STRETCH = (2.0, 0.5)
+PEAK_STRETCH_DENSE = (4.0, 1.0)
+ETA_DENSE = 0.6
 #: The far-band spline's local discrepancy bound (standard errors of a window
 #: mean).  3 let it flatten the third peak by 0.003–0.005 at η = 0.5 (issue
 #: 18); 1.5 keeps the bias of synthetic rows below their noise
@@ -1119,7 +1128,8 @@ def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
     * a cubic smoothing spline (``scipy.interpolate.make_smoothing_spline``,
       smoothing by generalised cross-validation, weights ``1/err²``) through
       the residual, in a warped coordinate ``t(q)`` that stretches the first
-      peak (up to ×5, width 0.6) and the second (up to ×2, width 1; the
+      peak (×5 from η = 0.6 on, at most ×3 below; width 0.6) and the second
+      (×2 from η = 0.6, at most ×1.5 below; width 1; the
       stretch grows from none at η = 0.2 to full at η = 0.6): one smoothing
       parameter, but weak smoothing where S changes fast and strong elsewhere;
     * beyond ``2.7 q_peak`` (``q_peak`` the PY first peak; past the second
@@ -1186,7 +1196,8 @@ def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
         # first two peaks: one smoothing parameter (GCV), but effectively much
         # weaker smoothing where S changes fast and stronger elsewhere
         sharp = min(1.0, max(0.0, (eta - 0.2) / 0.4))      # peaks sharpen with η
-        warp = _peak_warp(q_peak, stretch=(4.0 * sharp, 1.0 * sharp))
+        a, b = PEAK_STRETCH_DENSE if eta >= ETA_DENSE - 1e-9 else PEAK_STRETCH
+        warp = _peak_warp(q_peak, stretch=(a * sharp, b * sharp))
         spl = make_smoothing_spline(warp(x), y, w=w)
         res_g = spl(warp(qg))
         res_d = spl(warp(q))
