@@ -197,7 +197,7 @@ def test_update_rerenders_without_recompiling_and_matches_a_fresh_load(mi_varian
     assert not compiled, f"{len(compiled)} kernel(s) recompiled after params.update()"
     fresh = np.array(mi.render(_scene(0.36), seed=1))
     # the fresh layer has a table row at 0.36 itself; the updated one interpolates (rows: 0.1 %)
-    np.testing.assert_allclose(img, fresh, rtol=1e-3, atol=1e-6)
+    np.testing.assert_allclose(img, fresh, rtol=1e-3, atol=1e-5)
 
 
 def test_bad_textures_fail_at_load_naming_the_parameter(mi_variant):

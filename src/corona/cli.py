@@ -300,6 +300,9 @@ def lobe(out_path, as_json, wavelength, **params):
     try:
         from .parameters import material_from_parameters
         m = material_from_parameters(**params)
+        if getattr(m, "table", None) is None:       # a Mie layer (shape=sphere): no lobe tables here
+            _fail("corona lobe does not draw or tabulate shape='sphere' (Mie droplets) yet; "
+                  "render it with corona render, or use corona.SphereMaterial in Python")
         if as_json:
             from ._validation import check_range
             from .tables import WAVELENGTH_MAX, WAVELENGTH_MIN

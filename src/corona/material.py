@@ -108,13 +108,13 @@ class Material:
     (0.49, 0.21)
 
     The lobe ``F_a T_a T_s`` at ``d = 0`` is ``F_a (π R²/λ²) S(0)``, with
-    ``S(0) = 0.257`` (Henderson's compressibility: 0.258); it vanishes on the
+    ``S(0) = 0.258`` (Henderson's compressibility: 0.258); it vanishes on the
     first dark ring of the Airy pattern, ``2π R |d| / λ = 3.8317``:
 
     >>> lam = 550.0                                      # nm
     >>> f0 = m.lobe([[0.0, 0.0]], lam)[0]                 # sr⁻¹, no cosine factors
     >>> round(float(f0 / (0.3 * np.pi * 20.0**2 / 0.55**2)), 3)
-    0.257
+    0.258
     >>> d1 = 3.8317 * 0.55 / (2 * np.pi * 20.0)
     >>> bool(m.lobe([[d1, 0.0]], lam)[0] < 1e-9 * f0)
     True
@@ -423,9 +423,11 @@ class Material:
             n = min(n, tables.RADIAL_MAX_SAMPLES)
             du = u_max / (n - 1)
             u = np.arange(n) * du
-            out = tables.RadialTable(du, self._in_chunks(self.lobe_dimensionless_radial, u)).arrays()
-            P = self.shape.form_factor_radial(u / R) / R**2
-            out["form_total"] = np.array(tables.RadialTable(du, P).total)
+            # v and the form factor P/R² in one pass over the shape (P's integral: the tail)
+            vp = self._in_chunks(lambda x: (lambda t: np.stack([t["v"], t["P"] / R**2], -1))(
+                self.lobe_terms(x, radial=True)), u)
+            out = tables.RadialTable(du, vp[:, 0]).arrays()
+            out["form_total"] = np.array(tables.RadialTable(du, vp[:, 1]).total)
             return out
         n = tables.GRID2D_SIZE
         u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
@@ -506,8 +508,7 @@ class Material:
         """Radial ``v(u)`` of this material at each area fraction (P and C computed once)."""
         R = self.length_scale
         q = u / R
-        P = self.shape.form_factor_radial(q)
-        C = self.shape.coherent_form_factor_radial(q)
+        P, C = self._form_factors(q, radial=True)
         out = []
         for fa in area_fractions:
             S = 1.0 if fa <= 0.0 else self.process.with_area_fraction(float(fa)).structure_factor_radial(q, self.shape)

@@ -249,7 +249,7 @@ class HardDisk(Process):
     >>> eta = 0.3
     >>> henderson = (1 - eta) ** 3 / ((1 + 3 * eta**2 / 8) * (1 - eta) + 2 * eta * (1 + eta**2 / 8))
     >>> round(henderson, 3), round(float(S[0]), 3), round(float(S[1]), 2)
-    (0.258, 0.257, 1.0)
+    (0.258, 0.258, 1.0)
     """
 
     isotropic = True
