@@ -72,13 +72,14 @@ layer never transmits plus reflects more than it receives.
 """
 from __future__ import annotations
 
+import warnings
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from . import tables
-from ._validation import CoronaError
+from ._validation import CoronaError, CoronaWarning
 from .parameters import SPEC, material_from_parameters, rst_table
 
 __doc__ = __doc__.replace("{table}", rst_table())
@@ -311,7 +312,9 @@ class CoronaBSDFMixin:
             material = material_from_parameters(**at(radius_range[1]))
             if not self.fixed_radius and cover != radius_range[1]:
                 try:
-                    material = material_from_parameters(**at(cover))
+                    with warnings.catch_warnings():      # (the check above warned already)
+                        warnings.simplefilter("ignore", CoronaWarning)
+                        material = material_from_parameters(**at(cover))
                 except CoronaError:      # the headroom would pass the largest size: none
                     cover = radius_range[1]
             params = at(cover)
