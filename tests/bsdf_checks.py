@@ -81,3 +81,35 @@ def smooth_context():
                      | mi.BSDFFlags.GlossyReflection)
     return ctx
 
+
+#: A tiny scene: a corona layer filling the view of a perspective camera, a white sky behind
+#: (``-D spp=N -D res=N -D radius=R``); ``{props}`` holds the layer's properties.
+LAYER_SCENE = """<scene version="3.0.0">
+    <default name="spp" value="{spp}"/>
+    <default name="res" value="{res}"/>
+    <default name="radius" value="5"/>
+    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+    <sensor type="perspective">
+        <float name="fov" value="20"/>
+        <transform name="to_world"><lookat origin="0, 0, 0" target="0, 0, 1" up="0, 1, 0"/></transform>
+        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+        <film type="hdrfilm">
+            <integer name="width" value="$res"/><integer name="height" value="$res"/>
+            <string name="pixel_format" value="rgb"/><rfilter type="box"/>
+        </film>
+    </sensor>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="2"/><translate z="1"/></transform>
+        <bsdf type="corona">
+{props}
+        </bsdf>
+    </shape>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+</scene>
+"""
+
+
+def layer_scene(props: str = '            <float name="radius" value="$radius"/>'
+                             '<float name="area_fraction" value="0.3"/>', spp: int = 4, res: int = 8) -> str:
+    """:data:`LAYER_SCENE` with the layer's ``props`` (XML) and the default spp and resolution."""
+    return LAYER_SCENE.replace("{props}", props).replace("{spp}", str(spp)).replace("{res}", str(res))

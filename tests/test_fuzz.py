@@ -33,6 +33,8 @@ import corona
 from corona.cli import main as cli_main
 from corona.parameters import PARAMETERS
 
+from bsdf_checks import layer_scene
+
 N_CASES = 60
 
 FLOATS = ["0", "-1", "1e-300", "0.001", "0.05", "0.3", "0.5", "1", "5", "24.9", "1000", "1000.5", "1e20",
@@ -47,29 +49,6 @@ NAMES = ["x", "../x", "/abs/x", "", ".", "a/b", "ok_name", "..", "n\\x"]
 OUTS = ["@out", "", "@file", "@file/sub", "/proc/x", "@out/deeper"]
 DEFINES = ["spp=0", "spp=1", "res=0", "res=4", "radius=abc", "nope=1", "radius", "=1", "r=1e20"]
 
-SCENE = """<scene version="3.0.0">
-    <default name="spp" value="1"/>
-    <default name="res" value="4"/>
-    <default name="radius" value="5"/>
-    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
-    <sensor type="perspective">
-        <float name="fov" value="20"/>
-        <transform name="to_world"><lookat origin="0, 0, 0" target="0, 0, 1" up="0, 1, 0"/></transform>
-        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
-        <film type="hdrfilm">
-            <integer name="width" value="$res"/><integer name="height" value="$res"/>
-            <string name="pixel_format" value="rgb"/><rfilter type="box"/>
-        </film>
-    </sensor>
-    <shape type="rectangle">
-        <transform name="to_world"><scale value="2"/><translate z="1"/></transform>
-        <bsdf type="corona">
-{props}
-        </bsdf>
-    </shape>
-    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
-</scene>
-"""
 
 
 def _valid(p, rng):
@@ -185,7 +164,7 @@ def test_fuzz(case, tmp_path, monkeypatch, inputs, mi_variant):
     if kind == "scene":
         props = "\n".join(f'            <{tag} name="{name}" value="{sub(v)}"/>'
                           for name, (tag, v) in a.items())
-        text = SCENE.replace("{props}", props)
+        text = layer_scene(props, spp=1, res=4)
         spp, mutation = b
         text = {"no-integrator": lambda t: re.sub(r"<integrator.*?</integrator>", "", t, flags=re.S),
                 "no-emitter": lambda t: re.sub(r"<emitter.*?</emitter>", "", t, flags=re.S),
@@ -203,7 +182,7 @@ def test_fuzz(case, tmp_path, monkeypatch, inputs, mi_variant):
         out.mkdir()
     elif kind == "render":
         scene = tmp_path / "scene.xml"
-        scene.write_text(SCENE.replace("{props}", '            <float name="radius" value="$radius"/>'))
+        scene.write_text(layer_scene('            <float name="radius" value="$radius"/>', spp=1, res=4))
         args = ["render", str(scene)] + [x for k, v in a.items() for x in (k, sub(v))]
         if "--out" not in a:
             args += ["--out", str(out)]

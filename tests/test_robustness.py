@@ -20,31 +20,13 @@ from corona import parameters, tables
 from corona.cli import main as cli_main
 from corona.parameters import RADIUS_MAX, SPEC, material_from_parameters
 
+from bsdf_checks import layer_scene
+
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
 TEASER = os.path.join(ROOT, "scenes", "teaser.xml")
 
 #: a tiny scene: a corona layer (R = 5 µm, F_a = 0.3) filling the view, a white sky behind
-SCENE = """<scene version="3.0.0">
-    <default name="spp" value="4"/>
-    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
-    <sensor type="perspective">
-        <float name="fov" value="20"/>
-        <transform name="to_world"><lookat origin="0, 0, 0" target="0, 0, 1" up="0, 1, 0"/></transform>
-        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
-        <film type="hdrfilm">
-            <integer name="width" value="8"/><integer name="height" value="8"/>
-            <string name="pixel_format" value="rgb"/><rfilter type="box"/>
-        </film>
-    </sensor>
-    <shape type="rectangle">
-        <transform name="to_world"><scale value="2"/><translate z="1"/></transform>
-        <bsdf type="corona">
-            <float name="radius" value="5"/><float name="area_fraction" value="0.3"/>
-        </bsdf>
-    </shape>
-    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
-</scene>
-"""
+SCENE = layer_scene()
 
 
 def one_line(result, *words):
