@@ -71,10 +71,6 @@ class Circle(Shape):
     def length_scale(self) -> float:
         return self.radius
 
-    @property
-    def exclusion_diameter(self) -> float:
-        return 2.0 * self.radius
-
     @staticmethod
     def airy(u) -> np.ndarray:
         """``2 J1(u)/u`` with its limit 1 at u = 0."""

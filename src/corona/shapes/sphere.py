@@ -95,10 +95,6 @@ class Sphere(Shape):
     def length_scale(self) -> float:
         return self.radius
 
-    @property
-    def exclusion_diameter(self) -> float:
-        return 2.0 * self.radius
-
     def index(self, wavelength) -> np.ndarray:
         """Complex index ``m(λ)`` relative to air at ``wavelength`` [nm]."""
         lam = np.asarray(wavelength, dtype=np.float64)
