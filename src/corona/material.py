@@ -15,7 +15,7 @@ from . import tables
 from ._validation import CoronaError, CoronaWarning, check_choice, check_finite_array, check_range
 from .processes import Poisson, Process
 from .shapes import Shape
-from .substrate import GlassPane
+from .substrate import GlassPane, double_pass_visibility, interference_integral
 
 MODES = ("aperture", "particle")
 
@@ -698,11 +698,26 @@ class Material:
     # ------------------------------------------------------------------
     # the whole BSDF: the layer, alone or on its pane (docs/physics.md#the-layer-on-glass-substrateglass)
     # ------------------------------------------------------------------
-    def _pane(self, cos_theta):
-        """(R', T') of the substrate at |cos θ|: (0, 1) without one."""
+    def _pane(self, cos_theta, wavelength=550.0):
+        """(R', T') of the substrate at |cos θ|: (0, 1) without one (a mirror: T' = 0, black behind)."""
         c = np.asarray(cos_theta, dtype=np.float64)
-        r = np.zeros_like(c) if self.substrate is None else self.substrate.reflectance(c)
-        return r, 1.0 - r
+        if self.substrate is None:
+            return np.zeros_like(c), np.ones_like(c)
+        return self.substrate.reflectance(c, wavelength), self.substrate.transmittance(c)
+
+    @functools.cached_property
+    def double_pass_visibility(self) -> float:
+        """Visibility cap of the coherent double pass (:func:`corona.substrate.double_pass_visibility`)."""
+        lobe = self.lobe_weight * self._plane_integral / (4 * np.pi**2)
+        return double_pass_visibility(self.coherent_transmittance, lobe, self.reflectance)
+
+    def _reflected_lobe_factor(self, cos_i, cos_o, wavelength):
+        """The pane's factor on ``C f`` in the reflected lobe: ``R'_i + R'_o``, plus the coherent
+        double pass's interference on a pane with a thickness (GlassPane.reflected_lobe_factor)."""
+        if self.substrate is None:
+            return np.zeros(np.broadcast(cos_i, cos_o).shape)
+        vis = self.double_pass_visibility if self.substrate.coherent else 1.0
+        return self.substrate.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength, vis)
 
     def _layer_first(self, cos_theta_i):
         """True where light from ``wi`` meets the layer before the pane (always without one)."""
@@ -720,16 +735,17 @@ class Material:
         _, t = self._pane(cos_theta_i)
         return self.coherent_transmittance * t
 
-    def specular_reflection(self, cos_theta_i) -> np.ndarray:
+    def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
         """Weight of the delta reflection (the mirror direction of ``wi``).
 
         0 without a substrate; ``C² R'(θi)`` when the light meets the layer
         first (through the layer coherently, off the pane, back through the
         layer coherently); ``R'(θi)`` when it meets the glass first.
         ``R' = 2R/(1 + R)`` is the thin pane's reflectance
-        (:meth:`corona.GlassPane.reflectance`).
+        (:meth:`corona.GlassPane.reflectance`; a :class:`corona.substrate.Mirror`'s at
+        ``wavelength`` [nm]).
         """
-        r, _ = self._pane(cos_theta_i)
+        r, _ = self._pane(cos_theta_i, wavelength)
         c = self.coherent_transmittance
         return np.where(self._layer_first(cos_theta_i), c * c * r, r)
 
@@ -775,12 +791,13 @@ class Material:
         transmit = ci * co < 0
         reflect = ci * co > 0
         first = self._layer_first(ci)
-        ri, ti = self._pane(ci)
-        ro, to = self._pane(co)
+        lam = self._wavelength(wavelength) * 1e3                 # checked, nm
+        ri, ti = self._pane(ci, lam)
+        ro, to = self._pane(co, lam)
         f = self.lobe(wi[..., :2] + wo[..., :2], wavelength)
         c = self.coherent_transmittance
         lobe_t = f * np.where(first, to, ti)
-        lobe_r = f * np.where(first, c * (ri + ro), 0.0)
+        lobe_r = f * np.where(first, c * self._reflected_lobe_factor(ci, co, lam), 0.0)
         diffuse = self.reflectance / np.pi * np.where(first, 1.0, ti * to)
         value = np.where(transmit, lobe_t, 0.0) + np.where(reflect, lobe_r + diffuse, 0.0)
         return value * np.abs(co)
@@ -854,17 +871,23 @@ class Material:
         s = np.sqrt(max(0.0, 1.0 - ci * ci))
         wi_xy = (s * np.cos(phi_i), s * np.sin(phi_i))
         first = bool(self._layer_first(ci))
-        ri, ti = (float(x) for x in self._pane(ci))
+        ri, ti = (float(x) for x in self._pane(ci, wavelength))
         c = self.coherent_transmittance
 
-        def pane_r(co):
-            return self._pane(co)[0]
+        def pane_t(co):
+            return self._pane(co, wavelength)[1]
 
-        plain, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_r])
-        out = {"coherent": c * ti, "specular": float(self.specular_reflection(ci))}
+        def pane_r(co):   # R'_i + R'_o (the interference of a thick pane: its own integral below)
+            return ri + self._pane(np.copysign(co, ci), wavelength)[0]
+
+        plain, transmitted, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_t, pane_r])
+        out = {"coherent": c * ti, "specular": float(self.specular_reflection(ci, wavelength))}
         if first:
-            out["lobe_transmission"] = plain - reflected            # ∫ f T'(θo)
-            out["lobe_reflection"] = c * (ri * plain + reflected)   # ∫ C f [R'(θi) + R'(θo)]
+            out["lobe_transmission"] = transmitted                  # ∫ f T'(θo)
+            out["lobe_reflection"] = c * reflected                  # ∫ C f [R'(θi) + R'(θo)]
+            if self.substrate is not None and self.substrate.coherent:
+                out["lobe_reflection"] += 2.0 * self.double_pass_visibility * c * interference_integral(
+                    self, ci, wavelength, phi_i)                    # + 2 V C ∫ f Q
             out["diffuse"] = self.reflectance
         else:
             out["lobe_transmission"] = ti * plain

@@ -81,6 +81,7 @@ import numpy as np
 from . import tables
 from ._validation import CoronaError, CoronaWarning
 from .parameters import SPEC, material_from_parameters, rst_table
+from .substrate import RGB_ORDERS, Mirror, channel_wavenumber_bins
 
 __doc__ = __doc__.replace("{table}", rst_table())
 
@@ -159,6 +160,14 @@ def texture_range(texture) -> tuple[float | None, float]:
     return None, float(texture.max())
 
 
+def _channel_curves():
+    """(wavelengths [nm] (n,), responses (channels, n)) of the RGB / mono channels."""
+    from .color import XYZ_TO_SRGB, cie1931_xyz
+    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 2048)
+    xyz = cie1931_xyz(lam).T                                     # (3, n)
+    return lam, (xyz[1:2] if mi.is_monochromatic else np.maximum(XYZ_TO_SRGB @ xyz, 0.0))
+
+
 def _channel_response():
     """(wavelengths [nm], weights) of the RGB / mono channels, each (channels, N_RESPONSE).
 
@@ -166,10 +175,7 @@ def _channel_response():
     ȳ for mono) is represented by ``N_RESPONSE`` wavelengths at equal-weight
     quantiles of the response, so the channel value is their mean.
     """
-    from .color import XYZ_TO_SRGB, cie1931_xyz
-    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 2048)
-    xyz = cie1931_xyz(lam).T                                     # (3, n)
-    resp = xyz[1:2] if mi.is_monochromatic else np.maximum(XYZ_TO_SRGB @ xyz, 0.0)
+    lam, resp = _channel_curves()
     chans = []
     for r in resp:
         cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
@@ -240,6 +246,7 @@ class CoronaBSDFMixin:
         if self.has_pane:
             self.eta = float(pane.ior)
             self.layer_on_front = pane.side == "front"
+            self._setup_double_pass(pane)
 
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
@@ -452,7 +459,7 @@ class CoronaBSDFMixin:
         else:
             L = self.radius_tex.eval_1(si, active) * self.L_per_radius
         return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
-                    coherent=coherent, lobe=lobe, reflect=reflect)
+                    coherent=coherent, lobe=lobe, reflect=reflect, plane=plane)
 
     def _table_value(self, ux, uy, row, active):
         """v(u) of one row: linear in |u| (radial table) or the kernel (anisotropic lobes)."""
@@ -514,8 +521,9 @@ class CoronaBSDFMixin:
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
         return mi.Vector2f(r * cos_phi, r * sin_phi)
 
-    def _lobe_and_pdf(self, layer, wi, wo, wavelengths, active):
-        """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths."""
+    def _lobe_and_pdf(self, layer, wi, wo, wavelengths, active, modulation=None):
+        """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths;
+        with ``modulation(q, λ)`` also the lobe with each wavelength's value times that factor."""
         dx = wo.x + wi.x
         dy = wo.y + wi.y
         lams, mix = self._wavelength_mixture(wavelengths)
@@ -539,6 +547,13 @@ class CoronaBSDFMixin:
             values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
             # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
             pdf += m * p_u * dr.square(k)
+        if modulation is None:
+            return self._fold(values), pdf
+        return self._fold(values), pdf, self._fold([v * modulation(q, lam_nm)
+                                                     for q, (v, lam_nm) in enumerate(zip(values, lams))])
+
+    def _fold(self, values):
+        """The Spectrum of per-wavelength values: spectral as is, RGB/mono each channel's mean."""
         if mi.is_spectral:
             f = mi.Spectrum(values)
         else:
@@ -551,7 +566,7 @@ class CoronaBSDFMixin:
                     acc += float(self.channel_weights[c, q]) * values[c * per + q]
                 chans.append(acc)
             f = mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)
-        return f, pdf
+        return f
 
     def _wavelength_mixture(self, wavelengths):
         """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
@@ -562,9 +577,70 @@ class CoronaBSDFMixin:
         return lams, [1.0 / len(lams)] * len(lams)
 
     def _pane_reflectance(self, cos_theta):
-        """``R' = 2R / (1 + R)``: the thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``)."""
+        """``R' = 2R / (1 + R)``: the thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``);
+        a mirror's ``R + T² R_m / (1 - R R_m)``."""
         r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
+        if self.is_mirror:
+            return r + dr.square(1.0 - r) * self.silver / (1.0 - r * self.silver)
         return r * 2.0 / (1.0 + r)
+
+    def _pane_transmittance(self, cos_theta):
+        """``T' = 1 - R'`` of the pane at ``|cos θ|``; 0 for a mirror."""
+        if self.is_mirror:
+            return dr.zeros(mi.Float, dr.width(cos_theta))
+        return 1.0 - self._pane_reflectance(cos_theta)
+
+    # --- the coherent double pass (docs/physics.md#the-coherent-double-pass-quetelet-rings) -----
+    def _setup_double_pass(self, pane):
+        """Constants of the pane's thickness, silvering and (RGB) the wavenumber bins."""
+        self.is_mirror = isinstance(pane, Mirror)
+        self.silver = float(pane.silver(550.0)) if self.is_mirror else 0.0
+        self.coherent_pane = pane.coherent
+        if not self.coherent_pane:
+            return
+        self.thickness = float(pane.thickness)
+        if not mi.is_spectral:   # each response wavelength stands for its quantile bin: centre, width in 1/µm
+            centre, width = channel_wavenumber_bins(*_channel_curves(), N_RESPONSE)
+            self.bin_sigma, self.bin_width = centre.ravel(), width.ravel()
+
+    def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o):
+        """Per evaluated wavelength, the factor ``R'_i + R'_o + 2 V Q`` on ``C f`` (a callable
+        ``(q, λ [nm]) -> Float`` for :meth:`_lobe_and_pdf`), ``Q`` the interference of the round
+        trips: exact per wavelength (spectral), averaged over each response bin (RGB/mono)."""
+        n = self.eta
+        base = self._pane_reflectance(cos_i) + self._pane_reflectance(cos_o)
+        s2i = dr.fma(wi.x, wi.x, wi.y * wi.y)
+        s2o = dr.fma(wo.x, wo.x, wo.y * wo.y)
+        cri = dr.safe_sqrt(1.0 - s2i / (n * n))
+        cro = dr.safe_sqrt(1.0 - s2o / (n * n))
+        delta = (2.0 * self.thickness / n) * (s2o - s2i) / (cri + cro)        # 2 n t (cos r_s - cos r_o), µm
+        ri = mi.fresnel(dr.abs(cos_i), n)[0]
+        ro = mi.fresnel(dr.abs(cos_o), n)[0]
+        rb = self.silver if self.is_mirror else dr.sqrt(ri * ro)
+        a = (1.0 - ri) * (1.0 - ro) * rb
+        x = rb * dr.sqrt(ri * ro)
+        c2 = layer["coherent"]
+        lobe = layer["plane"] * layer["weight"] / dr.maximum(layer["fa"], 1e-30)
+        cd = 2.0 * c2 * lobe                                                  # the visibility cap
+        vis = dr.select(cd > 0, dr.clip((1.0 - layer["reflect"] - c2 * c2 - cd) / dr.maximum(cd, 1e-30),
+                                        0.0, 1.0), 1.0)
+
+        def factor(q, lam_nm):
+            if mi.is_spectral:
+                c = dr.cos(2.0 * dr.pi * delta / self._lambda_um(lam_nm))
+                qv = a * (c - x) / (1.0 - 2.0 * x * c + x * x)
+            else:   # Σ_k x^(k-1) cos(2π k Δ σ_q) sinc(π k Δ δσ_q), truncated
+                sigma, width = float(self.bin_sigma[q]), float(self.bin_width[q])
+                qv = mi.Float(0.0)
+                xk = mi.Float(1.0)
+                for k in range(1, RGB_ORDERS + 1):
+                    arg = dr.pi * k * delta * width
+                    sinc = dr.select(dr.abs(arg) > 1e-4, dr.sin(arg) / arg, 1.0)
+                    qv += xk * dr.cos(2.0 * dr.pi * k * delta * sigma) * sinc
+                    xk = xk * x
+                qv = a * qv
+            return base + 2.0 * vis * qv
+        return factor
 
     def _layer_first(self, cos_i):
         """True where light from ``wi`` meets the layer before the pane."""
@@ -574,7 +650,8 @@ class CoronaBSDFMixin:
         """Weights of the coherent transmission and of the specular reflection (pane only)."""
         r_i = self._pane_reflectance(cos_i)
         c = layer["coherent"]
-        return c * (1.0 - r_i), dr.select(self._layer_first(cos_i), c * c * r_i, r_i)
+        behind = 0.0 if self.is_mirror else r_i                           # a mirror's back is black
+        return c * self._pane_transmittance(cos_i), dr.select(self._layer_first(cos_i), c * c * r_i, behind)
 
     def _selection(self, ctx, layer, cos_i=None):
         """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
@@ -586,11 +663,12 @@ class CoronaBSDFMixin:
         else:
             flags += (mi.BSDFFlags.DeltaReflection, mi.BSDFFlags.GlossyReflection)
             first = self._layer_first(cos_i)
-            t_i = 1.0 - self._pane_reflectance(cos_i)
+            t_i = self._pane_transmittance(cos_i)
             w_coh, w_spec = self._delta_weights(layer, cos_i)
             energies = (w_coh, layer["lobe"] * t_i,
                         dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
-                        dr.select(first, 2.0 * layer["coherent"] * layer["lobe"] * (1.0 - t_i), 0.0))
+                        dr.select(first, 2.0 * layer["coherent"] * layer["lobe"] * self._pane_reflectance(cos_i),
+                                  0.0))
         en = [e if ctx.is_enabled(fl, i) else mi.Float(0.0)
               for i, (e, fl) in enumerate(zip(energies, flags))]
         total = en[0]
@@ -621,16 +699,20 @@ class CoronaBSDFMixin:
         refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
 
         lobe_sides = (transmit | reflect) if self.has_pane else transmit   # the pane: the lobe in reflection
-        f, pdf_d = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, lobe_sides)
+        coherent = self.has_pane and self.coherent_pane
+        modulation = self._double_pass_modulation(layer, wi, wo, cos_i, cos_o) if coherent else None
+        f, pdf_d, *f_mod = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, lobe_sides, modulation)
         abs_cos_o = dr.abs(cos_o)
         lobe = f * abs_cos_o                                              # eval = f |cos θo|
         diffuse = layer["reflect"] * dr.inv_pi * abs_cos_o
         if self.has_pane:   # Fresnel factors of the pane (module docstring's table)
             first = self._layer_first(cos_i)
             r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
-            lobe_reflected = lobe * dr.select(first, layer["coherent"] * (r_i + r_o), 0.0)
-            lobe = lobe * dr.select(first, 1.0 - r_o, 1.0 - r_i)
-            diffuse = diffuse * dr.select(first, 1.0, (1.0 - r_i) * (1.0 - r_o))
+            t_i, t_o = self._pane_transmittance(cos_i), self._pane_transmittance(cos_o)
+            reflected = f_mod[0] * abs_cos_o if coherent else lobe * (r_i + r_o)
+            lobe_reflected = dr.select(first, layer["coherent"] * reflected, 0.0)
+            lobe = lobe * dr.select(first, t_o, t_i)
+            diffuse = diffuse * dr.select(first, 1.0, t_i * t_o)
         value = dr.select(transmit & lobe_on, lobe, 0.0)
         if self.sampling == "cosine":
             pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π

@@ -139,7 +139,7 @@ ORIENTATIONS = ("fixed", "random")
 SIZE_DISTRIBUTIONS = ("lognormal", "schulz")
 MODES = ("aperture", "particle")
 SAMPLINGS = ("lobe", "cosine")
-SUBSTRATES = ("none", "glass")
+SUBSTRATES = ("none", "glass", "mirror")
 #: Largest refractive (and absorption) index accepted: above any dielectric at visible
 #: wavelengths (diamond 2.42, rutile 2.9; silicon's n ≈ 4 is not transparent there).
 IOR_MAX = 5.0
@@ -229,14 +229,20 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("albedo", "float", "", 0.0, "diffuse reflectance of the opaque part", low=0.0, high=1.0),
     Parameter("mixture", "string", "", None, "shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (radius µm, "
               "number weights; decoupling approximation)", applies=("shape=mixture",)),
-    Parameter("substrate", "choice", "", "none", "none, or glass: the layer sits on a thin "
-              "non-absorbing pane (Fresnel reflection of both faces, thin-slab inter-reflections)",
-              SUBSTRATES),
-    Parameter("substrate_ior", "float", "", None, "index of refraction of the pane (substrate=glass); "
-              "default 1.52", low=1.0, high=IOR_MAX, applies=("substrate=glass",)),
+    Parameter("substrate", "choice", "", "none", "none; glass: the layer sits on a thin non-absorbing pane "
+              "(Fresnel reflection of both faces, thin-slab inter-reflections); mirror: on the front face of "
+              "a back-silvered pane", SUBSTRATES),
+    Parameter("substrate_ior", "float", "", None, "index of refraction of the pane (substrate=glass, "
+              "mirror); default 1.52", low=1.0, high=IOR_MAX, applies=("substrate=glass", "substrate=mirror")),
     Parameter("substrate_side", "choice", "", "front", "face of the pane that carries the layer: front "
               "(+z, where the shading normal points) or back (-z)", SUBSTRATE_SIDES,
               applies=("substrate=glass",)),
+    Parameter("substrate_thickness", "float", "µm", None, "thickness of the pane: the two passes through the "
+              "layer interfere (Quetelet rings); default 4000 for mirror, none (incoherent) for glass",
+              low=50.0, high=1.0e5, applies=("substrate=glass", "substrate=mirror")),
+    Parameter("mirror_reflectance", "float", "", None, "reflectance of the silvering seen from inside the "
+              "glass; default 0.97 (silver behind glass at normal incidence)", low=0.0, high=1.0,
+              applies=("substrate=mirror",)),
     Parameter("sampling", "choice", "", "lobe", "how the lobe is sampled: lobe (T_a T_s exactly) or "
               "cosine (for comparisons only)", SAMPLINGS, plugin_only=True),
 )
@@ -510,7 +516,8 @@ def material_from_parameters(**params):
     given = {k: v for k, v in params.items() if v is not None}
     p = {**DEFAULTS, **{k: SPEC[k].check(v) for k, v in given.items()}}
     from .substrate import make_substrate
-    substrate = make_substrate(p["substrate"], p["substrate_ior"], p["substrate_side"])
+    substrate = make_substrate(p["substrate"], p["substrate_ior"], p["substrate_side"],
+                               p["substrate_thickness"], p["mirror_reflectance"])
     shape = make_shape(p)
     process = make_process(p, shape)
     if p["shape"] == "sphere":   # droplets in air: particles; the mode given must say so

@@ -1,9 +1,16 @@
-"""The pane under a layer: a thin, non-absorbing glass sheet (numpy reference).
+"""The pane under a layer: a glass sheet, bare or back-silvered (numpy reference).
 
 A fogged window is droplets on glass, and glass reflects.  :class:`GlassPane`
-is the sheet of glass the corona layer sits on; :class:`corona.Material`
-combines the two (see ``docs/physics.md#the-layer-on-glass-substrateglass`` for which inter-reflections the
-combination keeps and which it drops).
+is the sheet of glass the corona layer sits on, :class:`Mirror` a pane
+silvered on its back face; :class:`corona.Material` combines them with the
+layer (see ``docs/physics.md#the-layer-on-glass-substrateglass`` for which
+inter-reflections the combination keeps and which it drops).
+
+With a thickness, the light a particle scatters on its way to the back face
+and the light it scatters on its way out interfere: the coherent double pass
+of Stokes' "colours of thick plates", which draws Quetelet rings
+(:meth:`GlassPane.reflected_lobe_factor`,
+``docs/physics.md#the-coherent-double-pass-quetelet-rings``).
 """
 from __future__ import annotations
 
@@ -14,6 +21,18 @@ from ._validation import CoronaError, check_choice, check_range
 SIDES = ("front", "back")
 #: Index of refraction of window (soda-lime) glass at 550 nm.
 GLASS_IOR = 1.52
+#: Thickness of a mirror's glass when none is given [µm] (a 4 mm mirror).
+MIRROR_THICKNESS = 4000.0
+#: Reflectance of the silvering seen from inside the glass at normal incidence: silver
+#: (n ≈ 0.06 + 3.6i near 550 nm, P. B. Johnson, R. W. Christy, Phys. Rev. B 6, 4370 (1972))
+#: behind glass of index 1.52 gives |(1.52 - N)/(1.52 + N)|² ≈ 0.975; 0.97 allows for the
+#: protective layers of a household mirror.
+SILVER_REFLECTANCE = 0.97
+#: Allowed pane thickness [µm] for the coherent double pass (0.05–100 mm).
+THICKNESS_RANGE = (50.0, 1.0e5)
+#: Internal round trips whose interference is summed in closed form (all of them); the
+#: channel-averaged (RGB) form truncates after this many, the rest below R_b (R_b R)^4.
+RGB_ORDERS = 4
 
 
 def fresnel_dielectric(cos_theta_i, eta) -> np.ndarray:
@@ -70,22 +89,30 @@ class GlassPane:
     (one index for every wavelength).
     """
 
-    def __init__(self, ior: float = GLASS_IOR, side: str = "front"):
+    def __init__(self, ior: float = GLASS_IOR, side: str = "front", thickness: float | None = None):
         self.ior = check_range("substrate_ior", ior, 1.0, np.inf, hi_open=True)
         self.side = check_choice("substrate_side", side, SIDES)
+        self.thickness = None if thickness is None else check_range("substrate_thickness", thickness,
+                                                                    *THICKNESS_RANGE)
 
     def __repr__(self):
-        return f"GlassPane(ior={self.ior:g}, side={self.side!r})"
+        t = "" if self.thickness is None else f", thickness={self.thickness:g}"
+        return f"{type(self).__name__}(ior={self.ior:g}, side={self.side!r}{t})"
 
     def key(self) -> dict:
-        return {"ior": self.ior, "side": self.side}
+        return {"ior": self.ior, "side": self.side, "thickness": self.thickness}
+
+    @property
+    def coherent(self) -> bool:
+        """True when the two passes through the layer interfere (a thickness is given)."""
+        return self.thickness is not None
 
     def face_reflectance(self, cos_theta) -> np.ndarray:
         """Fresnel reflectance R of one face at incidence ``cos_theta``."""
         return fresnel_dielectric(cos_theta, self.ior)
 
-    def reflectance(self, cos_theta) -> np.ndarray:
-        """Specular reflectance of the whole pane, ``R' = 2R / (1 + R)``."""
+    def reflectance(self, cos_theta, wavelength=None) -> np.ndarray:
+        """Specular reflectance of the whole pane, ``R' = 2R / (1 + R)`` (no dispersion)."""
         r = self.face_reflectance(cos_theta)
         return 2.0 * r / (1.0 + r)
 
@@ -99,12 +126,229 @@ class GlassPane:
         c = np.asarray(cos_theta_i, dtype=np.float64)
         return c > 0 if self.side == "front" else c < 0
 
+    # --- the coherent double pass --------------------------------------------------------
+    def back_reflectance(self, cos_theta, wavelength) -> np.ndarray:
+        """Reflectance ``R_b`` of the back face seen from inside, for light that left the
+        air at ``cos_theta``: bare glass, the same Fresnel ``R`` (Stokes)."""
+        return self.face_reflectance(cos_theta) + 0.0 * np.asarray(wavelength, dtype=np.float64)
 
-def make_substrate(kind: str, ior=None, side: str = "front") -> GlassPane | None:
+    def round_trips(self, cos_theta, wavelength, orders: int) -> np.ndarray:
+        """Intensities ``I_k``, k = 0 .. orders - 1, of the paths that leave the front face after
+        ``k`` round trips through the glass (air at ``cos_theta``; shape ``(orders, ...)``).
+
+        ``I_0 = R`` (the front face), ``I_k = T² R_b (R R_b)^(k-1)`` with ``T = 1 - R``;
+        ``Σ_k I_k`` is the pane's :meth:`reflectance`.
+        """
+        r = self.face_reflectance(cos_theta)
+        rb = self.back_reflectance(cos_theta, wavelength)
+        k = np.arange(orders).reshape((-1,) + (1,) * np.ndim(r * rb))
+        return np.where(k == 0, r, (1 - r) ** 2 * rb * (r * rb) ** np.maximum(k - 1, 0))
+
+    def path_difference(self, cos_s, cos_o) -> np.ndarray:
+        """``Δ = 2 n t (cos r_s - cos r_o)`` [µm]: the extra optical path of one round trip
+        at the source's refracted angle over one at the observer's.
+
+        ``r`` are the angles in the glass, ``sin r = sin θ / n`` (``|cos θ|`` given); written as
+        ``2 t (sin²θ_o - sin²θ_s) / (n (cos r_s + cos r_o))`` (no cancellation near Δ = 0).
+        """
+        n, t = self.ior, float(self.thickness)
+        s2s = 1.0 - np.minimum(np.asarray(cos_s, dtype=np.float64) ** 2, 1.0)
+        s2o = 1.0 - np.minimum(np.asarray(cos_o, dtype=np.float64) ** 2, 1.0)
+        crs = np.sqrt(1.0 - s2s / (n * n))
+        cro = np.sqrt(1.0 - s2o / (n * n))
+        return 2.0 * t * (s2o - s2s) / (n * (crs + cro))
+
+    def interference(self, cos_s, cos_o, wavelength) -> np.ndarray:
+        """``Q = Σ_{k≥1} √(I_k(θs) I_k(θo)) cos(2π k Δ / λ)``, summed in closed form.
+
+        With ``a = T_s T_o R_b`` and ``x = R_b √(R_s R_o)``:
+        ``Q = a (cos Φ - x) / (1 - 2 x cos Φ + x²)``, ``Φ = 2πΔ/λ`` (``wavelength`` in nm).
+        ``|Q| <= (R'(θs) + R'(θo)) / 2``.
+        """
+        lam = np.asarray(wavelength, dtype=np.float64) * 1e-3
+        rs, ro = self.face_reflectance(cos_s), self.face_reflectance(cos_o)
+        rbs, rbo = self.back_reflectance(cos_s, wavelength), self.back_reflectance(cos_o, wavelength)
+        rb = np.sqrt(rbs * rbo)
+        a = (1 - rs) * (1 - ro) * rb
+        x = rb * np.sqrt(rs * ro)
+        c = np.cos(2 * np.pi * self.path_difference(cos_s, cos_o) / lam)
+        return a * (c - x) / (1.0 - 2.0 * x * c + x * x)
+
+    def reflected_lobe_factor(self, cos_s, cos_o, wavelength, visibility=1.0) -> np.ndarray:
+        """The pane's factor on ``C f`` in the lobe seen in reflection (light meets the layer first).
+
+        Without a thickness the incoherent sum ``R'(θs) + R'(θo)`` (scattered on the way in, or
+        on the way out).  With one, the two single-scattering paths of the same particle and the
+        same ``d`` after ``k >= 1`` round trips add as amplitudes:
+
+            R'(θs) + R'(θo) + 2 V Q(θs, θo, λ)
+
+        (:meth:`interference`; the front face's own reflection, ``k = 0``, stays incoherent).
+        ``V`` in [0, 1] is the energy cap's visibility (1 unless the layer is very reflective,
+        :func:`double_pass_visibility`).  The factor lies in ``[0, 2 (R'_s + R'_o)]``.
+        """
+        base = self.reflectance(cos_s) + self.reflectance(cos_o)
+        if not self.coherent:
+            return base
+        return base + 2.0 * visibility * self.interference(cos_s, cos_o, wavelength)
+
+
+class Mirror(GlassPane):
+    """A back-silvered glass pane: the layer on its front (+z) face, silver behind the glass.
+
+    Parameters
+    ----------
+    ior : float >= 1, default 1.52
+        Index of the glass.
+    thickness : float [µm], default 4000
+        Thickness of the glass (the two passes through the layer interfere; always coherent).
+    reflectance : float in [0, 1], or (wavelengths [nm], values), default 0.97
+        Reflectance ``R_m`` of the silvering seen from inside the glass, constant in angle:
+        a number, or a spectrum interpolated linearly (clamped at its ends).
+
+    Notes
+    -----
+    The air-side reflectance sums the front face and every round trip incoherently,
+    ``R' = R + T² R_m / (1 - R R_m)``; nothing is transmitted (``T' = 0``), and the back of
+    the mirror (light from -z) is black.
+    """
+
+    def __init__(self, ior: float = GLASS_IOR, thickness: float | None = None,
+                 reflectance=SILVER_REFLECTANCE):
+        super().__init__(ior, "front", MIRROR_THICKNESS if thickness is None else thickness)
+        if np.ndim(reflectance) == 0:
+            self._rm = (None, float(check_range("mirror_reflectance", reflectance, 0.0, 1.0)))
+        else:
+            lam, val = (np.asarray(a, dtype=np.float64) for a in reflectance)
+            if lam.ndim != 1 or lam.shape != val.shape or lam.size < 2 or np.any(np.diff(lam) <= 0):
+                raise CoronaError("mirror_reflectance spectrum must be (wavelengths, values), two 1-D arrays "
+                                  "of the same length >= 2 with increasing wavelengths")
+            for v in val:
+                check_range("mirror_reflectance", float(v), 0.0, 1.0)
+            self._rm = (lam, val)
+
+    def __repr__(self):
+        rm = self._rm[1] if self._rm[0] is None else "spectrum"
+        return f"Mirror(ior={self.ior:g}, thickness={self.thickness:g}, reflectance={rm})"
+
+    def key(self) -> dict:
+        lam, val = self._rm
+        return {**super().key(), "mirror": val if lam is None else (tuple(lam), tuple(val))}
+
+    def silver(self, wavelength) -> np.ndarray:
+        """``R_m(λ)`` of the silvering (``wavelength`` in nm)."""
+        lam, val = self._rm
+        w = np.asarray(wavelength, dtype=np.float64)
+        return np.full(w.shape, val) if lam is None else np.interp(w, lam, val)
+
+    def back_reflectance(self, cos_theta, wavelength) -> np.ndarray:
+        return self.silver(wavelength) + 0.0 * np.asarray(cos_theta, dtype=np.float64)
+
+    def reflectance(self, cos_theta, wavelength=550.0) -> np.ndarray:
+        """``R' = R + T² R_m / (1 - R R_m)`` from the front (signed ``cos θ > 0``), 0 from behind."""
+        c = np.asarray(cos_theta, dtype=np.float64)
+        r = self.face_reflectance(c)
+        rm = self.silver(wavelength)
+        return np.where(c >= 0, r + (1 - r) ** 2 * rm / (1 - r * rm), 0.0)
+
+    def transmittance(self, cos_theta) -> np.ndarray:
+        return np.zeros(np.shape(cos_theta))
+
+    def layer_first(self, cos_theta_i) -> np.ndarray:
+        return np.asarray(cos_theta_i, dtype=np.float64) > 0
+
+    def reflected_lobe_factor(self, cos_s, cos_o, wavelength, visibility=1.0) -> np.ndarray:
+        base = self.reflectance(np.abs(cos_s), wavelength) + self.reflectance(np.abs(cos_o), wavelength)
+        return base + 2.0 * visibility * self.interference(cos_s, cos_o, wavelength)
+
+
+def double_pass_visibility(coherent: float, lobe: float, reflectance: float) -> float:
+    """The energy cap's visibility ``V = min(1, (1 - ρ - C² - 2 C D) / (2 C D))``.
+
+    The reflected lobe with interference is at most twice the incoherent one, so the light
+    reflected is at most ``ρ + C² + 2 C D (1 + V)`` (``R' <= 1``): ``V`` keeps that <= 1.  ``D``
+    is the lobe's plane integral (evanescent part included: an upper bound).
+    """
+    cd = 2.0 * coherent * lobe
+    if cd <= 0:
+        return 1.0
+    return float(np.clip((1.0 - reflectance - coherent**2 - cd) / cd, 0.0, 1.0))
+
+
+def channel_wavenumber_bins(wavelengths, responses, n_per_channel: int):
+    """Centre and width [1/µm] of each channel's ``n_per_channel`` equal-weight bins, in wavenumber.
+
+    The renderer's RGB / mono channels are each the mean of the lobe at ``n_per_channel``
+    wavelengths, the midpoints of equal-weight quantile bins of the channel's response.  The
+    double pass's ``cos(2π k Δ σ)`` (``σ = 1/λ``) is averaged over each bin as a box in ``σ``:
+    ``cos(2π k Δ σ_c) sinc(π k Δ δσ)``, so fringes wash out as they do in white light
+    instead of aliasing between the sample wavelengths.
+
+    Parameters
+    ----------
+    wavelengths : array (n,)
+        Grid [nm] of the responses.
+    responses : array (channels, n)
+        Non-negative spectral responses.
+
+    Returns
+    -------
+    centre, width : arrays (channels, n_per_channel)
+    """
+    lam = np.asarray(wavelengths, dtype=np.float64)
+    centre, width = [], []
+    for r in np.asarray(responses, dtype=np.float64):
+        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
+        edges = np.interp(np.arange(n_per_channel + 1) / n_per_channel * cdf[-1], cdf, lam)
+        sigma = 1e3 / edges                                        # 1/µm, decreasing
+        centre.append(0.5 * (sigma[:-1] + sigma[1:]))
+        width.append(sigma[:-1] - sigma[1:])
+    return np.array(centre), np.array(width)
+
+
+def interference_integral(material, cos_theta_i: float, wavelength: float, phi_i: float = 0.0,
+                          n_rings: int = 1500, n_phi: int = 256, per_fringe: int = 16) -> float:
+    """``∫ f(d) Q(θi, θo, λ) d²d`` over the reflected hemisphere, the fringes resolved.
+
+    ``Q`` (:meth:`GlassPane.interference`) depends on ``wo`` only through ``sin θo = s``, so
+    the integral is ``∫₀¹ Q(s) h(s) s ds`` with ``h(s) = ∫ f(s e_φ + wi.xy) dφ`` the lobe
+    (:meth:`corona.Material.lobe_tabulated`) on rings around the normal, taken on
+    ``n_rings`` rings × ``n_phi`` azimuths and interpolated (cubic) onto a grid in ``s`` with
+    ``per_fringe`` points per fringe at the fastest (``s → 1``).
+    """
+    from scipy.interpolate import CubicSpline
+    pane = material.substrate
+    ci = abs(float(cos_theta_i))
+    si = np.sqrt(max(0.0, 1.0 - ci * ci))
+    wx, wy = si * np.cos(phi_i), si * np.sin(phi_i)
+    # rings: denser near the light's image (s = sin θi), where the lobe peaks
+    x = np.linspace(-1.0, 1.0, n_rings)
+    s = np.unique(np.clip(si + np.sign(x) * np.abs(x) ** 2 * max(si, 1.0 - si) * 1.0001, 0.0, 1.0))
+    phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
+    d = np.stack([s[:, None] * np.cos(phi) + wx, s[:, None] * np.sin(phi) + wy], -1)
+    h = material.lobe_tabulated(d, wavelength).sum(-1) * (2 * np.pi / n_phi)
+    spline = CubicSpline(s, h)
+    n = pane.ior
+    slope = 2.0 * pane.thickness / (n * np.sqrt(1.0 - 1.0 / (n * n))) / (wavelength * 1e-3)   # fringes per unit s
+    fine = np.linspace(0.0, 1.0, int(per_fringe * slope) + 2)
+    co = np.sqrt(np.maximum(0.0, 1.0 - fine * fine))
+    g = pane.interference(ci, co, wavelength) * np.maximum(spline(fine), 0.0) * fine
+    return float(np.trapezoid(g, fine))
+
+
+def make_substrate(kind: str, ior=None, side: str = "front", thickness=None,
+                   mirror_reflectance=None) -> GlassPane | None:
     """The substrate of ``substrate=kind`` (None for ``none``), with one clear error."""
-    kind = check_choice("substrate", kind, ("none", "glass"))
+    kind = check_choice("substrate", kind, ("none", "glass", "mirror"))
     if kind == "none":
-        if ior is not None:
-            raise CoronaError(f"substrate_ior={ior!r} needs substrate='glass' (got substrate='none')")
+        for name, v in (("substrate_ior", ior), ("substrate_thickness", thickness),
+                        ("mirror_reflectance", mirror_reflectance)):
+            if v is not None:
+                raise CoronaError(f"{name}={v!r} needs substrate='glass' or 'mirror' (got substrate='none')")
         return None
-    return GlassPane(GLASS_IOR if ior is None else ior, side)
+    ior = GLASS_IOR if ior is None else ior
+    if kind == "mirror":
+        return Mirror(ior, thickness, SILVER_REFLECTANCE if mirror_reflectance is None else mirror_reflectance)
+    if mirror_reflectance is not None:
+        raise CoronaError(f"mirror_reflectance={mirror_reflectance!r} needs substrate='mirror' (got 'glass')")
+    return GlassPane(ior, side, thickness)
