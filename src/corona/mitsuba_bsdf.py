@@ -72,6 +72,7 @@ layer never transmits plus reflects more than it receives.
 """
 from __future__ import annotations
 
+import functools
 import warnings
 
 import drjit as dr
@@ -81,7 +82,7 @@ import numpy as np
 from . import tables
 from ._validation import CoronaError, CoronaWarning
 from .parameters import SPEC, material_from_parameters, rst_table
-from .substrate import RGB_ORDERS, Mirror, channel_wavenumber_bins
+from .substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
 
 __doc__ = __doc__.replace("{table}", rst_table())
 
@@ -166,6 +167,12 @@ def _channel_curves():
     lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 2048)
     xyz = cie1931_xyz(lam).T                                     # (3, n)
     return lam, (xyz[1:2] if mi.is_monochromatic else np.maximum(XYZ_TO_SRGB @ xyz, 0.0))
+
+
+@functools.lru_cache(maxsize=2)
+def _channel_envelopes(mono: bool):
+    """The double pass's fringe tables of the active variant's channels (built once per kind)."""
+    return channel_envelopes(*_channel_curves(), N_RESPONSE)
 
 
 def _channel_response():
@@ -599,11 +606,27 @@ class CoronaBSDFMixin:
         if not self.coherent_pane:
             return
         self.thickness = float(pane.thickness)
-        if not mi.is_spectral:   # each response wavelength stands for its quantile bin: centre, width in 1/µm
-            centre, width = channel_wavenumber_bins(*_channel_curves(), N_RESPONSE)
-            self.bin_sigma, self.bin_width = centre.ravel(), width.ravel()
+        if not mi.is_spectral:   # each response wavelength stands for its quantile bin: its fringe table
+            sigma, env = _channel_envelopes(bool(mi.is_monochromatic))
+            self.bin_sigma = sigma.ravel()
+            env = env.reshape(-1, env.shape[-1])
+            self.env_n = env.shape[-1]
+            self.env_re = _array(mi.Float, env.real.ravel())
+            self.env_im = _array(mi.Float, env.imag.ravel())
 
-    def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o):
+    def _bin_average_cos(self, q, delta, active):
+        """``G_q(Δ) = Re[e^{2πiΔσ_q} E_q(Δ)]``, the envelope linear between table entries, 0 beyond."""
+        x = delta * (1.0 / DELTA_STEP)
+        inside = active & (x < self.env_n - 1)
+        i = mi.UInt32(dr.clip(dr.floor(x), 0, self.env_n - 2))
+        t = x - mi.Float(i)
+        k = i + q * self.env_n
+        re = dr.lerp(_gather(mi.Float, self.env_re, k, inside), _gather(mi.Float, self.env_re, k + 1, inside), t)
+        im = dr.lerp(_gather(mi.Float, self.env_im, k, inside), _gather(mi.Float, self.env_im, k + 1, inside), t)
+        s, c = dr.sincos(2.0 * dr.pi * float(self.bin_sigma[q]) * delta)
+        return dr.select(inside, c * re - s * im, 0.0)
+
+    def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o, active=True):
         """Per evaluated wavelength, the factor ``R'_i + R'_o + 2 V Q`` on ``C f`` (a callable
         ``(q, λ [nm]) -> Float`` for :meth:`_lobe_and_pdf`), ``Q`` the interference of the round
         trips: exact per wavelength (spectral), averaged over each response bin (RGB/mono)."""
@@ -629,14 +652,11 @@ class CoronaBSDFMixin:
             if mi.is_spectral:
                 c = dr.cos(2.0 * dr.pi * delta / self._lambda_um(lam_nm))
                 qv = a * (c - x) / (1.0 - 2.0 * x * c + x * x)
-            else:   # Σ_k x^(k-1) cos(2π k Δ σ_q) sinc(π k Δ δσ_q), truncated
-                sigma, width = float(self.bin_sigma[q]), float(self.bin_width[q])
+            else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
                 qv = mi.Float(0.0)
                 xk = mi.Float(1.0)
                 for k in range(1, RGB_ORDERS + 1):
-                    arg = dr.pi * k * delta * width
-                    sinc = dr.select(dr.abs(arg) > 1e-4, dr.sin(arg) / arg, 1.0)
-                    qv += xk * dr.cos(2.0 * dr.pi * k * delta * sigma) * sinc
+                    qv += xk * self._bin_average_cos(q, k * dr.abs(delta), active)
                     xk = xk * x
                 qv = a * qv
             return base + 2.0 * vis * qv
@@ -700,7 +720,7 @@ class CoronaBSDFMixin:
 
         lobe_sides = (transmit | reflect) if self.has_pane else transmit   # the pane: the lobe in reflection
         coherent = self.has_pane and self.coherent_pane
-        modulation = self._double_pass_modulation(layer, wi, wo, cos_i, cos_o) if coherent else None
+        modulation = self._double_pass_modulation(layer, wi, wo, cos_i, cos_o, reflect) if coherent else None
         f, pdf_d, *f_mod = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, lobe_sides, modulation)
         abs_cos_o = dr.abs(cos_o)
         lobe = f * abs_cos_o                                              # eval = f |cos θo|

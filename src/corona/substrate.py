@@ -31,8 +31,11 @@ SILVER_REFLECTANCE = 0.97
 #: Allowed pane thickness [µm] for the coherent double pass (0.05–100 mm).
 THICKNESS_RANGE = (50.0, 1.0e5)
 #: Internal round trips whose interference is summed in closed form (all of them); the
-#: channel-averaged (RGB) form truncates after this many, the rest below R_b (R_b R)^4.
-RGB_ORDERS = 4
+#: channel-averaged (RGB) form truncates after this many, the rest below T² R_b (R_b R)^3.
+RGB_ORDERS = 3
+#: The channel-averaged fringe table: path differences up to this [µm], every DELTA_STEP [µm].
+DELTA_MAX = 100.0
+DELTA_STEP = 0.25
 
 
 def fresnel_dielectric(cos_theta_i, eta) -> np.ndarray:
@@ -275,14 +278,22 @@ def double_pass_visibility(coherent: float, lobe: float, reflectance: float) -> 
     return float(np.clip((1.0 - reflectance - coherent**2 - cd) / cd, 0.0, 1.0))
 
 
-def channel_wavenumber_bins(wavelengths, responses, n_per_channel: int):
-    """Centre and width [1/µm] of each channel's ``n_per_channel`` equal-weight bins, in wavenumber.
+def channel_envelopes(wavelengths, responses, n_per_channel: int, delta_max: float = DELTA_MAX,
+                      step: float = DELTA_STEP, n_fine: int = 8000):
+    """Bin-averaged ``cos(2π Δ σ)`` of each channel's equal-weight bins, as a table in ``Δ``.
 
     The renderer's RGB / mono channels are each the mean of the lobe at ``n_per_channel``
     wavelengths, the midpoints of equal-weight quantile bins of the channel's response.  The
-    double pass's ``cos(2π k Δ σ)`` (``σ = 1/λ``) is averaged over each bin as a box in ``σ``:
-    ``cos(2π k Δ σ_c) sinc(π k Δ δσ)``, so fringes wash out as they do in white light
-    instead of aliasing between the sample wavelengths.
+    double pass's ``cos(2π Δ / λ)`` is averaged over each bin with the response as weight,
+
+        G_q(Δ) = ∫_bin r(λ) cos(2π Δ / λ) dλ / ∫_bin r(λ) dλ = Re[e^{2πiΔσ_q} E_q(Δ)],
+
+    with ``σ_q`` the bin's mean wavenumber [1/µm] and the envelope
+    ``E_q(Δ) = <e^{2πiΔ(σ - σ_q)}>_bin``, which varies slowly (on the bin's coherence length
+    ``1/δσ``) and is tabulated every ``step`` µm up to ``delta_max`` (0 beyond: there every
+    channel's average is below 10⁻³).  The mean of ``G_q`` over the bins is the channel's
+    exact average, so fringes wash out as they do in white light instead of aliasing
+    between the sample wavelengths.
 
     Parameters
     ----------
@@ -293,17 +304,40 @@ def channel_wavenumber_bins(wavelengths, responses, n_per_channel: int):
 
     Returns
     -------
-    centre, width : arrays (channels, n_per_channel)
+    sigma : array (channels, n_per_channel) [1/µm]
+    envelope : complex array (channels, n_per_channel, n_delta), ``Δ = 0, step, ...``
     """
-    lam = np.asarray(wavelengths, dtype=np.float64)
-    centre, width = [], []
-    for r in np.asarray(responses, dtype=np.float64):
-        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
-        edges = np.interp(np.arange(n_per_channel + 1) / n_per_channel * cdf[-1], cdf, lam)
-        sigma = 1e3 / edges                                        # 1/µm, decreasing
-        centre.append(0.5 * (sigma[:-1] + sigma[1:]))
-        width.append(sigma[:-1] - sigma[1:])
-    return np.array(centre), np.array(width)
+    lam0 = np.asarray(wavelengths, dtype=np.float64)
+    lam = np.linspace(lam0[0], lam0[-1], n_fine)
+    delta = np.arange(int(np.ceil(delta_max / step)) + 1) * step
+    sig_all, env_all = [], []
+    for r0 in np.asarray(responses, dtype=np.float64):
+        r = np.interp(lam, lam0, r0)
+        w = r * np.gradient(lam)
+        cdf = np.cumsum(w) - 0.5 * w
+        q = np.minimum((cdf / w.sum() * n_per_channel).astype(int), n_per_channel - 1)
+        sig_c, env_c = [], []
+        for b in range(n_per_channel):
+            m = q == b
+            sg, wb = 1e3 / lam[m], w[m] / w[m].sum()
+            sc = float(np.sum(wb * sg))
+            sig_c.append(sc)
+            env_c.append(np.exp(2j * np.pi * delta[:, None] * (sg - sc)[None]) @ wb)
+        sig_all.append(sig_c)
+        env_all.append(env_c)
+    return np.array(sig_all), np.array(env_all)
+
+
+def channel_average_cos(sigma, envelope, delta, step: float = DELTA_STEP) -> np.ndarray:
+    """``G_q(|Δ|)`` from :func:`channel_envelopes` (linear in the envelope; 0 beyond the table)."""
+    d = np.abs(np.asarray(delta, dtype=np.float64))
+    x = d / step
+    n = envelope.shape[-1]
+    i = np.minimum(np.floor(x).astype(int), n - 2)
+    t = x - i
+    e = envelope[..., np.clip(i, 0, n - 2)] * (1 - t) + envelope[..., np.clip(i + 1, 0, n - 1)] * t
+    e = np.where(x <= n - 1, e, 0.0)
+    return np.real(np.exp(2j * np.pi * sigma[..., None] * d) * e)
 
 
 def interference_integral(material, cos_theta_i: float, wavelength: float, phi_i: float = 0.0,
