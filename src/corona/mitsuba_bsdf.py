@@ -594,7 +594,7 @@ class CoronaBSDFMixin:
     def _pane_transmittance(self, cos_theta):
         """``T' = 1 - R'`` of the pane at ``|cos θ|``; 0 for a mirror."""
         if self.is_mirror:
-            return dr.zeros(mi.Float, dr.width(cos_theta))
+            return 0.0 * cos_theta
         return 1.0 - self._pane_reflectance(cos_theta)
 
     # --- the coherent double pass (docs/physics.md#the-coherent-double-pass-quetelet-rings) -----

@@ -286,13 +286,17 @@ def channel_envelopes(wavelengths, responses, n_per_channel: int, delta_max: flo
     wavelengths, the midpoints of equal-weight quantile bins of the channel's response.  The
     double pass's ``cos(2π Δ / λ)`` is averaged over each bin with the response as weight,
 
-        G_q(Δ) = ∫_bin r(λ) cos(2π Δ / λ) dλ / ∫_bin r(λ) dλ = Re[e^{2πiΔσ_q} E_q(Δ)],
+        G_q(Δ) = ∫_bin r(λ) λ⁻² cos(2π Δ / λ) dλ / ∫_bin r(λ) λ⁻² dλ = Re[e^{2πiΔσ_q} E_q(Δ)],
 
+    weighted by the response and by the lobe's own ``λ⁻²`` (the height ``F_a (L/λ)² v(0)`` of
+    its forward peak, where the rings are), so that the bin's one lobe value times ``G_q`` is
+    the bin's average of lobe times fringes (a wide bin, like the one across the gap between
+    the red channel's two lobes, would otherwise mix a bright blue end with a dim red one),
     with ``σ_q`` the bin's mean wavenumber [1/µm] and the envelope
     ``E_q(Δ) = <e^{2πiΔ(σ - σ_q)}>_bin``, which varies slowly (on the bin's coherence length
     ``1/δσ``) and is tabulated every ``step`` µm up to ``delta_max`` (0 beyond: there every
-    channel's average is below 10⁻³).  The mean of ``G_q`` over the bins is the channel's
-    exact average, so fringes wash out as they do in white light instead of aliasing
+    channel's average is below 10⁻³).  The bins together average over the whole channel, so
+    fringes wash out as they do in white light instead of aliasing
     between the sample wavelengths.
 
     Parameters
@@ -319,7 +323,9 @@ def channel_envelopes(wavelengths, responses, n_per_channel: int, delta_max: flo
         sig_c, env_c = [], []
         for b in range(n_per_channel):
             m = q == b
-            sg, wb = 1e3 / lam[m], w[m] / w[m].sum()
+            sg = 1e3 / lam[m]
+            wb = w[m] * sg * sg                 # the lobe's own λ⁻² (its forward peak F_a (L/λ)² v(0))
+            wb = wb / wb.sum()
             sc = float(np.sum(wb * sg))
             sig_c.append(sc)
             env_c.append(np.exp(2j * np.pi * delta[:, None] * (sg - sc)[None]) @ wb)
