@@ -83,6 +83,20 @@ STRIPS = [
            Panel("droplets outside", {"substrate_side": "front"}),
            Panel("no glass", {"substrate": "none"})],
           shared_exposure=0),
+    Strip("dusty_mirror", "A dusty mirror and a torch: Quetelet rings", "dusty_mirror.xml",
+          "A torch (4000 K, radius 4 mm) 3 cm beside the camera, a dusty mirror 1 m away (substrate=mirror: "
+          "glass of index 1.52, 4 mm thick, silvered behind; grains of radius 10 µm on 5 % of the glass, hard "
+          "disks, particle mode). The torch's mirror image (C² R' = 0.88 of the torch) wears the dust's corona, "
+          "and across it run Stokes' fringes: each grain scatters the light on its way to the silvering and on "
+          "its way out, the two paths differing by 2 n t (cos r_s - cos r_o). Their zero order (θo = θs) "
+          "passes through the torch's image. Left: the torch at the camera's distance from the mirror, the "
+          "fringes are straight bands midway between the torch's image and the camera's own; middle: the "
+          "torch at half that distance (seen directly on the right); right: at twice it, the bands curve "
+          "into Quetelet rings. They wash out after a few orders in the torch's white light. Same exposure.",
+          [Panel("torch beside the camera", {}),
+           Panel("torch at half the distance", {"torch_z": 0.5}),
+           Panel("torch at twice the distance", {"torch_z": -1})],
+          shared_exposure=0),
     Strip("teaser_spheres", "Teaser with transparent droplets (Mie spheres)", "teaser.xml",
           "The teaser's condensation (radius 5 µm, 40 % cover, hard disks) modelled two ways: left, opaque "
           "disks (Fraunhofer diffraction); right, transparent water spheres (Mie theory, water's "
