@@ -21,7 +21,7 @@ from .micrograph import from_micrograph
 from .processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from .shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
                      RegularPolygon, Shape, SizeDistribution, SoftEdge, Sphere, Square)
-from .substrate import GlassPane
+from .substrate import GlassPane, Mirror
 
 __version__ = "0.1.0"
 
@@ -29,7 +29,7 @@ __all__ = ["CoronaError", "CoronaWarning",
            "Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon", "Mask",
            "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture", "Sphere",
            "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk",
-           "Material", "GlassPane", "from_micrograph", "fit_photograph", "default_variant",
+           "Material", "GlassPane", "Mirror", "from_micrograph", "fit_photograph", "default_variant",
            "set_default_variant", "register"]
 
 

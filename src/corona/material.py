@@ -775,7 +775,10 @@ class Material:
         diffuse reflection  ``ρ / π``                        ``T'(θi) ρ/π T'(θo)``
         ==================  ===============================  =====================
 
-        The delta parts are :meth:`coherent_transmission` and
+        On a pane with a thickness (always on a :class:`corona.Mirror`) the reflected lobe's
+        ``R'(θi) + R'(θo)`` gains the double pass's interference ``2 V Q``
+        (:meth:`corona.GlassPane.reflected_lobe_factor`: Quetelet rings); a mirror
+        transmits nothing.  The delta parts are :meth:`coherent_transmission` and
         :meth:`specular_reflection`.  Paths that meet the layer again after a
         reflection off the pane are kept only where they cross the layer
         coherently once (the reflected lobe); ``docs/physics.md#the-layer-on-glass-substrateglass`` lists what

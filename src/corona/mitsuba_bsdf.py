@@ -36,6 +36,13 @@ specular reflection    ``C² R'(θi)``                      ``R'(θi)``
 lobe in reflection     ``C f [R'(θi) + R'(θo)]``          0
 =====================  =================================  =========================
 
+With ``substrate=mirror`` the pane is silvered behind (``mirror_reflectance``, default 0.97):
+it reflects ``R' = R + T² R_m / (1 - R R_m)``, transmits nothing, and its back is black.
+With a ``substrate_thickness`` [µm] (a mirror's default 4000) the two single-scattering
+paths of the lobe in reflection interfere: ``C f [R'(θi) + R'(θo) + 2 V Q]``, Quetelet
+rings (``docs/physics.md#the-coherent-double-pass-quetelet-rings``); RGB and mono variants
+average the fringes over each response wavelength's bin (:func:`corona.substrate.channel_envelopes`).
+
 Paths that meet the layer a second time after a reflection off the pane are
 dropped unless they are one of the above (the scattered-twice paths, and
 light the pane returns onto the layer's opaque part), so the layer on glass

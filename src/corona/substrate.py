@@ -15,6 +15,7 @@ of Stokes' "colours of thick plates", which draws Quetelet rings
 from __future__ import annotations
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from ._validation import CoronaError, check_choice, check_range
 
@@ -356,7 +357,6 @@ def interference_integral(material, cos_theta_i: float, wavelength: float, phi_i
     ``n_rings`` rings × ``n_phi`` azimuths and interpolated (cubic) onto a grid in ``s`` with
     ``per_fringe`` points per fringe at the fastest (``s → 1``).
     """
-    from scipy.interpolate import CubicSpline
     pane = material.substrate
     ci = abs(float(cos_theta_i))
     si = np.sqrt(max(0.0, 1.0 - ci * ci))
