@@ -177,6 +177,23 @@ def test_glass_without_thickness_is_the_incoherent_sum():
     np.testing.assert_allclose(thick.eval(wi, wt, 500.0), plain.eval(wi, wt, 500.0), rtol=1e-12)
 
 
+@pytest.mark.parametrize("params", [MIRROR, {**LAYER, "substrate": "glass", "substrate_side": "back",
+                                              "substrate_thickness": 2000.0, "albedo": 0.5},
+                                    {**MIRROR, "shape": "square", "radius": 3.0}])
+def test_reciprocal(params):
+    """f_s(wi, wo) = f_s(wo, wi): Δ changes sign, cos(2πkΔ/λ) does not."""
+    m = material_from_parameters(**params)
+    rng = np.random.default_rng(4)
+    wi = _wo(rng.uniform(0, 30, 2000), rng.uniform(0, 360, 2000))
+    wo = _wo(rng.uniform(0, 30, 2000), rng.uniform(0, 360, 2000))
+    side = -1.0 if params.get("substrate_side") == "back" else 1.0
+    wi, wo = wi * np.array([1, 1, side]), wo * np.array([1, 1, side])
+    a = m.eval(wi, wo, 530.0) / np.abs(wo[:, 2])
+    b = m.eval(wo, wi, 530.0) / np.abs(wi[:, 2])
+    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14)
+    assert a.max() > 0
+
+
 # --- the brute-force wave reference -------------------------------------------------------
 @pytest.mark.parametrize("theta_s,back,t", [(0.0, 0.97, 4000.0), (10.0, 0.97, 2000.0), (0.0, "glass", 4000.0)])
 def test_wave_reference(theta_s, back, t):
