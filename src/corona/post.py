@@ -570,6 +570,11 @@ def apply_file(image_path: str, out_path: str, fov: float, params: dict | None =
     import time
     import mitsuba  # noqa: F401 - import corona first (the package does) for DRJIT_LIBLLVM_PATH
     t0 = time.perf_counter()
+    ext = os.path.splitext(out_path)[1].lower()
+    if ext not in (".exr", ".png"):
+        raise CoronaError(f"--out {out_path!r} has extension {ext or '(none)'!r}; allowed .exr, .png")
+    if os.path.isdir(out_path):
+        raise CoronaError(f"--out {out_path!r} is a folder; expected a file path ending in .exr or .png")
     m = layer(**(params or {}))
     img, kind = read_image(image_path, srgb_input=srgb_input)
     out = apply(img, fov, m, colorspace=colorspace, workers=workers, progress=progress)
