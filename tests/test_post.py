@@ -73,7 +73,7 @@ def test_far_field_values_and_no_wrap_around():
     formula, within 3 % of the brightest channel), the right edge included: the FFT
     padding wraps no light around the grid."""
     W, H, fov = 96, 32, 60.0
-    m = post.layer(radius=1.5, area_fraction=0.3, mode="particle")
+    m = post.layer(radius=1.7, area_fraction=0.3, mode="particle")
     img = np.zeros((H, W, 3), np.float32)
     img[16, 0] = 1.0
     out = post.apply(img, fov, m, progress=False)

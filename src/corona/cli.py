@@ -106,7 +106,7 @@ def _one_line_usage_errors():
 
 
 @click.group(cls=OneLineErrorGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="corona")
+@click.version_option(version=__import__("corona").__version__, prog_name="corona")
 def main():
     """corona: a wave-optics BSDF for layers of correlated scatterers."""
 
