@@ -13,7 +13,7 @@ SPHINXOPTS ?=
 # make gallery VARIANT=llvm_ad_rgb
 VARIANT ?=
 
-.PHONY: all demo test venv llvm chromium bench gallery docs dist wheel-check clean clean-cache designer
+.PHONY: all demo test venv llvm chromium bench gallery docs docs-check dist wheel-check clean clean-cache designer
 
 all: test
 
@@ -78,6 +78,11 @@ $(DOCS_STAMP): pyproject.toml $(STAMP)
 docs: $(DOCS_STAMP)
 	$(PY) -m sphinx -b html -q -c docs/api -d docs/_build/doctrees $(SPHINXOPTS) docs docs/_build/html
 	@echo "docs: open docs/_build/html/index.html"
+
+# the same with warnings as errors (a full build), then no CDN and the local MathJax
+# checked on every page (scripts/check_docs.py); CI runs it
+docs-check: $(DOCS_STAMP)
+	$(PY) scripts/check_docs.py
 
 clean-cache: venv
 	$(PY) -m corona.cli tables clear
