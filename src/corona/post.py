@@ -22,7 +22,8 @@ How the pinhole is handled (exact for any field of view below 180°)
 -------------------------------------------------------------------
 A pinhole image is uniform in the tangent plane ``t = v_xy / v_z``, not in
 ``p = t / sqrt(1 + |t|²)``.  So the image is moved to a grid uniform in ``p``
-(step ``Δp`` = the pixel pitch at the image centre) by **splatting**: each pixel
+(step ``Δp`` = the pixel pitch at the image centre, nodes on the pixel centres
+there) by **splatting**: each pixel
 puts its energy ``L_j ΔA_j`` on the four nodes around its centre ``p_j``
 (bilinear weights), with ``ΔA_j = s² / (1 + |t_j|²)²`` its area in the ``p``
 plane (pixel pitch ``s`` in ``t``; the Jacobian of ``t -> p``, equal to the
@@ -61,17 +62,21 @@ variant and ``apply`` on the render without it agree up to the renders' noise.
 
 The kernel
 ----------
-Radial lobes (isotropic shape and process): the channel-integrated cumulative
-energy ``E_c(ρ) = Σ_λ w_c(λ) F_a W(2πRρ/λ)``, with the wavelength-free
-``W(u) = (1/2π) ∫_0^u v(u') u' du'`` of the exact dimensionless lobe ``v``
-(docs/physics.md#dimensionless-tables), gives every node the lobe's mean over an
-annulus of width ``Δp`` around its radius (so narrow rings are averaged, not
-aliased); the nodes within 4 steps of the centre average ``32 x 32`` point
-samples of the exact profile instead.  The kernel's spectrum is a type-I DCT of
-one quadrant (the kernel is even in x and y).  Other lobes: the renderer's lobe
-(:meth:`corona.Material.lobe_tabulated`) at each node, at 8 wavelengths per
-channel (equal-weight quantiles of ``w_c``), ``4 x 4`` samples per node near the
-centre, and a full real FFT.
+The pixels are area averages (a box-filtered render), so a node's kernel value is
+the lobe's energy weighted by the pixel-to-pixel tent
+``Λ(x, y) = (1 - |x|)(1 - |y|)`` (``x, y`` in steps ``Δp``; a box seen through the
+lobe and averaged over a box): ``K[k] = ∫ lobe(d) Λ(d/Δp - k) d²d``, which sums to the
+lobe's energy and averages rings finer than a pixel instead of aliasing them.
+Radial lobes (isotropic shape and process): from the channel-integrated
+cumulative energy ``E_c(ρ) = Σ_λ w_c(λ) F_a W(2πRρ/λ)``, with the
+wavelength-free ``W(u) = (1/2π) ∫_0^u v(u') u' du'`` of the exact dimensionless
+lobe ``v`` (docs/physics.md#dimensionless-tables), the tent taken radially
+(half-width ``Δp``); the nodes within 4 steps of the centre from ``64 x 64``
+tent-weighted point samples of the exact profile.  The kernel's spectrum is a
+type-I DCT of one quadrant (the kernel is even in x and y).  Other lobes: the
+renderer's lobe (:meth:`corona.Material.lobe_tabulated`) at each node, at 8
+wavelengths per channel (equal-weight quantiles of ``w_c``), tent-weighted
+``8 x 8`` samples near the centre, and a full real FFT.
 
 Convolution: ``scipy.fft.rfft2`` / ``irfft2`` (``workers``) on a grid padded to
 an even fast length ``>= 2N - 1`` per axis, so that no output node receives
