@@ -181,23 +181,18 @@ def channel_responses(colorspace: str = "srgb", channels: int = 3,
     return w / w.sum(axis=1, keepdims=True)
 
 
-def plugin_response(channels: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """The spectral quadrature of the plugin's RGB (or mono) variants as a
-    ``response`` for :func:`apply`: its ``N_RESPONSE`` wavelengths per channel,
-    equal weights (``corona.mitsuba_bsdf._channel_response``)."""
-    from .tables import WAVELENGTH_MAX, WAVELENGTH_MIN
-    from .color import XYZ_TO_SRGB, cie1931_xyz
-    n = 8
-    lam = np.linspace(WAVELENGTH_MIN, WAVELENGTH_MAX, 2048)
-    xyz = cie1931_xyz(lam).T
-    resp = xyz[1:2] if channels == 1 else np.maximum(XYZ_TO_SRGB @ xyz, 0.0)
-    lams, weights = [], np.zeros((resp.shape[0], resp.shape[0] * n))
-    for c, r in enumerate(resp):
-        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
-        lams.append(np.interp((np.arange(n) + 0.5) / n * cdf[-1], cdf, lam))
-        weights[c, c * n:(c + 1) * n] = 1.0 / n
-    lams = np.concatenate(lams)
-    order = np.argsort(lams)
+def plugin_response() -> tuple[np.ndarray, np.ndarray]:
+    """The spectral quadrature of the plugin in the active RGB (or mono) Mitsuba
+    variant as a ``response`` for :func:`apply`: its ``N_RESPONSE`` wavelengths per
+    channel at equal weights (``corona.mitsuba_bsdf._channel_response``), so that
+    ``apply`` and a render through the plugin integrate the same wavelengths."""
+    from .mitsuba_bsdf import _channel_response
+    chans, w = _channel_response()                             # (C, n) each
+    lams = chans.ravel()
+    weights = np.zeros((chans.shape[0], lams.size))
+    for c in range(chans.shape[0]):
+        weights[c, c * chans.shape[1]:(c + 1) * chans.shape[1]] = w[c]
+    order = np.argsort(lams, kind="stable")
     return lams[order], weights[:, order]
 
 
