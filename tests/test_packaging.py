@@ -70,3 +70,12 @@ def test_twine_check(dist):
     r = subprocess.run([sys.executable, "-m", "twine", "check", "--strict", *map(str, dist)],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_version_has_one_home():
+    """`corona --version` and the docs read corona.__version__ (no distribution named corona)."""
+    r = subprocess.run([sys.executable, "-m", "corona.cli", "--version"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"corona, version {corona.__version__}"
+    pyproject = open(os.path.join(ROOT, "pyproject.toml"), encoding="utf-8").read()
+    assert 'dynamic = ["version"]' in pyproject and 'attr = "corona.__version__"' in pyproject

@@ -162,7 +162,7 @@ def test_mono_image():
     (dict(radius=-1.0), "radius"),
 ])
 def test_bad_input_one_line(bad, match):
-    kw = dict(image=np.zeros((8, 8, 3), np.float32), fov=30.0)
+    kw = dict(image=np.zeros((8, 8, 3), np.float32), fov=30.0, radius=3.0)
     kw.update(bad)
     image, fov = kw.pop("image"), kw.pop("fov")
     with pytest.raises(corona.CoronaError, match=match) as err:
