@@ -27,10 +27,14 @@ there) by **splatting**: each pixel
 puts its energy ``L_j ΔA_j`` on the four nodes around its centre ``p_j``
 (bilinear weights), with ``ΔA_j = s² / (1 + |t_j|²)²`` its area in the ``p``
 plane (pixel pitch ``s`` in ``t``; the Jacobian of ``t -> p``, equal to the
-pixel's solid angle times ``cos θ``).  The sum over the grid is then exactly
+pixel's solid angle times ``cos θ``; for pixels wider than 0.01 in ``t`` the
+exact area of the footprint, by Hottel's corner formula).  The sum over the grid is then exactly
 the quadrature ``Σ_j lobe(p_j - p) L_j ΔA_j`` of the integral above, whatever
 the field of view, and no bright pixel is lost where the grid is coarser than
-the image (at the edges of wide fields).  The grid is convolved with the
+the image (at the edges of wide fields).  Pixels wider than 0.01 in ``t`` (about
+0.6°: small images of wide fields) are first cut into ``k x k`` sub-pixels of the
+same radiance (at most 4 M sub-pixels in all), and the lobe part is averaged
+back over each pixel.  The grid is convolved with the
 per-channel kernels and read back at each pixel's ``p`` by bilinear
 interpolation (the adjoint of the splat).  The coherent part multiplies the
 image itself, untouched by any resampling.
@@ -71,8 +75,10 @@ Radial lobes (isotropic shape and process): from the channel-integrated
 cumulative energy ``E_c(ρ) = Σ_λ w_c(λ) F_a W(2πRρ/λ)``, with the
 wavelength-free ``W(u) = (1/2π) ∫_0^u v(u') u' du'`` of the exact dimensionless
 lobe ``v`` (docs/physics.md#dimensionless-tables), the tent taken radially
-(half-width ``Δp``); the nodes within 4 steps of the centre from ``64 x 64``
-tent-weighted point samples of the exact profile.  The kernel's spectrum is a
+(half-width ``Δp``); the nodes within 4 steps of the centre as the energy of thin
+rings (``E_c`` on a grid finer than both the pixel and the lobe) times the tent
+averaged over each ring, so their energy is exact even where one pixel holds the
+whole lobe (fields near 180°, scatterers of a millimetre).  The kernel's spectrum is a
 type-I DCT of one quadrant (the kernel is even in x and y).  Other lobes: the
 renderer's lobe (:meth:`corona.Material.lobe_tabulated`) at each node, at 8
 wavelengths per channel (equal-weight quantiles of ``w_c``), tent-weighted
@@ -121,6 +127,10 @@ N_PER_CHANNEL_2D = 8
 CENTRE_NODES = 4
 CENTRE_SAMPLES = 32
 CENTRE_SAMPLES_2D = 4
+#: Pixels wider than this in the tangent plane (about 0.6°) are cut into sub-pixels ...
+PIXEL_PITCH_MAX = 0.01
+#: ... up to this many in all.
+SUBPIXELS_MAX = 1 << 22
 #: Largest field of view [degree] (a pinhole covers less than a hemisphere).
 FOV_MAX = 179.0
 
@@ -224,6 +234,18 @@ def pixel_tangents(width: int, height: int, fov: float) -> tuple[np.ndarray, np.
     return tx, ty, s
 
 
+def _pinhole_pixel_areas(tx, ty, s) -> np.ndarray:
+    """Exact areas in the ``p`` plane of the pixels ``[t - s/2, t + s/2]²`` of a pinhole:
+    ``∫∫ (1 + x² + y²)⁻² dx dy`` (a rectangle's view factor, Hottel's corner formula
+    ``F(x, y) = [x/√(1+x²) atan(y/√(1+x²)) + y/√(1+y²) atan(x/√(1+y²))] / 2``,
+    odd in x and y, taken at the four corners)."""
+    x = np.concatenate([tx - s / 2, [tx[-1] + s / 2]])[None, :]
+    y = np.concatenate([ty + s / 2, [ty[-1] - s / 2]])[:, None]       # rows top-down: y falls
+    ax, ay = np.sqrt(1 + x * x), np.sqrt(1 + y * y)
+    F = 0.5 * (x / ax * np.arctan(y / ax) + y / ay * np.arctan(x / ay))
+    return -(F[1:, 1:] - F[:-1, 1:] - F[1:, :-1] + F[:-1, :-1])
+
+
 class _Grid:
     """The grid uniform in ``p`` and the bilinear splat / gather of the image's pixels.
 
@@ -246,9 +268,13 @@ class _Grid:
         del r2
         fx = tx32[None, :] * inv * np.float32(1.0 / s) + np.float32(self.ax - ox)   # node coordinates
         fy = np.float32(self.ay - oy) - ty32[:, None] * inv * np.float32(1.0 / s)   # rows top-down
-        inv2 = inv * inv
-        self.area = np.float32(s * s) * inv2 * inv2            # ΔA_j = s² cos⁴θ in the p plane
-        del inv, inv2
+        if s <= 0.01:   # the midpoint rule: ΔA_j = s² cos⁴θ, relative error below 1e-5
+            inv2 = inv * inv
+            self.area = np.float32(s * s) * inv2 * inv2
+            del inv2
+        else:           # large pixels (very wide fields of small images): the exact area
+            self.area = _pinhole_pixel_areas(tx, ty, s).astype(np.float32)
+        del inv
         x0 = fx.astype(np.int32)                               # fx, fy > 0: truncation is floor
         y0 = fy.astype(np.int32)
         wx = np.clip(fx - x0, 0.0, 1.0).ravel()
@@ -305,7 +331,7 @@ def _tent_samples(n):
 
 
 def _radial_profiles(m, response, rho_top, step):
-    """Channel-integrated ``(ρ grid, ∫∫ E dρ dρ on it, fine ρ grid, point profile f_c on it)``
+    """Channel-integrated ``(ρ grid, G = ∫ E dρ on it, fine ρ grid near the centre, E on it)``
     of a radial lobe (``E_c`` its cumulative energy within ``ρ``)."""
     lams, weights = response
     R = m.length_scale
@@ -324,15 +350,25 @@ def _radial_profiles(m, response, rho_top, step):
         E += weights[:, k:k + 1] * (fa * np.interp(2 * np.pi * R * rho / lam, u, W))[None, :]
     G = np.concatenate([np.zeros((E.shape[0], 1)),
                         np.cumsum(0.5 * (E[:, 1:] + E[:, :-1]) * np.diff(rho)[None, :], axis=1)], axis=1)
-    # fine point profile for the centre nodes
-    rho_c = (CENTRE_NODES + 2) * math.sqrt(2) * step
-    du = u[1] - u[0]
-    n_f = int(min(1 << 18, max(2048, math.ceil(2 * np.pi * R * rho_c / lam_um.min() / du) * 2)))
-    rf = np.linspace(0.0, rho_c, n_f)
-    F = np.zeros((weights.shape[0], rf.size))
+    # the centre nodes' radii on a grid that resolves the lobe as well as the pixel:
+    # the cumulative energy on it, bin by bin, is exact whatever their ratio
+    rho_c = (CENTRE_NODES + 1.5) * math.sqrt(2) * step
+    fine = min(step / 64.0, 0.25 * lam_um.min() / (2 * np.pi * R))
+    rf = np.linspace(0.0, rho_c, int(min(1 << 17, max(2048, math.ceil(rho_c / fine) + 1))))
+    Ef = np.zeros((weights.shape[0], rf.size))
     for k, lam in enumerate(lam_um):
-        F += weights[:, k:k + 1] * (fa * (R / lam) ** 2 * np.interp(2 * np.pi * R * rf / lam, u, v))[None, :]
-    return rho, G, rf, F
+        Ef += weights[:, k:k + 1] * (fa * np.interp(2 * np.pi * R * rf / lam, u, W))[None, :]
+    return rho, G, rf, Ef
+
+
+def _ring_tent(iy: int, ix: int, radii: np.ndarray, n_phi: int = 512) -> np.ndarray:
+    """The tent ``Λ(x - ix, y - iy)`` averaged over the circle of each radius
+    (units of ``Δp``), for the node (iy, ix) and its mirror images in the
+    other quadrants (the kernel is even in x and y: they share one value)."""
+    phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
+    x = radii[:, None] * np.cos(phi)[None, :]
+    y = radii[:, None] * np.sin(phi)[None, :]
+    return (np.clip(1 - np.abs(x - ix), 0, None) * np.clip(1 - np.abs(y - iy), 0, None)).mean(axis=1)
 
 
 def _radial_quadrant(m, response, qy, qx, valid_y, valid_x, step):
@@ -345,7 +381,7 @@ def _radial_quadrant(m, response, qy, qx, valid_y, valid_x, step):
     """
     weights = response[1]
     rho_top = math.hypot(valid_x, valid_y) * step
-    rho, G, rf, F = _radial_profiles(m, response, rho_top, step)
+    rho, G, rf, rf_E = _radial_profiles(m, response, rho_top, step)
     h = step
     ky = np.arange(valid_y, dtype=np.float32)
     kx = np.arange(valid_x, dtype=np.float32)
@@ -370,15 +406,17 @@ def _radial_quadrant(m, response, qy, qx, valid_y, valid_x, step):
     for c in range(weights.shape[0]):
         lo = prof[c][i]
         out[c, :valid_y, :valid_x] = lo + (prof[c][i + 1] - lo) * frac
-    # centre nodes: tent-weighted point samples of the exact profile
+    # centre nodes: K = Σ_bins ΔE Λ̄(ρ), the energy of each thin ring times the
+    # ring-averaged tent, exact in energy (Σ_k Λ̄_k = 1) for lobes of any width
     n = CENTRE_NODES
-    x, w = _tent_samples(CENTRE_SAMPLES)
-    ww = w[:, None] * w[None, :]
+    dE = np.diff(rf_E, axis=1)                                   # (C, bins)
+    mid = 0.5 * (rf[1:] + rf[:-1]) / step
+    coarse = np.linspace(0.0, mid[-1] + 1e-9, 8 * (n + 3) * 4)
     for iy in range(min(n + 1, valid_y)):
         for ix in range(min(n + 1, valid_x)):
-            rr = np.hypot((iy + x)[:, None], (ix + x)[None, :]) * step
+            lam_k = np.interp(mid, coarse, _ring_tent(iy, ix, coarse))
             for c in range(weights.shape[0]):
-                out[c, iy, ix] = float((np.interp(rr, rf, F[c]) * ww).sum()) * step * step
+                out[c, iy, ix] = float(dE[c] @ lam_k)
     return out
 
 
@@ -472,8 +510,16 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
     img = img.astype(np.float32, copy=False)
     H, W, C = img.shape
     steps = 3 + C
+    # large pixels (small images of wide fields) are cut into k x k sub-pixels of the same
+    # radiance, so that each is small against the lobe and the grid; the lobe part is
+    # averaged back over each pixel (a box filter in the film plane)
+    pitch = 2.0 * math.tan(math.radians(fov) / 2.0) / W
+    k_sub = 1
+    if pitch > PIXEL_PITCH_MAX:
+        k_sub = max(1, min(math.ceil(pitch / PIXEL_PITCH_MAX), math.isqrt(SUBPIXELS_MAX // (W * H))))
+    src = img if k_sub == 1 else np.repeat(np.repeat(img, k_sub, axis=0), k_sub, axis=1)
     with _progress(steps, progress) as bar:
-        grid = _Grid(W, H, fov)
+        grid = _Grid(W * k_sub, H * k_sub, fov)
         ly, lx = _even_fast_length(2 * grid.ny - 1), _even_fast_length(2 * grid.nx - 1)
         if response is None:
             response = (WAVELENGTHS, channel_responses(colorspace, C))
@@ -489,7 +535,7 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
             spectra = [scipy.fft.rfft2(full[c], workers=workers) for c in range(C)]
         bar.update(1)
         tc = np.float32(m.coherent_transmittance)
-        g = grid.splat(img)                                                # (ny, nx, C)
+        g = grid.splat(src)                                                # (ny, nx, C)
         bar.update(1)
         conv = np.empty((grid.ny, grid.nx, C), dtype=np.float32)
         for c in range(C):
@@ -500,6 +546,8 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
             bar.update(1)
         del g
         out = grid.gather(conv)
+        if k_sub > 1:
+            out = out.reshape(H, k_sub, W, k_sub, C).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
         out += tc * img
         bar.update(1)
     return out.reshape(np.shape(image)) if np.ndim(image) == 2 else out
