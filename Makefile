@@ -13,7 +13,7 @@ SPHINXOPTS ?=
 # make gallery VARIANT=llvm_ad_rgb
 VARIANT ?=
 
-.PHONY: all demo test venv llvm chromium bench gallery docs clean clean-cache designer
+.PHONY: all demo test venv llvm chromium bench gallery docs docs-check dist wheel-check clean clean-cache designer
 
 all: test
 
@@ -55,19 +55,37 @@ designer: venv
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)
 
-# the docs extra (Sphinx, MyST), added to the same .venv idempotently
+# the sdist and the wheel of the distribution corona-bsdf (import name corona) in dist/,
+# their metadata checked (python -m build, twine check)
+dist: venv
+	rm -rf dist
+	$(PY) -m build --outdir dist .
+	$(PY) -m twine check --strict dist/*
+
+# dist + the wheel installed into a fresh virtual environment, the teaser rendered from it
+# in a temporary folder (not from the source tree); CI runs it
+wheel-check: venv
+	bash scripts/check_wheel.sh $(PY)
+
+# the docs extra (Sphinx, MyST, a MathJax copy), added to the same .venv idempotently
 $(DOCS_STAMP): pyproject.toml $(STAMP)
 	$(PY) -m pip install -q -e '.[test,docs]'
 	@touch $(DOCS_STAMP)
 
-# docs/physics.md + the API reference from the docstrings -> docs/_build/html
-# (configuration in docs/api/conf.py; no network access during the build)
+# docs/physics.md, the tutorial + the API reference from the docstrings -> docs/_build/html
+# (configuration in docs/api/conf.py; no network access during the build or when reading:
+# the math is typeset by the MathJax copy in docs/_build/html/_static/mathjax)
 docs: $(DOCS_STAMP)
 	$(PY) -m sphinx -b html -q -c docs/api -d docs/_build/doctrees $(SPHINXOPTS) docs docs/_build/html
 	@echo "docs: open docs/_build/html/index.html"
+
+# the same with warnings as errors (a full build), then no CDN and the local MathJax
+# checked on every page (scripts/check_docs.py); CI runs it
+docs-check: $(DOCS_STAMP)
+	$(PY) scripts/check_docs.py
 
 clean-cache: venv
 	$(PY) -m corona.cli tables clear
 
 clean:
-	rm -rf $(VENV) build src/*.egg-info .pytest_cache docs/_build
+	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache docs/_build

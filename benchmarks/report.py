@@ -171,6 +171,11 @@ def headline() -> list[str]:
                          f"CPU (median; load {load:.1f} on {d['machine'].get('cores', '?')} cores); energy split "
                          f"{worst['energy_median_ms']:.0f} ms" if load is not None else
                          f"{worst['update_median_ms']:.0f} ms median", "≤ 100 ms"))
+    pp = _load("post")
+    if pp:
+        rows.append((f"corona post, {pp['width']}x{pp['height']} frame, radial lobe (5 µm droplets, fov 60°)",
+                     f"{pp['best_s']:.1f} s wall, {pp['best_cpu_s']:.1f} s CPU (best of {len(pp['seconds'])}; "
+                     f"load {pp['load_average']:.1f} on {pp['cores']} cores)", "≤ 10 s on 2 cores"))
     g = _load("gpu")
     if g:
         rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else

@@ -3,8 +3,11 @@
 Built with ``sphinx-build -c docs/api docs docs/_build/html``: the source
 folder is ``docs/`` (so that ``docs/physics.md`` and the measured figures it
 quotes are part of the site with their relative links intact) and this
-folder holds the configuration and the API pages.  The build needs no
-network: no intersphinx, MathJax is only loaded by the browser.
+folder holds the configuration and the API pages.  Neither the build nor
+the reader needs a network: no intersphinx, and the math is typeset in the
+browser by a copy of MathJax 3 shipped with the pages
+(``_static/mathjax``, from the PyPI package ``sphinx-mathjax-offline`` of the
+``docs`` extra: the TeX input, the CommonHTML output and its fonts, about 3 MB).
 """
 from __future__ import annotations
 
@@ -42,11 +45,8 @@ _resolve_lazy_exports("corona")
 project = "corona"
 author = "the corona authors"
 copyright = "the corona authors"
-try:
-    from importlib.metadata import version as _version
-    release = _version("corona")
-except Exception:  # not installed
-    release = "0.1.0"
+import corona as _corona  # noqa: E402  (the version's one home: corona.__version__)
+release = _corona.__version__
 version = release
 
 # -- general -----------------------------------------------------------------
@@ -54,14 +54,14 @@ extensions = [
     "myst_parser",            # Markdown (docs/physics.md, docs/validation/README.md, ...)
     "sphinx.ext.autodoc",     # API pages from the docstrings
     "sphinx.ext.napoleon",    # numpy-style docstrings
-    "sphinx.ext.mathjax",     # $...$ in the Markdown pages (rendered in the browser)
+    "sphinx.ext.mathjax",     # $...$ in the Markdown pages (typeset in the browser by the local MathJax)
     "sphinx.ext.viewcode",    # [source] links
 ]
 
 root_doc = "api/index"
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 # docs/ holds more than the site: only the pages below are built
-include_patterns = ["api/**", "physics.md", "validation/README.md", "benchmarks.md"]
+include_patterns = ["api/**", "physics.md", "tutorial.md", "validation/README.md", "benchmarks.md"]
 exclude_patterns = ["_build", "**/.ipynb_checkpoints"]
 
 # MyST: $...$ / $$...$$ math as on GitHub, and GitHub-style anchors for headings
@@ -134,6 +134,10 @@ def _escape_bars(text: str) -> str:
     return "".join(parts)
 
 
+_LITERAL_DIRECTIVES = {"math", "code", "code-block", "sourcecode", "literalinclude", "doctest",
+                       "testcode", "testoutput", "highlight", "raw", "parsed-literal"}
+
+
 def _escape_substitutions(app, what, name, obj, options, lines):
     block_indent = None                        # indentation of the line that opened a block
     for k, line in enumerate(lines):
@@ -147,8 +151,14 @@ def _escape_substitutions(app, what, name, obj, options, lines):
             pass
         else:
             lines[k] = _escape_bars(line)
-        if stripped.endswith("::") or (stripped.startswith(".. ") and "::" in stripped):
-            block_indent = indent
+        directive = re.match(r"\.\. ([\w:-]+)::", stripped)
+        if directive:
+            # math, code and the like hold no reStructuredText; the content of other
+            # directives (list-table, note, ...) is parsed and needs the escapes
+            if directive.group(1) in _LITERAL_DIRECTIVES:
+                block_indent = indent
+        elif stripped.endswith("::"):
+            block_indent = indent                  # a literal block follows
 
 
 def _napoleon_except_attributes(app, what, name, obj, options, lines):
@@ -209,6 +219,42 @@ def setup(app):
     if replaced:
         app.connect("autodoc-process-docstring", _napoleon_except_attributes)
     app.connect("build-finished", _redirect_root)
+    app.connect("build-finished", _copy_mathjax)
+
+
+# -- math: a local MathJax, never a CDN ------------------------------------------
+def _mathjax_source() -> str:
+    """The MathJax 3 distribution inside the ``sphinx-mathjax-offline`` package."""
+    import importlib.util
+    spec = importlib.util.find_spec("sphinx-mathjax-offline")
+    folder = (os.path.join(os.path.dirname(spec.origin), "static", "mathjax")
+              if spec is not None and spec.origin else "")
+    if not os.path.isfile(os.path.join(folder, "tex-chtml.js")):
+        raise RuntimeError("the docs need a local MathJax: pip install 'corona-bsdf[docs]' "
+                           "(the package sphinx-mathjax-offline); make docs installs it")
+    return folder
+
+
+#: What the pages load: the combined TeX -> CommonHTML component, the TeX extensions it
+#: loads on demand (\boldsymbol, ...), its fonts, the menu and the assistive MathML.
+_MATHJAX_PARTS = ("tex-chtml.js", "input/tex/extensions", "output/chtml/fonts/woff-v2", "ui", "a11y",
+                  "adaptors")
+_MATHJAX = _mathjax_source()
+mathjax_path = "mathjax/tex-chtml.js"         # relative: served from _static/
+
+
+def _copy_mathjax(app, exception):
+    import shutil
+    if exception is not None or app.builder.format != "html":
+        return
+    target = os.path.join(app.outdir, "_static", "mathjax")
+    for part in _MATHJAX_PARTS:
+        src, dst = os.path.join(_MATHJAX, part), os.path.join(target, part)
+        os.makedirs(os.path.dirname(dst), exist_ok=True)
+        if os.path.isdir(src):
+            shutil.copytree(src, dst, dirs_exist_ok=True)
+        else:
+            shutil.copy2(src, dst)
 
 
 # -- HTML ---------------------------------------------------------------------

@@ -8,6 +8,7 @@
     corona validate [--out DIR] [--quick] [--cases A,B] [--realisations N] [--workers N | --scheduler ADDRESS]
     corona fit IMAGE (--fov DEG | --deg-per-pixel DEG) [--temperature K] [--json] ...
     corona designer [--host 127.0.0.1] [--port 8765] [--open]
+    corona post IMAGE --fov DEG [-D name=value ...] [--colorspace srgb|acescg] [--srgb-input] --out OUT
 
 Errors are one line on stderr and exit code 2.
 """
@@ -105,7 +106,7 @@ def _one_line_usage_errors():
 
 
 @click.group(cls=OneLineErrorGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="corona")
+@click.version_option(version=__import__("corona").__version__, prog_name="corona")
 def main():
     """corona: a wave-optics BSDF for layers of correlated scatterers."""
 
@@ -525,6 +526,49 @@ def designer(host, port, open_browser):
         d.serve(sock, host)
     except KeyboardInterrupt:  # pragma: no cover - interactive
         pass
+
+
+# ----------------------------------------------------------------------
+# post
+# ----------------------------------------------------------------------
+@main.command()
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.option("--fov", type=float, required=True,
+              help="Horizontal field of view of the (pinhole) image [degree], in (0, 179].")
+@click.option("-D", "defines", multiple=True, metavar="NAME=VALUE",
+              help="A layer parameter (the plugin's names: radius=5, area_fraction=0.3, mode=particle, ...).")
+@click.option("--out", "out_path", required=True, help="Output image: .exr (linear float) or .png (8-bit sRGB).")
+@click.option("--colorspace", type=click.Choice(["srgb", "acescg"]), default="srgb", show_default=True,
+              help="Linear primaries of the image's channels.")
+@click.option("--srgb-input", is_flag=True,
+              help="Accept an 8-/16-bit sRGB image (PNG/JPEG), decoded to linear values; without it only "
+                   "float images (linear HDR: EXR) are accepted.")
+@click.option("--exposure", type=float, default=None, callback=_finite_positive,
+              help="PNG output: scale of the linear values before the sRGB curve (default 1).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="FFT threads (default: the CPUs this process may use).")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+def post(image, fov, defines, out_path, colorspace, srgb_input, exposure, workers, no_progress):
+    """IMAGE seen through a uniform layer at the camera: the coherent part times the image
+    plus the image convolved, in direction space, with the layer's lobe (corona.post)."""
+    params = {}
+    for d in defines:
+        if "=" not in d or not d.split("=", 1)[0].strip():
+            _fail(f"-D {d!r}: expected NAME=VALUE")
+        k, v = d.split("=", 1)
+        params[k.strip()] = v.strip()
+    try:
+        from . import post as p
+        from .parameters import SPEC
+        unknown = sorted(k for k in params if k not in SPEC or SPEC[k].plugin_only)
+        if unknown:
+            known = sorted(q.name for q in PARAMETERS if not q.plugin_only)
+            _fail(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(known)}")
+        res = p.apply_file(image, out_path, fov, params, colorspace=colorspace, srgb_input=srgb_input,
+                           exposure=exposure, workers=workers, progress=not no_progress)
+    except (CoronaError, ValueError, OSError, MemoryError) as err:
+        _fail(err)
+    click.echo(f"{res['out']}  (T_c = {res['coherent_transmittance']:.4g}, {res['seconds']:.1f} s)")
 
 
 def run() -> int:  # pragma: no cover - console entry
