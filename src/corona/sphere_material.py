@@ -64,13 +64,13 @@ from .processes import Poisson, Process
 from .shapes.sphere import Sphere, sphere_parts
 
 #: Format of the sphere tables in the cache.
-SPHERE_FORMAT = 1
+SPHERE_FORMAT = 2
 #: Step of the rows in size parameter x.
-ROW_DX = 0.1
+ROW_DX = 0.02
 #: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes per Airy ring).
 CHORD_DX = 0.25
 MIN_NODES, MAX_NODES = 512, 8192
-MIN_ROWS, MAX_ROWS = 8, 1024
+MIN_ROWS, MAX_ROWS = 8, 2048
 CHORD_MAX = math.sqrt(2.0)
 #: Size distributions: at most this many radii per row.
 MAX_SIZE_NODES = 96
@@ -80,15 +80,18 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0):
     """(x rows, chord step ds, number of chord nodes) for spheres of mean radius ``radius`` [µm].
 
     A size distribution of relative spread σ smears the pattern over ``σ x`` in size parameter:
-    its rows are ``min(2, σ x_lo / 4)`` apart (at least ``ROW_DX``)."""
+    its rows are ``min(2, σ x_lo / 4)`` apart (at least ``ROW_DX``).  The chord grid runs to
+    ``√2 x_1 / x_0`` (a little past Θ = 90°): a row is read at the chord scaled by ``x / x_j``
+    (see :func:`_scaled_blend`), up to ``√2 x_j+1 / x_j`` for the wavelengths above it."""
     lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
     x_lo, x_hi = 2 * np.pi * radius / lam_hi, 2 * np.pi * radius / lam_lo
     row_dx = max(ROW_DX, min(2.0, 0.25 * spread * x_lo))
     n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
     x_rows = np.linspace(x_lo, x_hi, n_rows)
     x_top = 2 * np.pi * radius_max / lam_lo
-    n_nodes = int(np.clip(math.ceil(CHORD_MAX * x_top / CHORD_DX) + 1, MIN_NODES, MAX_NODES))
-    return x_rows, CHORD_MAX / (n_nodes - 1), n_nodes
+    s_max = min(2.0, CHORD_MAX * x_rows[1] / x_rows[0] * (1.0 + 1e-9))
+    n_nodes = int(np.clip(math.ceil(s_max * x_top / CHORD_DX) + 1, MIN_NODES, MAX_NODES))
+    return x_rows, s_max / (n_nodes - 1), n_nodes
 
 
 def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
@@ -171,6 +174,47 @@ def _lerp_rows(values, j, t, i, f):
     v0 = values[j, i] * (1 - f) + values[j, i + 1] * f
     v1 = values[j + 1, i] * (1 - f) + values[j + 1, i + 1] * f
     return v0 * (1 - t) + v1 * t
+
+
+def _catmull_rom(values, row, g):
+    """Cubic (Catmull–Rom) interpolation of ``values[row, ·]`` at the fractional node ``g``;
+    the end nodes are repeated, 0 beyond the last node, never negative."""
+    K = values.shape[1]
+    i = np.clip(np.floor(g).astype(np.int64), 0, K - 2)
+    f = np.clip(g - i, 0.0, 1.0)
+    p0 = values[row, np.maximum(i - 1, 0)]
+    p1 = values[row, i]
+    p2 = values[row, i + 1]
+    p3 = values[row, np.minimum(i + 2, K - 1)]
+    v = p1 + 0.5 * f * (p2 - p0 + f * (2 * p0 - 5 * p1 + 4 * p2 - p3 + f * (3 * (p1 - p2) + p3 - p0)))
+    return np.where(g <= K - 1, np.maximum(v, 0.0), 0.0)
+
+
+def _scaled_blend(values, ds, x_rows, j, t, x, s, cubic=True):
+    """Rows j, j+1 (weight t) of a chord table, each read at its own scaled chord.
+
+    ``(1 - t) c_j⁻² v_j(s / c_j) + t c_j+1⁻² v_j+1(s / c_j+1)`` with ``c = x_row / x``: the
+    diffraction rings (and the glory's) sit at a fixed ``x·s``, so both rows are read at the
+    same ``x·s`` and their rings line up; the factor ``c⁻²`` keeps ``P / x²`` (the diffraction
+    peak grows as ``x²``) and makes the blend, with rows linear in the chord (``cubic=False``),
+    the density of the sampler that draws a row's chord and scales it by ``c``
+    (``dΩ = s ds dφ``).  ``cubic=True`` (the lobe's value) reads the rows with Catmull–Rom
+    cubics, which put the rings' minima and maxima between the nodes.  Zero beyond each row's
+    last node.
+    """
+    K = values.shape[1]
+    out = 0.0
+    for jj, wgt in ((j, 1.0 - t), (j + 1, t)):
+        c = x_rows[jj] / x
+        g = np.asarray(s, dtype=np.float64) / (c * ds)
+        if cubic:
+            v = _catmull_rom(values, jj, g)
+        else:
+            i = np.clip(np.floor(g).astype(np.int64), 0, K - 2)
+            f = np.clip(g - i, 0.0, 1.0)
+            v = np.where(g <= K - 1, values[jj, i] * (1 - f) + values[jj, i + 1] * f, 0.0)
+        out = out + wgt * v / (c * c)
+    return out
 
 
 class SphereMaterial:
@@ -316,6 +360,15 @@ class SphereMaterial:
         j = np.clip(np.floor(f).astype(np.int64), 0, xr.size - 2)
         return j, f - j
 
+    def _x(self, wavelength):
+        """Size parameter ``2π r / λ`` of the mean sphere at ``wavelength`` [nm] (clipped to the range)."""
+        lam = np.clip(np.asarray(wavelength, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
+        return 2 * np.pi * self.length_scale / (lam * 1e-3)
+
+    def _blend(self, key, j, t, x, s, cubic=True):
+        r = self.rows
+        return _scaled_blend(r[key], float(r["ds"]), r["x"], j, t, x, s, cubic)
+
     def _node(self, s):
         ds = float(self.rows["ds"])
         K = self.rows["P_f"].shape[1]
@@ -376,13 +429,11 @@ class SphereMaterial:
         if exact:
             P_f, C_f, P_b = self._exact(s_f, s_b, lam)
         else:
-            r = self.rows
             j, t = self._row(lam)
-            i, f, inside = self._node(s_f)
-            P_f = np.where(inside, _lerp_rows(r["P_f"], j, t, i, f), 0.0)
-            C_f = np.where(inside, _lerp_rows(r["C_f"], j, t, i, f), 0.0) if r["C_f"].size else P_f
-            i, f, inside = self._node(s_b)
-            P_b = np.where(inside, _lerp_rows(r["P_b"], j, t, i, f), 0.0)
+            x = self._x(lam)
+            P_f = self._blend("P_f", j, t, x, s_f)
+            C_f = self._blend("C_f", j, t, x, s_f) if self.rows["C_f"].size else P_f
+            P_b = self._blend("P_b", j, t, x, s_b)
         Z_f = np.maximum(P_f + C_f * (S - 1.0), 0.0)
         return Z_f, P_b, forward
 
@@ -454,10 +505,9 @@ class SphereMaterial:
         wo = np.asarray(wo, dtype=np.float64)
         s = np.linalg.norm(wo + wi if which == "f" else wo - wi, axis=-1)
         j, t = self._row(wavelength)
-        i, f, inside = self._node(s)
         key = "P_f" if which == "f" else "P_b"
         T = self._derived["T_f" if which == "f" else "T_b"]
-        val = np.where(inside, _lerp_rows(self.rows[key], j, t, i, f), 0.0)
+        val = self._blend(key, j, t, self._x(wavelength), s, cubic=False)
         return val / (T[j] * (1 - t) + T[j + 1] * t)
 
     def sample_lobe(self, which: str, wi, xi, wavelength: float) -> np.ndarray:
@@ -476,6 +526,7 @@ class SphereMaterial:
         for row in np.unique(rows):
             sel = rows == row
             s[sel] = self._radial(which, int(row)).sample_radius(xi[sel, 1])
+        s = np.minimum(s * self.rows["x"][rows] / float(self._x(wavelength)), 2.0)   # the row's chord, scaled
         phi = 2 * np.pi * xi[:, 2]
         axis = -wi if which == "f" else wi
         cos_t = 1 - 0.5 * s * s
