@@ -69,7 +69,8 @@ def lobe_errors(material, wavelength: float) -> dict:
             shifts = []
             for idx, sign in ((mins, 1), (maxs, -1)):
                 for i in idx:        # the table's extremum nearest the reference's
-                    lo, hi = max(i - n // 200 - 3, 1), min(i + n // 200 + 3, n - 2)
+                    half = max(3, int(0.25 * np.pi / x / (th[1] - th[0])))   # a quarter ring
+                    lo, hi = max(i - half, 1), min(i + half, n - 2)
                     seg = tab[lo:hi] * sign
                     k = lo + int(np.argmin(seg))
                     t_ref = _refine(th, ref, [i])[0]

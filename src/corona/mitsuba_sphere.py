@@ -38,6 +38,7 @@ from . import tables
 from ._validation import CoronaError
 from .mitsuba_bsdf import NEWTON_STEPS, _array, _channel_response, _gather, _read_props
 from .parameters import SPEC, material_from_parameters
+from .sphere_material import ENERGY_MARGIN, INCIDENCE_MU
 
 
 def _not(x):
@@ -98,6 +99,7 @@ class SphereBSDFMixin:
         if self.has_C:
             self.Cf = _array(mi.Float, rows["C_f"].ravel())
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
+        self.Ef = _array(mi.Float, der["e_f_mu"].ravel())
         # per-row scalars packed 8 to a row, gathered as two Vector4f:
         # (Re s0, Im s0, e_f, e_b), (T_f, T_b, 0, 0)
         packed = np.zeros((x.size, 8))
@@ -151,13 +153,26 @@ class SphereBSDFMixin:
         fs = dr.minimum(self.fa / dr.maximum(mu_i, 1e-12), 1.0)
         re = 1.0 - fs * a.x
         im = fs * a.y
-        coherent = dr.fma(re, re, im * im)
-        ef, eb = a.z, a.w
-        scattered = fs * (ef + eb)
+        coherent = dr.minimum(dr.fma(re, re, im * im), 1.0)
+        ef, eb = self._forward(j, t, mu_i, active), a.w
+        scattered = fs * (ef + eb) * ENERGY_MARGIN
         w = dr.minimum(1.0, dr.maximum(1.0 - coherent, 0.0) / dr.maximum(scattered, 1e-30))
         Tf0, Tf1, Tb0, Tb1 = b0.x, b1.x, b0.y, b1.y
         return dict(j=j, t=t, lam=lam, x=x, fs=fs, coherent=coherent, w=w, e_f=fs * w * ef, e_b=fs * w * eb,
                     Tf=dr.lerp(Tf0, Tf1, t), Tb=dr.lerp(Tb0, Tb1, t), Tf1=Tf1, Tb1=Tb1, Tf0=Tf0, Tb0=Tb0)
+
+    def _forward(self, st_j, t, mu_i, active):
+        """The forward lobe's energy e_f at the row (j, t) and ``mu_i`` (SphereMaterial._forward)."""
+        n = len(INCIDENCE_MU)
+        g = (1.0 - dr.clip(mu_i, 0.0, 1.0)) * (n - 1)
+        b = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), n - 2)
+        f = dr.clip(g - mi.Float(b), 0.0, 1.0)
+        k = st_j * n + b
+        e00 = _gather(mi.Float, self.Ef, k, active)
+        e01 = _gather(mi.Float, self.Ef, k + 1, active)
+        e10 = _gather(mi.Float, self.Ef, k + n, active)
+        e11 = _gather(mi.Float, self.Ef, k + n + 1, active)
+        return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
 
     def _states(self, si, active):
         lams, m = self._wavelengths(si.wavelengths)
