@@ -67,8 +67,8 @@ from .shapes.sphere import Sphere, sphere_parts
 SPHERE_FORMAT = 2
 #: Step of the rows in size parameter x.
 ROW_DX = 0.02
-#: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes per Airy ring).
-CHORD_DX = 0.25
+#: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes to the first Airy minimum).
+CHORD_DX = 0.15
 MIN_NODES, MAX_NODES = 512, 8192
 MIN_ROWS, MAX_ROWS = 8, 2048
 CHORD_MAX = math.sqrt(2.0)
@@ -662,10 +662,44 @@ class SphereMaterial:
         out["total"] = out["coherent"] + out["forward"] + out["backward"]
         return out
 
-    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=1.0):
-        """The energy of both lobes (forward + backward) for light from ``cos_theta_i``."""
-        e = self.energies(cos_theta_i, wavelength)
-        return e["forward"] + e["backward"]
+    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=1.0, phi_i=0.0):
+        """The lobes' energy leaving through the far side for light from ``cos_theta_i``
+        (the forward lobe at normal incidence; the keys of :class:`corona.Material`).
+        ``phi_i`` is accepted for the shared signature (the layer is isotropic)."""
+        ci = 1.0 if cos_theta_i is None else float(cos_theta_i)
+        # at normal incidence the lobes are symmetric about the axis: a few azimuths suffice
+        return self.directional_albedo(ci, wavelength, n_phi=4 if abs(ci) == 1.0 else 256)["transmission"]
+
+    @property
+    def reflectance(self) -> float:
+        """The lobes' energy back to the incident side at normal incidence and 550 nm (the
+        backward lobe: glory, fogbow); the spheres absorb what ``ior_imag`` takes, nothing else."""
+        return self.directional_albedo(1.0, 550.0, n_phi=4)["reflection"]
+
+    @property
+    def lobe_weight(self) -> float:
+        """The lobe's prefactor ``F_a`` (the energy cap ``w`` is part of :meth:`lobe`)."""
+        return float(self.area_fraction)
+
+    def lobe_dimensionless_radial(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """``v(|u|)`` with ``lobe(d, λ) = F_a (R/λ)² v(2π R |d| / λ)`` at ``wavelength`` [nm]
+        (the shared protocol of :class:`corona.Material`; a sphere's pattern is not a function of
+        ``u`` alone, so ``v`` belongs to one wavelength).  0 where ``|d| >= 1``."""
+        u = np.abs(check_finite_array("u", u))
+        lam = float(wavelength) * 1e-3
+        rho = u * lam / (2 * np.pi * self.length_scale)
+        d = np.stack([np.minimum(rho, 1.0), 0 * rho], -1)
+        val = self.lobe(d, float(wavelength))
+        return np.where(rho < 1.0, val / (self.area_fraction * (self.length_scale / lam) ** 2), 0.0)
+
+    def lobe_dimensionless(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """``v(u)`` at ``u`` (..., 2): the radial one at ``|u|`` (the layer is isotropic)."""
+        u = check_finite_array("u", u)
+        return self.lobe_dimensionless_radial(np.hypot(u[..., 0], u[..., 1]), wavelength)
+
+    def lobe_tabulated(self, d, wavelength) -> np.ndarray:
+        """The lobe as the renderer evaluates it: :meth:`lobe` reads the same tables."""
+        return self.lobe(d, wavelength)
 
 
 def _frame(n):
