@@ -74,3 +74,11 @@ def test_sphere_radius_range_plugin(mi_variant):
     import mitsuba as mi
     with pytest.raises(Exception, match=r"radius=1000.* is out of range for shape='sphere'"):
         mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1000.0})
+
+
+def test_meaningless_parameters_say_why():
+    from corona import CoronaError
+    for params, words in (({"edge_width": 0.1}, "sharp surface"), ({"orientation": "random"}, "every side")):
+        with pytest.raises(CoronaError, match=words) as err:
+            _material({"shape": "sphere", **params})
+        assert "\n" not in str(err.value)

@@ -417,9 +417,11 @@ def _make_shape(p: dict):
         if p.get("ior") is None and p.get("ior_imag"):
             raise CoronaError(f"ior_imag={p['ior_imag']!r} needs ior=<real part> (the default, water, "
                               "does not absorb)")
-        for name, off in (("edge_width", 0.0), ("orientation", "fixed")):
+        for name, off, why in (("edge_width", 0.0, "a Mie sphere has a sharp surface, not a soft edge"),
+                               ("orientation", "fixed", "a sphere looks the same from every side")):
             if p[name] != off:
-                raise CoronaError(f"{name}={p[name]!r} is out of range for shape='sphere'; allowed {off!r}")
+                raise CoronaError(f"{name}={p[name]!r} is out of range for shape='sphere'; allowed {off!r} "
+                                  f"({why})")
         ior = None if p.get("ior") is None else complex(p["ior"], p.get("ior_imag") or 0.0)
         from .sphere_material import SPHERE_RADIUS_MAX
         if p["radius"] > SPHERE_RADIUS_MAX:   # the Mie tables' range (their build time)
