@@ -81,7 +81,8 @@ def lobe_errors(material, wavelength: float) -> dict:
 
 
 def main(radii=(0.5, 2.0, 5.0, 8.0, 10.0, 20.0, 25.0), wavelengths=(361.3, 452.7, 551.9, 648.2, 829.1),
-         iors=(None, 1.5)):
+         iors=(None, 1.5), results=None):
+    """Print the table; append one dict per (radius, ior, λ) to ``results`` if given."""
     print("| radius µm | ior | build s | λ nm | fwd RMS % | fwd scale % | rings % | back RMS % | back scale % |")
     print("|---|---|---|---|---|---|---|---|---|")
     for ior in iors:
@@ -93,10 +94,17 @@ def main(radii=(0.5, 2.0, 5.0, 8.0, 10.0, 20.0, 25.0), wavelengths=(361.3, 452.7
             build = time.perf_counter() - t0
             for lam in wavelengths:
                 e = lobe_errors(mat, lam)
+                if results is not None:
+                    results.append({"radius": r, "ior": "water" if ior is None else ior, "wavelength": lam,
+                                    "build_s": build, **e})
                 print(f"| {r:g} | {'water' if ior is None else ior} | {build:.2f} | {lam:g} | "
                       f"{100 * e['f_rms']:.2f} | {100 * e['f_scale']:+.2f} | {100 * e['rings']:.3f} | "
                       f"{100 * e['b_rms']:.2f} | {100 * e['b_scale']:+.2f} |", flush=True)
 
 
 if __name__ == "__main__":
-    main(*[tuple(float(v) for v in a.split(",")) for a in sys.argv[1:3]])
+    sys.path.insert(0, __import__("os").path.dirname(__file__))
+    from common import write
+    out: list = []
+    main(*[tuple(float(v) for v in a.split(",")) for a in sys.argv[1:3]], results=out)
+    write("mie_accuracy", {"results": out, "goal": {"rms": 0.01, "scale": 0.005, "rings": 0.002}})
