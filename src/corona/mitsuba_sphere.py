@@ -25,8 +25,10 @@ over the interpolated total (both lobes' densities, since a lobe's sampler
 reaches a sliver past 90°); the lane's wavelengths are mixed as for the flat
 layers (one-sample balance heuristic).
 
-Only uniform parameters (no textures) and the isotropic processes (poisson,
-hard-disk, rsa); nothing is exposed to ``mi.traverse``.
+Uniform parameters, except an ``area_fraction`` texture with Poisson centres
+(the tables do not depend on F_a then: the lane's F_a enters ``F_s``, the
+coherent beam and the cap); the isotropic processes (poisson, hard-disk,
+rsa); nothing is exposed to ``mi.traverse``.
 """
 from __future__ import annotations
 
@@ -36,7 +38,7 @@ import numpy as np
 
 from . import tables
 from ._validation import CoronaError
-from .mitsuba_bsdf import NEWTON_STEPS, _array, _channel_response, _gather, _read_props
+from .mitsuba_bsdf import NEWTON_STEPS, _array, _channel_response, _gather, _read_props, texture_range
 from .parameters import SPEC, material_from_parameters
 from .sphere_material import ENERGY_MARGIN, INCIDENCE_MU
 
@@ -71,9 +73,27 @@ class SphereBSDFMixin:
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
         params, textures = _read_props(props)
+        self.fa_tex = None
+        fa_tex = textures.pop("area_fraction", None)
+        if fa_tex is not None and fa_tex.is_spatially_varying():
+            # Poisson centres: the tables do not depend on F_a, only F_s, the coherent beam and the
+            # cap do; the other processes' S(q) (and so the tables) change with F_a
+            if params.get("process", "poisson") != "poisson":
+                textures["area_fraction"] = fa_tex
+            else:
+                lo, hi = texture_range(fa_tex)
+                if lo is None or not (0.0 < lo and hi < 1.0):
+                    raise CoronaError(f"corona BSDF: area_fraction texture values {lo!r} … {hi!r} are out of "
+                                      "range for shape='sphere'; allowed (0, 1)")
+                self.fa_tex, self.fa_range = fa_tex, (lo, hi)
+                params["area_fraction"] = hi
+        elif fa_tex is not None:                  # a uniform texture is a value
+            params["area_fraction"] = texture_range(fa_tex)[1]
         if textures:
-            raise CoronaError(f"corona BSDF: shape='sphere' takes uniform values; {', '.join(sorted(textures))} "
-                              "cannot be a texture")
+            raise CoronaError(f"corona BSDF: shape='sphere' takes uniform values here; "
+                              f"{', '.join(sorted(textures))} cannot be a texture (an area_fraction texture "
+                              "needs process='poisson': the other processes' tables depend on F_a; a radius "
+                              "texture would need a Mie table per radius)")
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
         self.params = params
         self._setup()
@@ -137,8 +157,8 @@ class SphereBSDFMixin:
         j = mi.UInt32(dr.clip(dr.floor(f), 0, self.n_rows - 2))
         return j, f - mi.Float(j), lam, x
 
-    def _state(self, lam_nm, mu_i, active):
-        """Row, energies and lobe weight of one wavelength of the lane."""
+    def _state(self, lam_nm, mu_i, active, fa=None):
+        """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a)."""
         j, t, lam, x = self._row(lam_nm)
 
         if dr.is_array_v(mi.Float):
@@ -150,7 +170,7 @@ class SphereBSDFMixin:
             row = lambda k: mi.Vector4f(*[float(self.row_data[4 * k + c]) for c in range(4)])
             a0, a1, b0, b1 = row(2 * j), row(2 * j + 2), row(2 * j + 1), row(2 * j + 3)
         a = dr.lerp(a0, a1, t)
-        fs = dr.minimum(self.fa / dr.maximum(mu_i, 1e-12), 1.0)
+        fs = dr.minimum((self.fa if fa is None else fa) / dr.maximum(mu_i, 1e-12), 1.0)
         re = 1.0 - fs * a.x
         im = fs * a.y
         coherent = dr.minimum(dr.fma(re, re, im * im), 1.0)
@@ -177,7 +197,10 @@ class SphereBSDFMixin:
     def _states(self, si, active):
         lams, m = self._wavelengths(si.wavelengths)
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
-        states = [self._state(lam, mu_i, active) for lam in lams]
+        fa = None
+        if self.fa_tex is not None:
+            fa = dr.clip(self.fa_tex.eval_1(si, active), self.fa_range[0], self.fa_range[1])
+        states = [self._state(lam, mu_i, active, fa) for lam in lams]
         return states, m
 
     def _selection(self, ctx, states, m):
