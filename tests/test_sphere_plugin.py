@@ -142,3 +142,18 @@ def test_area_fraction_texture_poisson(mi_variant):
         np.testing.assert_allclose(np.asarray(w), np.asarray(wr), rtol=1e-5, atol=1e-6)
     with pytest.raises(Exception, match="area_fraction texture needs process='poisson'"):
         mi.load_dict({"type": "corona", "shape": "sphere", "process": "hard-disk", "area_fraction": tex})
+
+
+def test_chi2_wide_spread_small_spheres(mi_variant):
+    # rows far apart in x (a 40 % spread of 0.5 µm droplets): each lobe's sampler reaches well
+    # past 90° (chords up to 1.7), where the pdf counts both lobes' densities
+    import mitsuba as mi
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 0.5, "area_fraction": 0.2,
+                             "process": "poisson", "size_spread": 0.4})
+    assert bsdf.reach > 1.55
+    ctx = mi.BSDFContext()
+    ctx.type_mask = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection
+    ok, test = chi2_bsdf(bsdf, 50, ctx, sample_count=300_000, res=101, ires=32)
+    assert ok, test.messages

@@ -114,6 +114,8 @@ class SphereBSDFMixin:
         x = rows["x"]
         self.x0, self.dx, self.n_rows = float(x[0]), float(x[1] - x[0]), int(x.size)
         self.ds = float(rows["ds"])
+        # the largest chord a lobe's sampler draws: a row's last node scaled by x_j+1 / x_j
+        self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(x[1] / x[0]) * (1 + 1e-6))
         self.K = int(rows["P_f"].shape[1])
         self.has_C = bool(rows["C_f"].size)
         if self.has_C:
@@ -332,7 +334,7 @@ class SphereBSDFMixin:
         on = dr.select(forward, fwd_on, bwd_on)
         s_other = dr.select(forward, s_b, s_f)
         offset_other = dr.select(forward, mi.UInt32(self.back_offset), mi.UInt32(0))
-        near = active & (s_other < 1.5)     # the sliver past 90° that a lobe's sampler reaches
+        near = active & (s_other < self.reach)     # the sliver past 90° that a lobe's sampler reaches
         for st in states:
             P, P_lin = self._rows_at(self.P, st, s_any, active, offset)       # P_f or P_b
             Z = P
