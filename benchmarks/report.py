@@ -110,6 +110,16 @@ def headline() -> list[str]:
         rows.append(("Render cost, sphere layer / opaque layer (5 µm, hard disk 0.4; BSDF call alone)",
                      f"{mie['render_ratio']:.2f}× (medians; minima {mie['render_ratio_minima']:.2f}×); "
                      f"per call {mie['bsdf_call']['ratio']:.2f}×", f"≤ {mie['render_goal']:g}×"))
+    acc = _load("mie_accuracy")
+    if acc and acc.get("results"):
+        res = acc["results"]
+        worst = lambda k: max(abs(v[k]) for v in res)
+        rows.append(("Mie sphere lobes vs Mie theory between rows (radii "
+                     f"{min(v['radius'] for v in res):g}–{max(v['radius'] for v in res):g} µm; worst): "
+                     "forward RMS / rings / backward RMS / scale",
+                     f"{100 * worst('f_rms'):.2f} % / {100 * worst('rings'):.2f} % / {100 * worst('b_rms'):.1f} % / "
+                     f"{100 * max(worst('f_scale'), worst('b_scale')):.2f} % (per radius: docs/mie.md)",
+                     "≤ 1 % / ≤ 0.2 % / ≤ 1 % / ≤ 0.5 %"))
     si = _load("slow_inputs")
     if si:
         done = {k: v for k, v in si["results"].items() if v.get("seconds") is not None}

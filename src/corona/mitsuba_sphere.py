@@ -14,15 +14,21 @@ both lobes may fall on either side of the layer at oblique incidence, so
 each is flagged ``GlossyTransmission | GlossyReflection``.  A lobe is
 tabulated in rows of the size parameter ``x`` and in the chord
 ``s = |wo + wi|`` (forward) or ``|wo - wi|`` (backward), with ``dΩ = s ds dφ``:
-the chord is drawn from one row's piecewise-linear radial density (guide
-table, bisection, safeguarded Newton on the cubic CDF, as the flat layers'
-radial tables), the azimuth uniformly.  A wavelength between rows j, j+1
-(weight t) uses row j+1 with probability ``t T_j+1 / ((1-t) T_j + t T_j+1)``,
-so the pdf is the interpolated P over the interpolated total; the lane's
-wavelengths are mixed as for the flat layers (one-sample balance heuristic).
+the two rows j, j+1 around a wavelength (weight t) are read at the chord
+scaled by ``x / x_row`` (rings at a fixed ``x·s`` line up), with Catmull–Rom
+cubics in the chord for the value.  Sampling draws the chord from one row's
+piecewise-linear radial density (guide table, bisection, safeguarded Newton
+on the cubic CDF, as the flat layers' radial tables), row j+1 with
+probability ``t T_j+1 / ((1-t) T_j + t T_j+1)``, scales it by ``x_row / x``
+and draws the azimuth uniformly, so the pdf is the rows' linear, scaled blend
+over the interpolated total (both lobes' densities, since a lobe's sampler
+reaches a sliver past 90°); the lane's wavelengths are mixed as for the flat
+layers (one-sample balance heuristic).
 
-Only uniform parameters (no textures) and the isotropic processes (poisson,
-hard-disk, rsa); nothing is exposed to ``mi.traverse``.
+Uniform parameters, except an ``area_fraction`` texture with Poisson centres
+(the tables do not depend on F_a then: the lane's F_a enters ``F_s``, the
+coherent beam and the cap); the isotropic processes (poisson, hard-disk,
+rsa); nothing is exposed to ``mi.traverse``.
 """
 from __future__ import annotations
 
@@ -32,8 +38,9 @@ import numpy as np
 
 from . import tables
 from ._validation import CoronaError
-from .mitsuba_bsdf import NEWTON_STEPS, _array, _channel_response, _gather, _read_props
+from .mitsuba_bsdf import NEWTON_STEPS, _array, _channel_response, _gather, _read_props, texture_range
 from .parameters import SPEC, material_from_parameters
+from .sphere_material import ENERGY_MARGIN, INCIDENCE_MU
 
 
 def _not(x):
@@ -66,9 +73,27 @@ class SphereBSDFMixin:
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
         params, textures = _read_props(props)
+        self.fa_tex = None
+        fa_tex = textures.pop("area_fraction", None)
+        if fa_tex is not None and fa_tex.is_spatially_varying():
+            # Poisson centres: the tables do not depend on F_a, only F_s, the coherent beam and the
+            # cap do; the other processes' S(q) (and so the tables) change with F_a
+            if params.get("process", "poisson") != "poisson":
+                textures["area_fraction"] = fa_tex
+            else:
+                lo, hi = texture_range(fa_tex)
+                if lo is None or not (0.0 < lo and hi < 1.0):
+                    raise CoronaError(f"corona BSDF: area_fraction texture values {lo!r} … {hi!r} are out of "
+                                      "range for shape='sphere'; allowed (0, 1)")
+                self.fa_tex, self.fa_range = fa_tex, (lo, hi)
+                params["area_fraction"] = hi
+        elif fa_tex is not None:                  # a uniform texture is a value
+            params["area_fraction"] = texture_range(fa_tex)[1]
         if textures:
-            raise CoronaError(f"corona BSDF: shape='sphere' takes uniform values; {', '.join(sorted(textures))} "
-                              "cannot be a texture")
+            raise CoronaError(f"corona BSDF: shape='sphere' takes uniform values here; "
+                              f"{', '.join(sorted(textures))} cannot be a texture (an area_fraction texture "
+                              "needs process='poisson': the other processes' tables depend on F_a; a radius "
+                              "texture would need a Mie table per radius)")
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
         self.params = params
         self._setup()
@@ -89,11 +114,14 @@ class SphereBSDFMixin:
         x = rows["x"]
         self.x0, self.dx, self.n_rows = float(x[0]), float(x[1] - x[0]), int(x.size)
         self.ds = float(rows["ds"])
+        # the largest chord a lobe's sampler draws: a row's last node scaled by x_j+1 / x_j
+        self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(x[1] / x[0]) * (1 + 1e-6))
         self.K = int(rows["P_f"].shape[1])
         self.has_C = bool(rows["C_f"].size)
         if self.has_C:
             self.Cf = _array(mi.Float, rows["C_f"].ravel())
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
+        self.Ef = _array(mi.Float, der["e_f_mu"].ravel())
         # per-row scalars packed 8 to a row, gathered as two Vector4f:
         # (Re s0, Im s0, e_f, e_b), (T_f, T_b, 0, 0)
         packed = np.zeros((x.size, 8))
@@ -129,11 +157,11 @@ class SphereBSDFMixin:
         x = (2.0 * dr.pi * self.radius) / lam
         f = (x - self.x0) / self.dx
         j = mi.UInt32(dr.clip(dr.floor(f), 0, self.n_rows - 2))
-        return j, f - mi.Float(j), lam
+        return j, f - mi.Float(j), lam, x
 
-    def _state(self, lam_nm, mu_i, active):
-        """Row, energies and lobe weight of one wavelength of the lane."""
-        j, t, lam = self._row(lam_nm)
+    def _state(self, lam_nm, mu_i, active, fa=None):
+        """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a)."""
+        j, t, lam, x = self._row(lam_nm)
 
         if dr.is_array_v(mi.Float):
             a0 = dr.gather(mi.Vector4f, self.row_data, 2 * j, active)
@@ -144,21 +172,37 @@ class SphereBSDFMixin:
             row = lambda k: mi.Vector4f(*[float(self.row_data[4 * k + c]) for c in range(4)])
             a0, a1, b0, b1 = row(2 * j), row(2 * j + 2), row(2 * j + 1), row(2 * j + 3)
         a = dr.lerp(a0, a1, t)
-        fs = dr.minimum(self.fa / dr.maximum(mu_i, 1e-12), 1.0)
+        fs = dr.minimum((self.fa if fa is None else fa) / dr.maximum(mu_i, 1e-12), 1.0)
         re = 1.0 - fs * a.x
         im = fs * a.y
-        coherent = dr.fma(re, re, im * im)
-        ef, eb = a.z, a.w
-        scattered = fs * (ef + eb)
+        coherent = dr.minimum(dr.fma(re, re, im * im), 1.0)
+        ef, eb = self._forward(j, t, mu_i, active), a.w
+        scattered = fs * (ef + eb) * ENERGY_MARGIN
         w = dr.minimum(1.0, dr.maximum(1.0 - coherent, 0.0) / dr.maximum(scattered, 1e-30))
         Tf0, Tf1, Tb0, Tb1 = b0.x, b1.x, b0.y, b1.y
-        return dict(j=j, t=t, lam=lam, fs=fs, coherent=coherent, w=w, e_f=fs * w * ef, e_b=fs * w * eb,
+        return dict(j=j, t=t, lam=lam, x=x, fs=fs, coherent=coherent, w=w, e_f=fs * w * ef, e_b=fs * w * eb,
                     Tf=dr.lerp(Tf0, Tf1, t), Tb=dr.lerp(Tb0, Tb1, t), Tf1=Tf1, Tb1=Tb1, Tf0=Tf0, Tb0=Tb0)
+
+    def _forward(self, st_j, t, mu_i, active):
+        """The forward lobe's energy e_f at the row (j, t) and ``mu_i`` (SphereMaterial._forward)."""
+        n = len(INCIDENCE_MU)
+        g = (1.0 - dr.clip(mu_i, 0.0, 1.0)) * (n - 1)
+        b = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), n - 2)
+        f = dr.clip(g - mi.Float(b), 0.0, 1.0)
+        k = st_j * n + b
+        e00 = _gather(mi.Float, self.Ef, k, active)
+        e01 = _gather(mi.Float, self.Ef, k + 1, active)
+        e10 = _gather(mi.Float, self.Ef, k + n, active)
+        e11 = _gather(mi.Float, self.Ef, k + n + 1, active)
+        return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
 
     def _states(self, si, active):
         lams, m = self._wavelengths(si.wavelengths)
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
-        states = [self._state(lam, mu_i, active) for lam in lams]
+        fa = None
+        if self.fa_tex is not None:
+            fa = dr.clip(self.fa_tex.eval_1(si, active), self.fa_range[0], self.fa_range[1])
+        states = [self._state(lam, mu_i, active, fa) for lam in lams]
         return states, m
 
     def _selection(self, ctx, states, m):
@@ -189,19 +233,30 @@ class SphereBSDFMixin:
     # ------------------------------------------------------------------
     # tables
     # ------------------------------------------------------------------
-    def _lerp_rows(self, arr, st, s, active, offset=0):
-        """Rows j, j+1 (weight t) of a chord table at chord ``s``: bilinear; 0 beyond √2."""
-        g = s / self.ds
-        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), self.K - 2)
-        f = dr.clip(g - mi.Float(i), 0.0, 1.0)
-        inside = active & (g <= self.K - 1)
-        k = st["j"] * self.K + i + offset
-        v00 = _gather(mi.Float, arr, k, inside)
-        v01 = _gather(mi.Float, arr, k + 1, inside)
-        v10 = _gather(mi.Float, arr, k + self.K, inside)
-        v11 = _gather(mi.Float, arr, k + self.K + 1, inside)
-        v = dr.lerp(dr.lerp(v00, v01, f), dr.lerp(v10, v11, f), st["t"])
-        return dr.select(inside, dr.maximum(v, 0.0), 0.0)
+    def _rows_at(self, arr, st, s, active, offset=0):
+        """Rows j, j+1 (weight t) of a chord table, each read at its chord scaled by ``x / x_row``
+        (corona.sphere_material._scaled_blend): (Catmull–Rom value, linear value, the sampler's
+        density up to its total)."""
+        cub, lin = mi.Float(0.0), mi.Float(0.0)
+        K = self.K
+        for d, wgt in ((0, 1.0 - st["t"]), (1, st["t"])):
+            row = st["j"] + d
+            c = (self.x0 + self.dx * mi.Float(row)) / st["x"]          # x_row / x
+            g = s / (c * self.ds)
+            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
+            f = dr.clip(g - mi.Float(i), 0.0, 1.0)
+            inside = active & (g <= K - 1)
+            k = row * K + i + offset
+            p1 = _gather(mi.Float, arr, k, inside)
+            p2 = _gather(mi.Float, arr, k + 1, inside)
+            p0 = dr.select(i > 0, _gather(mi.Float, arr, k - 1, inside & (i > 0)), p1)
+            p3 = dr.select(i + 2 < K, _gather(mi.Float, arr, k + 2, inside & (i + 2 < K)), p2)
+            v = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3
+                                               + f * (3.0 * (p1 - p2) + p3 - p0)))
+            scale = wgt / (c * c)
+            cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
+            lin += dr.select(inside, dr.maximum(dr.lerp(p1, p2, f), 0.0) * scale, 0.0)
+        return cub, lin
 
     def _structure(self, u, active):
         x = u / self.S_du
@@ -255,7 +310,7 @@ class SphereBSDFMixin:
             df = dr.fma(dr.fma(3.0 * k3, t, 2.0 * k2), t, k1)
             t_new = t - f / dr.maximum(df, 1e-30)
             t = dr.select((t_new <= lo_t) | (t_new >= hi_t), 0.5 * (lo_t + hi_t), t_new)
-        return dr.minimum(s0 + dr.clip(t, 0.0, 1.0) * ds, 1.41421356)
+        return s0 + dr.clip(t, 0.0, 1.0) * ds
 
     # ------------------------------------------------------------------
     # BSDF interface
@@ -277,18 +332,23 @@ class SphereBSDFMixin:
         s_any = dr.select(forward, s_f, s_b)
         offset = dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
         on = dr.select(forward, fwd_on, bwd_on)
+        s_other = dr.select(forward, s_b, s_f)
+        offset_other = dr.select(forward, mi.UInt32(self.back_offset), mi.UInt32(0))
+        near = active & (s_other < self.reach)     # the sliver past 90° that a lobe's sampler reaches
         for st in states:
-            P = self._lerp_rows(self.P, st, s_any, active, offset)       # P_f or P_b
+            P, P_lin = self._rows_at(self.P, st, s_any, active, offset)       # P_f or P_b
             Z = P
             if self.has_S:
                 S = self._structure((2.0 * dr.pi * self.radius) * dxy / st["lam"], a_f)
-                C_f = self._lerp_rows(self.Cf, st, s_f, a_f) if self.has_C else P
+                C_f = self._rows_at(self.Cf, st, s_f, a_f)[0] if self.has_C else P
                 Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
             values.append(dr.select(active & on, Z * (st["fs"] * st["w"]), 0.0))
             if self.sampling == "cosine":
                 continue
-            pdf += m * P * dr.select(forward, p_f / dr.maximum(st["Tf"], 1e-30),
-                                     p_b / dr.maximum(st["Tb"], 1e-30))
+            Q_lin = self._rows_at(self.P, st, s_other, near, offset_other)[1]
+            dens_f = dr.select(forward, P_lin, Q_lin) / dr.maximum(st["Tf"], 1e-30)
+            dens_b = dr.select(forward, Q_lin, P_lin) / dr.maximum(st["Tb"], 1e-30)
+            pdf += m * (p_f * dens_f + p_b * dens_b)
         if self.sampling == "cosine":   # comparisons only: uniform sphere for both lobes
             pdf = dr.select(active, (p_f + p_b) * (0.25 * dr.inv_pi), 0.0)
         return self._spectrum(values), dr.select(active, pdf, 0.0)
@@ -323,9 +383,10 @@ class SphereBSDFMixin:
             s = dr.clip(s, 0.0, 0.99999994) * n
             pick = dr.minimum(mi.UInt32(s), n - 1)
             rest = s - mi.Float(pick)
-            j, p_next = states[-1]["j"], mi.Float(0.0)
+            j, p_next, x = states[-1]["j"], mi.Float(0.0), states[-1]["x"]
             for q in range(n - 1, -1, -1):
                 st = states[q]
+                x = dr.select(pick == q, st["x"], x)
                 T0 = dr.select(pick_f, st["Tf0"], st["Tb0"])
                 T1 = dr.select(pick_f, st["Tf1"], st["Tb1"])
                 pn = st["t"] * T1 / dr.maximum(dr.lerp(T0, T1, st["t"]), 1e-30)
@@ -333,6 +394,8 @@ class SphereBSDFMixin:
                 p_next = dr.select(pick == q, pn, p_next)
             row = dr.select(rest < p_next, j + 1, j)
             chord = self._sample_chord(sample2.x, row, pick_f, pick_f | pick_b)
+            # the row's chord scaled to the lane's x: rings at a fixed x·s
+            chord = dr.minimum(chord * (self.x0 + self.dx * mi.Float(row)) / x, 2.0)
             cos_t = 1.0 - 0.5 * chord * chord
             sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
             sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)

@@ -187,7 +187,7 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("shape", "choice", "", "circle", "scatterer shape", SHAPES),
     Parameter("radius", "float", "µm", 0.5, "circle / sphere radius; ellipse semi-axis x; square/rectangle "
               "half-width; polygon circumradius (the scatterer's circumradius must stay <= "
-              f"{RADIUS_MAX:g} µm)", low=RADIUS_MIN, high=RADIUS_MAX, applies=_SHAPES_WITH_RADIUS),
+              f"{RADIUS_MAX:g} µm; a sphere's radius <= 25 µm, the Mie tables' range)", low=RADIUS_MIN, high=RADIUS_MAX, applies=_SHAPES_WITH_RADIUS),
     Parameter("ior", "float", "", None, "shape=sphere: refractive index n of the droplets relative to "
               "air; default water at 20 °C with its dispersion (Daimon & Masumura 2007)",
               low=0.0, high=IOR_MAX, low_open=True, applies=("shape=sphere",)),
@@ -423,10 +423,17 @@ def _make_shape(p: dict):
         if p.get("ior") is None and p.get("ior_imag"):
             raise CoronaError(f"ior_imag={p['ior_imag']!r} needs ior=<real part> (the default, water, "
                               "does not absorb)")
-        for name, off in (("edge_width", 0.0), ("orientation", "fixed")):
+        for name, off, why in (("edge_width", 0.0, "a Mie sphere has a sharp surface, not a soft edge"),
+                               ("orientation", "fixed", "a sphere looks the same from every side")):
             if p[name] != off:
-                raise CoronaError(f"{name}={p[name]!r} is out of range for shape='sphere'; allowed {off!r}")
+                raise CoronaError(f"{name}={p[name]!r} is out of range for shape='sphere'; allowed {off!r} "
+                                  f"({why})")
         ior = None if p.get("ior") is None else complex(p["ior"], p.get("ior_imag") or 0.0)
+        from .sphere_material import SPHERE_RADIUS_MAX
+        if p["radius"] > SPHERE_RADIUS_MAX:   # the Mie tables' range (their build time)
+            raise CoronaError(f"radius={p['radius']!r} is out of range for shape='sphere'; allowed "
+                              f"(0, {SPHERE_RADIUS_MAX:g}] µm (larger droplets: use shape='circle', "
+                              "whose Fraunhofer corona theirs approaches)")
         return _modified(shapes.Sphere(check_positive("radius", p["radius"], "µm"), ior=ior), p)
     if kind == "mask":
         if not p.get("filename"):

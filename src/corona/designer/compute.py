@@ -247,6 +247,12 @@ def material(params: dict):
     return _materials.get(key, make)
 
 
+def _is_sphere(m) -> bool:
+    """Whether ``m`` is a layer of Mie spheres (its lobe depends on λ beyond ``u``)."""
+    from ..sphere_material import SphereMaterial
+    return isinstance(m, SphereMaterial)
+
+
 def _uses_table_weight(m) -> bool:
     """Whether the lobe weight needs the table (processes that allow overlaps).
 
@@ -319,6 +325,16 @@ def lobe_rgb(m, d: np.ndarray, spectrum: np.ndarray, lams: np.ndarray) -> np.nda
     d = np.asarray(d, dtype=np.float64)
     R = m.length_scale
     w = lobe_weight(m)
+    if _is_sphere(m):     # Mie: the pattern is no function of u alone; the lobe at each λ
+        rho = np.hypot(d[..., 0], d[..., 1])
+        rho_grid = np.linspace(0.0, max(float(rho.max()) if rho.size else 0.0, 1e-12), 2048)
+        dg = np.stack([rho_grid, 0 * rho_grid], -1)
+        f = np.stack([m.lobe(dg, lam) for lam in lams], -1)                     # (K, nλ)
+        prof = spectrum_to_linear_srgb(f * spectrum, lams)
+        x = rho * ((rho_grid.size - 1) / rho_grid[-1])
+        i = np.minimum(x.astype(np.intp), rho_grid.size - 2)
+        frac = (x - i)[..., None]
+        return prof[i] * (1.0 - frac) + prof[i + 1] * frac
     if m.isotropic:
         rho = np.hypot(d[..., 0], d[..., 1])
         rho_top = float(rho.max()) if rho.size else 0.0
@@ -465,7 +481,14 @@ def profiles(params: dict, view: dict, n: int = 400) -> dict:
     if m.isotropic:
         # the lobe from the picture's radial profile (same material, same range: computed once)
         u, v = _radial_v(m, _u_top(m, rho_top))
-        out["T_a"] = _finite(m.shape.form_factor_radial(q) / lam**2)
+        if _is_sphere(m):     # one sphere's n dσ/dΩ / F_a = dσ/dΩ / (π r²), from Mie theory
+            wi = np.array([0.0, 0.0, 1.0])
+            wo = np.stack([rho, 0 * rho, -np.sqrt(np.maximum(1 - rho * rho, 0.0))], -1)
+            P_f = m._exact(np.linalg.norm(wo + wi, axis=-1), np.linalg.norm(wo - wi, axis=-1),
+                           np.full(rho.shape, PROFILE_WAVELENGTH))[0]
+            out["T_a"] = _finite(P_f)
+        else:
+            out["T_a"] = _finite(m.shape.form_factor_radial(q) / lam**2)
         out["T_s"] = _finite(m.process.structure_factor_radial(q, m.shape))
         out["lobe"] = _finite(w * (R / lam) ** 2 * np.interp(q * R, u, v))
     else:
@@ -489,19 +512,22 @@ def ring_radii(m, n_rings: int = 4) -> dict:
     R = m.length_scale
     du = 0.05
     u = np.arange(0.0, 40.0 + du / 2, du)
-    if m.isotropic:
-        v = m.lobe_dimensionless_radial(u)
+
+    def peaks_of(v):
+        a, b, c = v[:-2], v[1:-1], v[2:]
+        peaks = np.nonzero((b > a) & (b >= c) & (b > 1e-12 * max(v.max(), 1e-300)))[0] + 1
+        peaks = peaks[u[peaks] > 1.0][:n_rings]
+        curv = v[peaks - 1] - 2 * v[peaks] + v[peaks + 1]
+        shift = np.where(curv < 0, 0.5 * (v[peaks - 1] - v[peaks + 1]) / np.where(curv < 0, curv, -1.0), 0.0)
+        return u[peaks] + du * np.clip(shift, -0.5, 0.5)
+    if _is_sphere(m):     # Mie rings move with x and m(λ) as well: found at each wavelength
+        per_lam = {lam: peaks_of(m.lobe_dimensionless_radial(u, lam)) for lam in RING_WAVELENGTHS}
     else:
-        v = m.lobe_dimensionless(np.stack([u, 0 * u], -1))
-    a, b, c = v[:-2], v[1:-1], v[2:]
-    peaks = np.nonzero((b > a) & (b >= c) & (b > 1e-12 * max(v.max(), 1e-300)))[0] + 1
-    peaks = peaks[u[peaks] > 1.0][:n_rings]
-    curv = v[peaks - 1] - 2 * v[peaks] + v[peaks + 1]
-    shift = np.where(curv < 0, 0.5 * (v[peaks - 1] - v[peaks + 1]) / np.where(curv < 0, curv, -1.0), 0.0)
-    u_peak = u[peaks] + du * np.clip(shift, -0.5, 0.5)
+        v = m.lobe_dimensionless_radial(u) if m.isotropic else m.lobe_dimensionless(np.stack([u, 0 * u], -1))
+        per_lam = dict.fromkeys(RING_WAVELENGTHS, peaks_of(v))
     out = {}
     for lam in RING_WAVELENGTHS:
-        s = u_peak * lam * 1e-3 / (2 * np.pi * R)
+        s = per_lam[lam] * lam * 1e-3 / (2 * np.pi * R)
         out[f"{lam:g}"] = [float(np.degrees(np.arcsin(x))) for x in s if x < 1.0]
     return out
 
