@@ -9,7 +9,7 @@ assumptions (no form-factor × structure-factor split, no tables):
    (:func:`positions_source`): hard-disk configurations from the event-chain
    simulation (:func:`corona.reference.hard_disk.simulate_hard_disks`, the same
    ``N = 2000`` disks the shipped table was made with), random sequential
-   adsorption (:func:`corona.processes.rsa_configuration`), jittered
+   adsorption (:func:`corona.processes.rsa.rsa_configuration`), jittered
    lattices (box commensurate with the lattice), Poisson (``N`` uniform
    centres) and measured point sets (:class:`corona.PointSet`, treated as
    periodic).  Every realisation is translated by a uniform random offset, so
@@ -106,7 +106,7 @@ from scipy import ndimage
 
 from .._validation import CoronaError, check_choice, check_range
 from ..processes import Lattice, PointSet, Poisson, Process, SequentialAdsorption
-from .rsa import rsa_configuration
+from ..processes.rsa import rsa_configuration
 from ..shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle, Shape,
                      SizeDistribution, SoftEdge)
 
