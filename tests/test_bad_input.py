@@ -88,8 +88,8 @@ API_CASES = {
     "circle-nan": (lambda f: corona.Circle(radius=NAN), ["radius=nan", "> 0"]),
     "circle-inf": (lambda f: corona.Circle(radius=INF), ["radius=inf", "> 0"]),
     "circle-string": (lambda f: corona.Circle(radius="big"), ["radius='big'", "> 0"]),
-    "ellipse-negative": (lambda f: corona.Ellipse(-1.0, 1.0), ["semi_axis_x=-1", "> 0"]),
-    "square-zero": (lambda f: corona.Square(0.0), ["side=0", "> 0"]),
+    "ellipse-negative": (lambda f: corona.Ellipse(-1.0, aspect=1.0), ["radius=-1", "> 0"]),
+    "square-zero": (lambda f: corona.Square(0.0), ["radius=0", "> 0"]),
     "polygon-two-sides": (lambda f: corona.RegularPolygon(2, 1.0), ["sides=2", "3.."]),
     "soft-edge-negative": (lambda f: corona.SoftEdge(C1, -0.1), ["edge_width=-0.1", "[0, inf]"]),
     "spread-too-wide": (lambda f: corona.SizeDistribution(C1, 1.5), ["spread=1.5", "[0, 1]"]),
@@ -375,7 +375,7 @@ def test_small_radius_warns_once_per_process(monkeypatch):
         assert not [w for w in rec if issubclass(w.category, corona.CoronaWarning)]
         m = corona.Material(corona.Circle(0.3), corona.Poisson(0.2))    # 0.3 µm < 2 × 830 nm
         corona.Material(corona.Circle(0.2), corona.HardDisk(0.3))
-        corona.Material(corona.Square(0.4), corona.Poisson(0.2))
+        corona.Material(corona.Square(0.2), corona.Poisson(0.2))
     hits = [w for w in rec if issubclass(w.category, corona.CoronaWarning)]
     assert len(hits) == 1, [str(w.message) for w in hits]
     msg = str(hits[0].message)
@@ -387,8 +387,8 @@ def test_small_radius_rule_uses_the_equivalent_radius(monkeypatch):
     limit = material_module.SMALL_RADIUS_WAVELENGTHS * 0.83
     assert limit == pytest.approx(1.66)
     for shape, warns in [(corona.Circle(1.65), True), (corona.Circle(1.67), False),
-                         (corona.Square(1.66 * math.sqrt(math.pi) * 0.99), True),
-                         (corona.Square(1.66 * math.sqrt(math.pi) * 1.01), False)]:
+                         (corona.Square(0.5 * 1.66 * math.sqrt(math.pi) * 0.99), True),   # side √π × 1.66 µm
+                         (corona.Square(0.5 * 1.66 * math.sqrt(math.pi) * 1.01), False)]:
         monkeypatch.setattr(material_module, "_small_radius_warned", False)
         with warnings.catch_warnings(record=True) as rec:
             warnings.simplefilter("always")

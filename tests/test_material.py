@@ -208,7 +208,7 @@ def test_anisotropic_shape_on_a_powder_lattice_builds_its_table():
     """A square on a randomly oriented lattice: a 2-D table with the powder's radial S
     (the Bragg cell means are for fixed lattices only; this used to raise)."""
     from corona import processes, shapes
-    m = Material(shapes.Square(4.0), processes.Lattice("square", 8.0, jitter=0.2, orientation="random"),
+    m = Material(shapes.Square(2.0), processes.Lattice("square", 8.0, jitter=0.2, orientation="random"),
                  use_cache=False)
     assert not m.isotropic and m.process.isotropic
     assert np.all(np.isfinite(m.table.values)) and np.all(m.table.values >= 0)

@@ -184,9 +184,9 @@ def test_lattice_reciprocal_vectors():
     assert np.allclose(prod, np.rint(prod), atol=1e-12)
     assert hexa.cell_area == pytest.approx(np.sqrt(3) / 2 * a**2)
     # rotation rotates the peaks
-    rot = Lattice("square", a, angle=0.3)
+    rot = Lattice("square", a, angle=17.0)                  # degrees
     G, _ = rot.bragg_peaks(2 * np.pi / a * 1.01)
-    ang = np.mod(np.arctan2(G[:, 1], G[:, 0]) - 0.3, np.pi / 2)
+    ang = np.mod(np.arctan2(G[:, 1], G[:, 0]) - np.radians(17.0), np.pi / 2)
     assert np.allclose(np.minimum(ang, np.pi / 2 - ang), 0, atol=1e-12)
 
 

@@ -183,7 +183,7 @@ def test_render_in_a_scalar_variant(tmp_path, scalar):
 # --------------------------------------------------------------------------
 def test_size_average_outside_the_rotation_average_is_the_same_ensemble():
     """SizeDistribution(RandomOrientation(B)) (the fast nesting) equals RandomOrientation(SizeDistribution(B))."""
-    sq = corona.Square(1.0, angle=0.3)
+    sq = corona.Square(0.5, angle=17.0)
     fast = corona.SizeDistribution(corona.RandomOrientation(sq), 0.2)
     slow = corona.RandomOrientation(corona.SizeDistribution(sq, 0.2))
     q = np.linspace(0.0, 25.0, 60)

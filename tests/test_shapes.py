@@ -104,15 +104,15 @@ L_SHAPE = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], float)
 # ---------------------------------------------------------------------------
 BINARY = [
     (Circle(0.8), 2 / 0.8),
-    (Ellipse(1.0, 0.4, 0.3), None),
-    (Rectangle(1.0, 0.3, 0.2), 2 * 1.3 / 0.3),
-    (Square(0.7), 4 / 0.7),
+    (Ellipse(1.0, aspect=0.4, angle=17.0), None),
+    (Rectangle(0.5, aspect=0.3, angle=11.0), 2 * 1.3 / 0.3),
+    (Square(0.35), 4 / 0.7),
     (Polygon(L_SHAPE), 8 / 3),
-    (RegularPolygon(5, 1.0, 0.1), None),
-    (RandomOrientation(Square(1.0)), 4.0),
+    (RegularPolygon(5, 1.0, angle=6.0), None),
+    (RandomOrientation(Square(0.5)), 4.0),
     (SizeDistribution(Circle(1.0), 0.2, "lognormal"), 2 / 1.04),
     (SizeDistribution(Circle(1.0), 0.2, "schulz"), 2 / 1.04),
-    (Mixture([(Circle(1.0), 1.0), (Square(0.5), 3.0)]),
+    (Mixture([(Circle(1.0), 1.0), (Square(0.25), 3.0)]),
      (1.0 * 2 * np.pi + 3.0 * 2.0) / (1.0 * np.pi + 3.0 * 0.25)),
 ]
 
@@ -135,7 +135,7 @@ def test_lobe_integrates_to_one(shape, porod):
 
 
 def test_lobe_integral_is_wavelength_independent():
-    sq = Square(0.7)
+    sq = Square(0.35)
     vals = [integral_Ta(sq, lam=lam, u_max=60, porod=4 / 0.7) for lam in (0.4, 0.7)]
     assert abs(vals[0] - vals[1]) < 1e-10
 
@@ -189,7 +189,7 @@ def test_circle_peak_and_formula():
 
 def test_ellipse_matches_polygon_approximation_and_axis_zeros():
     a, b, ang = 1.2, 0.5, 0.4
-    e = Ellipse(a, b, ang)
+    e = Ellipse(a, aspect=b / a, angle=math.degrees(ang))
     n = 3000
     t = 2 * np.pi * np.arange(n) / n
     c, s = math.cos(ang), math.sin(ang)
@@ -201,8 +201,8 @@ def test_ellipse_matches_polygon_approximation_and_axis_zeros():
     qs = np.linspace(2.5, 4.5, 20001) / a
     ff = e.form_factor(qs[:, None] * np.array([c, s]))
     assert qs[np.argmin(ff)] * a == pytest.approx(3.8317, abs=2e-4)
-    assert Ellipse(0.7, 0.7).isotropic and not e.isotropic
-    np.testing.assert_allclose(Ellipse(0.7, 0.7, 1.0).form_factor(q), Circle(0.7).form_factor(q),
+    assert Ellipse(0.7).isotropic and Ellipse(0.7, aspect=1.0).isotropic and not e.isotropic
+    np.testing.assert_allclose(Ellipse(0.7, angle=57.0).form_factor(q), Circle(0.7).form_factor(q),
                                rtol=1e-12, atol=1e-15)
     assert e.length_scale == a and e.exclusion_diameter == 2 * a
 
@@ -212,14 +212,14 @@ def test_ellipse_matches_polygon_approximation_and_axis_zeros():
 # ---------------------------------------------------------------------------
 def test_square_against_sinc2():
     for side, ang in ((1.0, 0.0), (0.6, 0.35)):
-        sq = Square(side, ang)
+        sq = Square(side / 2, angle=math.degrees(ang))
         q = grid(64, 40.0)
         np.testing.assert_allclose(sq.form_factor(q), rect_ff(q, side, side, ang),
                                    rtol=1e-12, atol=1e-14)
         assert sq.area == pytest.approx(side**2)
         assert sq.length_scale == pytest.approx(side / math.sqrt(2))
         assert sq.exclusion_diameter == pytest.approx(side * math.sqrt(2))
-    r = Rectangle(1.4, 0.3, -0.2)
+    r = Rectangle(0.7, aspect=0.3 / 1.4, angle=math.degrees(-0.2))
     q = grid(64, 40.0)
     np.testing.assert_allclose(r.form_factor(q), rect_ff(q, 1.4, 0.3, -0.2), rtol=1e-12, atol=1e-14)
 
@@ -230,7 +230,7 @@ def test_polygon_of_rectangle_equals_rectangle():
     corners = np.array([[-w / 2, -h / 2], [w / 2, -h / 2], [w / 2, h / 2], [-w / 2, h / 2]])
     rot = corners @ np.array([[c, s], [-s, c]]) + np.array([3.0, -7.0])  # rotated + translated
     poly = Polygon(rot)
-    rect = Rectangle(w, h, ang)
+    rect = Rectangle(w / 2, aspect=h / w, angle=math.degrees(ang))
     assert poly.area == pytest.approx(rect.area, rel=1e-13)
     assert poly.length_scale == pytest.approx(rect.length_scale, rel=1e-13)
     q = np.concatenate([grid(50, 30.0).reshape(-1, 2),
@@ -285,14 +285,14 @@ def test_regular_polygon_limits():
     # many sides → circle of equal area
     n, Rc = 400, 1.0
     r = Rc * math.sqrt(2 * math.pi / (n * math.sin(2 * math.pi / n)))
-    poly = RegularPolygon(n, r, 0.123)
+    poly = RegularPolygon(n, r, angle=7.0)
     circ = Circle(Rc)
     assert poly.area == pytest.approx(circ.area, rel=1e-12)
     u = np.linspace(0, 20, 300)
     q = np.stack([u * 0.28, u * 0.96], -1)
     np.testing.assert_allclose(poly.form_factor(q), circ.form_factor(q), atol=1e-4 * circ.area)
     # 4 sides with a vertex at 45° = axis-aligned square of side r√2
-    sq = RegularPolygon(4, 1.0, math.pi / 4)
+    sq = RegularPolygon(4, 1.0, angle=45.0)
     q = grid(40, 20.0)
     np.testing.assert_allclose(sq.form_factor(q), rect_ff(q, math.sqrt(2), math.sqrt(2)),
                                atol=1e-12)
@@ -470,7 +470,7 @@ def test_soft_edge_self_overlap_against_real_space():
     small = SoftEdge(Circle(R), 1e-3)
     assert 1 - small.self_overlap == pytest.approx(1e-3 * 2 / math.sqrt(math.pi), rel=1e-2)
 
-    sr = SoftEdge(Rectangle(1.0, 0.4, 0.3), 0.05)
+    sr = SoftEdge(Rectangle(0.5, aspect=0.4, angle=17.0), 0.05)
     assert sr.self_overlap == pytest.approx(blurred_rect_overlap(1.0, 0.4, 0.05), abs=1e-7)
 
     V = np.array([[0.0, 0.0], [1.2, 0.1], [0.3, 0.9]])
@@ -480,7 +480,7 @@ def test_soft_edge_self_overlap_against_real_space():
 
 
 def test_soft_edge_lobe_integrates_to_self_overlap():
-    for sh in (SoftEdge(Circle(1.0), 0.1), SoftEdge(Square(1.0, 0.2), 0.05),
+    for sh in (SoftEdge(Circle(1.0), 0.1), SoftEdge(Square(0.5, angle=11.0), 0.05),
                SoftEdge(Polygon(L_SHAPE), 0.1),
                SoftEdge(SizeDistribution(Circle(1.0), 0.2, "schulz"), 0.08)):
         val = integral_Ta(sh, u_max=120)          # Gaussian kills the tail
@@ -488,7 +488,7 @@ def test_soft_edge_lobe_integrates_to_self_overlap():
         assert 0.5 < sh.self_overlap < 1.0
     # Gaussian factor on the amplitude
     q = grid(15, 10.0)
-    base, se = Square(1.0, 0.2), SoftEdge(Square(1.0, 0.2), 0.05)
+    base, se = Square(0.5, angle=11.0), SoftEdge(Square(0.5, angle=11.0), 0.05)
     g = np.exp(-0.5 * np.sum(q**2, -1) * 0.05**2)
     np.testing.assert_allclose(se.amplitude(q), base.amplitude(q) * g, rtol=1e-14)
     np.testing.assert_allclose(se.form_factor(q), base.form_factor(q) * g**2, rtol=1e-14)
@@ -514,7 +514,7 @@ def test_soft_mask_overlap_against_pixel_blur():
 # ---------------------------------------------------------------------------
 def test_random_orientation_is_radial_and_matches_brute_force():
     side = 1.0
-    ro = RandomOrientation(Square(side))
+    ro = RandomOrientation(Square(side / 2))
     assert ro.isotropic
     q = np.linspace(0, 90, 400)
     for ang in (0.0, 0.3, 1.1, 2.9):
@@ -535,7 +535,7 @@ def test_random_orientation_is_radial_and_matches_brute_force():
 
 
 def test_random_orientation_odd_symmetry_and_isotropic_base():
-    tri = RegularPolygon(3, 1.0, 0.2)
+    tri = RegularPolygon(3, 1.0, angle=11.0)
     ro = RandomOrientation(tri)
     q = np.linspace(0, 40, 120)
     phi = 2 * np.pi * np.arange(2048) / 2048
@@ -552,11 +552,11 @@ def test_radial_and_grid_tables_are_finite():
     """Every kind of shape table builds, with its shape and finite values (the build
     times are measured by benchmarks/bench_tables.py, not asserted here)."""
     u = np.linspace(0, 100, 2048)
-    for sh in (Circle(1.0), RandomOrientation(Square(1.0)), SizeDistribution(Circle(1.0), 0.2)):
+    for sh in (Circle(1.0), RandomOrientation(Square(0.5)), SizeDistribution(Circle(1.0), 0.2)):
         tab = sh.table_radial(u)
         assert tab.shape == u.shape and np.all(np.isfinite(tab)), sh
     uu = grid(512, 50.0)
-    for sh in (Square(1.0, 0.3), RegularPolygon(6, 1.0), Ellipse(1.0, 0.5)):
+    for sh in (Square(0.5, angle=17.0), RegularPolygon(6, 1.0), Ellipse(1.0, aspect=0.5)):
         tab = sh.table(uu)
         assert tab.shape == uu.shape[:-1] and np.all(np.isfinite(tab)), sh
 
@@ -564,10 +564,10 @@ def test_radial_and_grid_tables_are_finite():
 # ---------------------------------------------------------------------------
 # scaling with wavelength and size (docs/physics.md#the-model)
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("make", [lambda s: Circle(s), lambda s: Square(s, 0.3),
+@pytest.mark.parametrize("make", [lambda s: Circle(s), lambda s: Square(s / 2, angle=17.0),
                                   lambda s: Polygon(L_SHAPE * s),
-                                  lambda s: RandomOrientation(Rectangle(s, 0.4 * s)),
-                                  lambda s: SoftEdge(Ellipse(s, 0.5 * s), 0.1 * s)],
+                                  lambda s: RandomOrientation(Rectangle(s / 2, aspect=0.4)),
+                                  lambda s: SoftEdge(Ellipse(s, aspect=0.5), 0.1 * s)],
                          ids=["circle", "square", "polygon", "random-rect", "soft-ellipse"])
 def test_lobe_scales_with_wavelength_and_size(make):
     unit = make(1.0)
@@ -638,7 +638,7 @@ def test_size_distribution(dist):
 
 
 def test_size_distribution_of_anisotropic_shape():
-    sq = Square(1.0, 0.2)
+    sq = Square(0.5, angle=math.degrees(0.2))
     sd = SizeDistribution(sq, 0.15, "schulz")
     assert not sd.isotropic
     q = grid(31, 20.0)
@@ -681,12 +681,12 @@ def test_mixture():
     assert np.all(cf <= ff * (1 + 1e-12))
     assert np.any(cf < 0.9 * ff)
     # equal shapes: coherent = incoherent (no size/type fluctuation)
-    same = Mixture([(Square(1.0, 0.3), 1.0), (Square(1.0, 0.3), 5.0)])
+    same = Mixture([(Square(0.5, angle=17.0), 1.0), (Square(0.5, angle=17.0), 5.0)])
     qq = grid(21, 20.0)
     np.testing.assert_allclose(same.coherent_form_factor(qq), same.form_factor(qq), rtol=1e-12)
-    np.testing.assert_allclose(same.form_factor(qq), Square(1.0, 0.3).form_factor(qq), rtol=1e-12)
+    np.testing.assert_allclose(same.form_factor(qq), Square(0.5, angle=17.0).form_factor(qq), rtol=1e-12)
     # anisotropic mixture
-    ani = Mixture([(Square(1.0), 1.0), (Circle(0.3), 1.0)])
+    ani = Mixture([(Square(0.5), 1.0), (Circle(0.3), 1.0)])
     assert not ani.isotropic
     assert np.all(ani.coherent_form_factor(qq) <= ani.form_factor(qq) * (1 + 1e-12))
     assert ani.length_scale == pytest.approx(1 / math.sqrt(2))
@@ -705,7 +705,7 @@ def test_mixture():
 def test_keys_and_reprs():
     img = np.zeros((8, 8))
     img[2:5, 3:6] = 1
-    shapes = [Circle(1.0), Ellipse(1.0, 0.5), Rectangle(1.0, 0.5), Square(1.0),
+    shapes = [Circle(1.0), Ellipse(1.0, aspect=0.5), Rectangle(1.0, aspect=0.5), Square(1.0),
               Polygon(L_SHAPE), RegularPolygon(6, 1.0), Mask(img, 0.1), Mask(img.T, 0.1),
               SoftEdge(Polygon(L_SHAPE), 0.1), RandomOrientation(Square(1.0)),
               SizeDistribution(Circle(1.0), 0.1), SizeDistribution(Circle(1.0), 0.1, "schulz"),
@@ -713,7 +713,7 @@ def test_keys_and_reprs():
     keys = [json.dumps(s.key(), sort_keys=True) for s in shapes]
     assert len(set(keys)) == len(keys)
     assert json.dumps(Square(1.0).key()) == json.dumps(Square(1.0).key())
-    assert Square(1.0).key() != Rectangle(1.0, 1.0).key()
+    assert Square(1.0).key() != Rectangle(1.0).key()
     assert Mixture([(Circle(1.0), 1.0), (Circle(2.0), 1.0)]).key() == \
         Mixture([(Circle(1.0), 3.0), (Circle(2.0), 3.0)]).key()
     for s in shapes:
@@ -724,13 +724,14 @@ def test_keys_and_reprs():
 
 BAD = [
     (lambda: Circle(-1.0), "radius"),
-    (lambda: Ellipse(0.0, 1.0), "semi_axis_x"),
-    (lambda: Ellipse(1.0, -1.0), "semi_axis_y"),
-    (lambda: Ellipse(1.0, 1.0, float("nan")), "angle"),
-    (lambda: Rectangle(1.0, 0.0), "height"),
-    (lambda: Rectangle("a", 1.0), "width"),
-    (lambda: Square(-2.0), "side"),
-    (lambda: Square(1.0, float("inf")), "angle"),
+    (lambda: Ellipse(0.0), "radius"),
+    (lambda: Ellipse(1.0, aspect=-1.0), "aspect"),
+    (lambda: Ellipse(1.0, angle=float("nan")), "angle"),
+    (lambda: Rectangle(1.0, aspect=0.0), "aspect"),
+    (lambda: Rectangle("a"), "radius"),
+    (lambda: Square(-2.0), "radius"),
+    (lambda: Square(1.0, angle=float("inf")), "angle"),
+    (lambda: RegularPolygon(5, 1.0, angle=float("nan")), "angle"),
     (lambda: Polygon([[0, 0], [1, 1]]), "vertices"),
     (lambda: Polygon([[0, 0], [1, 1], [1, 0], [0, 1]]), "vertices"),       # bow tie
     (lambda: Polygon([[0, 0], [1, 0], [2, 0]]), "vertices"),               # zero area

@@ -40,7 +40,7 @@ def _bound(m):
 @pytest.mark.parametrize("shape,exact", [
     (shapes.Circle(1.0), False),
     (shapes.RegularPolygon(6, 1.0), False),
-    (shapes.Square(math.sqrt(2.0), angle=0.3), False),
+    (shapes.Square(math.sqrt(0.5), angle=17.0), False),
     (shapes.Mask(blob_mask_image(), 1.0 / 18.0), True),
 ])
 def test_single_scatterer_matches_form_factor(shape, exact):
@@ -127,7 +127,7 @@ def test_wrong_factor_would_fail():
     S = 1): ``⟨|T̂|²⟩/(Aλ²) = n|Â|²/λ²`` exactly, for a square (|A| ≠ πR²) at two
     wavelengths.  A 5 % error in any factor (λ², |A|, h², the box area) is
     far outside the bound."""
-    sq = shapes.Square(R * math.sqrt(2.0))
+    sq = shapes.Square(R / math.sqrt(2.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CoronaWarning)
         m = Material(sq, Poisson(0.1))
@@ -218,7 +218,7 @@ def test_bad_material_shape_and_process():
     with pytest.raises(CoronaError, match="not supported"):
         wave.positions_source(_Odd(), shapes.Circle(1.0))
     with pytest.raises(CoronaError, match="angle"):
-        wave.positions_source(Lattice("square", 3.0, angle=0.3), shapes.Circle(1.0))
+        wave.positions_source(Lattice("square", 3.0, angle=17.0), shapes.Circle(1.0))
 
 
 def test_bad_wavelength_and_cases(hd03):

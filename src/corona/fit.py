@@ -74,6 +74,7 @@ import warnings
 import numpy as np
 
 from ._validation import CoronaError, check_choice, check_range
+from .layer import decoupled_lobe
 
 #: The moon's mean angular diameter [degree] (the unit of Cowley's rule of thumb).
 MOON_DIAMETER_DEG = 0.52
@@ -495,7 +496,7 @@ class CircleLayer:
     """The radial lobe of a layer of circular scatterers (any radial process).
 
     ``lobe(ρ, λ) = F_a (R/λ)² v(u)``, ``u = 2π R ρ / λ``, with
-    ``v(u) = max(P + C (S - 1), 0) / R²`` exactly as
+    ``v(u) = max(P + C (S - 1), 0) / R²`` (:func:`corona.layer.decoupled_lobe`) exactly as
     :meth:`corona.Material.lobe_dimensionless_radial` (``P``, ``C`` the form
     factors of the size-distributed circle, :class:`corona.SizeDistribution`;
     ``S`` the structure factor of the process).  ``v`` does not depend on
@@ -584,7 +585,7 @@ class CircleLayer:
         proc = self._process(area_fraction)
         proc.validate(shape)
         S = proc.structure_factor_radial(u / self.R_REF, shape)
-        v = np.maximum(P + C * (S - 1.0), 0.0)
+        v = decoupled_lobe(P, C, S)     # P, C already divided by R²
         self._cache[key] = (u, v)
         return u, v
 

@@ -13,6 +13,7 @@ import numpy as np
 from . import render_lobe as rlobe
 from . import tables
 from ._validation import CoronaError, CoronaWarning, check_choice, check_finite_array, check_range
+from .layer import decoupled_lobe
 from .processes import Poisson, Process
 from .shapes import Shape
 from .substrate import GlassPane, double_pass_visibility, interference_integral
@@ -228,7 +229,7 @@ class Material:
                    structure_factor: bool = True) -> dict:
         """The factors of the dimensionless lobe and the lobe itself at ``u``.
 
-        The one implementation of the decoupling rule (docs/physics.md)::
+        The decoupling rule (docs/physics.md, :func:`corona.layer.decoupled_lobe`)::
 
             v(u) = max(P + C (S - 1), 0) / R²,   q = u / R
 
@@ -297,7 +298,7 @@ class Material:
                 bragg = process.bragg_cell_mean(q, cell / R, peak_factor=shape.coherent_form_factor)
             else:
                 S = S_smooth = process.structure_factor_at(q, shape)
-        v = np.maximum(P + C * (S_smooth - 1.0) + bragg, 0.0) / R**2
+        v = decoupled_lobe(P, C, S_smooth, R, bragg)
         return {"P": P, "C": C, "S": S, "v": v}
 
     def lobe_dimensionless(self, u) -> np.ndarray:
@@ -453,9 +454,9 @@ class Material:
             if hasattr(self.process, "bragg_cell_mean"):
                 S_bg = self.process.background_cell_mean(q, cell / R)
                 bragg = self.process.bragg_cell_mean(q, cell / R, peak_factor=self.shape.coherent_form_factor)
-                v = np.maximum(P + C * (S_bg - 1.0) + bragg, 0.0) / R**2
+                v = decoupled_lobe(P, C, S_bg, R, bragg)
             else:
-                v = np.maximum(P + C * (self.process.structure_factor_at(q, self.shape) - 1.0), 0.0) / R**2
+                v = decoupled_lobe(P, C, self.process.structure_factor_at(q, self.shape), R)
             out = tables.GridTable(u_range, v).arrays()
             out["form_total"] = np.array(form_total)
             return out
@@ -482,7 +483,7 @@ class Material:
                     acc += rl.eval(uu) * g.jacobian(uu)
             out = tables.GridTable(u_range, acc / k**2, g.warp).arrays()
         else:
-            v = np.maximum(P + C * rl.s1(np.hypot(ux, uy)), 0.0) / R**2
+            v = decoupled_lobe(P, C, 1.0 + rl.s1(np.hypot(ux, uy)), R)
             out = tables.GridTable(u_range, v).arrays()
         out["form_total"] = np.array(form_total)
         if not poisson:
@@ -512,7 +513,7 @@ class Material:
         out = []
         for fa in area_fractions:
             S = 1.0 if fa <= 0.0 else self.process.with_area_fraction(float(fa)).structure_factor_radial(q, self.shape)
-            out.append(np.maximum(P + C * (S - 1.0), 0.0) / R**2)
+            out.append(decoupled_lobe(P, C, S, R))
         return out
 
     def area_fraction_rows(self, lo: float = 0.0, hi: float | None = None,

@@ -289,15 +289,16 @@ MIXTURE_SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon")
 def _outline(kind: str, r: float, p: dict):
     """The bare shape ``kind`` of size ``r`` [µm] (aspect, sides, angle from ``p``)."""
     from . import shapes
-    angle = math.radians(SPEC["angle"].check(p["angle"]))
+    # the Python classes take the plugin's parameters as they are (radius, aspect, angle [degree])
+    angle = SPEC["angle"].check(p["angle"])
     if kind == "circle":
         return shapes.Circle(r)
     if kind == "ellipse":
-        return shapes.Ellipse(r, r * SPEC["aspect"].check(p["aspect"]), angle=angle)
+        return shapes.Ellipse(r, aspect=SPEC["aspect"].check(p["aspect"]), angle=angle)
     if kind == "square":
-        return shapes.Square(2 * r, angle=angle)
+        return shapes.Square(r, angle=angle)
     if kind == "rectangle":
-        return shapes.Rectangle(2 * r, 2 * r * SPEC["aspect"].check(p["aspect"]), angle=angle)
+        return shapes.Rectangle(r, aspect=SPEC["aspect"].check(p["aspect"]), angle=angle)
     return shapes.RegularPolygon(SPEC["sides"].check(p["sides"]), r, angle=angle)
 
 

@@ -69,7 +69,8 @@ class Term:
     """One deterministic outline of the kernel.
 
     ``kind`` is ``"circle"`` (``radius``), ``"ellipse"`` (semi-axes ``a``,
-    ``b``, ``angle``), ``"rect"`` (``width``, ``height``, ``angle``) or
+    ``b``, ``angle``), ``"rect"`` (``width``, ``height``, ``angle``; the
+    kernel's ``angle`` in radians) or
     ``"polygon"`` (``vertices`` (n, 2), centred on the centroid,
     counter-clockwise); ``weight`` is the number weight, ``area`` [µm²] the
     outline's area, ``blur`` [µm] the rms width of the Gaussian soft edge
@@ -115,10 +116,12 @@ def analytic_terms(shape) -> list[Term] | None:
     if type(shape) is Circle:
         return [Term("circle", {"radius": shape.radius}, 1.0, shape.area)]
     if type(shape) is Ellipse:
-        return [Term("ellipse", {"a": shape.semi_axis_x, "b": shape.semi_axis_y, "angle": shape.angle},
+        return [Term("ellipse", {"a": shape.semi_axis_x, "b": shape.semi_axis_y,
+                                 "angle": math.radians(shape.angle)},
                      1.0, shape.area)]
     if isinstance(shape, Rectangle):
-        return [Term("rect", {"width": shape.width, "height": shape.height, "angle": shape.angle},
+        return [Term("rect", {"width": shape.width, "height": shape.height,
+                                  "angle": math.radians(shape.angle)},
                      1.0, shape.area)]
     if isinstance(shape, Polygon) and len(shape.vertices) <= EDGE_MAX:
         return [Term("polygon", {"vertices": np.array(shape.vertices)}, 1.0, shape.area)]
@@ -141,9 +144,10 @@ def terms_amplitudes(terms: list[Term], q) -> tuple[np.ndarray, np.ndarray]:
         if t.kind == "circle":
             a = Circle(p["radius"]).amplitude(q)
         elif t.kind == "ellipse":
-            a = Ellipse(p["a"], p["b"], p["angle"]).amplitude(q)
+            a = Ellipse(p["a"], aspect=p["b"] / p["a"], angle=math.degrees(p["angle"])).amplitude(q)
         elif t.kind == "rect":
-            a = Rectangle(p["width"], p["height"], p["angle"]).amplitude(q)
+            a = Rectangle(0.5 * p["width"], aspect=p["height"] / p["width"],
+                          angle=math.degrees(p["angle"])).amplitude(q)
         else:
             a = Polygon(p["vertices"]).amplitude(q)
         if t.blur > 0:

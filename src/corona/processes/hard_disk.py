@@ -161,73 +161,28 @@ class HardDisk(Process):
     ``scripts/make_hard_disk_table.py``; see :func:`simulate_hard_disks` and
     :func:`smooth_structure_factor_row`):
 
-    * rows η = 0, 0.05 … 0.5, 0.52 … 0.6, 0.61 … 0.72, each N = 2000 disks,
-      independent chains of 1.4·10⁴ – 7·10⁴ sweeps (two per row; for issue
-      18 four at η = 0.05–0.25, eight at 0.35–0.45, 12 at 0.3, 45 at 0.5 and
-      26 at 0.65), S(k) on the box wave vectors binned in ``qσ`` (0.05),
-      smoothed, ``qσ ∈ [0, 40]`` on a 0.05 grid;
-    * each row's standard error is stored with it (``S_err`` in the table
-      file, a parametric bootstrap of the smoothing): at most 0.0022, 0.0026,
-      0.0026 at η = 0.3, 0.5, 0.65 and below 0.003 in every row η <= 0.5 but
-      0.4 (0.0037); 0.004–0.007 at the first peak of the two-chain rows
-      0.52–0.64, 0.008–0.011 at 0.66–0.68;
-    * the smoothing does not flatten the peaks: around the first three peaks
-      of every row η <= 0.69 the raw data minus the row average to within
-      2.1 standard errors (``reference.hard_disk.raw_minus_smoothed``);
-      synthetic rows with more structure than the real ones come out with
-      biases below their noise (``smoothing_bias``);
+    * rows in η from 0 to :data:`ETA_MAX`, each a periodic box of N = 2000
+      disks, ``S(k)`` on the box wave vectors binned in ``qσ`` and smoothed,
+      ``qσ ∈ [0, 40]`` on a 0.05 grid; each row stores its standard error
+      (``S_err``, a parametric bootstrap of the smoothing);
     * between rows: monotone cubic (PCHIP) interpolation in η, then a
       cubic Hermite interpolant in ``qσ`` (fourth-order slopes, ``S'(0) = 0``);
     * beyond ``qσ = 40``: ``S - 1 = -8η [g(σ⁺) J1(qσ)/qσ + b J0(qσ)/(qσ)²]``
       with the measured contact value, joined continuously.
 
-    Checks (``tests/test_hard_disk.py``, ``benchmarks/bench_hard_disk.py``,
-    figures from ``benchmarks/results/hard_disk.json``):
+    The rows at η ≥ 0.69 are not the equilibrium bulk fluid: there the
+    N = 2000 system is in the fluid–hexatic coexistence / hexatic range, and
+    these rows are the structure factor of that finite, partly ordered system,
+    its sharp first peak kept by its area (a kernel average of width 0.1 in
+    ``qσ``) so that the model stays continuous up to :data:`ETA_MAX`.  They
+    carry no accuracy claim; use :class:`Lattice` for a crystalline layer.
 
-    * pressure of every row against Henderson's ``Z = (1 + η²/8)/(1 - η)²``:
-      within 0.15 % up to η = 0.4, 1.2 % at 0.6 (Henderson is too high
-      there: 2.2 % at 0.65, 13 % at 0.70, where the simulated isotherm has
-      the finite-size loop of the fluid–hexatic transition);
-    * contact value ``g(σ⁺)`` extrapolated from ``g(r)`` agrees with
-      ``(Z - 1)/(2η)`` within its error (0.3–2 %) in every row;
-    * the table's ``S(0)`` is within 1 % of Henderson's ``1/(d(ηZ)/dη)`` up
-      to η = 0.45 (0.258 at 0.3, 0.080 vs 0.079 at 0.5), then rises above
-      it (+8 % at 0.65, +47 % at 0.70: the compressibility softens towards
-      freezing, which Henderson does not know);
-    * sum rule ``∫ T_a T_s d²d = 1 - F_a`` for circles: within 0.1 % for
-      every F_a ≤ 0.70 (-0.09 %, -0.015 %, -0.018 %, +0.022 %, -0.03 % at
-      F_a = 0.1, 0.3, 0.5, 0.65, 0.7); ~1 % at 0.71–0.72 (Bragg-like peaks);
-    * the Percus–Yevick route (:func:`structure_factor_percus_yevick`)
-      agrees with the table to max ``|ΔS|`` ≤ 0.009 for η ≤ 0.35, 0.028 at
-      0.5, 0.07 at 0.6, 0.13 at 0.65 and 0.26 at 0.68 (its first peak is
-      2–3 % too high up to η ≈ 0.65, its contact value too low: 2.94 vs
-      3.11 at η = 0.5), and fails
-      near freezing (first peak 5.9 vs 12.0 at 0.72).
-
-    * a second, independent sampler (plain Metropolis with local moves,
-      disks grown from random points: ``reference.hard_disk_metropolis``)
-      agrees with the table averaged over the same wave vectors within 2.0
-      combined standard errors (|ΔS| <= 0.004) around the first three peaks
-      and the first trough at η = 0.3, 0.5 and 0.65: in particular the
-      first peak at 0.65 (2.9436 ± 0.0026 against 2.9440 ± 0.0067), where an
-      earlier independent estimate had found the table 3 % high
-      (``tests/test_hard_disk_table.py``, ``benchmarks/bench_hard_disk.py``).
-
-    **What the rows at η ≥ 0.69 represent** (decided for issue 18): not the
-    equilibrium bulk fluid.  Above η ≈ 0.69 the N = 2000 system in a
-    periodic square box is in the fluid–hexatic coexistence / hexatic range
-    (mean ``|ψ6|`` 0.14, 0.35, 0.62, 0.71 at η = 0.69 … 0.72): the first
-    peak is sharp and depends on N and on the box, Bragg-like spots appear.
-    These rows are the structure factor of *that finite, partly ordered
-    system* (started from a triangular lattice; a compressed-fluid start
-    reaches the same ``ψ6`` and pressure at 0.72), with the peaks' area kept
-    by a kernel average of width 0.1 in ``qσ`` rather than resolved (their
-    heights are 1–2 % below the raw data, ~0.06–0.1), so that the model
-    stays continuous up to :data:`ETA_MAX` and gives the strongly peaked
-    rings of a nearly crystalline layer.  They carry no accuracy claim: the
-    error bars and checks above hold for η ≤ 0.68, and the interpolation
-    between rows is least certain there (the peak grows from 5 to 12 over
-    η = 0.69 … 0.72).  Use :class:`Lattice` for a crystalline layer.
+    How the table compares with Henderson's equation of state, the
+    compressibility sum rule, Percus–Yevick and an independent Metropolis
+    sampler, with the figures of the shipped table, is in
+    ``docs/tables.md#the-hard-disk-table`` (checked by
+    ``tests/test_hard_disk.py``, ``tests/test_hard_disk_table.py`` and
+    ``benchmarks/bench_hard_disk.py``).
 
     Parameters
     ----------

@@ -48,8 +48,8 @@ class Lattice(Process):
     orientation : {"fixed", "random"}
         Fixed lattice (anisotropic ``S``) or powder average (radial ``S``).
     angle : float, default 0
-        Rotation of the fixed lattice [rad], counter-clockwise (as the
-        ``angle`` of :mod:`corona.shapes`).
+        Rotation of the fixed lattice [degree], counter-clockwise (as the
+        ``angle`` of :mod:`corona.shapes` and of the plugin).
     """
 
     def __init__(self, kind: str = "square", spacing: float = 1.0, jitter: float = 0.0,
@@ -63,7 +63,7 @@ class Lattice(Process):
                                        lo_open=True, hi_open=True, unit="µm")
         self.orientation = check_choice("orientation", orientation, ("fixed", "random"))
         self.angle = check_range("angle", angle, -math.inf, math.inf, lo_open=True, hi_open=True,
-                                 unit="rad")
+                                 unit="degree")
 
     def __repr__(self):
         return (f"Lattice(kind={self.kind!r}, spacing={self.spacing:g}, jitter={self.jitter:g}, "
@@ -81,7 +81,7 @@ class Lattice(Process):
         a = self.spacing
         A = (np.array([[a, 0.0], [0.0, a]]) if self.kind == "square"
              else np.array([[a, 0.0], [0.5 * a, 0.5 * np.sqrt(3.0) * a]]))
-        c, s = np.cos(self.angle), np.sin(self.angle)
+        c, s = np.cos(np.radians(self.angle)), np.sin(np.radians(self.angle))
         return A @ np.array([[c, s], [-s, c]])
 
     @property

@@ -1,6 +1,7 @@
 """Random sequential adsorption of disks: S(qσ, η) from a shipped Monte Carlo table."""
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -185,12 +186,211 @@ class SequentialAdsorption(Process):
     def sample(self, shape, box_size: float, seed=None) -> np.ndarray:
         """Centres [µm] (N, 2) of one RSA realisation in the periodic box
         ``[0, box_size)²`` with this process's density."""
-        from ..reference.rsa import rsa_configuration   # numba: the reference tier
         self.validate(shape)
         return rsa_configuration(box_size, min(self.packing_fraction(shape), RSA_JAMMING_LIMIT),
                                  sigma=self.sigma(shape), seed=seed)
 
 
 # =====================================================================
-# lattices
+# the generator: numba kernels (the ``reference`` extra), compiled lazily on first use
 # =====================================================================
+_KERNELS = ("_wrap", "_rsa_free", "_rsa_covered", "_rsa_fill")
+_JIT_DONE = False
+
+
+def _jit() -> None:
+    """Compile the numba kernels of this module (once; numba caches them on disk)."""
+    global _JIT_DONE
+    if _JIT_DONE:
+        return
+    try:
+        import numba
+    except ImportError:
+        raise CoronaError("sampling random sequential adsorption needs numba, which is not installed; "
+                          "install the reference extra: pip install 'corona[reference]'") from None
+    g = globals()
+    for name in _KERNELS:
+        g[name] = numba.njit(cache=True, nogil=True)(g[name])
+    _JIT_DONE = True
+
+
+def _wrap(d, L):
+    """Minimum-image convention for a separation ``d`` in a period ``L``."""
+    if d > 0.5 * L:
+        return d - L
+    if d < -0.5 * L:
+        return d + L
+    return d
+
+
+def _rsa_free(x, y, pos, cell, nc, h, L):
+    """True when a unit-diameter disk centred at (x, y) overlaps no placed disk."""
+    ci = int(x / h) % nc
+    cj = int(y / h) % nc
+    for di in range(-2, 3):
+        for dj in range(-2, 3):
+            if (di == 2 or di == -2) and (dj == 2 or dj == -2):
+                continue  # corner cells are farther than h*sqrt(5) > 1
+            p = cell[(ci + di) % nc, (cj + dj) % nc]
+            if p >= 0:
+                dx = _wrap(pos[p, 0] - x, L)
+                dy = _wrap(pos[p, 1] - y, L)
+                if dx * dx + dy * dy < 1.0:
+                    return False
+    return True
+
+
+def _rsa_covered(vx, vy, v, pos, cell, nc, h, L):
+    """True when the square voxel [vx, vx+v) x [vy, vy+v) lies inside the
+    exclusion disk (radius 1) of a single placed centre."""
+    cx = vx + 0.5 * v
+    cy = vy + 0.5 * v
+    ci = int(cx / h) % nc
+    cj = int(cy / h) % nc
+    for di in range(-2, 3):
+        for dj in range(-2, 3):
+            p = cell[(ci + di) % nc, (cj + dj) % nc]
+            if p >= 0:
+                dx = abs(_wrap(pos[p, 0] - cx, L)) + 0.5 * v
+                dy = abs(_wrap(pos[p, 1] - cy, L)) + 0.5 * v
+                if dx * dx + dy * dy < 1.0:
+                    return True
+    return False
+
+
+def _rsa_fill(L, n_stop, seed):
+    """Random sequential adsorption of unit-diameter disks in the periodic box
+    ``[0, L)²``; returns the centres (N, 2) in insertion order.
+
+    Stops after ``n_stop`` disks (``n_stop <= 0``: at saturation).  Phase 1
+    makes plain uniform attempts up to coverage 0.40; phase 2 is the exact
+    voxel method (Wang 1994; Zhang & Torquato 2013): attempts are drawn
+    uniformly in a list of equal square voxels that together contain all of
+    the still-available area; voxels inside one exclusion disk are dropped
+    and, when fewer than a quarter of the attempts of a sweep succeed, every
+    voxel is split in four.  Since the voxels cover the whole available area
+    and are of equal size, this samples the same process as plain RSA; it
+    ends when no voxel is left, i.e. at saturation.
+    """
+    np.random.seed(seed)
+    nc = int(L * math.sqrt(2.0)) + 1  # cell side h < 1/sqrt(2): at most one centre per cell
+    h = L / nc
+    cell = -np.ones((nc, nc), np.int64)
+    n_max = int(L * L / (math.pi / 4.0) * 0.5471 * 1.1) + 16
+    if 0 < n_stop < n_max:
+        n_max = n_stop
+    pos = np.empty((n_max, 2))
+    n = 0
+    n_switch = int(0.40 * L * L / (math.pi / 4.0))
+    fails = 0
+    while n < n_max and n < n_switch and fails < 2000:
+        x = np.random.random() * L
+        y = np.random.random() * L
+        if _rsa_free(x, y, pos, cell, nc, h, L):
+            pos[n, 0] = x
+            pos[n, 1] = y
+            cell[int(x / h) % nc, int(y / h) % nc] = n
+            n += 1
+            fails = 0
+        else:
+            fails += 1
+    if n >= n_max:
+        return pos[:n]
+    v = 0.5 * h
+    nv1 = 2 * nc
+    vox = np.empty((nv1 * nv1, 2))
+    m = 0
+    for i in range(nv1):
+        for j in range(nv1):
+            vx = i * v
+            vy = j * v
+            if not _rsa_covered(vx, vy, v, pos, cell, nc, h, L):
+                vox[m, 0] = vx
+                vox[m, 1] = vy
+                m += 1
+    depth = 0
+    while m > 0 and n < n_max:
+        acc = 0
+        for _ in range(m):
+            k = int(np.random.random() * m)
+            x = vox[k, 0] + np.random.random() * v
+            y = vox[k, 1] + np.random.random() * v
+            if x >= L:
+                x -= L
+            if y >= L:
+                y -= L
+            if _rsa_free(x, y, pos, cell, nc, h, L):
+                pos[n, 0] = x
+                pos[n, 1] = y
+                cell[int(x / h) % nc, int(y / h) % nc] = n
+                n += 1
+                acc += 1
+                if n >= n_max:
+                    break
+        m2 = 0
+        for k in range(m):
+            if not _rsa_covered(vox[k, 0], vox[k, 1], v, pos, cell, nc, h, L):
+                vox[m2, 0] = vox[k, 0]
+                vox[m2, 1] = vox[k, 1]
+                m2 += 1
+        m = m2
+        if m > 0 and acc < 0.25 * m and depth < 40:
+            v2 = 0.5 * v
+            out = np.empty((4 * m, 2))
+            m2 = 0
+            for k in range(m):
+                for a in range(2):
+                    for b in range(2):
+                        vx = vox[k, 0] + a * v2
+                        vy = vox[k, 1] + b * v2
+                        if not _rsa_covered(vx, vy, v2, pos, cell, nc, h, L):
+                            out[m2, 0] = vx
+                            out[m2, 1] = vy
+                            m2 += 1
+            vox = out
+            m = m2
+            v = v2
+            depth += 1
+    return pos[:n]
+
+
+def rsa_configuration(box_size: float, packing_fraction: float | None = None, *,
+                      sigma: float = 1.0, seed=None) -> np.ndarray:
+    """One RSA configuration of disks of diameter ``sigma`` in the periodic box
+    ``[0, box_size)²``.
+
+    Parameters
+    ----------
+    box_size : float
+        Side of the square periodic box (same unit as ``sigma``).
+    packing_fraction : float or None
+        Stop at ``N = round(η box_size² / (π σ²/4))`` disks; None runs to
+        saturation (``η ≈ 0.5471`` for a large box).
+    sigma : float
+        Disk (exclusion) diameter.
+    seed : int or None
+        Seed of the (numba) random generator.
+
+    Returns
+    -------
+    numpy.ndarray
+        Centres (N, 2) in insertion order (fewer than requested if a small
+        box saturates first).
+    """
+    sigma = check_positive("sigma", sigma)
+    box_size = check_positive("box_size", box_size)
+    L = box_size / sigma
+    if L < 3.0:
+        raise CoronaError(f"box_size={box_size!r} is out of range; expected >= 3 sigma = {3 * sigma:g}")
+    n_stop = 0
+    if packing_fraction is not None:
+        eta = check_range("packing_fraction", packing_fraction, 0.0, RSA_JAMMING_LIMIT)
+        n_stop = int(round(eta * L * L / (np.pi / 4.0)))
+        if n_stop == 0:
+            return np.zeros((0, 2))
+    if seed is None:
+        seed = int(np.random.default_rng().integers(2**31 - 1))
+    _jit()
+    return _rsa_fill(float(L), int(n_stop), int(seed)) * sigma
+
+

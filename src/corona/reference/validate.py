@@ -96,7 +96,7 @@ def make_shape(name: str, radius: float = RADIUS):
     if name == "circle":
         return shapes.Circle(radius)
     if name == "square":
-        return shapes.Square(radius * math.sqrt(2.0))
+        return shapes.Square(radius / math.sqrt(2.0))   # half-width R/√2: circumradius R
     if name == "hexagon":
         return shapes.RegularPolygon(6, radius)
     if name == "mask":
@@ -163,7 +163,7 @@ def extra_cases(quick: bool = False) -> list[Case]:
         return shapes.SoftEdge(shapes.Circle(R), 0.1), HardDisk(0.3)
 
     def rotated():
-        return shapes.RandomOrientation(shapes.Square(R * math.sqrt(2))), HardDisk(0.3)
+        return shapes.RandomOrientation(shapes.Square(R / math.sqrt(2))), HardDisk(0.3)
 
     def sized():
         return shapes.SizeDistribution(shapes.Circle(R), 0.1), HardDisk(0.3)

@@ -9,7 +9,7 @@ assumptions (no form-factor × structure-factor split, no tables):
    (:func:`positions_source`): hard-disk configurations from the event-chain
    simulation (:func:`corona.reference.hard_disk.simulate_hard_disks`, the same
    ``N = 2000`` disks the shipped table was made with), random sequential
-   adsorption (:func:`corona.processes.rsa_configuration`), jittered
+   adsorption (:func:`corona.processes.rsa.rsa_configuration`), jittered
    lattices (box commensurate with the lattice), Poisson (``N`` uniform
    centres) and measured point sets (:class:`corona.PointSet`, treated as
    periodic).  Every realisation is translated by a uniform random offset, so
@@ -106,7 +106,7 @@ from scipy import ndimage
 
 from .._validation import CoronaError, check_choice, check_range
 from ..processes import Lattice, PointSet, Poisson, Process, SequentialAdsorption
-from .rsa import rsa_configuration
+from ..processes.rsa import rsa_configuration
 from ..shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle, Shape,
                      SizeDistribution, SoftEdge)
 
@@ -309,7 +309,7 @@ def _leaf_profile(leaf, X, Y, h_leaf):
     if isinstance(leaf, Circle):
         sd = np.hypot(X, Y) - leaf.radius
     elif isinstance(leaf, Ellipse):
-        c, s = math.cos(leaf.angle), math.sin(leaf.angle)
+        c, s = math.cos(math.radians(leaf.angle)), math.sin(math.radians(leaf.angle))
         x, y = c * X + s * Y, -s * X + c * Y
         a, b = leaf.semi_axis_x, leaf.semi_axis_y
         rho = np.hypot(x / a, y / b)
@@ -317,7 +317,7 @@ def _leaf_profile(leaf, X, Y, h_leaf):
         with np.errstate(invalid="ignore", divide="ignore"):
             sd = np.where(grad > 0, (rho - 1.0) * rho / np.maximum(grad, 1e-300), -min(a, b))
     elif isinstance(leaf, Rectangle):
-        c, s = math.cos(leaf.angle), math.sin(leaf.angle)
+        c, s = math.cos(math.radians(leaf.angle)), math.sin(math.radians(leaf.angle))
         x, y = c * X + s * Y, -s * X + c * Y
         dx = np.abs(x) - 0.5 * leaf.width
         dy = np.abs(y) - 0.5 * leaf.height
@@ -510,9 +510,9 @@ def _lattice_source(process: Lattice, n_scatterers: int) -> PositionSource:
     delta = process.jitter
     fixed = process.orientation == "fixed"
     if fixed:
-        k = process.angle / period
+        k = math.radians(process.angle) / period
         if abs(k - round(k)) > 1e-9:
-            raise CoronaError(f"Lattice angle={process.angle!r} rad is not supported by the brute force: "
+            raise CoronaError(f"Lattice angle={process.angle!r}° is not supported by the brute force: "
                               "a fixed lattice must be aligned with the periodic box (angle a multiple "
                               f"of {math.degrees(period):g}°)")
 

@@ -12,6 +12,12 @@ micrometres; :class:`Shape` documents the interface (``area``,
 * :mod:`corona.shapes.modifiers`: :class:`SoftEdge`,
   :class:`RandomOrientation`, :class:`SizeDistribution` (on the shared
   :class:`Modifier` base) and :class:`Mixture`.
+
+The size every class takes first is the plugin's flat ``radius`` [µm] (circle
+radius, ellipse semi-axis x, square and rectangle half-width, regular-polygon
+circumradius), the second extent the plugin's ``aspect``, and angles are
+degrees as in the plugin: ``Square(2.0, angle=30.0)`` is the plugin's
+``{"shape": "square", "radius": 2.0, "angle": 30}``.
 """
 from .analytic import Circle, Ellipse, Rectangle, Square
 from .base import Shape

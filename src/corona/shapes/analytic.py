@@ -6,15 +6,17 @@ import math
 import numpy as np
 from scipy import special
 
-from .._validation import check_positive
+from .._validation import CoronaError, check_positive
 from .base import (
     Shape,
     _check_finite,
+    _g,
     _gauss_legendre,
     _q_array,
     _radial_array,
     _rotate,
     _sinc,
+    _warn_old_spelling,
 )
 
 
@@ -122,41 +124,94 @@ class Circle(Shape):
 
 
 class Ellipse(Shape):
-    """An elliptical aperture or particle.
+    """An elliptical aperture or particle: semi-axis ``radius`` along x, ``aspect · radius`` along y.
 
     With ``q'`` the wave vector in the ellipse's frame (rotated by ``angle``),
-    ``Â(q) = π a b · 2 J1(v)/v``, ``v = √((a q'_x)² + (b q'_y)²)``: the Airy
-    pattern with anisotropically scaled q (the ellipse is an affine image of
-    the unit disk).
+    ``Â(q) = π a b · 2 J1(v)/v``, ``v = √((a q'_x)² + (b q'_y)²)``,
+    ``a = radius``, ``b = aspect · radius``: the Airy pattern with
+    anisotropically scaled q (the ellipse is an affine image of the unit disk).
 
     Parameters
     ----------
-    semi_axis_x, semi_axis_y : float
-        Semi-axes a, b > 0 [µm] along the ellipse's own x and y axes.
+    radius : float
+        Semi-axis a > 0 [µm] along the ellipse's own x axis (the plugin's
+        ``radius``).
+    aspect : float, default 1
+        Semi-axis along y over semi-axis along x, ``b / a`` > 0 (the plugin's
+        ``aspect``).
     angle : float, default 0
-        Rotation of the ellipse's x axis from the layer's x axis [rad].
+        Rotation of the ellipse's x axis from the layer's x axis [degree],
+        counter-clockwise (the plugin's ``angle``).
 
     Notes
     -----
     ``length_scale = max(a, b)`` (circumradius), ``exclusion_diameter = 2 max(a, b)``.
-    Isotropic only when a == b.
+    Isotropic only when a == b.  The attributes ``semi_axis_x`` and
+    ``semi_axis_y`` are a and b [µm].
+
+    The previous release's spelling ``Ellipse(semi_axis_x, semi_axis_y, angle)``
+    (angle in radians, positional or by these keywords) still builds the same
+    ellipse as before, with a DeprecationWarning, for one release.
 
     References
     ----------
     Born & Wolf, *Principles of Optics*, §8.5.2; Goodman, *Introduction to
     Fourier Optics*, §2.1 (similarity theorem).
+
+    Examples
+    --------
+    The same ellipse as the plugin's ``{"shape": "ellipse", "radius": 2, "aspect": 0.5,
+    "angle": 30}``; along its short axis the first dark ring is at ``q b = 3.8317``:
+
+    >>> import numpy as np, corona
+    >>> e = corona.Ellipse(2.0, aspect=0.5, angle=30.0)
+    >>> e.semi_axis_x, e.semi_axis_y, e.length_scale
+    (2.0, 1.0, 2.0)
+    >>> short = np.array([-np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])
+    >>> bool(e.form_factor(3.8317 / 1.0 * short) < 1e-10 * e.area)
+    True
     """
 
     _symmetry = 2
 
-    def __init__(self, semi_axis_x: float, semi_axis_y: float, angle: float = 0.0):
-        self.semi_axis_x = check_positive("semi_axis_x", semi_axis_x, "µm")
+    def __init__(self, radius: float | None = None, *legacy, aspect: float | None = None,
+                 angle: float = 0.0, semi_axis_x: float | None = None, semi_axis_y: float | None = None):
+        old = bool(legacy) or semi_axis_x is not None or semi_axis_y is not None
+        if not old:
+            self.semi_axis_x = check_positive("radius", radius, "µm")
+            aspect = 1.0 if aspect is None else check_positive("aspect", aspect)
+            self.semi_axis_y = self.semi_axis_x * aspect
+            self.angle = _check_finite("angle", angle, "degree")
+            return
+        # the previous release: Ellipse(semi_axis_x, semi_axis_y, angle [rad])
+        if len(legacy) > 2:
+            raise TypeError(f"Ellipse takes at most 3 positional arguments ({1 + len(legacy)} given)")
+        if legacy:
+            semi_axis_y = legacy[0]
+        if len(legacy) > 1:
+            angle = legacy[1]
+        if radius is not None and semi_axis_x is not None:
+            raise CoronaError("Ellipse: give radius or semi_axis_x, not both")
+        if aspect is not None:
+            raise CoronaError("Ellipse: give aspect or semi_axis_y, not both")
+        self.semi_axis_x = check_positive("semi_axis_x", radius if semi_axis_x is None else semi_axis_x, "µm")
         self.semi_axis_y = check_positive("semi_axis_y", semi_axis_y, "µm")
-        self.angle = _check_finite("angle", angle, "rad")
+        self.angle = math.degrees(_check_finite("angle", angle, "rad"))
+        _warn_old_spelling(f"Ellipse({_g(self.semi_axis_x)}, {_g(self.semi_axis_y)}, angle={_g(math.radians(self.angle))})",
+                           f"Ellipse({_g(self.semi_axis_x)}, aspect={_g(self.aspect)}, angle={_g(self.angle)})")
 
     def __repr__(self):
-        return (f"Ellipse(semi_axis_x={self.semi_axis_x:g}, semi_axis_y={self.semi_axis_y:g}, "
-                f"angle={self.angle:g})")
+        return f"Ellipse(radius={self.radius:g}, aspect={self.aspect:g}, angle={self.angle:g})"
+
+    @property
+    def radius(self) -> float:
+        """Semi-axis along the ellipse's x axis [µm] (the plugin's ``radius``)."""
+        return self.semi_axis_x
+
+    @property
+    def aspect(self) -> float:
+        """``semi_axis_y / semi_axis_x``."""
+        return self.semi_axis_y / self.semi_axis_x
 
     @property
     def isotropic(self) -> bool:
@@ -172,33 +227,44 @@ class Ellipse(Shape):
 
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
-        qx, qy = _rotate(q, self.angle)
+        qx, qy = _rotate(q, math.radians(self.angle))
         v = np.hypot(self.semi_axis_x * qx, self.semi_axis_y * qy)
         return (self.area * Circle.airy(v)).astype(np.complex128)
 
     def form_factor(self, q) -> np.ndarray:
         q = _q_array(q)
-        qx, qy = _rotate(q, self.angle)
+        qx, qy = _rotate(q, math.radians(self.angle))
         v = np.hypot(self.semi_axis_x * qx, self.semi_axis_y * qy)
         return self.area * Circle.airy(v) ** 2
 
 
 class Rectangle(Shape):
-    """A rectangular aperture or particle.
+    """A rectangular aperture or particle: half-width ``radius`` along x, ``aspect · radius`` along y.
 
-    ``Â(q) = W H · sinc(q'_x W/2) · sinc(q'_y H/2)`` with ``sinc(x) = sin(x)/x``
-    and ``q'`` the wave vector in the rectangle's frame (rotated by ``angle``).
+    ``Â(q) = W H · sinc(q'_x W/2) · sinc(q'_y H/2)`` with ``sinc(x) = sin(x)/x``,
+    the side lengths ``W = 2 radius``, ``H = 2 aspect · radius``, and ``q'`` the
+    wave vector in the rectangle's frame (rotated by ``angle``).
 
     Parameters
     ----------
-    width, height : float
-        Side lengths W, H > 0 [µm] along the rectangle's own x and y axes.
+    radius : float
+        Half-width W/2 > 0 [µm] along the rectangle's own x axis (the
+        plugin's ``radius``).
+    aspect : float, default 1
+        Extent along y over extent along x, ``H / W`` > 0 (the plugin's ``aspect``).
     angle : float, default 0
-        Rotation of the rectangle's x axis from the layer's x axis [rad].
+        Rotation of the rectangle's x axis from the layer's x axis [degree],
+        counter-clockwise (the plugin's ``angle``).
 
     Notes
     -----
-    ``length_scale = √(W² + H²)/2`` (circumradius, half the diagonal).
+    ``length_scale = √(W² + H²)/2`` (circumradius, half the diagonal).  The
+    attributes ``width`` and ``height`` are the full side lengths W, H [µm].
+
+    The previous release's spelling ``Rectangle(width, height, angle)`` (full
+    side lengths, angle in radians, positional or by these keywords) still
+    builds the same rectangle as before, with a DeprecationWarning, for one
+    release.
 
     References
     ----------
@@ -208,13 +274,47 @@ class Rectangle(Shape):
     _symmetry = 2
     _cost = 2.0
 
-    def __init__(self, width: float, height: float, angle: float = 0.0):
-        self.width = check_positive("width", width, "µm")
-        self.height = check_positive("height", height, "µm")
-        self.angle = _check_finite("angle", angle, "rad")
+    def __init__(self, radius: float | None = None, *legacy, aspect: float | None = None,
+                 angle: float = 0.0, width: float | None = None, height: float | None = None):
+        old = bool(legacy) or width is not None or height is not None
+        if not old:
+            r = check_positive("radius", radius, "µm")
+            aspect = 1.0 if aspect is None else check_positive("aspect", aspect)
+            self._set(2.0 * r, 2.0 * r * aspect, _check_finite("angle", angle, "degree"))
+            return
+        # the previous release: Rectangle(width, height, angle [rad])
+        if len(legacy) > 2:
+            raise TypeError(f"Rectangle takes at most 3 positional arguments ({1 + len(legacy)} given)")
+        if legacy:
+            height = legacy[0]
+        if len(legacy) > 1:
+            angle = legacy[1]
+        if radius is not None and width is not None:
+            raise CoronaError("Rectangle: give radius or width, not both")
+        if aspect is not None:
+            raise CoronaError("Rectangle: give aspect or height, not both")
+        w = check_positive("width", radius if width is None else width, "µm")
+        self._set(w, check_positive("height", height, "µm"), math.degrees(_check_finite("angle", angle, "rad")))
+        _warn_old_spelling(f"Rectangle({_g(self.width)}, {_g(self.height)}, angle={_g(math.radians(self.angle))})",
+                           f"Rectangle({_g(self.radius)}, aspect={_g(self.aspect)}, angle={_g(self.angle)})")
+
+    def _set(self, width: float, height: float, angle_deg: float) -> None:
+        self.width = width
+        self.height = height
+        self.angle = angle_deg
 
     def __repr__(self):
-        return f"Rectangle(width={self.width:g}, height={self.height:g}, angle={self.angle:g})"
+        return f"Rectangle(radius={self.radius:g}, aspect={self.aspect:g}, angle={self.angle:g})"
+
+    @property
+    def radius(self) -> float:
+        """Half-width along the rectangle's x axis [µm] (the plugin's ``radius``)."""
+        return 0.5 * self.width
+
+    @property
+    def aspect(self) -> float:
+        """``height / width``."""
+        return self.height / self.width
 
     @property
     def area(self) -> float:
@@ -226,13 +326,13 @@ class Rectangle(Shape):
 
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
-        qx, qy = _rotate(q, self.angle)
+        qx, qy = _rotate(q, math.radians(self.angle))
         a = self.area * _sinc(0.5 * qx * self.width) * _sinc(0.5 * qy * self.height)
         return a.astype(np.complex128)
 
     def form_factor(self, q) -> np.ndarray:
         q = _q_array(q)
-        qx, qy = _rotate(q, self.angle)
+        qx, qy = _rotate(q, math.radians(self.angle))
         return self.area * (_sinc(0.5 * qx * self.width) * _sinc(0.5 * qy * self.height)) ** 2
 
     def _overlap_sum(self, widths, coeffs) -> float:
@@ -251,10 +351,24 @@ class Rectangle(Shape):
 
 
 class Square(Rectangle):
-    """A square aperture or particle of side ``side`` [µm], rotated by ``angle`` [rad].
+    """A square aperture or particle of half-width ``radius`` [µm], rotated by ``angle`` [degree].
 
-    ``Â(q) = s² sinc(q'_x s/2) sinc(q'_y s/2)`` (see :class:`Rectangle`);
-    ``length_scale = s/√2``.
+    ``Â(q) = s² sinc(q'_x s/2) sinc(q'_y s/2)`` with the side ``s = 2 radius``
+    (see :class:`Rectangle`); ``length_scale = s/√2``.  ``Square(r, angle=a)``
+    is the plugin's ``{"shape": "square", "radius": r, "angle": a}``.
+
+    Parameters
+    ----------
+    radius : float
+        Half the side, s/2 > 0 [µm] (the plugin's ``radius``).
+    angle : float, default 0
+        Rotation [degree], counter-clockwise (the plugin's ``angle``).
+
+    Notes
+    -----
+    The previous release's spelling ``Square(side=s, angle=a)`` (the full
+    side, angle in radians), and a positional angle ``Square(s, a)``, still
+    build the same square as before, with a DeprecationWarning, for one release.
 
     Examples
     --------
@@ -262,7 +376,7 @@ class Square(Rectangle):
     ``q s/2 = π/2``, 0 at the first zero ``q s/2 = π``:
 
     >>> import numpy as np, corona
-    >>> sq = corona.Square(side=3.0)
+    >>> sq = corona.Square(1.5)                          # side 3 µm
     >>> sq.area, round(sq.length_scale, 4)                 # s², s/√2
     (9.0, 2.1213)
     >>> q = np.array([[0.0, 0.0], [np.pi / 3, 0.0], [2 * np.pi / 3, 0.0]])
@@ -272,14 +386,26 @@ class Square(Rectangle):
 
     _symmetry = 4
 
-    def __init__(self, side: float, angle: float = 0.0):
-        side = check_positive("side", side, "µm")
-        super().__init__(side, side, angle)
+    def __init__(self, radius: float | None = None, *legacy, angle: float = 0.0, side: float | None = None):
+        old = bool(legacy) or side is not None
+        if not old:
+            r = check_positive("radius", radius, "µm")
+            self._set(2.0 * r, 2.0 * r, _check_finite("angle", angle, "degree"))
+            return
+        # the previous release: Square(side, angle [rad])
+        if len(legacy) > 1:
+            raise TypeError(f"Square takes at most 2 positional arguments ({1 + len(legacy)} given)")
+        if legacy:
+            angle = legacy[0]
+        if radius is not None and side is not None:
+            raise CoronaError("Square: give radius or side, not both")
+        s = check_positive("side", radius if side is None else side, "µm")
+        self._set(s, s, math.degrees(_check_finite("angle", angle, "rad")))
+        _warn_old_spelling(f"Square(side={_g(s)}, angle={_g(math.radians(self.angle))})",
+                           f"Square({_g(self.radius)}, angle={_g(self.angle)})")
 
     def __repr__(self):
-        return f"Square(side={self.width:g}, angle={self.angle:g})"
+        return f"Square(radius={self.radius:g}, angle={self.angle:g})"
 
     def key(self) -> dict:
         return {"type": "Square", "side": self.width, "angle": self.angle}
-
-

@@ -8,7 +8,8 @@ import numpy as np
 from scipy import special
 
 from .._validation import CoronaError, check_choice, check_range
-from .base import _TWO_PI, Shape, _check_int, _check_shape, _q_array, _radial_array
+from .base import (_ORIENTATION_MAX_POINTS, _TWO_PI, Shape, _check_int, _check_shape, _groups,
+                   _orientation_average, _q_array, _radial_array)
 
 
 class Modifier(Shape):
@@ -153,16 +154,6 @@ class SoftEdge(Modifier):
         return self.shape.coherent_form_factor_radial(q_abs) * self._gauss(q_abs**2) ** 2
 
 
-def _groups(levels: np.ndarray):
-    """Yield (level, indices) for each distinct value of ``levels``."""
-    order = np.argsort(levels, kind="stable")
-    lv = levels[order]
-    cuts = np.nonzero(np.diff(lv))[0] + 1
-    for idx in np.split(order, cuts):
-        if len(idx):
-            yield int(levels[idx[0]]), idx
-
-
 class RandomOrientation(Modifier):
     """A shape in uniformly random orientation (isotropic).
 
@@ -198,34 +189,14 @@ class RandomOrientation(Modifier):
     isotropic = True
     _symmetry = 0
     _deterministic = False
-    _MAX_POINTS = 2_000_000
+    _MAX_POINTS = _ORIENTATION_MAX_POINTS
 
     def __repr__(self):
         return f"RandomOrientation({self.shape!r})"
 
     def _average(self, q_abs):
         """(⟨|Â|²⟩, ⟨Â⟩) at ``|q|`` (any shape)."""
-        base = self.shape
-        qa = np.abs(_radial_array(q_abs))
-        if base.isotropic:
-            return base._both_radial(qa)
-        flat = qa.ravel()
-        inten = np.empty(flat.shape)
-        amp = np.empty(flat.shape, dtype=np.complex128)
-        m = max(int(base._symmetry), 1)
-        R = base._support
-        need = np.ceil((2.2 * flat * R + 24.0) / m / 8.0).astype(np.int64) * 8
-        for N, idx in _groups(need):
-            phi = (_TWO_PI / m) * np.arange(N) / N
-            rot = np.stack([np.cos(phi), np.sin(phi)], axis=-1)          # (N, 2)
-            step = max(1, self._MAX_POINTS // N)
-            for s in range(0, len(idx), step):
-                sub = idx[s:s + step]
-                pts = flat[sub, None, None] * rot[None, :, :]           # (k, N, 2)
-                I, a = base._both(pts)
-                inten[sub] = I.mean(axis=1)
-                amp[sub] = a.mean(axis=1)
-        return inten.reshape(qa.shape), amp.reshape(qa.shape)
+        return _orientation_average(self.shape, q_abs, self._MAX_POINTS)
 
     def _intensity_radial(self, q_abs):
         base = self.shape

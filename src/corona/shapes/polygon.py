@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from .._validation import CoronaError, check_positive
-from .base import _TWO_PI, Shape, _check_finite, _check_int, _q_array
+from .base import _TWO_PI, Shape, _check_finite, _check_int, _g, _q_array, _warn_old_spelling
 
 
 def _orient(ax, ay, bx, by, cx, cy):
@@ -268,18 +268,41 @@ class RegularPolygon(Polygon):
     Parameters
     ----------
     sides : int
-        Number of sides, 3 … 100000.
+        Number of sides, 3 … 100000 (the plugin's ``sides``).
     radius : float
-        Circumradius r > 0 [µm] (= ``length_scale``).
+        Circumradius r > 0 [µm] (= ``length_scale``; the plugin's ``radius``).
     angle : float, default 0
-        Rotation [rad].
+        Rotation [degree], counter-clockwise (the plugin's ``angle``).
+
+    Notes
+    -----
+    A positional angle, ``RegularPolygon(sides, radius, angle)``, is the
+    previous release's spelling (radians): it still builds the same polygon as
+    before, with a DeprecationWarning, for one release.
+
+    Examples
+    --------
+    ``RegularPolygon(4, r, angle=45)`` is the square of half-width ``r/√2``:
+
+    >>> import numpy as np, corona
+    >>> q = np.array([[0.7, 0.2], [1.3, -0.4]])
+    >>> a = corona.RegularPolygon(4, 1.0, angle=45.0).form_factor(q)
+    >>> bool(np.allclose(a, corona.Square(1.0 / np.sqrt(2.0)).form_factor(q), rtol=1e-12))
+    True
     """
 
-    def __init__(self, sides: int, radius: float, angle: float = 0.0):
+    def __init__(self, sides: int, radius: float, *legacy, angle: float = 0.0):
         self.sides = _check_int("sides", sides, 3, 100_000)
         self.radius = check_positive("radius", radius, "µm")
-        self.angle = _check_finite("angle", angle, "rad")
-        phi = self.angle + _TWO_PI * np.arange(self.sides) / self.sides
+        if legacy:   # the previous release: RegularPolygon(sides, radius, angle [rad])
+            if len(legacy) > 1:
+                raise TypeError(f"RegularPolygon takes at most 3 positional arguments ({2 + len(legacy)} given)")
+            self.angle = math.degrees(_check_finite("angle", legacy[0], "rad"))
+            _warn_old_spelling(f"RegularPolygon({self.sides}, {_g(self.radius)}, {_g(legacy[0])})",
+                               f"RegularPolygon({self.sides}, {_g(self.radius)}, angle={_g(self.angle)})")
+        else:
+            self.angle = _check_finite("angle", angle, "degree")
+        phi = math.radians(self.angle) + _TWO_PI * np.arange(self.sides) / self.sides
         v = self.radius * np.stack([np.cos(phi), np.sin(phi)], axis=-1)
         self._set_vertices(v)
         # the centroid is the centre: keep exact values (no round-off shift)
