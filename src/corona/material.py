@@ -29,8 +29,7 @@ SMALL_RADIUS_WAVELENGTHS = 2.0
 #: Largest relative change of the lobe from interpolating between area-fraction rows
 #: (:meth:`Material.area_fraction_rows`).
 ROW_TOLERANCE = 0.001
-#: Table builds longer than this [s] show a progress bar on stderr.
-PROGRESS_DELAY = 2.0
+PROGRESS_DELAY = tables.PROGRESS_DELAY
 _small_radius_warned = False
 
 

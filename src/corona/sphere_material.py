@@ -150,9 +150,8 @@ def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
     cache = {}
     from tqdm import tqdm
 
-    from .material import PROGRESS_DELAY
     chunks = [slice(a, min(a + ROW_CHUNK, J)) for a in range(0, J, ROW_CHUNK)]
-    with tqdm(total=len(s_nodes) * J, unit="row", leave=False, delay=PROGRESS_DELAY,
+    with tqdm(total=len(s_nodes) * J, unit="row", leave=False, delay=tables.PROGRESS_DELAY,
               desc="corona: building the Mie sphere table") as bar:
         for s, w in zip(s_nodes, s_weights):
             for c in chunks:

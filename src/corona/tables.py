@@ -51,6 +51,8 @@ D_MAX = 2.0
 RADIAL_DU = 0.01           # target step in u for radial tables
 RADIAL_MAX_SAMPLES = 2**18  # cap; the step grows beyond it
 RADIAL_MIN_UMAX = 32.0
+#: Table builds longer than this [s] show a progress bar on stderr.
+PROGRESS_DELAY = 2.0
 GRID2D_SIZE = 512           # default N of an N×N table
 
 
