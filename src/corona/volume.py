@@ -73,13 +73,14 @@ __all__ = ["DISTRIBUTIONS", "size_nodes", "droplet_index", "MieVolume", "homogen
 VOLUME_FORMAT = 1
 DISTRIBUTIONS = ("mono", "lognormal", "gamma", "modified_gamma")
 #: Row step in size parameter (monodisperse); a distribution of relative spread s allows s x / 4, at most 2.
-ROW_DX = 0.1
+ROW_DX = 0.05
 MIN_ROWS, MAX_ROWS = 16, 1024
 #: Angle step ``dΘ = THETA_DX / x_max`` [rad].
 THETA_DX = 0.25
 MIN_NODES, MAX_NODES = 1024, 8192
-#: Radii of a size distribution per table (Gauss–Legendre in the light-weighted central 1 - 2e-4).
-SIZE_NODES = 48
+#: Radii of a size distribution per table (Gauss–Legendre in the light-weighted central 1 - 2e-4):
+#: one per unit of size parameter at 360 nm across that range, within these bounds.
+SIZE_NODES = (48, 160)
 #: Density of liquid water [g/m³].
 WATER_DENSITY = 0.998e6
 #: Largest relative size parameter one table may hold (Mie series length ~ x).
@@ -100,7 +101,7 @@ def _moments_check(r_eff, v_eff, distribution):
 
 
 def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
-               gamma_exponent: float = 1.0, n: int = SIZE_NODES):
+               gamma_exponent: float = 1.0, n: int | None = None):
     """Quadrature radii [µm] and number weights (sum 1) of a droplet size distribution.
 
     Parameters
@@ -112,8 +113,9 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
         Effective variance ``v_eff`` (0 for "mono"; (0, 0.5) for "gamma"; (0, 2) otherwise).
     gamma_exponent : float
         ``γ`` of the modified gamma distribution (> 0).
-    n : int
-        Number of nodes.
+    n : int, optional
+        Number of nodes (default: one per unit of size parameter at 360 nm across the
+        range, within :data:`SIZE_NODES`).
 
     Returns
     -------
@@ -165,6 +167,8 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
         area = type("Area", (), {"ppf": staticmethod(lambda p: (ga.ppf(p) / B) ** (1 / g))})
         logpdf = lambda r: alpha * np.log(r) - B * r**g
     lo_r, hi_r = float(area.ppf(1e-4)), float(area.ppf(1 - 1e-4))
+    if n is None:
+        n = int(np.clip(math.ceil(2 * np.pi * (hi_r - lo_r) / (tables.WAVELENGTH_MIN * 1e-3)), *SIZE_NODES))
     t, wt = np.polynomial.legendre.leggauss(int(n))
     r = lo_r + (hi_r - lo_r) * 0.5 * (t + 1)
     lw = logpdf(r)
@@ -289,23 +293,25 @@ class MieVolume:
         c_sca = np.zeros(J)
         m = self.index(lam)
         k = 2 * np.pi / (lam * 1e-3)                   # rad/µm
-        ang = {}
-        for r, w in zip(self.radii, self.weights):
-            a, b = mie.coefficients(m, k * r)
-            N = a.shape[-1]
-            if N not in ang:
-                ang = {N: mie.angular_functions(mu, N)}
-            pi, tau = ang[N]
-            n = np.arange(1, N + 1)
-            c = (2 * n + 1) / (n * (n + 1.0))
-            ca, cb = a * c, b * c
-            S1 = ca @ pi + cb @ tau
-            S2 = ca @ tau + cb @ pi
-            P += w * (np.abs(S1) ** 2 + np.abs(S2) ** 2)
-            A1 += w * S1
-            A2 += w * S2
-            c_ext += w * 2 * np.pi / k**2 * np.sum((2 * n + 1) * (a + b).real, axis=-1)
-            c_sca += w * 2 * np.pi / k**2 * np.sum((2 * n + 1) * (np.abs(a) ** 2 + np.abs(b) ** 2), axis=-1)
+        n_all = int(mie.n_terms(float(k.max() * self.radii.max())))
+        pi_all, tau_all = mie.angular_functions(mu, n_all)      # π_n, τ_n do not depend on N
+        n = np.arange(1, n_all + 1)
+        c = (2 * n + 1) / (n * (n + 1.0))
+        # (row, size) pairs in chunks of at most ~2048 GEMM rows (big products, little memory)
+        per = max(1, 2048 // J)
+        for s0 in range(0, self.radii.size, per):
+            r, w = self.radii[s0:s0 + per], self.weights[s0:s0 + per]
+            a, b = mie.coefficients(m[:, None], k[:, None] * r[None, :], n_max=n_all)   # (J, S, N)
+            ca, cb = (a * c).reshape(-1, n_all), (b * c).reshape(-1, n_all)
+            S1 = ca @ pi_all + cb @ tau_all
+            S2 = ca @ tau_all + cb @ pi_all
+            S1, S2 = S1.reshape(J, r.size, K), S2.reshape(J, r.size, K)
+            P += np.einsum("s,jsk->jk", w, np.abs(S1) ** 2 + np.abs(S2) ** 2)
+            A1 += np.einsum("s,jsk->jk", w, S1)
+            A2 += np.einsum("s,jsk->jk", w, S2)
+            c_ext += np.sum(w * 2 * np.pi / k[:, None] ** 2 * np.sum((2 * n + 1) * (a + b).real, axis=-1), axis=1)
+            c_sca += np.sum(w * 2 * np.pi / k[:, None] ** 2
+                            * np.sum((2 * n + 1) * (np.abs(a) ** 2 + np.abs(b) ** 2), axis=-1), axis=1)
         if self.volume_fraction > 0:
             S = _structure(self.volume_fraction, 2 * self.mean_radius)
             q = 2 * k[:, None] * np.sin(theta[None, :] / 2)
@@ -530,9 +536,10 @@ def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, numb
     ``number_density`` or ``number_density_cm3`` (the value where density is 1).
     Mitsuba's grid is scalar: ``σ_t = density × N ⟨C_ext(λ_ref)⟩`` at
     ``reference_wavelength`` [nm] for all wavelengths (the spectral ``albedo``
-    is kept); ``info["sigma_t_spread"]`` says how much ``⟨C_ext⟩`` varies over
-    360–830 nm (a few per cent for droplets above 2 µm).  No structure factor
-    (the density varies).
+    is kept); ``info["sigma_t_spread"]`` is the range of ``⟨C_ext⟩`` over
+    360–830 nm relative to its value at ``reference_wavelength`` (the interference
+    structure of Q_ext: about 0.2 for one droplet size of a few µm, less for broad
+    size distributions and large droplets).  No structure factor (the density varies).
 
     Other parameters as :func:`homogeneous_medium`; ``bbox`` ((3,), (3,)) places the grid
     (Mitsuba's default: the unit cube).

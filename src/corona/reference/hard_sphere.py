@@ -58,8 +58,8 @@ def _sweeps(pos, L, step, n_sweeps, seed, adapt):
 
 
 def simulate(volume_fraction: float, n: int = 400, sweeps: int = 300, equilibrate: int = 200,
-             seed: int = 0):
-    """Configurations (list of (n, 3) arrays, diameter 1) and the box side L."""
+             seed: int = 0, every: int = 5):
+    """Configurations (list of (n, 3) arrays, diameter 1, one each ``every`` sweeps) and the box side L."""
     L = (n * math.pi / 6 / volume_fraction) ** (1 / 3)
     m = int(math.ceil(n ** (1 / 3)))
     if L / m < 1.0:
@@ -68,8 +68,8 @@ def simulate(volume_fraction: float, n: int = 400, sweeps: int = 300, equilibrat
     pos = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T[:n].copy()
     step, _ = _sweeps(pos, L, 0.1, equilibrate, seed, True)
     confs = []
-    for k in range(sweeps):
-        _sweeps(pos, L, step, 1, seed + 1 + k, False)
+    for k in range(sweeps // every):
+        _sweeps(pos, L, step, every, seed + 1 + k, False)
         confs.append(pos.copy())
     return confs, L
 
@@ -85,12 +85,17 @@ def structure_factor_mc(volume_fraction: float, n: int = 400, sweeps: int = 300,
     qa = np.linalg.norm(qv, axis=1)
     keep = (qa > 0) & (qa < q_max)
     qv, qa = qv[keep], qa[keep]
+    # at most 96 wave vectors per shell (a fixed random subset): the shells are isotropic
+    edges = np.arange(0.0, q_max + dq, dq)
+    idx = np.digitize(qa, edges) - 1
+    rng = np.random.default_rng(seed)
+    pick = np.concatenate([rng.permutation(np.flatnonzero(idx == k))[:96] for k in range(edges.size - 1)])
+    qv, qa = qv[pick], qa[pick]
     S = np.zeros(qa.size)
     for pos in confs:
         ph = np.exp(1j * (pos @ qv.T))
         S += np.abs(ph.sum(axis=0)) ** 2 / n
     S /= len(confs)
-    edges = np.arange(0.0, q_max + dq, dq)
     idx = np.digitize(qa, edges) - 1
     cen, val = [], []
     for k in range(edges.size - 1):
