@@ -383,7 +383,9 @@ def _medium(radius, tau, thickness, **kw):
     v = MieVolume(radius, **kw)
     N = tau / (v.cross_sections(550.0)["c_ext"] * thickness)     # per µm² per scene unit
     T = v.table
-    med = {"type": "homogeneous", "sigma_t": volume._spectrum(T["wavelength"], N * T["c_ext"]),
+    st = N * T["c_ext"]
+    med = {"type": "homogeneous", "sigma_t": volume._spectrum(T["wavelength"], st / st.max()),
+           "scale": float(st.max()),
            "albedo": volume._spectrum(T["wavelength"], T["c_sca"] / T["c_ext"]),
            "phase": {"type": "corona_mie", "radius": radius, **kw}}
     return med, N
@@ -455,21 +457,36 @@ def test_thin_slab_equals_corona_layer(variant):
     assert np.max(np.abs((pa[:, 0] - p6[:, 0] * A / w) / se)) > 6.0
 
 
-def ring_contrast(profile):
-    """Peak-to-valley contrast of the rings: mean |second difference| over mean (log profile)."""
-    lp = np.log(np.maximum(profile, 1e-12))
-    return float(np.mean(np.abs(lp[2:] - 2 * lp[1:-1] + lp[:-2])))
+def ring_contrast(image, fov, rows, theta, lo_deg=2.5, hi_deg=11.5):
+    """Mean ``(I_max - I_min) / (I_max + I_min)`` of the green channel over the rings: the
+    maxima and minima of the single-scattering phase function's green row (``rows``, at the
+    angles ``theta``) between ``lo_deg`` and ``hi_deg``, each read in a ring 0.3° wide."""
+    g = np.log(rows[1])
+    sel = (theta > math.radians(lo_deg)) & (theta < math.radians(hi_deg))
+    i = np.flatnonzero(sel)[1:-1]
+    peaks = theta[i[(g[i] > g[i - 1]) & (g[i] > g[i + 1])]]
+    dips = theta[i[(g[i] < g[i - 1]) & (g[i] < g[i + 1])]]
+    half = math.radians(0.15)
+    def level(angles):
+        bins = np.sort(np.concatenate([angles - half, angles + half]))
+        _, m, _ = volume.radial_profile(image[..., 1], fov, bins)
+        return m[::2, 0]
+    hi, lo = level(peaks).mean(), level(dips).mean()
+    return float((hi - lo) / (hi + lo))
 
 
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb"], indirect=True)
 def test_ring_contrast_falls_with_optical_depth(variant):
+    from corona.mitsuba_phase import channel_response
     r, h, fov = 5.0, 0.01, 24.0
-    bins = np.radians(np.linspace(2.5, 11.5, 37))
+    kw = dict(distribution="gamma", variance=0.01)
+    rows = MieVolume(r, **kw).rgb_table(*channel_response())
+    theta = MieVolume(r, **kw).table["theta"]
     contrast = []
     for tau in (0.05, 0.3, 1.0, 3.0):
-        med, _ = _medium(r, tau, h, distribution="gamma", variance=0.01)
-        img = np.array(mi.render(mi.load_dict(volume.slab_scene(med, thickness=h, fov=fov, size=64,
-                                                                   spp=256, max_depth=64)), seed=1))
-        _, p, _ = volume.radial_profile(img.mean(-1), fov, bins)
-        contrast.append(ring_contrast(p[:, 0]))
+        med, _ = _medium(r, tau, h, **kw)
+        img = np.array(mi.render(mi.load_dict(volume.slab_scene(med, thickness=h, fov=fov, size=96,
+                                                                   spp=128, max_depth=64)), seed=1))
+        contrast.append(ring_contrast(img, fov, rows, theta))
+    assert contrast[0] > 0.1
     assert all(a > b for a, b in zip(contrast, contrast[1:])), contrast

@@ -502,8 +502,9 @@ def homogeneous_medium(radius, *, lwc=None, number_density=None, number_density_
     Returns
     -------
     dict
-        ``{"type": "homogeneous", "sigma_t": spectrum, "albedo": spectrum, "phase": {...}}``,
-        ``σ_t = N ⟨C_ext⟩`` per scene unit, ``albedo = ⟨C_sca⟩ / ⟨C_ext⟩`` (spectra over the table's
+        ``{"type": "homogeneous", "sigma_t": spectrum, "scale": float, "albedo": spectrum,
+        "phase": {...}}``, ``σ_t = scale × sigma_t = N ⟨C_ext⟩`` per scene unit (``sigma_t``
+        normalised to a peak of 1, as Mitsuba's RGB spectra must be), ``albedo = ⟨C_sca⟩ / ⟨C_ext⟩`` (spectra over the table's
         wavelengths in spectral variants; channel means in RGB and mono variants).  Needs
         ``corona.register()`` before ``mi.load_dict``.
 
@@ -521,7 +522,8 @@ def homogeneous_medium(radius, *, lwc=None, number_density=None, number_density_
                                 variance, gamma_exponent, ior, ior_imag, scene_unit, correlated,
                                 use_cache)
     lam = info["wavelength"]
-    med = {"type": "homogeneous", "sigma_t": _spectrum(lam, info["sigma_t"]),
+    scale = float(np.max(info["sigma_t"]))          # RGB spectra must lie in [0, 1]: σ_t = scale × shape
+    med = {"type": "homogeneous", "sigma_t": _spectrum(lam, info["sigma_t"] / scale), "scale": scale,
            "albedo": _spectrum(lam, info["albedo"]), "phase": phase}
     return (med, info) if return_info else med
 
