@@ -153,9 +153,8 @@ class CoronaMiePhaseMixin:
         j, t = self._row_of(lam)
         return dr.lerp(self._row_value(j, i, f, active), self._row_value(j + 1, i, f, active), t)
 
-    def _values(self, mei, wo, active):
-        """(per-lane/channel values as a list, their mean = pdf)."""
-        i, f = self._angle(mei.wi, wo)
+    def _values(self, mei, i, f, active):
+        """(per-lane/channel values at angle bin i, fraction f, as a list; their mean = pdf)."""
         if mi.is_spectral:
             n = dr.size_v(mi.Spectrum)
             vals = [self._lane_value(mei.wavelengths[l], i, f, active) for l in range(n)]
@@ -167,7 +166,8 @@ class CoronaMiePhaseMixin:
         return vals, pdf * (1.0 / len(vals))
 
     def eval_pdf(self, ctx, mei, wo, active=True):
-        vals, pdf = self._values(mei, wo, active)
+        i, f = self._angle(mei.wi, wo)
+        vals, pdf = self._values(mei, i, f, active)
         value = mi.Spectrum(*vals) if len(vals) > 1 else mi.Spectrum(vals[0])
         return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
 
@@ -212,7 +212,8 @@ class CoronaMiePhaseMixin:
         sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)
         frame = mi.Frame3f(-mei.wi)
         wo = frame.to_world(mi.Vector3f(sin_t * cp, sin_t * sp, cos_t))
-        vals, pdf = self._values(mei, wo, active)
+        # the value and pdf at the sampled direction: the same bin and fraction in v
+        vals, pdf = self._values(mei, i, tt, active)
         value = mi.Spectrum(*vals) if len(vals) > 1 else mi.Spectrum(vals[0])
         ok = active & (pdf > 0)
         weight = dr.select(ok, value / dr.select(pdf > 0, pdf, 1.0), 0.0)
