@@ -107,11 +107,11 @@ def test_exact_phase_matches_miepython(radius):
 
 
 def _between_nodes(v, lo_deg, hi_deg, n=40):
+    """cos Θ at points 37 % of the way (in Θ) between consecutive table nodes in [lo, hi]."""
     th = v.table["theta"]
-    dth = th[1]
-    i = np.arange(int(math.radians(lo_deg) / dth), int(math.radians(hi_deg) / dth), max(1, int(
-        (math.radians(hi_deg) - math.radians(lo_deg)) / dth / n)))
-    return np.cos((i + 0.37) * dth)
+    idx = np.flatnonzero((th >= math.radians(lo_deg)) & (th < math.radians(hi_deg)))
+    idx = idx[:: max(1, idx.size // n)]
+    return np.cos(th[idx] + 0.37 * (th[idx + 1] - th[idx]))
 
 
 def _between_rows(v):
@@ -278,12 +278,13 @@ def test_plugin_rgb_channels_are_response_averages(variant):
     for t in (0.01, 0.06, 0.4, 2.5):
         val, pdf = ph.eval_pdf(mi.PhaseFunctionContext(), _mei(1, (0.0, 0.0, 1.0)),
                                mi.Vector3f(math.sin(t), 0.0, -math.cos(t)))
-        # the node grid of the rows: linear in v between the nodes around t
-        th = v.table["theta"]
-        i = int(t / th[1])
-        f = (math.sin(t / 2) ** 2 - math.sin(th[i] / 2) ** 2) / (math.sin(th[i + 1] / 2) ** 2 - math.sin(th[i] / 2) ** 2)
+        # the node grid of the rows: linear in v = sin²(Θ/2) between the nodes around t
+        vn = v.table["v"]
+        vt = math.sin(t / 2) ** 2
+        i = int(np.searchsorted(vn, vt) - 1)
+        f = (vt - vn[i]) / (vn[i + 1] - vn[i])
         ref = rows[:, i] * (1 - f) + rows[:, i + 1] * f
-        ref = ref / (4 * np.pi * np.sum(0.5 * (rows[:, 1:] + rows[:, :-1]) * np.diff(np.sin(th / 2) ** 2), axis=1))
+        ref = ref / (4 * np.pi * np.sum(0.5 * (rows[:, 1:] + rows[:, :-1]) * np.diff(vn), axis=1))
         assert np.allclose(np.array(val).ravel()[: len(ref)], ref, rtol=2e-3)
     # RGB rows differ: red's rings are wider than blue's
     if rows.shape[0] == 3:
@@ -363,11 +364,10 @@ def test_dense_medium_structure_factor_lowers_sigma_s():
     assert b["c_sca"] < 0.6 * a["c_sca"]
     # the gain is ∫ p S dΩ for one size (C = P): check it by quadrature at the table's nodes
     lam = den.table["wavelength"][5]
-    th = dil.table["theta"]
+    v = dil.table["v"]
     k = 2 * np.pi / (lam * 1e-3)
-    S = percus_yevick_3d(2 * k * np.sin(th / 2), 0.4, 0.3)
+    S = percus_yevick_3d(2 * k * np.sqrt(v), 0.4, 0.3)
     p = dil.table["p"][5]
-    v = np.sin(th / 2) ** 2
     gain = 4 * np.pi * np.sum(0.5 * ((p * S)[1:] + (p * S)[:-1]) * np.diff(v))
     assert den.table["s_gain"][5] == pytest.approx(gain, rel=1e-9)
     assert np.allclose(den.table["p"][5], p * S / gain, rtol=1e-9)

@@ -21,9 +21,10 @@ volume_fraction     0          φ > 0: the Percus–Yevick structure factor (den
 
 Evaluation.  Spectral variants evaluate each of the lane's wavelengths
 (rows linear in size parameter ``x = 2πr/λ``, nodes linear in
-``v = sin²(Θ/2)``, Θ the scattering angle computed as
-``2 atan2(|wo + wi|, |wo - wi|)`` so that the forward peak keeps its float32
-accuracy); RGB and mono variants evaluate each channel's row, the phase
+``v = sin²(Θ/2)``; the node is found from the chords ``|wo + wi| / 2 =
+sin(Θ/2)`` (forward half) and ``|wo - wi| / 2 = cos(Θ/2)`` (backward half),
+so the forward peak and the glory keep their float32 accuracy and no
+trigonometry is needed); RGB and mono variants evaluate each channel's row, the phase
 function averaged over the channel's spectral response weighted by ``σ_s``
 (:meth:`corona.volume.MieVolume.rgb_table`).  Wavelengths are clamped to
 [360, 830] nm (a zero wavelength too).
@@ -93,10 +94,9 @@ class CoronaMiePhaseMixin:
         self.volume = _volume_from_props(props)
         self.m_flags = mi.PhaseFunctionFlags.Anisotropic
         T = self.volume.table
-        theta = T["theta"]
-        K = theta.size
-        self.K = int(K)
-        self.dth = float(theta[1])
+        self.M = int(T["M"])
+        self.K = 2 * self.M + 1
+        ds = float(T["ds"])
         if mi.is_spectral:
             rows = T["p"]
             xr = T["x"]
@@ -108,32 +108,42 @@ class CoronaMiePhaseMixin:
             lam, w = channel_response()
             rows = self.volume.rgb_table(lam, w)
             self.n_rows = int(rows.shape[0])
-        v = np.sin(theta / 2) ** 2
-        dv = np.diff(v)
+        from .volume import node_dv
+        dv = node_dv(ds, self.M)
         mass = 4 * np.pi * 0.5 * (rows[:, 1:] + rows[:, :-1]) * dv
         cdf = np.concatenate([np.zeros((rows.shape[0], 1)), np.cumsum(mass, axis=1)], axis=1)
         total = cdf[:, -1:]
         rows = rows / total
         cdf = cdf / total
         self.p = _array(mi.Float, rows.ravel())
-        self.cdf = _array(mi.Float, cdf.ravel())
-        self.dth_o = _opaque(mi.Float, self.dth)
+        cdf32 = cdf.astype(np.float32)
+        self.cdf = _array(mi.Float, cdf32.ravel())
+        # guide table: G cells uniform in ξ; cell c's bins lie in [guide[c], guide[c + 1]]
+        # (cdf[guide[c]] <= c/G); a bisection of `steps` steps then finds the bin
+        self.G = int(2 * self.K)
+        edges = (np.arange(self.G + 1) / self.G).astype(np.float32)
+        guide = np.stack([np.clip(np.searchsorted(row, edges, side="right") - 1, 0, self.K - 2)
+                          for row in cdf32])
+        span = int(np.max(guide[:, 1:] - guide[:, :-1])) + 1
+        self.steps = max(1, int(np.ceil(np.log2(span + 1))))
+        self.guide = _array(mi.UInt32, guide.ravel())
+        self.inv_ds = _opaque(mi.Float, 1.0 / ds)
+        self.ds2 = _opaque(mi.Float, ds * ds)
 
     # ------------------------------------------------------------------
     def _angle(self, wi, wo):
-        """(bin i, fraction f in v, inside) of the scattering angle between -wi and wo."""
-        a = dr.squared_norm(wo + wi) * 0.25          # sin²(Θ/2), accurate near forward
-        b = dr.squared_norm(wo - wi) * 0.25          # cos²(Θ/2), accurate near backward
-        theta = 2.0 * dr.atan2(dr.sqrt(a), dr.sqrt(b))
-        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(theta / self.dth_o), 0.0)), self.K - 2)
-        h0 = mi.Float(i) * self.dth_o * 0.5
-        s0, c0 = dr.sincos(h0)
-        s1, c1 = dr.sincos(h0 + self.dth_o * 0.5)
-        fwd = theta < 0.5 * dr.pi
-        num = dr.select(fwd, a - s0 * s0, c0 * c0 - b)
-        den = dr.select(fwd, s1 * s1 - s0 * s0, c0 * c0 - c1 * c1)
-        f = dr.clip(num / dr.select(den > 0, den, 1.0), 0.0, 1.0)
-        return i, f
+        """(bin i, fraction f in v) of the scattering angle between -wi and wo on the chord nodes
+        (corona.volume.node_bin): no trigonometry, accurate at both ends."""
+        a = dr.squared_norm(wo + wi) * 0.25          # sin²(Θ/2)
+        b = dr.squared_norm(wo - wi) * 0.25          # cos²(Θ/2)
+        fwd = a <= b
+        g = dr.sqrt(dr.select(fwd, a, b)) * self.inv_ds
+        l = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0.0)), self.M - 1)
+        lf = mi.Float(l)
+        inv = dr.rcp(2.0 * lf + 1.0)
+        f = dr.select(fwd, (g * g - lf * lf) * inv, (dr.square(lf + 1.0) - g * g) * inv)
+        i = dr.select(fwd, l, 2 * self.M - 1 - l)
+        return i, dr.clip(f, 0.0, 1.0)
 
     def _row_of(self, lam):
         """Row j and weight t of a wavelength [nm] (spectral)."""
@@ -186,27 +196,29 @@ class CoronaMiePhaseMixin:
             row = lane
         xi = dr.clip(sample2.x, 0.0, 0.99999994)
         base = row * self.K
-        if dr.is_array_v(mi.Float):
-            idx = dr.binary_search(1, self.K - 1,
-                                   lambda k: dr.gather(mi.Float, self.cdf, base + k, active) <= xi)
-        else:
-            idx = int(np.clip(np.searchsorted(self.cdf[int(base):int(base) + self.K], xi, side="right"),
-                              1, self.K - 1))
-        i = mi.UInt32(idx) - 1
+        cell = dr.minimum(mi.UInt32(xi * self.G), self.G - 1)
+        gb = row * (self.G + 1) + cell
+        lo = _gather(mi.UInt32, self.guide, gb, active)
+        hi = _gather(mi.UInt32, self.guide, gb + 1, active) + 1      # cdf[lo] <= ξ < cdf[hi]
+        for _ in range(self.steps):
+            mid = (lo + hi) >> 1
+            below = _gather(mi.Float, self.cdf, base + mid, active) <= xi
+            lo = dr.select(below, mid, lo)
+            hi = dr.select(below, hi, mid)
+        i = dr.minimum(lo, self.K - 2)
         c0 = _gather(mi.Float, self.cdf, base + i, active)
         p0 = _gather(mi.Float, self.p, base + i, active)
         p1 = _gather(mi.Float, self.p, base + i + 1, active)
-        h0 = mi.Float(i) * self.dth_o * 0.5
-        s0, cs0 = dr.sincos(h0)
-        s1, cs1 = dr.sincos(h0 + self.dth_o * 0.5)
-        fwd = mi.Float(i) * self.dth_o < 0.5 * dr.pi
-        h = dr.select(fwd, s1 * s1 - s0 * s0, cs0 * cs0 - cs1 * cs1)     # bin width in v
-        r = dr.maximum(xi - c0, 0.0) / (4.0 * dr.pi * dr.select(h > 0, h, 1.0))
+        fwd = i < self.M
+        l = dr.select(fwd, i, 2 * self.M - 1 - i)          # the chord index of the bin
+        lf = mi.Float(l)
+        h = (2.0 * lf + 1.0) * self.ds2                     # bin width in v
+        r = dr.maximum(xi - c0, 0.0) / (4.0 * dr.pi * h)
         disc = dr.sqrt(dr.maximum(p0 * p0 + 2.0 * (p1 - p0) * r, 0.0))
         den = p0 + disc
         tt = dr.clip(2.0 * r / dr.select(den > 0, den, 1.0), 0.0, 1.0)
-        a = dr.select(fwd, s0 * s0 + tt * h, 1.0 - (cs0 * cs0 - tt * h))   # sin²(Θ/2)
-        b = dr.select(fwd, 1.0 - a, cs0 * cs0 - tt * h)                    # cos²(Θ/2)
+        a = dr.select(fwd, lf * lf * self.ds2 + tt * h, 1.0 - (dr.square(lf + 1.0) * self.ds2 - tt * h))
+        b = dr.select(fwd, 1.0 - a, dr.square(lf + 1.0) * self.ds2 - tt * h)   # accurate where small
         cos_t = b - a
         sin_t = 2.0 * dr.sqrt(dr.maximum(a * b, 0.0))
         sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)

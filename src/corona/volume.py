@@ -39,11 +39,14 @@ Tables
 ------
 Rows at size parameters ``x_j = 2π r / λ_j`` uniform from 830 to 360 nm, at
 most ``ROW_DX`` apart (``r`` the effective radius); per row the phase function
-at scattering angles uniform in Θ over [0, π] with step
-``THETA_DX / x_max`` (about ``4π / THETA_DX`` nodes per diffraction ring at
-the shortest wavelength, as the surface lobe's chord grid), linear in
-``v = sin²(Θ/2)`` between nodes, normalised so that each row integrates to 1
-with that interpolation (``dΩ = 4π dv`` over the azimuth).
+at the chord nodes ``sin(Θ/2) = k ds`` over the forward half and
+``cos(Θ/2) = k ds`` over the backward half (``ds ≈ THETA_DX / (2 x_max)``:
+``dΘ ≈ THETA_DX / x_max`` at both ends, about ``4π / THETA_DX`` nodes per
+diffraction ring at the shortest wavelength, as the surface lobe's chord
+grid), linear in ``v = sin²(Θ/2)`` between nodes, normalised so that each row
+integrates to 1 with that interpolation (``dΩ = 4π dv`` over the azimuth).
+A direction's node needs no trigonometry: ``|wo ± wi|² / 4`` are ``sin²``
+and ``cos²(Θ/2)``.
 
 References
 ----------
@@ -70,7 +73,7 @@ __all__ = ["DISTRIBUTIONS", "size_nodes", "droplet_index", "MieVolume", "homogen
            "heterogeneous_medium", "WATER_DENSITY"]
 
 #: Table format (bump on any change of the layout or the grids).
-VOLUME_FORMAT = 1
+VOLUME_FORMAT = 2
 DISTRIBUTIONS = ("mono", "lognormal", "gamma", "modified_gamma")
 #: Row step in size parameter (monodisperse); a distribution of relative spread s allows s x / 4, at most 2.
 ROW_DX = 0.05
@@ -198,6 +201,34 @@ def _structure(phi: float, diameter: float):
     return lambda q: percus_yevick_3d(q, diameter, phi)
 
 
+def node_v(ds: float, M: int) -> np.ndarray:
+    """``v = sin²(Θ/2)`` at the 2M + 1 angle nodes (:meth:`MieVolume.grid`)."""
+    k = np.arange(M + 1)
+    l = np.arange(M - 1, -1, -1)                     # backward nodes k = 2M - l: cos(Θ/2) = l ds
+    return np.concatenate([(k * ds) ** 2, 1.0 - (l * ds) ** 2])
+
+
+def node_dv(ds: float, M: int) -> np.ndarray:
+    """Widths in v of the 2M bins, exact: ``(2k+1) ds²`` (forward), mirrored (backward)."""
+    k = np.arange(M)
+    w = (2 * k + 1) * ds * ds
+    return np.concatenate([w, w[::-1]])
+
+
+def node_bin(a, b, ds: float, M: int):
+    """Bin i and fraction f (linear in v) of ``a = sin²(Θ/2)``, ``b = cos²(Θ/2)`` on the chord
+    nodes: forward from ``sqrt(a)/ds``, backward from ``sqrt(b)/ds`` (accurate at both ends)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    fwd = a <= b
+    g = np.sqrt(np.where(fwd, a, b)) / ds
+    l = np.clip(np.floor(g).astype(np.int64), 0, M - 1)
+    f_fwd = (g * g - l * l) / (2 * l + 1)
+    f_bwd = ((l + 1) ** 2 - g * g) / (2 * l + 1)
+    i = np.where(fwd, l, 2 * M - 1 - l)
+    return i, np.clip(np.where(fwd, f_fwd, f_bwd), 0.0, 1.0)
+
+
 class MieVolume:
     """The spheres of a volume: cross-sections and the tabulated phase function per wavelength.
 
@@ -260,17 +291,21 @@ class MieVolume:
         return float(np.sum(self.weights * 4 / 3 * np.pi * self.radii**3))
 
     def grid(self):
-        """(x rows of the effective radius, angle step dΘ, number of nodes K)."""
+        """(x rows of the effective radius, chord step ds, M): the angle nodes are the chords
+        ``sin(Θ/2) = k ds`` (k = 0 … M, forward half) then ``cos(Θ/2) = (2M - k) ds``
+        (k = M … 2M, backward half), ``M ds = 1/√2``; K = 2M + 1 nodes."""
         r = self.radius
         x_lo = 2 * np.pi * r / (tables.WAVELENGTH_MAX * 1e-3)
         x_hi = 2 * np.pi * r / (tables.WAVELENGTH_MIN * 1e-3)
         spread = math.sqrt(self.variance)
         row_dx = max(ROW_DX, min(2.0, 0.25 * spread * x_lo))
         J = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
-        # angular resolution for the radii that carry the light (r_eff (1 + 2 sqrt(v_eff)))
+        # angular resolution for the radii that carry the light (r_eff (1 + 2 sqrt(v_eff))):
+        # dΘ ≈ 2 ds <= THETA_DX / x_top
         x_top = x_hi * min(float(self.radii.max()) / r, 1 + 2 * spread)
-        K = int(np.clip(math.ceil(np.pi * x_top / THETA_DX) + 1, MIN_NODES, MAX_NODES))
-        return np.linspace(x_lo, x_hi, J), np.pi / (K - 1), K
+        M = int(np.clip(math.ceil(math.sqrt(0.5) * 2 * x_top / THETA_DX), (MIN_NODES - 1) // 2,
+                        (MAX_NODES - 1) // 2))
+        return np.linspace(x_lo, x_hi, J), math.sqrt(0.5) / M, M
 
     @functools.cached_property
     def table(self) -> dict:
@@ -281,10 +316,12 @@ class MieVolume:
         return {k: np.asarray(v) for k, v in arrays.items()}
 
     def _build(self) -> dict:
-        x_rows, dth, K = self.grid()
+        x_rows, ds, M = self.grid()
         lam = 2 * np.pi * self.radius / x_rows * 1e3
-        theta = np.arange(K) * dth
-        mu = np.cos(theta)
+        v = node_v(ds, M)
+        K = v.size
+        mu = 1.0 - 2.0 * v
+        theta = 2.0 * np.arcsin(np.sqrt(v))
         J = x_rows.size
         P = np.zeros((J, K))
         A1 = np.zeros((J, K), complex)
@@ -319,8 +356,7 @@ class MieVolume:
         else:
             Z = P
         # the rows normalised under linear interpolation in v = sin²(Θ/2) (dΩ = 4π dv)
-        v = np.sin(theta / 2) ** 2
-        dv = np.diff(v)
+        dv = node_dv(ds, M)
         total_P = 4 * np.pi * np.sum(0.5 * (P[:, 1:] + P[:, :-1]) * dv, axis=1)
         total_Z = 4 * np.pi * np.sum(0.5 * (Z[:, 1:] + Z[:, :-1]) * dv, axis=1)
         p = Z / total_Z[:, None]
@@ -328,7 +364,8 @@ class MieVolume:
         mid = 0.5 * (p[:, 1:] + p[:, :-1])
         g = 4 * np.pi * np.sum(mid * (1 - 2 * 0.5 * (v[1:] + v[:-1])) * dv, axis=1)
         c_sca_s = c_sca * gain
-        return {"wavelength": lam, "x": x_rows, "theta": theta, "p": p, "c_ext": c_ext - c_sca + c_sca_s,
+        return {"wavelength": lam, "x": x_rows, "theta": theta, "v": v, "ds": np.array(ds),
+                "M": np.array(M), "p": p, "c_ext": c_ext - c_sca + c_sca_s,
                 "c_sca": c_sca_s, "s_gain": gain, "g": g, "c_sca_dilute": c_sca}
 
     # ------------------------------------------------------------------
@@ -352,14 +389,8 @@ class MieVolume:
         """The tabulated phase function [1/sr] at ``cos Θ`` (0 forward) and ``wavelength`` [nm],
         as the Mitsuba plugin evaluates it (linear in v between angle nodes, in x between rows)."""
         mu = np.clip(np.asarray(cos_theta, dtype=np.float64), -1.0, 1.0)
-        th = np.arccos(mu)
+        i, f = node_bin((1 - mu) / 2, (1 + mu) / 2, float(self.table["ds"]), int(self.table["M"]))
         T = self.table
-        dth = T["theta"][1]
-        K = T["theta"].size
-        i = np.clip(np.floor(th / dth).astype(np.int64), 0, K - 2)
-        v = (1 - mu) / 2
-        v0, v1 = np.sin(i * dth / 2) ** 2, np.sin((i + 1) * dth / 2) ** 2
-        f = np.clip((v - v0) / (v1 - v0), 0.0, 1.0)
         j, t = self._row(wavelength)
         p = T["p"]
         a = p[j, i] * (1 - f) + p[j, i + 1] * f
@@ -369,10 +400,10 @@ class MieVolume:
     def integral(self, wavelength) -> float:
         """``∫ p dΩ`` of the tabulated row(s) at ``wavelength`` (1 by construction)."""
         T = self.table
-        v = np.sin(T["theta"] / 2) ** 2
         j, t = self._row(wavelength)
         row = T["p"][j] * (1 - t) + T["p"][j + 1] * t
-        return float(4 * np.pi * np.sum(0.5 * (row[1:] + row[:-1]) * np.diff(v)))
+        dv = node_dv(float(T["ds"]), int(T["M"]))
+        return float(4 * np.pi * np.sum(0.5 * (row[1:] + row[:-1]) * dv))
 
     def exact_phase(self, cos_theta, wavelength) -> np.ndarray:
         """Mie theory directly at ``cos Θ`` and ``wavelength`` [nm] (float64, no tables; dilute)."""
