@@ -32,7 +32,7 @@ function averaged over the channel's spectral response weighted by ``σ_s``
 Sampling.  ``sample1`` picks one of the lane's wavelengths (or channels)
 with probability 1/n and, for spectral rows, row ``j + 1`` with probability
 ``t`` (both rows integrate to 1, so the mixture is the interpolated value);
-``sample2.x`` inverts the row's CDF exactly (binary search of the bin, then
+``sample2.x`` inverts the row's CDF exactly (a guide table and a bisection find the bin, then
 the quadratic of a density linear in v), ``sample2.y`` the azimuth.  The
 returned pdf is the mean of the lanes' (channels') values, the one-sample
 balance-heuristic mixture, and the weight is value / pdf.
