@@ -65,7 +65,7 @@ def percus_yevick_3d(q, diameter: float, volume_fraction: float) -> np.ndarray:
     The compressibility route, ``S(0) = (1 - φ)⁴ / (1 + 2φ)²``:
 
     >>> round(float(percus_yevick_3d(0.0, 1.0, 0.3)), 6), round(0.7**4 / 1.6**2, 6)
-    (0.09378, 0.09378)
+    (0.093789, 0.093789)
     """
     d = check_positive("diameter", diameter, "µm")
     try:
