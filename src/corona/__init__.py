@@ -60,3 +60,5 @@ def register() -> None:
     """
     from .mitsuba_bsdf import register as _register
     _register()
+    from .mitsuba_phase import register as _register_phase   # the corona_mie phase function
+    _register_phase()

@@ -30,7 +30,7 @@ def setup_variant(variant: str | None = None) -> str:
     except (ImportError, RuntimeError) as err:
         raise CoronaError(f"variant={variant!r} could not be activated: "
                           f"{str(err).strip().splitlines()[-1]}") from None
-    from .mitsuba_bsdf import register
+    from . import register            # the corona BSDF and the corona_mie phase function
     register()
     return variant
 

@@ -28,6 +28,7 @@ live in :mod:`corona.reference` (extra ``corona[reference]``).
 """
 from .base import Process
 from .hard_disk import HardDisk
+from .hard_sphere import percus_yevick_3d
 from .lattice import Lattice
 from .point_set import PointSet
 from .poisson import Poisson

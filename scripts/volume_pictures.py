@@ -1,0 +1,67 @@
+"""The pictures of docs/volumes.md: the rings' contrast against optical depth, and the scenes.
+
+    python scripts/volume_pictures.py series      # docs/volumes_tau_series.png (about a minute)
+    corona render scenes/moon_altocumulus.xml --spp 512 -D res=128 --out docs --name volumes_moon
+    corona render scenes/streetlight_fog.xml --spp 256 -D res=128 --out docs --name volumes_streetlight
+    corona render scenes/glory_cloud_deck.xml --variant llvm_ad_rgb --spp 256 -D res=96 --out docs --name volumes_glory
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+import corona  # noqa: F401  (before drjit)
+import mitsuba as mi
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DOCS = os.path.join(HERE, os.pardir, "docs")
+
+
+def series(taus=(0.05, 0.3, 1.0, 3.0), radius=5.0, size=128, spp=256, fov=24.0):
+    """A slab of 5 µm droplets (gamma, v_eff 0.01) in front of a distant light at each optical
+    depth: the panels side by side, each scaled to its own 99.5th percentile; returns the
+    ring contrasts (green channel, tests/test_volume.py's measure)."""
+    import imageio.v3 as iio
+
+    from corona import volume
+    from corona.mitsuba_phase import channel_response
+    mi.set_variant("llvm_ad_rgb")
+    corona.register()
+    kw = dict(distribution="gamma", variance=0.01)
+    v = volume.MieVolume(radius, **kw)
+    T = v.table
+    h = 0.01
+    panels, contrasts = [], []
+    rows = v.rgb_table(*channel_response())
+    sys.path.insert(0, os.path.join(HERE, os.pardir, "tests"))
+    from test_volume import ring_contrast
+    for tau in taus:
+        N = tau / (v.cross_sections(550.0)["c_ext"] * h)
+        st = N * T["c_ext"]
+        med = {"type": "homogeneous", "sigma_t": volume._spectrum(T["wavelength"], st / st.max()),
+               "scale": float(st.max()), "albedo": volume._spectrum(T["wavelength"], T["c_sca"] / T["c_ext"]),
+               "phase": {"type": "corona_mie", "radius": radius, **kw}}
+        img = np.array(mi.render(mi.load_dict(volume.slab_scene(med, thickness=h, fov=fov, size=size,
+                                                                   spp=spp, max_depth=64)), seed=1))
+        contrasts.append(ring_contrast(img, fov, rows, T["theta"]))
+        # a logarithmic tone map (the rings are ~100x dimmer than the aureole): the level of the
+        # rings (the median over 3-10 degrees) maps to 0.35, the peak to 1
+        c, prof, _ = volume.radial_profile(img.mean(-1), fov, np.radians([3.0, 10.0]))
+        k = max(float(prof[0, 0]), 1e-12)
+        top = float(np.percentile(img.mean(-1), 99.9))
+        disp = np.log1p(np.clip(img, 0, None) / (0.05 * k)) / math.log1p(top / (0.05 * k))
+        panels.append((np.clip(disp, 0, 1) * 255).astype(np.uint8))
+    gap = np.full((size, 4, 3), 255, np.uint8)
+    row = [p for panel in panels for p in (panel, gap)][:-1]
+    iio.imwrite(os.path.join(DOCS, "volumes_tau_series.png"), np.concatenate(row, axis=1))
+    for tau, c in zip(taus, contrasts):
+        print(f"tau = {tau:g}: ring contrast {c:.3f}")
+    return contrasts
+
+
+if __name__ == "__main__":
+    what = sys.argv[1] if len(sys.argv) > 1 else "series"
+    if what == "series":
+        series()
