@@ -571,3 +571,83 @@ def test_a_point_set_too_large_to_analyse_is_refused_up_front(tmp_path):
     np.savetxt(path, rng.random((2000, 2)) * 1e6)           # 2000 points over a metre
     with pytest.raises(corona.CoronaError, match=r"PointSet: 2000 points .* allowed at most 2e\+10"):
         material_from_parameters(process="points", filename=str(path), radius=1.0).table
+
+
+# --------------------------------------------------------------------------
+# round three: a scene that loads in a scalar variant, every time
+# --------------------------------------------------------------------------
+#: a corona pane in front of a small area light, a constant sky written after the pane
+PANE_SCENE = """<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+    <sensor type="perspective">
+        <transform name="to_world"><lookat origin="0, 0, -3" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
+        <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
+    </sensor>
+    <shape type="rectangle">
+        <bsdf type="corona"><float name="radius" value="{radius}"/><float name="area_fraction" value="0.3"/></bsdf>
+    </shape>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="0.2"/><translate z="2"/></transform>
+        <emitter type="area"><rgb name="radiance" value="10"/></emitter>
+    </shape>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+</scene>
+"""
+
+#: fresh-cache subprocess loads of PANE_SCENE in the suite (docs/robustness.md: 50 of 50 by hand)
+PANE_LOADS = int(os.environ.get("CORONA_PANE_LOADS", "10"))
+
+_LOAD_PANE = """
+import sys, corona, mitsuba as mi
+mi.set_variant("scalar_spectral")
+corona.register()
+scene = mi.load_file(sys.argv[1])
+assert len(scene.emitters()) == 2, scene.emitters()
+print("loaded")
+"""
+
+
+@pytest.mark.parametrize("params", [
+    {"radius": 5.0, "area_fraction": 0.3},
+    {"shape": "square", "radius": 2.0},
+    {"substrate": "glass"},
+    {"shape": "sphere", "radius": 2.0},
+], ids=["circle", "square", "glass", "sphere"])
+def test_building_the_bsdf_never_calls_the_scene_parser(variant, monkeypatch, params):
+    """The BSDF is built on one of Mitsuba's loader threads while the others go on loading the
+    scene; Mitsuba's parser swaps the process-wide FileResolver for the length of a load and frees
+    its copy at the end, so a nested ``mi.load_dict`` from the constructor left the other threads
+    reading freed memory (``failed to instantiate emitter plugin of type "constant":
+    basic_string::_M_create`` / ``std::bad_alloc`` in scalar_spectral).  Built here by the plugin
+    manager with the parser's entry points refusing to run."""
+    import mitsuba as mi
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the corona BSDF called Mitsuba's scene parser while it was being built")
+    for name in ("load_dict", "load_string", "load_file"):
+        monkeypatch.setattr(mi, name, refuse)
+    props = mi.Properties("corona")
+    for k, v in params.items():
+        props[k] = v
+    bsdf = mi.PluginManager.instance().create_object(props)
+    assert isinstance(bsdf, mi.BSDF)
+    if params.get("shape") != "sphere":
+        keys = set(mi.traverse(bsdf).keys())
+        assert {"area_fraction.value", "radius.value", "albedo.value"} <= keys, keys
+
+
+def test_a_pane_scene_loads_in_scalar_spectral_every_time(tmp_path):
+    """PANE_LOADS fresh-cache loads of a corona pane, an area light and a constant sky written
+    after the pane, each in its own process (the crash needed a fresh process: plugin libraries
+    and the sRGB model are resolved on the loader threads during the first load)."""
+    scene = tmp_path / "pane.xml"
+    failures = []
+    for k in range(PANE_LOADS):
+        scene.write_text(PANE_SCENE.replace("{radius}", f"{3.0 + 0.01 * k:.2f}"))
+        env = {**os.environ, "CORONA_CACHE_DIR": str(tmp_path / f"cache{k}")}
+        p = subprocess.run([sys.executable, "-c", _LOAD_PANE, str(scene)], capture_output=True,
+                           text=True, timeout=300, env=env)
+        if p.returncode != 0 or "loaded" not in p.stdout:
+            failures.append((k, p.returncode, p.stderr.strip().splitlines()[-1:]))
+    assert not failures, f"{len(failures)} of {PANE_LOADS} loads failed: {failures}"

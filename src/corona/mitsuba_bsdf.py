@@ -121,7 +121,19 @@ def _read_props(props) -> tuple[dict, dict]:
 
 
 def _uniform(value: float):
-    return mi.load_dict({"type": "uniform", "value": float(value)})
+    """A ``uniform`` texture of ``value``, made by the plugin manager, not the scene parser.
+
+    The BSDF is built while Mitsuba loads a scene, on one of its loader threads.  Mitsuba's
+    parser (``mi.load_dict``, ``load_string``, ``load_file``) replaces the process-wide
+    ``FileResolver`` for the duration of a load and frees its copy at the end, while the other
+    loader threads read that resolver (resolving plugin libraries, ``data/srgb.coeff``, bitmap
+    file names): a nested load from here left them reading freed memory
+    (``basic_string::_M_create``, ``std::bad_alloc`` in the next emitter).
+    ``PluginManager.create_object`` only reads the resolver.
+    """
+    props = mi.Properties("uniform")
+    props["value"] = float(value)
+    return mi.PluginManager.instance().create_object(props)
 
 
 def texture_range(texture) -> tuple[float | None, float]:
