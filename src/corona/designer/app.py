@@ -1,9 +1,14 @@
 """The designer's web server: a Starlette app (served by uvicorn) around
 :mod:`corona.designer.compute`, and the page in ``static/``.
 
-Every computation runs in a worker thread under a time limit; bad parameters
-are HTTP 400 with ``{"error": "<one line naming the parameter>"}``.  The app
-reads no files but its own page, the uploads it stored, and the table cache.
+Every computation runs in a thread of its own under a time limit, at most
+:data:`MAX_CONCURRENT` at any time: a request past the limit is answered 503
+at once, but its computation keeps its slot until it really ends (a numpy
+computation cannot be stopped from outside), so clients that time out cannot
+pile up running computations; a request that finds every slot taken waits for
+one until its own time limit, then is answered 503.  Bad parameters are HTTP
+400 with ``{"error": "<one line naming the parameter>"}``.  The app reads no
+files but its own page, the uploads it stored, and the table cache.
 """
 from __future__ import annotations
 
@@ -15,7 +20,9 @@ import math
 import os
 import time
 
-import anyio
+import asyncio
+import threading
+
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
@@ -63,7 +70,7 @@ def designer_dir(*parts: str) -> str:
 class _App:
     def __init__(self, timeout: float):
         self.timeout = timeout
-        self.limiter = anyio.CapacityLimiter(MAX_CONCURRENT)
+        self.slots = _Slots(MAX_CONCURRENT)
 
     # -- helpers ------------------------------------------------------------
     def _query(self, request: Request) -> dict:
@@ -77,12 +84,44 @@ class _App:
         return q
 
     async def _run(self, fn, *args):
-        """``fn(*args)`` in a worker thread; one-line errors; a time limit."""
+        """``fn(*args)`` in a thread of its own holding one of the slots; one-line errors; a time limit.
+
+        The slot is taken here (waiting for one at most until the time limit) and given back
+        by the thread when ``fn`` returns, not when the request gives up on it."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.timeout
+        while not self.slots.take():
+            if loop.time() >= deadline:
+                raise _Timeout(f"the designer is busy ({MAX_CONCURRENT} computations running) and none "
+                               f"ended within {self.timeout:g} s; try again later")
+            await asyncio.sleep(0.01)
+        future = loop.create_future()
+
+        def settle(result, error):
+            if future.cancelled() or future.done():
+                return
+            if error is not None:
+                future.set_exception(error)
+            else:
+                future.set_result(result)
+
+        def job():
+            result = error = None
+            try:
+                result = fn(*args)
+            except BaseException as err:  # noqa: BLE001 - handed to the request that waits
+                error = err
+            finally:
+                self.slots.give_back()
+            try:
+                loop.call_soon_threadsafe(settle, result, error)
+            except RuntimeError:   # the server stopped meanwhile
+                pass
+        threading.Thread(target=job, name="corona-designer-compute", daemon=True).start()
         try:
-            with anyio.fail_after(self.timeout):
-                return await anyio.to_thread.run_sync(lambda: fn(*args), abandon_on_cancel=True,
-                                                      limiter=self.limiter)
+            return await asyncio.wait_for(asyncio.shield(future), max(deadline - loop.time(), 0.0))
         except TimeoutError:
+            future.cancel()          # nobody waits for it: its result is dropped, its slot kept until it ends
             raise _Timeout(f"the computation took longer than {self.timeout:g} s; "
                            "choose smaller values (radius, sides, image or kernel size)") from None
 
@@ -207,6 +246,29 @@ class _Timeout(Exception):
     pass
 
 
+class _Slots:
+    """At most ``n`` computations at a time: :meth:`take` before one starts, :meth:`give_back`
+    when it has ended.  ``running`` and ``peak`` count them (the tests read them)."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.running = 0
+        self.peak = 0
+        self._lock = threading.Lock()
+
+    def take(self) -> bool:
+        with self._lock:
+            if self.running >= self.n:
+                return False
+            self.running += 1
+            self.peak = max(self.peak, self.running)
+            return True
+
+    def give_back(self) -> None:
+        with self._lock:
+            self.running -= 1
+
+
 def _jsonable(obj):
     if isinstance(obj, dict):
         return {str(k): _jsonable(v) for k, v in obj.items()}
@@ -294,6 +356,8 @@ def create_app(allowed_hosts=LOOPBACK, timeout: float = COMPUTE_TIMEOUT) -> Star
     async def bad_method(request, exc):
         return _error(405, f"{request.method} is not allowed on {request.url.path}")
 
-    return Starlette(routes=routes,
-                     middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=list(allowed_hosts))],
-                     exception_handlers={404: not_found, 405: bad_method})
+    app = Starlette(routes=routes,
+                    middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=list(allowed_hosts))],
+                    exception_handlers={404: not_found, 405: bad_method})
+    app.state.slots = a.slots        # the computations running now, and the most at once
+    return app
