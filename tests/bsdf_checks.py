@@ -113,3 +113,16 @@ def layer_scene(props: str = '            <float name="radius" value="$radius"/>
                              '<float name="area_fraction" value="0.3"/>', spp: int = 4, res: int = 8) -> str:
     """:data:`LAYER_SCENE` with the layer's ``props`` (XML) and the default spp and resolution."""
     return LAYER_SCENE.replace("{props}", props).replace("{spp}", str(spp)).replace("{res}", str(res))
+
+
+def png_claiming(width: int, height: int) -> bytes:
+    """A PNG file whose header claims ``width`` × ``height`` RGB pixels but that holds no
+    pixel data (a decompression bomb's header: readers that trust it allocate the whole image)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b""))
+            + chunk(b"IEND", b""))
