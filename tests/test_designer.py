@@ -477,3 +477,37 @@ def test_served_over_http_on_loopback():
         assert url.startswith("http://127.0.0.1:")
         with urllib.request.urlopen(url + "api/parameters", timeout=10) as r:
             assert json.load(r)["parameters"]
+
+
+# ----------------------------------------------------------------------
+# hostile requests: one 400 each, no server path in the answer
+# ----------------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["photo", "mask"])
+@pytest.mark.parametrize("size", [30000, 12000])
+def test_a_decompression_bomb_upload_is_400(client, kind, size):
+    """A PNG whose header claims 30000×30000 pixels gave 500 (Pillow's DecompressionBombError)."""
+    from bsdf_checks import png_claiming
+    limit = app_module.MAX_MASK_PIXELS if kind == "mask" else app_module.MAX_PHOTO_PIXELS
+    one_line_400(client.post(f"/api/upload?kind={kind}&name=bomb.png", content=png_claiming(size, size)),
+                 "bomb.png" if size == 30000 else f"{size}×{size}", str(limit))
+
+
+def test_deeply_nested_json_to_fit_is_400(client):
+    """Nested JSON within the size limit gave 500 (RecursionError)."""
+    for body in (b"[" * 60000, b'{"a":' * 10000 + b"1" + b"}" * 10000):
+        assert len(body) <= 65536
+        one_line_400(client.post("/api/fit", content=body), "not JSON")
+
+
+def test_errors_do_not_show_the_servers_cache_path(client):
+    """A fit of an uploaded photograph without a light named the file by its absolute path in the
+    table cache; the message names the upload by its id."""
+    from corona.tables import cache_dir
+    rng = np.random.default_rng(0)
+    fog = _png_bytes(rng.integers(90, 110, (64, 64, 3)).astype(np.uint8))
+    up = client.post("/api/upload?kind=photo&name=fog.png", content=fog).json()
+    msg = one_line_400(client.post("/api/fit", json={"photo": up["id"], "fov": 30.0}), "no bright light source")
+    assert up["id"] in msg
+    for root in {cache_dir(), os.path.realpath(cache_dir())}:
+        assert root not in msg, msg
+    assert os.sep + "designer" + os.sep not in msg, msg

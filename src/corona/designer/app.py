@@ -32,6 +32,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from .._validation import CoronaError
+from ..fit import MAX_PIXELS as MAX_FIT_PIXELS
 from . import compute
 
 log = logging.getLogger("corona.designer")
@@ -43,7 +44,7 @@ MAX_QUERY = 4096
 #: Largest upload [bytes]: photographs; masks and point files have their own limits.
 MAX_UPLOAD = 16 * 2**20
 MAX_MASK_PIXELS = 1024 * 1024
-MAX_PHOTO_PIXELS = 40_000_000
+MAX_PHOTO_PIXELS = MAX_FIT_PIXELS      # what corona.fit takes
 MAX_POINTS = 5000
 MAX_POINTS_BYTES = 512 * 1024
 #: Uploads kept (the oldest go first).
@@ -56,7 +57,21 @@ LOOPBACK = ("127.0.0.1", "localhost", "[::1]")
 
 
 def _error(status: int, message: str) -> JSONResponse:
-    return JSONResponse({"error": " ".join(str(message).split())}, status_code=status)
+    return JSONResponse({"error": _scrub(" ".join(str(message).split()))}, status_code=status)
+
+
+def _scrub(message: str) -> str:
+    """The server's folders out of a message for the client: an upload is named by its id,
+    anything else inside the table cache as ``<cache>/...``."""
+    from ..tables import cache_dir
+    try:
+        root = cache_dir()
+    except Exception:  # noqa: BLE001 - an unusable cache: nothing to hide then
+        return message
+    for base in sorted({root, os.path.realpath(root)}, key=len, reverse=True):
+        message = message.replace(os.path.join(base, "designer", "uploads") + os.sep, "")
+        message = message.replace(base, "<cache>")
+    return message
 
 
 def designer_dir(*parts: str) -> str:
@@ -228,8 +243,8 @@ class _App:
                 return _error(413, f"the fit request is {len(body)} bytes; allowed at most 65536")
             try:
                 req = json.loads(body or b"{}")
-            except ValueError:
-                raise CoronaError("the fit request is not JSON; expected "
+            except (ValueError, RecursionError):      # RecursionError: nested too deeply
+                raise CoronaError("the fit request is not JSON (or nested too deeply); expected "
                                   '{"photo": "<upload id>", "fov": <degree>}') from None
             if not isinstance(req, dict):
                 raise CoronaError('the fit request must be a JSON object {"photo": ..., "fov": ...}')
@@ -289,15 +304,22 @@ def _check_upload(kind: str, data: bytes, name: str) -> dict:
     if not data:
         raise CoronaError(f"the {kind} upload is empty")
     if kind in ("photo", "mask"):
+        import warnings
+
         from PIL import Image, UnidentifiedImageError
+        limit = MAX_MASK_PIXELS if kind == "mask" else MAX_PHOTO_PIXELS
         try:
-            with Image.open(io.BytesIO(data)) as im:
-                fmt, (w, h) = im.format, im.size
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)   # the limit is ours
+                with Image.open(io.BytesIO(data)) as im:
+                    fmt, (w, h) = im.format, im.size
+        except Image.DecompressionBombError:
+            raise CoronaError(f"the {kind} upload {name!r} claims more pixels than Pillow opens; "
+                              f"allowed at most {limit} pixels") from None
         except (UnidentifiedImageError, OSError, ValueError):
             raise CoronaError(f"the {kind} upload {name!r} is not a PNG or JPEG image") from None
         if fmt not in ("PNG", "JPEG"):
             raise CoronaError(f"the {kind} upload {name!r} is a {fmt} image; allowed PNG or JPEG")
-        limit = MAX_MASK_PIXELS if kind == "mask" else MAX_PHOTO_PIXELS
         if w * h > limit:
             raise CoronaError(f"the {kind} upload is {w}×{h} pixels; allowed at most {limit} pixels")
         return {"suffix": "png" if fmt == "PNG" else "jpg", "width": w, "height": h}
