@@ -204,7 +204,7 @@ def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
 # ----------------------------------------------------------------------
 def executor_options(f):
     """--workers / --scheduler / --timeout: where the jobs run (corona.sweep.Executor)."""
-    f = click.option("--timeout", type=click.FloatRange(min=0, min_open=True), default=10.0,
+    f = click.option("--timeout", type=float, default=10.0, callback=_finite_positive,
                      show_default=True, help="Seconds to wait for --scheduler and its first worker.")(f)
     f = click.option("--scheduler", default=None, metavar="ADDRESS",
                      help="An existing Dask scheduler (tcp://host:8786) instead of a local cluster.")(f)
