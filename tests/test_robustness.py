@@ -651,3 +651,29 @@ def test_a_pane_scene_loads_in_scalar_spectral_every_time(tmp_path):
         if p.returncode != 0 or "loaded" not in p.stdout:
             failures.append((k, p.returncode, p.stderr.strip().splitlines()[-1:]))
     assert not failures, f"{len(failures)} of {PANE_LOADS} loads failed: {failures}"
+
+
+@pytest.mark.parametrize("name", ["area_fraction", "radius", "albedo"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+@pytest.mark.parametrize("scalar", [False, True], ids=["vector", "scalar"])
+def test_non_finite_texels_are_named(variant, tmp_path, name, bad, scalar):
+    """A NaN or infinite texel in a texture was refused with Mitsuba's ``Texture::max(): not
+    implemented!``; the message names the parameter and the value."""
+    import mitsuba as mi
+    if scalar:
+        mi.set_variant("scalar_spectral")
+        corona.register()
+    try:
+        good = {"area_fraction": 0.3, "radius": 3.0, "albedo": 0.5}[name]
+        data = np.full((4, 4, 1), good, dtype=np.float32)
+        data[1, 2, 0] = bad
+        path = str(tmp_path / f"{name}.exr")
+        mi.Bitmap(data).write(path)
+        tex = {"type": "bitmap", "filename": path, "raw": True, "filter_type": "nearest"}
+        with pytest.raises(Exception) as info:
+            mi.load_dict({"type": "corona", name: tex})
+        msg = str(info.value).strip().splitlines()[-1]
+        assert name in msg and f"{bad:g}" in msg, msg
+        assert "not implemented" not in str(info.value)
+    finally:
+        mi.set_variant(variant)

@@ -143,7 +143,8 @@ def texture_range(texture) -> tuple[float | None, float]:
     on a 64×64 grid of uv for procedural textures (scalar variants: every
     k-th of these points, at most 256×256); where the texture cannot
     be evaluated without a mesh (``mesh_attribute``) the minimum is unknown
-    (None) and the maximum is ``texture.max()``.
+    (None) and the maximum is ``texture.max()``.  A NaN texel makes both NaN,
+    an infinite one the end it lies on (the caller refuses them by name).
     """
     if not texture.is_spatially_varying():
         v = float(np.asarray(dr.detach(texture.mean())).ravel()[0])
@@ -164,8 +165,8 @@ def texture_range(texture) -> tuple[float | None, float]:
                 si.uv = mi.Point2f(float(u), float(v))
                 vals.append(float(texture.eval_1(si)))
             vals = np.asarray(vals)
-        if vals.size and np.all(np.isfinite(vals)):
-            return float(vals.min()), float(vals.max())
+        if vals.size:          # NaN / ±inf texels come out as such: the caller names them
+            return float(np.min(vals)), float(np.max(vals))
     except Exception:  # noqa: BLE001 - textures that need a mesh
         pass
     return None, float(texture.max())
