@@ -141,3 +141,39 @@ def png_claiming(width: int, height: int) -> bytes:
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b""))
             + chunk(b"IEND", b""))
+
+
+def furnace(bsdf, theta_deg: float, wavelengths=(550.0,) * 4, n: int = 200_000, seed: int = 3,
+            ctx=None):
+    """White furnace by sampling: the mean of ``sample``'s weights per wavelength lane (the
+    directional albedo: what the layer returns of what it receives, all components) and the
+    standard error of each mean, at incidence ``theta_deg`` (negative: from the back side).
+
+    Returns (mean, stderr), each (lanes,).  A layer that keeps energy has mean <= 1 per lane."""
+    th = np.radians(theta_deg)
+    wi = (np.sin(abs(th)), 0.0, np.cos(th))
+    rng = np.random.default_rng(seed)
+    si = interaction(n, wi, wavelengths)
+    _, w = bsdf.sample(ctx or mi.BSDFContext(), si, mi.Float(rng.random(n).astype(np.float32)),
+                       mi.Point2f(rng.random((2, n)).astype(np.float32)))
+    w = np.asarray(w, dtype=np.float64).reshape(-1, n)
+    assert np.all(np.isfinite(w)), "sample() returned a non-finite weight"
+    return w.mean(axis=1), w.std(axis=1) / np.sqrt(n)
+
+
+def assert_finite_at_a_zero_interaction(bsdf):
+    """sample / eval / pdf / eval_pdf at a zero-initialised interaction (wavelengths 0, as
+    mitsuba.chi2's adapters pass) and without ``active``: finite, eval >= 0, at a smooth,
+    the grazing, the exactly opposite and the exactly equal directions."""
+    si = dr.zeros(mi.SurfaceInteraction3f, 16)
+    si.wi = mi.Vector3f(0, 0, 1)
+    ctx = mi.BSDFContext()
+    _, w = bsdf.sample(ctx, si, mi.Float(np.linspace(0, 0.99, 16)),
+                       mi.Point2f(np.linspace(0, 0.99, 16), np.linspace(0.1, 0.9, 16)))
+    assert np.all(np.isfinite(np.array(w)))
+    for wo in [(0.1, 0.0, -0.99), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 0.0, 1.0)]:
+        v = mi.Vector3f(*wo)
+        e, p = bsdf.eval_pdf(ctx, si, v)
+        for x in (e, p, bsdf.eval(ctx, si, v), bsdf.pdf(ctx, si, v)):
+            assert np.all(np.isfinite(np.array(x))), wo
+        assert np.all(np.array(e) >= 0), wo

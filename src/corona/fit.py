@@ -730,7 +730,10 @@ class _Problem:
 
     def set_data(self, value):
         self.data = np.asarray(value)
-        self.w = np.where(self.profile.usable, 1.0 / self.profile.sigma, 0.0)
+        # a bin whose pixels are all equal (a noise-free image) has sigma 0: floor it at 1e-6 of the
+        # data's scale, so that its weight is large but finite
+        floor = 1e-6 * max(float(np.max(np.abs(self.data), initial=0.0)), 1e-30)
+        self.w = np.where(self.profile.usable, 1.0 / np.maximum(self.profile.sigma, floor), 0.0)
 
     def set_wavelengths(self, n: int):
         self.spectrum = Spectrum(int(n), self.channels)
