@@ -37,11 +37,14 @@ SLOW_NAMES = {"subprocess", "Executor", "LocalCluster", "running"}
 #: fixtures that cost seconds to set up (a cluster, rendered photographs, built layers)
 SLOW_FIXTURES = {"cluster", "photographs", "fits", "layers", "driver", "browser"}
 BROWSER_FILES = {"test_designer_browser.py"}
+#: a CLI test (CliRunner.invoke, subprocess.run) of one of these commands renders
+CLI_RENDERS = {"str:render", "str:sweep"}
 
 
 def _names(fn, module, depth: int = 2) -> set[str]:
     """Global and attribute names the code of ``fn`` uses, and those of the module-level
-    functions of ``module`` it calls, ``depth`` levels down."""
+    functions of ``module`` it calls, ``depth`` levels down (short string constants as
+    ``"str:<text>"``: the command a CLI test invokes)."""
     seen, out, todo = set(), set(), [(getattr(fn, "__code__", None), depth)]
     while todo:
         code, d = todo.pop()
@@ -49,6 +52,7 @@ def _names(fn, module, depth: int = 2) -> set[str]:
             continue
         seen.add(code)
         out |= set(code.co_names)
+        out |= {"str:" + c for c in code.co_consts if isinstance(c, str) and len(c) < 40}
         todo += [(c, d) for c in code.co_consts if isinstance(c, types.CodeType)]   # nested functions
         if d > 0:
             for name in code.co_names:
@@ -81,7 +85,7 @@ def pytest_collection_modifyitems(config, items):
         new = set()
         if names & CHI2_NAMES:
             new.add("chi2")
-        if names & RENDER_NAMES:
+        if names & RENDER_NAMES or ({"invoke", "run"} & names and CLI_RENDERS & names):
             new.add("render")
         if os.path.basename(str(item.fspath)) in BROWSER_FILES:
             new.add("browser")
