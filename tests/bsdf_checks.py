@@ -177,3 +177,20 @@ def assert_finite_at_a_zero_interaction(bsdf):
         for x in (e, p, bsdf.eval(ctx, si, v), bsdf.pdf(ctx, si, v)):
             assert np.all(np.isfinite(np.array(x))), wo
         assert np.all(np.array(e) >= 0), wo
+
+
+def one_line_error(result, *words) -> str:
+    """A ``click.testing.CliRunner`` result that failed the corona way: exit code 2, exactly one
+    ``corona: error: ...`` line on stderr holding each of ``words``, any other stderr line a
+    ``corona: ...`` notice (the variant, a warning, a capped worker count; progress bars aside),
+    no traceback.  Returns the error line."""
+    import re
+    assert result.exit_code == 2, (result.exit_code, result.output, result.exception)
+    lines = [c for c in re.split(r"[\r\n]", result.stderr) if c.strip() and not re.match(r"^\s*\S.*\d+%\|", c)]
+    errors = [ln for ln in lines if ln.startswith("corona: error: ")]
+    assert len(errors) == 1, result.stderr
+    assert all(ln.startswith("corona: ") for ln in lines), result.stderr
+    assert "Traceback" not in result.output, result.output
+    for w in words:
+        assert w in errors[0], (w, errors[0])
+    return errors[0]

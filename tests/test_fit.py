@@ -21,6 +21,8 @@ from corona import CoronaError
 from corona.fit import (CircleLayer, MOON_DIAMETER_DEG, PinholeCamera, fit_photograph,
                         locate_source, read_photograph)
 
+from bsdf_checks import one_line_error as _one_line_error
+
 RES, SPP = 128, 16
 NOISE = 0.003          # linear, after the exposure that saturates the core
 
@@ -272,14 +274,6 @@ def _cli(*args):
 
     from corona.cli import main
     return CliRunner().invoke(main, ["fit", *map(str, args)])
-
-
-def _one_line_error(res, *words):
-    assert res.exit_code == 2, res.output
-    lines = res.output.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in res.output, res.output
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 def test_not_an_image(tmp_path):

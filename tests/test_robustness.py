@@ -20,23 +20,13 @@ from corona import parameters, tables
 from corona.cli import main as cli_main
 from corona.parameters import RADIUS_MAX, SPEC, material_from_parameters
 
-from bsdf_checks import layer_scene
+from bsdf_checks import layer_scene, one_line_error as one_line
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
 TEASER = os.path.join(ROOT, "scenes", "teaser.xml")
 
 #: a tiny scene: a corona layer (R = 5 µm, F_a = 0.3) filling the view, a white sky behind
 SCENE = layer_scene()
-
-
-def one_line(result, *words):
-    """A CLI result that failed with exactly one ``corona: error:`` line holding ``words``."""
-    assert result.exit_code == 2, (result.exit_code, result.output, result.exception)
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("corona: error: "), result.stderr
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-    return lines[0]
 
 
 def cli(*args, **kw):

@@ -20,6 +20,8 @@ from corona._validation import CoronaError
 from corona.cli import main
 from corona.sweep import Executor, parse_defines, point_name, run_sweep, sweep_points
 
+from bsdf_checks import one_line_error as _one_line_error
+
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
 SCENE = os.path.join(ROOT, "scenes", "sweep_radius.xml")
 TINY = {"res": ["16"], "spp": ["4"]}
@@ -84,14 +86,6 @@ def test_import_corona_does_not_import_dask():
 # ----------------------------------------------------------------------
 def _sweep_cli(*args):
     return CliRunner().invoke(main, ["sweep", SCENE, *args])
-
-
-def _one_line_error(r, *words):
-    assert r.exit_code == 2, r.output
-    lines = [ln for ln in r.output.splitlines() if ln.startswith("corona: error:")]
-    assert len(lines) == 1 and "Traceback" not in r.output, r.output
-    for w in words:
-        assert w in lines[0], lines[0]
 
 
 @pytest.mark.parametrize("defines,words", [
