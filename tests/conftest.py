@@ -11,7 +11,8 @@ Markers (registered in pyproject.toml, ``[tool.pytest.ini_options]``):
 ``reference``
     uses the reference tier (``corona.reference``) or an outside reference (miepython);
 ``slow``
-    any of these, or starts Python processes, a Dask cluster or a render through the CLI.
+    any of these, or starts Python processes, a Dask cluster or a render through the CLI,
+    or is a property test (hypothesis: random materials, a table each).
 
 A test file may set them itself (``pytestmark``, decorators); for the others they are set
 here from what the test's code names (the names its function and the module's functions
@@ -92,7 +93,8 @@ def pytest_collection_modifyitems(config, items):
         if _uses_reference(names, module):
             new.add("reference")
         if (new | marks) & {"chi2", "render", "browser", "reference"} or names & SLOW_NAMES \
-                or set(getattr(item, "fixturenames", ())) & SLOW_FIXTURES:
+                or set(getattr(item, "fixturenames", ())) & SLOW_FIXTURES \
+                or getattr(fn, "is_hypothesis_test", False):          # random materials: tables each
             new.add("slow")
         for m in sorted(new - marks):
             item.add_marker(getattr(pytest.mark, m))
