@@ -36,7 +36,14 @@ REFERENCE_MODULES = ("corona.reference", "miepython")
 #: names whose use makes a test slow by itself (processes, clusters, CLI renders)
 SLOW_NAMES = {"subprocess", "Executor", "LocalCluster", "running"}
 #: fixtures that cost seconds to set up (a cluster, rendered photographs, built layers)
-SLOW_FIXTURES = {"cluster", "photographs", "fits", "layers", "driver", "browser"}
+SLOW_FIXTURES = {"cluster", "photographs", "fits", "layers", "driver", "browser",
+                 "hd03", "short_run", "reverse", "forward"}
+#: tests measured above 3 s warm on two shared cores that the rules above miss (a fit, lobe
+#: pictures, brute-force lattices, a lattice table, processes building one cache file)
+SLOW_TESTS = {"test_fit_window_recovers_radius_area_fraction_and_bitmap", "test_lobe_picture",
+              "test_lobe_picture_anisotropic", "test_lattice_table_keeps_each_bragg_peak_weight",
+              "test_warped_table_covers_every_evaluated_direction", "test_many_processes_build_one_valid_file",
+              "test_extinction_paradox", "test_lattice_matches_brute_force_jittered_lattice"}
 BROWSER_FILES = {"test_designer_browser.py"}
 #: a CLI test (CliRunner.invoke, subprocess.run) of one of these commands renders
 CLI_RENDERS = {"str:render", "str:sweep"}
@@ -94,7 +101,8 @@ def pytest_collection_modifyitems(config, items):
             new.add("reference")
         if (new | marks) & {"chi2", "render", "browser", "reference"} or names & SLOW_NAMES \
                 or set(getattr(item, "fixturenames", ())) & SLOW_FIXTURES \
-                or getattr(fn, "is_hypothesis_test", False):          # random materials: tables each
+                or getattr(fn, "is_hypothesis_test", False) \
+                or item.originalname in SLOW_TESTS:
             new.add("slow")
         for m in sorted(new - marks):
             item.add_marker(getattr(pytest.mark, m))
