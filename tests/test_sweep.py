@@ -300,7 +300,7 @@ def test_a_non_dask_scheduler_address_is_refused_at_once(tmp_path, address):
         Executor(scheduler=address)
 
 
-@pytest.mark.parametrize("value", ["inf", "-inf", "nan", "0", "-1"])
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan", "0", "-1", "1e308"])
 def test_timeout_must_be_finite_and_positive(tmp_path, value):
     r = _sweep_cli("-D", "radius=5", "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9",
                    "--timeout", value)

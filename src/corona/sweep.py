@@ -47,6 +47,8 @@ from ._validation import CoronaError
 
 #: Default seconds to wait for a scheduler (connection) and its first worker.
 TIMEOUT = 10.0
+#: Longest accepted wait for a scheduler and its first worker [s] (a day; 1e308 overflowed the clock).
+TIMEOUT_MAX = 86400.0
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -260,8 +262,9 @@ class Executor:
         if workers is not None and (int(workers) != workers or workers < 0):
             raise CoronaError(f"workers={workers!r} is out of range; expected an integer >= 0 "
                               "(0: in this process)")
-        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (0 < timeout < math.inf):
-            raise CoronaError(f"timeout={timeout!r} is out of range; expected a finite number of seconds > 0")
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (0 < timeout <= TIMEOUT_MAX):
+            raise CoronaError(f"timeout={timeout!r} is out of range; allowed a finite number of seconds "
+                              f"in (0, {TIMEOUT_MAX:g}]")
         if scheduler is not None and "://" in str(scheduler):
             scheme = str(scheduler).split("://", 1)[0].lower()
             if scheme not in DASK_SCHEMES:       # before anything is imported or started
