@@ -13,7 +13,7 @@ SPHINXOPTS ?=
 # make gallery VARIANT=llvm_ad_rgb
 VARIANT ?=
 
-.PHONY: all demo test venv llvm chromium bench gallery docs docs-check dist wheel-check clean clean-cache designer
+.PHONY: all demo test test-fast venv llvm chromium bench gallery docs docs-check dist wheel-check clean clean-cache designer
 
 all: test
 
@@ -38,8 +38,15 @@ chromium:
 demo: venv
 	$(PY) scripts/demo.py
 
+# everything: the tests, the doctests, the chi-square runs, renders, the browser
 test: venv chromium
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
+
+# the physics and the plugin's pointwise checks (-m "not slow": no chi-square runs, renders,
+# browser, reference simulations, processes or clusters; markers: tests/conftest.py), with the
+# tables in a cache kept between runs (.pytest-tables), so that a warm run is quick
+test-fast: venv
+	CORONA_CACHE_DIR=$(CURDIR)/.pytest-tables $(PY) -m pytest -n 2 -q -m "not slow" tests $(PYTEST_ARGS)
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
 # (make gallery VARIANT=llvm_ad_rgb: another Mitsuba variant; default the fastest spectral one)
@@ -88,4 +95,4 @@ clean-cache: venv
 	$(PY) -m corona.cli tables clear
 
 clean:
-	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache docs/_build
+	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache .pytest-tables docs/_build

@@ -56,8 +56,23 @@ def chi2_bsdf(bsdf, theta_deg, ctx=None, uv=None, wavelengths=(450.0, 520.0, 600
     return run_chi2(test), test
 
 
+#: Chi-square runs of a full session, an upper bound (88 at the time of writing: every test marked
+#: ``chi2`` runs one).  Each run tests at the Šidák-corrected level
+#: ``1 - (1 - CHI2_SIGNIFICANCE) ** (1 / count)`` (Mitsuba's ``test_count``), so that a correct
+#: plugin fails any chi-square test of the session with probability at most CHI2_SIGNIFICANCE.
+CHI2_TEST_COUNT = 128
+CHI2_SIGNIFICANCE = 0.01
+#: The chi-square tests collected in this session (set by conftest.py); the count used is the larger.
+CHI2_SESSION_COUNT = 0
+
+
+def chi2_test_count() -> int:
+    """The ``test_count`` every chi-square run of the session passes (Šidák correction)."""
+    return max(CHI2_TEST_COUNT, CHI2_SESSION_COUNT)
+
+
 def run_chi2(test) -> bool:
-    """``test.run()`` in a fresh temporary directory.
+    """``test.run()`` in a fresh temporary directory, with the session's ``test_count``.
 
     A failing ``mitsuba.chi2.ChiSquareTest`` writes ``chi2_data.py`` (the
     histogram and the density) into the working directory; here it lands in
@@ -66,7 +81,7 @@ def run_chi2(test) -> bool:
     """
     folder = tempfile.mkdtemp(prefix="corona-chi2-")
     with contextlib.chdir(folder):
-        ok = test.run()
+        ok = test.run(significance_level=CHI2_SIGNIFICANCE, test_count=chi2_test_count())
     if ok:
         shutil.rmtree(folder, ignore_errors=True)
     else:
@@ -113,3 +128,69 @@ def layer_scene(props: str = '            <float name="radius" value="$radius"/>
                              '<float name="area_fraction" value="0.3"/>', spp: int = 4, res: int = 8) -> str:
     """:data:`LAYER_SCENE` with the layer's ``props`` (XML) and the default spp and resolution."""
     return LAYER_SCENE.replace("{props}", props).replace("{spp}", str(spp)).replace("{res}", str(res))
+
+
+def png_claiming(width: int, height: int) -> bytes:
+    """A PNG file whose header claims ``width`` × ``height`` RGB pixels but that holds no
+    pixel data (a decompression bomb's header: readers that trust it allocate the whole image)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b""))
+            + chunk(b"IEND", b""))
+
+
+def furnace(bsdf, theta_deg: float, wavelengths=(550.0,) * 4, n: int = 200_000, seed: int = 3,
+            ctx=None):
+    """White furnace by sampling: the mean of ``sample``'s weights per wavelength lane (the
+    directional albedo: what the layer returns of what it receives, all components) and the
+    standard error of each mean, at incidence ``theta_deg`` (negative: from the back side).
+
+    Returns (mean, stderr), each (lanes,).  A layer that keeps energy has mean <= 1 per lane."""
+    th = np.radians(theta_deg)
+    wi = (np.sin(abs(th)), 0.0, np.cos(th))
+    rng = np.random.default_rng(seed)
+    si = interaction(n, wi, wavelengths)
+    _, w = bsdf.sample(ctx or mi.BSDFContext(), si, mi.Float(rng.random(n).astype(np.float32)),
+                       mi.Point2f(rng.random((2, n)).astype(np.float32)))
+    w = np.asarray(w, dtype=np.float64).reshape(-1, n)
+    assert np.all(np.isfinite(w)), "sample() returned a non-finite weight"
+    return w.mean(axis=1), w.std(axis=1) / np.sqrt(n)
+
+
+def assert_finite_at_a_zero_interaction(bsdf):
+    """sample / eval / pdf / eval_pdf at a zero-initialised interaction (wavelengths 0, as
+    mitsuba.chi2's adapters pass) and without ``active``: finite, eval >= 0, at a smooth,
+    the grazing, the exactly opposite and the exactly equal directions."""
+    si = dr.zeros(mi.SurfaceInteraction3f, 16)
+    si.wi = mi.Vector3f(0, 0, 1)
+    ctx = mi.BSDFContext()
+    _, w = bsdf.sample(ctx, si, mi.Float(np.linspace(0, 0.99, 16)),
+                       mi.Point2f(np.linspace(0, 0.99, 16), np.linspace(0.1, 0.9, 16)))
+    assert np.all(np.isfinite(np.array(w)))
+    for wo in [(0.1, 0.0, -0.99), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 0.0, 1.0)]:
+        v = mi.Vector3f(*wo)
+        e, p = bsdf.eval_pdf(ctx, si, v)
+        for x in (e, p, bsdf.eval(ctx, si, v), bsdf.pdf(ctx, si, v)):
+            assert np.all(np.isfinite(np.array(x))), wo
+        assert np.all(np.array(e) >= 0), wo
+
+
+def one_line_error(result, *words) -> str:
+    """A ``click.testing.CliRunner`` result that failed the corona way: exit code 2, exactly one
+    ``corona: error: ...`` line on stderr holding each of ``words``, any other stderr line a
+    ``corona: ...`` notice (the variant, a warning, a capped worker count; progress bars aside),
+    no traceback.  Returns the error line."""
+    import re
+    assert result.exit_code == 2, (result.exit_code, result.output, result.exception)
+    lines = [c for c in re.split(r"[\r\n]", result.stderr) if c.strip() and not re.match(r"^\s*\S.*\d+%\|", c)]
+    errors = [ln for ln in lines if ln.startswith("corona: error: ")]
+    assert len(errors) == 1, result.stderr
+    assert all(ln.startswith("corona: ") for ln in lines), result.stderr
+    assert "Traceback" not in result.output, result.output
+    for w in words:
+        assert w in errors[0], (w, errors[0])
+    return errors[0]

@@ -323,6 +323,78 @@ def test_compute_timeout_is_503(monkeypatch):
         one_line_400(c.get("/api/corona.png"), "longer than 0.1 s", status=503)
 
 
+def _slow_corona(monkeypatch, seconds):
+    """compute.corona_png replaced by a computation of ``seconds`` that counts how many run at once."""
+    import threading
+    import time
+    state = {"running": 0, "peak": 0, "done": 0}
+    lock = threading.Lock()
+
+    def slow(*args):
+        with lock:
+            state["running"] += 1
+            state["peak"] = max(state["peak"], state["running"])
+        try:
+            time.sleep(seconds)
+        finally:
+            with lock:
+                state["running"] -= 1
+                state["done"] += 1
+    monkeypatch.setattr(compute, "corona_png", slow)
+    return state
+
+
+def test_timed_out_computations_keep_their_slot(monkeypatch):
+    """A request past the time limit is answered 503 at once, but its computation holds its
+    slot until it ends: requests that time out one after another never run more than
+    MAX_CONCURRENT computations (before: a timed-out request released its slot while its
+    thread went on, and four such requests left four computations running)."""
+    import time
+    from corona.designer import create_app
+    state = _slow_corona(monkeypatch, 1.5)
+    app = create_app(timeout=0.2)
+    with TestClient(app, base_url="http://127.0.0.1") as c:
+        t0 = time.monotonic()
+        msgs = [one_line_400(c.get("/api/corona.png"), status=503) for _ in range(2 * app_module.MAX_CONCURRENT)]
+        assert time.monotonic() - t0 < 1.4          # each answered after its 0.2 s, not after 1.5 s
+        assert all("longer than 0.2 s" in m for m in msgs[:app_module.MAX_CONCURRENT]), msgs
+        assert all("busy" in m for m in msgs[app_module.MAX_CONCURRENT:]), msgs
+        assert state["peak"] <= app_module.MAX_CONCURRENT, state
+        assert app.state.slots.peak <= app_module.MAX_CONCURRENT
+        # once they have ended the slots are free again
+        t_end = time.monotonic() + 10
+        while app.state.slots.running and time.monotonic() < t_end:
+            time.sleep(0.05)
+        assert app.state.slots.running == 0 and state["running"] == 0
+
+
+def test_concurrent_requests_never_run_more_than_the_limit(monkeypatch):
+    """Eight clients at once, each timing out: at most MAX_CONCURRENT computations at any time,
+    every request answered (503) within about its time limit."""
+    import threading
+    import time
+    from corona.designer import create_app
+    state = _slow_corona(monkeypatch, 1.0)
+    app = create_app(timeout=0.3)
+    codes, times = [], []
+    with TestClient(app, base_url="http://127.0.0.1") as c:
+        def one():
+            t = time.monotonic()
+            res = c.get("/api/corona.png")
+            codes.append(res.status_code)
+            times.append(time.monotonic() - t)
+            one_line_400(res, status=503)
+        threads = [threading.Thread(target=one) for _ in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(30)
+        assert codes == [503] * 8, codes
+        assert max(times) < 2.0, times
+        assert state["peak"] <= app_module.MAX_CONCURRENT, state
+        assert app.state.slots.peak <= app_module.MAX_CONCURRENT
+
+
 # ----------------------------------------------------------------------
 # uploads and the fit button
 # ----------------------------------------------------------------------
@@ -405,3 +477,37 @@ def test_served_over_http_on_loopback():
         assert url.startswith("http://127.0.0.1:")
         with urllib.request.urlopen(url + "api/parameters", timeout=10) as r:
             assert json.load(r)["parameters"]
+
+
+# ----------------------------------------------------------------------
+# hostile requests: one 400 each, no server path in the answer
+# ----------------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["photo", "mask"])
+@pytest.mark.parametrize("size", [30000, 12000])
+def test_a_decompression_bomb_upload_is_400(client, kind, size):
+    """A PNG whose header claims 30000×30000 pixels gave 500 (Pillow's DecompressionBombError)."""
+    from bsdf_checks import png_claiming
+    limit = app_module.MAX_MASK_PIXELS if kind == "mask" else app_module.MAX_PHOTO_PIXELS
+    one_line_400(client.post(f"/api/upload?kind={kind}&name=bomb.png", content=png_claiming(size, size)),
+                 "bomb.png" if size == 30000 else f"{size}×{size}", str(limit))
+
+
+def test_deeply_nested_json_to_fit_is_400(client):
+    """Nested JSON within the size limit gave 500 (RecursionError)."""
+    for body in (b"[" * 60000, b'{"a":' * 10000 + b"1" + b"}" * 10000):
+        assert len(body) <= 65536
+        one_line_400(client.post("/api/fit", content=body), "not JSON")
+
+
+def test_errors_do_not_show_the_servers_cache_path(client):
+    """A fit of an uploaded photograph without a light named the file by its absolute path in the
+    table cache; the message names the upload by its id."""
+    from corona.tables import cache_dir
+    rng = np.random.default_rng(0)
+    fog = _png_bytes(rng.integers(90, 110, (64, 64, 3)).astype(np.uint8))
+    up = client.post("/api/upload?kind=photo&name=fog.png", content=fog).json()
+    msg = one_line_400(client.post("/api/fit", json={"photo": up["id"], "fov": 30.0}), "no bright light source")
+    assert up["id"] in msg
+    for root in {cache_dir(), os.path.realpath(cache_dir())}:
+        assert root not in msg, msg
+    assert os.sep + "designer" + os.sep not in msg, msg

@@ -21,6 +21,8 @@ from corona import CoronaError
 from corona.fit import (CircleLayer, MOON_DIAMETER_DEG, PinholeCamera, fit_photograph,
                         locate_source, read_photograph)
 
+from bsdf_checks import one_line_error as _one_line_error
+
 RES, SPP = 128, 16
 NOISE = 0.003          # linear, after the exposure that saturates the core
 
@@ -274,14 +276,6 @@ def _cli(*args):
     return CliRunner().invoke(main, ["fit", *map(str, args)])
 
 
-def _one_line_error(res, *words):
-    assert res.exit_code == 2, res.output
-    lines = res.output.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in res.output, res.output
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-
-
 def test_not_an_image(tmp_path):
     p = tmp_path / "notes.png"
     p.write_text("not a picture")
@@ -340,3 +334,29 @@ def test_sphere_shape_is_not_there_yet(tmp_path):
     p = tmp_path / "lamp.png"
     iio.imwrite(p, (np.clip(_blob(64, 64, 30.0, 30.0, 3.0, 20.0), 0, 1) * 255).astype(np.uint8))
     _one_line_error(_cli(p, "--fov", 30, "--shape", "sphere"), "sphere", "not available")
+
+
+def test_a_photograph_above_the_pixel_limit_is_one_line(tmp_path):
+    """12000×12000 pixels used 5 GB and ended in a MemoryError traceback: refused from the
+    header (no pixel decoded), one line naming the size and the limit, from a file and an array."""
+    from bsdf_checks import png_claiming
+
+    from corona.fit import MAX_PIXELS
+    p = tmp_path / "huge.png"
+    p.write_bytes(png_claiming(12000, 12000))
+    _one_line_error(_cli(p, "--fov", 30), "huge.png", "12000x12000", str(MAX_PIXELS))
+    p.write_bytes(png_claiming(30000, 30000))           # past Pillow's decompression-bomb limit
+    _one_line_error(_cli(p, "--fov", 30), "huge.png", str(MAX_PIXELS))
+    big = np.broadcast_to(np.uint8(0), (MAX_PIXELS // 5000 + 1, 5000))   # no memory behind it
+    with pytest.raises(CoronaError, match=f"5000x{MAX_PIXELS // 5000 + 1} pixels.*{MAX_PIXELS}"):
+        fit_photograph(big, 30.0)
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-1", "0"])
+def test_saturation_must_be_a_finite_positive_value(tmp_path, value):
+    import imageio.v3 as iio
+    p = tmp_path / "lamp.png"
+    iio.imwrite(p, (np.clip(_blob(64, 64, 30.0, 30.0, 3.0, 20.0), 0, 1) * 255).astype(np.uint8))
+    _one_line_error(_cli(p, "--fov", 30, "--saturation", value), "saturation", "finite", "> 0")
+    with pytest.raises(CoronaError, match="saturation=.*finite"):
+        fit_photograph(str(p), 30.0, saturation=float(value))

@@ -20,6 +20,7 @@ table cache.  Whatever the input:
 from __future__ import annotations
 
 import json
+import math
 import os
 import random
 import re
@@ -234,3 +235,246 @@ def test_fuzz(case, tmp_path, monkeypatch, inputs, mi_variant):
             v = np.asarray(o[key], dtype=np.float64)
             assert np.all(np.isfinite(v)) and np.all(v >= 0), (where, key)
 
+
+
+# --------------------------------------------------------------------------
+# the services: the designer's HTTP API, `corona sweep`'s executor options, `corona fit`
+# on hostile images, and fresh-process scene loads in a scalar variant.  Each sweep is a
+# fixed, derandomized set of cases bounded in time (docs/robustness.md lists the promises).
+# --------------------------------------------------------------------------
+N_DESIGNER, N_SWEEP, N_FIT, N_SCALAR = 30, 16, 20, 3
+
+
+def _one_line(text: str) -> bool:
+    return "\n" not in text.strip() and "Traceback" not in text
+
+
+def _designer_cases():
+    rng = random.Random(24)
+    specs = [p for p in PARAMETERS if not p.plugin_only]
+    view = {"size": ["16", "32", "0", "-1", "1e9", "abc"], "field": ["1", "5", "0", "nan", "90", "1e9"],
+            "temperature": ["3000", "0", "nan", "1e9"], "exposure": ["1", "0", "nan", "inf", "-1"],
+            "kernel_size": ["3", "9", "10", "1e6", "abc"], "pixel_scale": ["0.5", "5", "0", "nan"]}
+    cases = []
+    for i in range(N_DESIGNER):
+        endpoint = ["/api/corona.png", "/api/profiles", "/api/material", "/api/kernel.png", "/api/fit",
+                    "/api/upload"][i % 6]
+        q = {p.name: _value(p, rng) for p in rng.sample(specs, rng.randint(0, 3))}
+        for k in rng.sample(sorted(view), rng.randint(0, 2)):
+            q[k] = rng.choice(view[k])
+        q.setdefault("size", "16")
+        cases.append((endpoint, q, rng.randrange(6)))
+    return cases
+
+
+DESIGNER_CASES = _designer_cases()
+
+
+@pytest.fixture(scope="module")
+def designer():
+    pytest.importorskip("starlette")
+    from starlette.testclient import TestClient
+
+    from corona.designer import create_app
+    app = create_app(timeout=3.0)
+    with TestClient(app, base_url="http://127.0.0.1", raise_server_exceptions=False) as c:
+        yield c, app
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", range(N_DESIGNER))
+def test_fuzz_designer(case, designer, inputs):
+    """Every answer is 200, or 400/404/413/503 with one line that shows no server path; never
+    500; never more than MAX_CONCURRENT computations at once."""
+    from bsdf_checks import png_claiming
+
+    from corona.designer import app as app_module
+    from corona.tables import cache_dir
+    c, app = designer
+    endpoint, q, variant = DESIGNER_CASES[case]
+    q = {k: v for k, v in q.items() if not str(v).startswith("@")}       # files go through uploads
+    if endpoint == "/api/upload":
+        body = [png_claiming(30000, 30000), png_claiming(100, 100), b"", b"\x89PNG\r\n", b"1 2\n3 4\n" * 10,
+                b"\x93NUMPY garbage"][variant]
+        kind = ["photo", "mask", "points", "photo", "points", "points"][variant]
+        res = c.post(f"/api/upload?kind={kind}&name=f.png", content=body)
+    elif endpoint == "/api/fit":
+        body = [b"[" * 60000, b"{", b"{}", json.dumps({"photo": "../../etc/passwd", "fov": 30}).encode(),
+                json.dumps({"photo": "0" * 32 + ".png", "fov": "nan"}).encode(), b'"x"'][variant]
+        res = c.post("/api/fit", content=body)
+    else:
+        res = c.get(endpoint, params=q)
+    where = f"case {case}: {endpoint} {q}"
+    assert res.status_code in (200, 400, 404, 413, 503), (where, res.status_code, res.text[:300])
+    if res.status_code != 200:
+        msg = res.json()["error"]
+        assert _one_line(msg), (where, msg)
+        assert cache_dir() not in msg and "Traceback" not in msg, (where, msg)
+    elif res.headers["content-type"] == "application/json":
+        json.loads(res.text)          # (no NaN: _jsonable writes null)
+    assert app.state.slots.peak <= app_module.MAX_CONCURRENT
+
+
+def _sweep_cases():
+    rng = random.Random(240)
+    schedulers = ["@silent", "@closed", "http://127.0.0.1:9", "tcp://h:port", "ws://", "127.0.0.1", None]
+    cases = []
+    for _ in range(N_SWEEP):
+        opts = []
+        s = rng.choice(schedulers)
+        if s is not None:
+            opts += ["--scheduler", s]
+        else:
+            opts += ["--workers", rng.choice(["0", "-1", "abc", "0"])]
+        opts += ["--timeout", rng.choice(["inf", "nan", "0", "-1", "abc", "1", "1", "1", "1e308"])]
+        # half the cases a valid grid: they reach the executor (the scheduler, the workers)
+        opts += ["-D", rng.choice(["nosuch=1,2", "radius=", "radius", "=1", "radius=2,3", "radius=2,3"])]
+        cases.append(opts)
+    return cases
+
+
+SWEEP_CASES = _sweep_cases()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", range(N_SWEEP))
+def test_fuzz_sweep(case, tmp_path):
+    """Bad executor options and hostile schedulers: exit 2 with one line within --timeout
+    (+ start-up), nothing rendered."""
+    import socket
+    import threading
+    import time
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    held = []
+
+    def accept():            # accept, hold, never answer
+        try:
+            while True:
+                held.append(srv.accept()[0])
+        except OSError:
+            return
+    threading.Thread(target=accept, daemon=True).start()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        closed = s.getsockname()[1]
+    fill = {"@silent": f"tcp://127.0.0.1:{srv.getsockname()[1]}", "@closed": f"tcp://127.0.0.1:{closed}"}
+    opts = [fill.get(o, o) for o in SWEEP_CASES[case]]
+    scene = tmp_path / "s.xml"
+    scene.write_text(layer_scene(spp=1, res=4))
+    t0 = time.monotonic()
+    try:
+        r = CliRunner().invoke(cli_main, ["sweep", str(scene), "--out", str(tmp_path / "o"), "--no-progress",
+                                          *opts])
+    finally:
+        srv.close()
+        for c in held:
+            c.close()
+    where = f"case {case}: corona sweep {' '.join(opts)}"
+    if r.exit_code == 0:          # --workers 0 and a valid grid: rendered in this process
+        assert "--workers" in opts and "radius=2,3" in opts, (where, r.output)
+        assert len(list((tmp_path / "o").glob("*.exr"))) == 2, where
+        return
+    assert r.exit_code == 2, (where, r.exit_code, r.output, r.exception)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("corona: error: "), (where, r.stderr)
+    assert time.monotonic() - t0 < 1.0 + 5, where        # --timeout 1 (or refused), + start-up
+    assert not list((tmp_path / "o").glob("*.exr"))
+
+
+def _fit_images():
+    """Hostile photographs: (name, array or bytes, fit options)."""
+    from bsdf_checks import png_claiming
+    rng = np.random.default_rng(24)
+    h = w = 64
+    yy, xx = np.mgrid[:h, :w]
+    lamp = np.exp(-((xx - 30.0) ** 2 + (yy - 33.0) ** 2) / 8.0) * 20.0
+    lamp_srgb = (np.clip(lamp, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
+    out = [
+        ("zeros", np.zeros((h, w, 3), np.uint8), {}),
+        ("white", np.full((h, w, 3), 255, np.uint8), {}),
+        ("noise", rng.integers(0, 256, (h, w, 3)).astype(np.uint8), {}),
+        ("nan", np.full((h, w, 3), np.nan, np.float32), {}),
+        ("inf-lamp", np.where(lamp > 10, np.inf, lamp).astype(np.float32), {}),
+        ("negative", -lamp.astype(np.float32), {}),
+        ("tiny", lamp_srgb[:8, :8], {}),
+        ("one-row", lamp_srgb[:1], {}),
+        ("4d", lamp_srgb[None, None], {}),
+        ("complex", lamp.astype(np.complex64), {}),
+        ("bool", lamp > 1, {}),
+        ("lamp", lamp_srgb, {"fov_deg": 30.0, "saturation": float("nan")}),
+        ("lamp", lamp_srgb, {"fov_deg": float("inf")}),
+        ("lamp", lamp_srgb, {"fov_deg": 30.0, "radius_range": (5.0, 1.0)}),
+        ("lamp", lamp_srgb, {"fov_deg": 30.0, "bootstrap": -3}),
+        ("lamp", lamp_srgb, {"fov_deg": 30.0, "temperature": float("nan")}),
+        ("header-12000", png_claiming(12000, 12000), {}),
+        ("header-30000", png_claiming(30000, 30000), {}),
+        ("truncated", png_claiming(64, 64)[:20], {}),
+        ("text", b"not an image at all", {}),
+    ]
+    return out[:N_FIT]
+
+
+FIT_CASES = _fit_images()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", range(N_FIT), ids=[c[0] for c in FIT_CASES])
+def test_fuzz_fit(case, tmp_path):
+    """A hostile photograph or option: a fit with finite numbers, or one CoronaError line."""
+    from corona import CoronaError
+    from corona.fit import fit_photograph
+    name, image, opts = FIT_CASES[case]
+    if isinstance(image, bytes):
+        path = tmp_path / f"{name}.png"
+        path.write_bytes(image)
+        image = str(path)
+    opts = {"fov_deg": 30.0, **opts}
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = fit_photograph(image, **opts)
+    except CoronaError as err:
+        assert _one_line(str(err)) and str(err), (name, str(err))
+        return
+    d = result.to_dict()
+    assert math.isfinite(d["radius"]) and d["radius"] > 0, (name, d)
+
+
+_SCALAR_LOAD = """
+import sys, corona, mitsuba as mi
+mi.set_variant("scalar_spectral")
+corona.register()
+mi.load_file(sys.argv[1])
+print("loaded")
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", range(N_SCALAR))
+def test_fuzz_scalar_scene_loads(case, tmp_path):
+    """Accepted layers of random families in a scene with an area light and a constant sky
+    written after them: each loads in a fresh scalar_spectral process with a fresh cache."""
+    import subprocess
+    import sys
+    rng = random.Random(2400 + case)
+    props = {"radius": f"{rng.uniform(0.5, 8):.3g}", "area_fraction": f"{rng.uniform(0.05, 0.5):.3g}",
+             "shape": rng.choice(["circle", "square", "ellipse", "circle"]),
+             "process": rng.choice(["poisson", "hard-disk", "rsa"])}
+    if rng.random() < 0.5:
+        props["substrate"] = "glass"
+    xml = "".join(f'<{"float" if k in ("radius", "area_fraction") else "string"} name="{k}" value="{v}"/>'
+                  for k, v in props.items())
+    scene = tmp_path / "s.xml"
+    scene.write_text(f"""<scene version="3.0.0"><integrator type="path"/>
+<sensor type="perspective"><film type="hdrfilm"><integer name="width" value="4"/>
+<integer name="height" value="4"/></film></sensor>
+<shape type="rectangle"><bsdf type="corona">{xml}</bsdf></shape>
+<shape type="rectangle"><transform name="to_world"><scale value="0.2"/><translate z="2"/></transform>
+<emitter type="area"><rgb name="radiance" value="10"/></emitter></shape>
+<emitter type="constant"><rgb name="radiance" value="1"/></emitter></scene>""")
+    env = {**os.environ, "CORONA_CACHE_DIR": str(tmp_path / "cache")}
+    p = subprocess.run([sys.executable, "-c", _SCALAR_LOAD, str(scene)], capture_output=True, text=True,
+                       timeout=300, env=env)
+    assert p.returncode == 0 and "loaded" in p.stdout, (props, p.stderr[-500:])

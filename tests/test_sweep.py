@@ -20,6 +20,8 @@ from corona._validation import CoronaError
 from corona.cli import main
 from corona.sweep import Executor, parse_defines, point_name, run_sweep, sweep_points
 
+from bsdf_checks import one_line_error as _one_line_error
+
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
 SCENE = os.path.join(ROOT, "scenes", "sweep_radius.xml")
 TINY = {"res": ["16"], "spp": ["4"]}
@@ -84,14 +86,6 @@ def test_import_corona_does_not_import_dask():
 # ----------------------------------------------------------------------
 def _sweep_cli(*args):
     return CliRunner().invoke(main, ["sweep", SCENE, *args])
-
-
-def _one_line_error(r, *words):
-    assert r.exit_code == 2, r.output
-    lines = [ln for ln in r.output.splitlines() if ln.startswith("corona: error:")]
-    assert len(lines) == 1 and "Traceback" not in r.output, r.output
-    for w in words:
-        assert w in lines[0], lines[0]
 
 
 @pytest.mark.parametrize("defines,words", [
@@ -257,3 +251,84 @@ def test_rsa_chunks_on_cluster_identical_to_serial(cluster):
                        progress=False)
     np.testing.assert_allclose(whole["sk_sum"], a["sk_sum"], rtol=1e-12)
     np.testing.assert_array_equal(whole["H"], a["H"])
+
+
+# ----------------------------------------------------------------------
+# hostile schedulers and sizes: one line, exit 2, within --timeout
+# ----------------------------------------------------------------------
+@pytest.fixture
+def silent_listener():
+    """tcp://127.0.0.1:PORT of a listener that accepts every connection and never answers."""
+    import threading
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(16)
+    held = []
+
+    def accept():
+        while True:
+            try:
+                held.append(srv.accept()[0])
+            except OSError:
+                return
+    threading.Thread(target=accept, daemon=True).start()
+    yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+    srv.close()
+    for c in held:
+        c.close()
+
+
+def test_a_scheduler_that_accepts_and_never_answers(tmp_path, silent_listener):
+    """Dask's Client waited without end (or a TimeoutError traceback from client.close())."""
+    import time
+    t0 = time.monotonic()
+    r = _sweep_cli("-D", "radius=2.5,5", "-D", "res=16", "--out", str(tmp_path / "o"),
+                   "--scheduler", silent_listener, "--timeout", "2")
+    assert time.monotonic() - t0 < 2 + 3, time.monotonic() - t0
+    _one_line_error(r, silent_listener, "did not answer as a Dask scheduler within 2 s")
+    assert not list((tmp_path / "o").glob("*.exr"))
+
+
+@pytest.mark.parametrize("address", ["http://127.0.0.1:9", "https://example.com/dask", "ftp://h:1"])
+def test_a_non_dask_scheduler_address_is_refused_at_once(tmp_path, address):
+    import time
+    t0 = time.monotonic()
+    r = _sweep_cli("-D", "radius=5", "--out", str(tmp_path / "o"), "--scheduler", address, "--timeout", "30")
+    assert time.monotonic() - t0 < 2.0
+    _one_line_error(r, address, "not a Dask scheduler address", "tcp://")
+    with pytest.raises(CoronaError, match="not a Dask scheduler address"):
+        Executor(scheduler=address)
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan", "0", "-1", "1e308"])
+def test_timeout_must_be_finite_and_positive(tmp_path, value):
+    r = _sweep_cli("-D", "radius=5", "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9",
+                   "--timeout", value)
+    _one_line_error(r, "--timeout", "finite")
+    with pytest.raises(CoronaError, match="timeout=.*finite"):
+        Executor(scheduler="tcp://127.0.0.1:9", timeout=float(value))
+
+
+def test_many_local_workers_are_capped_at_the_points_and_cores(tmp_path, monkeypatch):
+    """--workers 1000 on a two-point sweep started 1000 processes on 2 cores (a hang): the local
+    cluster gets at most one worker per point and WORKERS_PER_CORE per core, said in one line."""
+    import distributed
+
+    from corona import sweep
+    asked = {}
+
+    class Recorder:
+        def __init__(self, n_workers, **kwargs):
+            asked["n"] = n_workers
+            raise CoronaError("stop here: the size is what this test checks")
+    monkeypatch.setattr(distributed, "LocalCluster", Recorder)
+    logged = []
+    with pytest.raises(CoronaError, match="stop here"):
+        Executor(workers=1000, log=logged.append).start(n_tasks=2)
+    assert asked["n"] == 2 and any("capped to 2" in s for s in logged), (asked, logged)
+    with pytest.raises(CoronaError, match="stop here"):
+        Executor(workers=1000).start(n_tasks=10**6)
+    assert asked["n"] == sweep.WORKERS_PER_CORE * sweep._cpus()
+    r = _sweep_cli("-D", "radius=2.5,5", "--out", str(tmp_path / "o"), "--workers", "1000")
+    _one_line_error(r, "stop here")
+    assert asked["n"] == 2

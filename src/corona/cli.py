@@ -203,9 +203,20 @@ def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
 # ----------------------------------------------------------------------
 # sweep
 # ----------------------------------------------------------------------
+def _timeout_seconds(ctx, param, value):
+    """--timeout: a finite number of seconds in (0, TIMEOUT_MAX] (click's FloatRange lets inf through)."""
+    import math
+
+    from .sweep import TIMEOUT_MAX
+    if value is not None and not (math.isfinite(value) and 0 < value <= TIMEOUT_MAX):
+        raise click.BadParameter(f"{value!r} is out of range; allowed a finite number of seconds in "
+                                 f"(0, {TIMEOUT_MAX:g}]", ctx, param)
+    return value
+
+
 def executor_options(f):
     """--workers / --scheduler / --timeout: where the jobs run (corona.sweep.Executor)."""
-    f = click.option("--timeout", type=click.FloatRange(min=0, min_open=True), default=10.0,
+    f = click.option("--timeout", type=float, default=10.0, callback=_timeout_seconds,
                      show_default=True, help="Seconds to wait for --scheduler and its first worker.")(f)
     f = click.option("--scheduler", default=None, metavar="ADDRESS",
                      help="An existing Dask scheduler (tcp://host:8786) instead of a local cluster.")(f)

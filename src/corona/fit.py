@@ -94,6 +94,9 @@ GOOD_FIT_CHI2 = 2.0
 AREA_FRACTION_CONSTRAINED_ERR = 0.1
 TEMPERATURE_RANGE = (1500.0, 20000.0)
 SIZE_SPREAD_MAX = 0.5
+#: Largest photograph fitted [pixels] (width × height; the designer's upload limit too): the fit
+#: holds a few float64 copies of the image, about 100 bytes a pixel at its peak.
+MAX_PIXELS = 40_000_000
 
 
 # ----------------------------------------------------------------------
@@ -135,8 +138,52 @@ def srgb_to_linear(v) -> np.ndarray:
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
 
 
+def _check_pixels(name: str, w: int, h: int) -> None:
+    """One line when a ``w`` × ``h`` image is above :data:`MAX_PIXELS`."""
+    if w * h > MAX_PIXELS:
+        raise CoronaError(f"image {name!r} is {w}x{h} pixels ({w * h / 1e6:.0f} Mpixel); the fit takes at "
+                          f"most {MAX_PIXELS} pixels ({MAX_PIXELS / 1e6:.0f} Mpixel): downsample it first "
+                          "(the rings need a few pixels each, not the full resolution)")
+
+
+def _check_saturation(saturation) -> float | None:
+    """``saturation``: None or a finite linear value > 0."""
+    if saturation is None:
+        return None
+    if isinstance(saturation, (bool, np.bool_)):
+        raise CoronaError(f"saturation={saturation!r} is not a number")
+    try:
+        v = float(saturation)
+    except (TypeError, ValueError):
+        raise CoronaError(f"saturation={saturation!r} is not a number") from None
+    if not (math.isfinite(v) and v > 0):
+        raise CoronaError(f"saturation={saturation!r} is out of range; allowed a finite linear value > 0")
+    return v
+
+
+def _header_size(path: str) -> tuple[int, int] | None:
+    """(width, height) from an image file's header (Pillow reads no pixels), None if Pillow
+    cannot tell; a header past Pillow's decompression-bomb limit is refused as too large."""
+    try:
+        from PIL import Image
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")       # DecompressionBombWarning: we decide below
+            with Image.open(path) as im:
+                return int(im.size[0]), int(im.size[1])
+    except Image.DecompressionBombError as err:
+        raise CoronaError(f"image {path!r} is larger than {MAX_PIXELS} pixels ({' '.join(str(err).split())[:80]}); "
+                          "downsample it first") from None
+    except Exception:  # noqa: BLE001 - not for Pillow: the reader below decides
+        return None
+
+
 def _from_array(a, name: str, jpeg: bool = False, saturation: float | None = None) -> Photograph:
     a = np.asarray(a)
+    if a.ndim in (2, 3):
+        _check_pixels(name, int(a.shape[1]), int(a.shape[0]))
     if a.ndim == 3 and a.shape[2] in (2, 4):        # drop alpha
         a = a[..., :-1]
     if a.ndim == 2:
@@ -184,27 +231,41 @@ def read_photograph(image, saturation: float | None = None) -> Photograph:
         or an array: integers = sRGB-encoded, floats = linear.
     saturation : float, optional
         Linear value at and above which a floating-point image is clipped
-        (default: a channel's maximum shared by several pixels).
+        (default: a channel's maximum shared by several pixels); finite, > 0.
+
+    An image of more than :data:`MAX_PIXELS` pixels is refused with one line
+    (for files, from the header, before the pixels are decoded).
     """
     if isinstance(image, Photograph):
         return image
+    saturation = _check_saturation(saturation)
     if isinstance(image, (str, os.PathLike)):
         path = os.fspath(image)
         if not os.path.isfile(path):
             raise CoronaError(f"image {path!r} does not exist")
         ext = os.path.splitext(path)[1].lower()
+        if ext not in (".exr", ".hdr", ".pfm", ".rgbe"):
+            size = _header_size(path)
+            if size is not None:
+                _check_pixels(path, *size)
         try:
             if ext in (".exr", ".hdr", ".pfm", ".rgbe"):
                 import mitsuba as mi
                 bmp = mi.Bitmap(path)
                 if bmp.channel_count() not in (1, 2, 3, 4):
                     raise ValueError(f"{bmp.channel_count()} channels")
+                w, h = (int(v) for v in bmp.size())
+                if w * h > MAX_PIXELS:
+                    del bmp
+                    _check_pixels(path, w, h)
                 data = np.array(bmp, dtype=np.float32)
             else:
                 import imageio.v3 as iio
                 with warnings.catch_warnings():   # imageio's legacy plugins warn while probing
                     warnings.simplefilter("ignore")
                     data = iio.imread(path)
+        except CoronaError:
+            raise
         except Exception as err:   # imageio / Mitsuba raise many kinds of errors
             msg = " ".join(str(err).split())[:120]
             raise CoronaError(f"image {path!r} is not an image file that can be read ({msg})") from None
@@ -670,7 +731,10 @@ class _Problem:
 
     def set_data(self, value):
         self.data = np.asarray(value)
-        self.w = np.where(self.profile.usable, 1.0 / self.profile.sigma, 0.0)
+        # a bin whose pixels are all equal (a noise-free image) has sigma 0: floor it at 1e-6 of the
+        # data's scale, so that its weight is large but finite
+        floor = 1e-6 * max(float(np.max(np.abs(self.data), initial=0.0)), 1e-30)
+        self.w = np.where(self.profile.usable, 1.0 / np.maximum(self.profile.sigma, floor), 0.0)
 
     def set_wavelengths(self, n: int):
         self.spectrum = Spectrum(int(n), self.channels)

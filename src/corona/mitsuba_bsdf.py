@@ -130,7 +130,19 @@ def _read_props(props) -> tuple[dict, dict]:
 
 
 def _uniform(value: float):
-    return mi.load_dict({"type": "uniform", "value": float(value)})
+    """A ``uniform`` texture of ``value``, made by the plugin manager, not the scene parser.
+
+    The BSDF is built while Mitsuba loads a scene, on one of its loader threads.  Mitsuba's
+    parser (``mi.load_dict``, ``load_string``, ``load_file``) replaces the process-wide
+    ``FileResolver`` for the duration of a load and frees its copy at the end, while the other
+    loader threads read that resolver (resolving plugin libraries, ``data/srgb.coeff``, bitmap
+    file names): a nested load from here left them reading freed memory
+    (``basic_string::_M_create``, ``std::bad_alloc`` in the next emitter).
+    ``PluginManager.create_object`` only reads the resolver.
+    """
+    props = mi.Properties("uniform")
+    props["value"] = float(value)
+    return mi.PluginManager.instance().create_object(props)
 
 
 def texture_range(texture) -> tuple[float | None, float]:
@@ -140,7 +152,8 @@ def texture_range(texture) -> tuple[float | None, float]:
     on a 64×64 grid of uv for procedural textures (scalar variants: every
     k-th of these points, at most 256×256); where the texture cannot
     be evaluated without a mesh (``mesh_attribute``) the minimum is unknown
-    (None) and the maximum is ``texture.max()``.
+    (None) and the maximum is ``texture.max()``.  A NaN texel makes both NaN,
+    an infinite one the end it lies on (the caller refuses them by name).
     """
     if not texture.is_spatially_varying():
         v = float(np.asarray(dr.detach(texture.mean())).ravel()[0])
@@ -161,8 +174,8 @@ def texture_range(texture) -> tuple[float | None, float]:
                 si.uv = mi.Point2f(float(u), float(v))
                 vals.append(float(texture.eval_1(si)))
             vals = np.asarray(vals)
-        if vals.size and np.all(np.isfinite(vals)):
-            return float(vals.min()), float(vals.max())
+        if vals.size:          # NaN / ±inf texels come out as such: the caller names them
+            return float(np.min(vals)), float(np.max(vals))
     except Exception:  # noqa: BLE001 - textures that need a mesh
         pass
     return None, float(texture.max())

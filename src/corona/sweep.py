@@ -33,6 +33,7 @@ import dataclasses
 import itertools
 import json
 import logging
+import math
 import os
 import re
 import socket
@@ -46,6 +47,8 @@ from ._validation import CoronaError
 
 #: Default seconds to wait for a scheduler (connection) and its first worker.
 TIMEOUT = 10.0
+#: Longest accepted wait for a scheduler and its first worker [s] (a day; 1e308 overflowed the clock).
+TIMEOUT_MAX = 86400.0
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -179,14 +182,46 @@ def _configure_worker(workers_on_host: dict, dask_worker=None) -> int:
     return _WORKER["threads"]
 
 
+#: The address schemes of a Dask scheduler (``distributed.comm``) that a sweep connects to.
+DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+#: Most local workers per core (``--workers N`` beyond it, or beyond the number of points, is capped).
+WORKERS_PER_CORE = 2
+
+
+def _within(seconds: float, fn, what: str):
+    """``fn()`` in a daemon thread, abandoned after ``seconds`` (CoronaError ``what``): Dask's Client
+    waits without end for a peer that accepts the connection and never answers its handshake."""
+    box = {}
+
+    def go():
+        try:
+            box["value"] = fn()
+        except BaseException as err:  # noqa: BLE001 - handed to the caller
+            box["error"] = err
+    t = threading.Thread(target=go, name="corona-sweep-connect", daemon=True)
+    t.start()
+    t.join(seconds)
+    if t.is_alive():
+        raise CoronaError(what)
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
 def _probe(address: str, timeout: float) -> str:
     """Check that something listens at a ``tcp://`` scheduler address (fast, one line on failure)."""
     from distributed.comm.addressing import parse_address, parse_host_port, unparse_address
     try:
         scheme, loc = parse_address(address)
+        if scheme not in DASK_SCHEMES:
+            raise CoronaError(f"--scheduler {address!r} is not a Dask scheduler address (scheme "
+                              f"{scheme}://); expected {' or '.join(s + '://' for s in DASK_SCHEMES)}HOST:PORT, "
+                              "e.g. tcp://127.0.0.1:8786")
         if scheme != "tcp":
-            return address        # tls://, ucx://, ...: let Dask connect
+            return address        # tls://, ...: let Dask connect
         host, port = parse_host_port(loc, 8786)
+    except CoronaError:
+        raise
     except ValueError as err:
         raise CoronaError(f"--scheduler {address!r} is not a scheduler address ({err}); expected "
                           "tcp://HOST:PORT, e.g. tcp://127.0.0.1:8786") from None
@@ -227,8 +262,15 @@ class Executor:
         if workers is not None and (int(workers) != workers or workers < 0):
             raise CoronaError(f"workers={workers!r} is out of range; expected an integer >= 0 "
                               "(0: in this process)")
-        if not (timeout > 0):
-            raise CoronaError(f"timeout={timeout!r} is out of range; expected > 0 s")
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (0 < timeout <= TIMEOUT_MAX):
+            raise CoronaError(f"timeout={timeout!r} is out of range; allowed a finite number of seconds "
+                              f"in (0, {TIMEOUT_MAX:g}]")
+        if scheduler is not None and "://" in str(scheduler):
+            scheme = str(scheduler).split("://", 1)[0].lower()
+            if scheme not in DASK_SCHEMES:       # before anything is imported or started
+                raise CoronaError(f"--scheduler {scheduler!r} is not a Dask scheduler address (scheme "
+                                  f"{scheme}://); expected {' or '.join(s + '://' for s in DASK_SCHEMES)}"
+                                  "HOST:PORT, e.g. tcp://127.0.0.1:8786")
         self.workers = None if workers is None else int(workers)
         self.scheduler = scheduler
         self.timeout = float(timeout)
@@ -263,10 +305,16 @@ class Executor:
         if self.scheduler is not None:
             address = _probe(self.scheduler, self.timeout)
             try:
-                self.client = distributed.Client(address, timeout=self.timeout, set_as_default=False)
+                self.client = _within(
+                    self.timeout,
+                    lambda: distributed.Client(address, timeout=self.timeout, set_as_default=False),
+                    f"--scheduler {self.scheduler!r} accepted the connection but did not answer as a Dask "
+                    f"scheduler within {self.timeout:g} s; is it one (`dask scheduler`)?")
+            except CoronaError:
+                raise
             except (OSError, TimeoutError, ValueError) as err:
                 raise CoronaError(f"--scheduler {self.scheduler!r}: could not connect within "
-                                  f"{self.timeout:g} s ({err})") from None
+                                  f"{self.timeout:g} s ({' '.join(str(err).split())})") from None
             try:
                 self.client.wait_for_workers(1, timeout=self.timeout)
             except (TimeoutError, OSError):
@@ -276,6 +324,11 @@ class Executor:
                                   f"{self.scheduler}`") from None
         else:
             n = self.workers or default_workers(n_tasks)
+            cap = max(1, min(n_tasks or n, WORKERS_PER_CORE * _cpus()))
+            if n > cap:
+                self.log(f"corona: --workers {n} capped to {cap} ({n_tasks} job(s), {_cpus()} core(s), "
+                         f"at most {WORKERS_PER_CORE} workers per core)")
+                n = cap
             self.cluster = distributed.LocalCluster(
                 n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                 dashboard_address=None, silence_logs=logging.CRITICAL)

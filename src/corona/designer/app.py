@@ -1,9 +1,14 @@
 """The designer's web server: a Starlette app (served by uvicorn) around
 :mod:`corona.designer.compute`, and the page in ``static/``.
 
-Every computation runs in a worker thread under a time limit; bad parameters
-are HTTP 400 with ``{"error": "<one line naming the parameter>"}``.  The app
-reads no files but its own page, the uploads it stored, and the table cache.
+Every computation runs in a thread of its own under a time limit, at most
+:data:`MAX_CONCURRENT` at any time: a request past the limit is answered 503
+at once, but its computation keeps its slot until it really ends (a numpy
+computation cannot be stopped from outside), so clients that time out cannot
+pile up running computations; a request that finds every slot taken waits for
+one until its own time limit, then is answered 503.  Bad parameters are HTTP
+400 with ``{"error": "<one line naming the parameter>"}``.  The app reads no
+files but its own page, the uploads it stored, and the table cache.
 """
 from __future__ import annotations
 
@@ -15,7 +20,9 @@ import math
 import os
 import time
 
-import anyio
+import asyncio
+import threading
+
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
@@ -25,6 +32,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from .._validation import CoronaError
+from ..fit import MAX_PIXELS as MAX_FIT_PIXELS
 from . import compute
 
 log = logging.getLogger("corona.designer")
@@ -36,7 +44,7 @@ MAX_QUERY = 4096
 #: Largest upload [bytes]: photographs; masks and point files have their own limits.
 MAX_UPLOAD = 16 * 2**20
 MAX_MASK_PIXELS = 1024 * 1024
-MAX_PHOTO_PIXELS = 40_000_000
+MAX_PHOTO_PIXELS = MAX_FIT_PIXELS      # what corona.fit takes
 MAX_POINTS = 5000
 MAX_POINTS_BYTES = 512 * 1024
 #: Uploads kept (the oldest go first).
@@ -49,7 +57,21 @@ LOOPBACK = ("127.0.0.1", "localhost", "[::1]")
 
 
 def _error(status: int, message: str) -> JSONResponse:
-    return JSONResponse({"error": " ".join(str(message).split())}, status_code=status)
+    return JSONResponse({"error": _scrub(" ".join(str(message).split()))}, status_code=status)
+
+
+def _scrub(message: str) -> str:
+    """The server's folders out of a message for the client: an upload is named by its id,
+    anything else inside the table cache as ``<cache>/...``."""
+    from ..tables import cache_dir
+    try:
+        root = cache_dir()
+    except Exception:  # noqa: BLE001 - an unusable cache: nothing to hide then
+        return message
+    for base in sorted({root, os.path.realpath(root)}, key=len, reverse=True):
+        message = message.replace(os.path.join(base, "designer", "uploads") + os.sep, "")
+        message = message.replace(base, "<cache>")
+    return message
 
 
 def designer_dir(*parts: str) -> str:
@@ -63,7 +85,7 @@ def designer_dir(*parts: str) -> str:
 class _App:
     def __init__(self, timeout: float):
         self.timeout = timeout
-        self.limiter = anyio.CapacityLimiter(MAX_CONCURRENT)
+        self.slots = _Slots(MAX_CONCURRENT)
 
     # -- helpers ------------------------------------------------------------
     def _query(self, request: Request) -> dict:
@@ -77,12 +99,44 @@ class _App:
         return q
 
     async def _run(self, fn, *args):
-        """``fn(*args)`` in a worker thread; one-line errors; a time limit."""
+        """``fn(*args)`` in a thread of its own holding one of the slots; one-line errors; a time limit.
+
+        The slot is taken here (waiting for one at most until the time limit) and given back
+        by the thread when ``fn`` returns, not when the request gives up on it."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.timeout
+        while not self.slots.take():
+            if loop.time() >= deadline:
+                raise _Timeout(f"the designer is busy ({MAX_CONCURRENT} computations running) and none "
+                               f"ended within {self.timeout:g} s; try again later")
+            await asyncio.sleep(0.01)
+        future = loop.create_future()
+
+        def settle(result, error):
+            if future.cancelled() or future.done():
+                return
+            if error is not None:
+                future.set_exception(error)
+            else:
+                future.set_result(result)
+
+        def job():
+            result = error = None
+            try:
+                result = fn(*args)
+            except BaseException as err:  # noqa: BLE001 - handed to the request that waits
+                error = err
+            finally:
+                self.slots.give_back()
+            try:
+                loop.call_soon_threadsafe(settle, result, error)
+            except RuntimeError:   # the server stopped meanwhile
+                pass
+        threading.Thread(target=job, name="corona-designer-compute", daemon=True).start()
         try:
-            with anyio.fail_after(self.timeout):
-                return await anyio.to_thread.run_sync(lambda: fn(*args), abandon_on_cancel=True,
-                                                      limiter=self.limiter)
+            return await asyncio.wait_for(asyncio.shield(future), max(deadline - loop.time(), 0.0))
         except TimeoutError:
+            future.cancel()          # nobody waits for it: its result is dropped, its slot kept until it ends
             raise _Timeout(f"the computation took longer than {self.timeout:g} s; "
                            "choose smaller values (radius, sides, image or kernel size)") from None
 
@@ -189,8 +243,8 @@ class _App:
                 return _error(413, f"the fit request is {len(body)} bytes; allowed at most 65536")
             try:
                 req = json.loads(body or b"{}")
-            except ValueError:
-                raise CoronaError("the fit request is not JSON; expected "
+            except (ValueError, RecursionError):      # RecursionError: nested too deeply
+                raise CoronaError("the fit request is not JSON (or nested too deeply); expected "
                                   '{"photo": "<upload id>", "fov": <degree>}') from None
             if not isinstance(req, dict):
                 raise CoronaError('the fit request must be a JSON object {"photo": ..., "fov": ...}')
@@ -205,6 +259,29 @@ class _App:
 
 class _Timeout(Exception):
     pass
+
+
+class _Slots:
+    """At most ``n`` computations at a time: :meth:`take` before one starts, :meth:`give_back`
+    when it has ended.  ``running`` and ``peak`` count them (the tests read them)."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.running = 0
+        self.peak = 0
+        self._lock = threading.Lock()
+
+    def take(self) -> bool:
+        with self._lock:
+            if self.running >= self.n:
+                return False
+            self.running += 1
+            self.peak = max(self.peak, self.running)
+            return True
+
+    def give_back(self) -> None:
+        with self._lock:
+            self.running -= 1
 
 
 def _jsonable(obj):
@@ -227,15 +304,22 @@ def _check_upload(kind: str, data: bytes, name: str) -> dict:
     if not data:
         raise CoronaError(f"the {kind} upload is empty")
     if kind in ("photo", "mask"):
+        import warnings
+
         from PIL import Image, UnidentifiedImageError
+        limit = MAX_MASK_PIXELS if kind == "mask" else MAX_PHOTO_PIXELS
         try:
-            with Image.open(io.BytesIO(data)) as im:
-                fmt, (w, h) = im.format, im.size
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)   # the limit is ours
+                with Image.open(io.BytesIO(data)) as im:
+                    fmt, (w, h) = im.format, im.size
+        except Image.DecompressionBombError:
+            raise CoronaError(f"the {kind} upload {name!r} claims more pixels than Pillow opens; "
+                              f"allowed at most {limit} pixels") from None
         except (UnidentifiedImageError, OSError, ValueError):
             raise CoronaError(f"the {kind} upload {name!r} is not a PNG or JPEG image") from None
         if fmt not in ("PNG", "JPEG"):
             raise CoronaError(f"the {kind} upload {name!r} is a {fmt} image; allowed PNG or JPEG")
-        limit = MAX_MASK_PIXELS if kind == "mask" else MAX_PHOTO_PIXELS
         if w * h > limit:
             raise CoronaError(f"the {kind} upload is {w}×{h} pixels; allowed at most {limit} pixels")
         return {"suffix": "png" if fmt == "PNG" else "jpg", "width": w, "height": h}
@@ -294,6 +378,8 @@ def create_app(allowed_hosts=LOOPBACK, timeout: float = COMPUTE_TIMEOUT) -> Star
     async def bad_method(request, exc):
         return _error(405, f"{request.method} is not allowed on {request.url.path}")
 
-    return Starlette(routes=routes,
-                     middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=list(allowed_hosts))],
-                     exception_handlers={404: not_found, 405: bad_method})
+    app = Starlette(routes=routes,
+                    middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=list(allowed_hosts))],
+                    exception_handlers={404: not_found, 405: bad_method})
+    app.state.slots = a.slots        # the computations running now, and the most at once
+    return app
