@@ -519,7 +519,7 @@ def designer(host, port, open_browser):
         import starlette  # noqa: F401
         import uvicorn  # noqa: F401
     except ImportError:
-        _fail("corona designer needs the 'designer' extra: pip install 'corona[designer]'")
+        _fail("corona designer needs the 'designer' extra: pip install 'corona-bsdf[designer]'")
     from . import designer as d
     try:
         sock = d.bind(host, port)

@@ -1264,7 +1264,7 @@ def write_diagnostic(result: FitResult, path: str) -> tuple[str, str | None]:
         import matplotlib
     except ImportError:
         iio.imwrite(path, overlay)
-        return path, ("matplotlib is not installed (pip install 'corona[reference]'): the diagnostic "
+        return path, ("matplotlib is not installed (pip install 'corona-bsdf[reference]'): the diagnostic "
                       "shows the image with the fitted rings only, without the profile plot")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

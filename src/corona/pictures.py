@@ -70,7 +70,7 @@ def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: 
         from matplotlib.colors import LogNorm
         from matplotlib.figure import Figure
     except ImportError:
-        raise CoronaError("lobe pictures need matplotlib: pip install 'corona[reference]' "
+        raise CoronaError("lobe pictures need matplotlib: pip install 'corona-bsdf[reference]' "
                           "(or use `corona lobe --json` for the numbers)") from None
 
     R = material.length_scale

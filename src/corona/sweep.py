@@ -24,7 +24,7 @@ Every worker process sets the Mitsuba variant and registers the plugin
 itself before its first render (Mitsuba's variant is per process).
 
 Dask's ``distributed`` is the ``sweep`` extra (``pip install
-'corona[sweep]'``); ``import corona`` never imports it.
+'corona-bsdf[sweep]'``); ``import corona`` never imports it.
 """
 from __future__ import annotations
 
@@ -299,7 +299,7 @@ class Executor:
             import distributed
         except ImportError:
             raise CoronaError("running on a Dask cluster needs the 'sweep' extra: pip install "
-                              "'corona[sweep]' (or --workers 0: one job after the other in this "
+                              "'corona-bsdf[sweep]' (or --workers 0: one job after the other in this "
                               "process)") from None
         t0 = time.perf_counter()
         if self.scheduler is not None:

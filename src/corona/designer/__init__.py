@@ -3,7 +3,7 @@
     corona designer [--host 127.0.0.1] [--port 8765]
 
 A local web server (Starlette + uvicorn, the ``designer`` extra:
-``pip install 'corona[designer]'``) and a static page with plain
+``pip install 'corona-bsdf[designer]'``) and a static page with plain
 JavaScript: controls for every material parameter of
 :data:`corona.parameters.PARAMETERS`, the light, live views (the far-field
 corona, T_a / T_s / lobe profiles, the energy split, a comparison of two

@@ -24,7 +24,7 @@ Processes, one module each:
   periodogram.
 
 Every lookup here is numpy/scipy only; the simulations that make the tables
-live in :mod:`corona.reference` (extra ``corona[reference]``).
+live in :mod:`corona.reference` (extra ``corona-bsdf[reference]``).
 """
 from .base import Process
 from .hard_disk import HardDisk

@@ -207,7 +207,7 @@ def _jit() -> None:
         import numba
     except ImportError:
         raise CoronaError("sampling random sequential adsorption needs numba, which is not installed; "
-                          "install the reference extra: pip install 'corona[reference]'") from None
+                          "install the reference extra: pip install 'corona-bsdf[reference]'") from None
     g = globals()
     for name in _KERNELS:
         g[name] = numba.njit(cache=True, nogil=True)(g[name])

@@ -1,6 +1,6 @@
 """The reference tier: what makes and checks the runtime's tables.
 
-Needs the extra ``pip install corona[reference]`` (numba, matplotlib,
+Needs the extra ``pip install corona-bsdf[reference]`` (numba, matplotlib,
 scikit-image); the runtime (shapes, processes, material, tables, the
 plugin, the CLI's ``render`` and ``lobe``) never imports it.
 
