@@ -78,127 +78,22 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from . import tables
 from ._validation import CoronaError, CoronaWarning
+from .mitsuba_common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
+                             fold_spectrum, gather as _gather, guided_cdfs, guided_search,
+                             invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
+                             pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
+                             read_props as _read_props, selection, texture_range, uniform as _uniform,
+                             wavelength_mixture)
 from .parameters import SPEC, material_from_parameters, rst_table
 
 __doc__ = __doc__.replace("{table}", rst_table())
 
-N_RESPONSE = 8
 #: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
 FA_WINDOW = 0.1
-NEWTON_STEPS = 5
-
-
-#: Parameters that take a Mitsuba texture as well as a float (a float becomes a
-#: ``uniform`` texture, so ``mi.traverse`` shows ``area_fraction.value`` etc.).
-TEXTURED = ("area_fraction", "radius", "albedo")
-
-
-def _read_props(props) -> tuple[dict, dict]:
-    """Named parameters from a ``mi.Properties``, checked against :data:`SPEC`
-    (unknown names are an error), and the textures of :data:`TEXTURED`."""
-    out, textures = {}, {}
-    for name in props.keys():
-        if name not in SPEC:
-            raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(SPEC))}")
-        value = props.get(name)
-        if name in TEXTURED and isinstance(value, mi.Texture):
-            textures[name] = value
-            continue
-        if SPEC[name].kind in ("float", "int"):
-            if isinstance(value, bool):   # <boolean name="radius" value="true"/> is no size
-                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; allowed {SPEC[name].allowed}")
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; "
-                                  f"allowed {SPEC[name].allowed}") from None
-        else:
-            value = str(value)
-        out[name] = SPEC[name].check(value)
-    return out, textures
-
-
-def _uniform(value: float):
-    return mi.load_dict({"type": "uniform", "value": float(value)})
-
-
-def texture_range(texture) -> tuple[float | None, float]:
-    """(min, max) of a scalar texture's values.
-
-    Evaluated at the texel centres of a bitmap (``texture.resolution()``) or
-    on a 64×64 grid of uv for procedural textures (scalar variants: every
-    k-th of these points, at most 256×256); where the texture cannot
-    be evaluated without a mesh (``mesh_attribute``) the minimum is unknown
-    (None) and the maximum is ``texture.max()``.
-    """
-    if not texture.is_spatially_varying():
-        v = float(np.asarray(dr.detach(texture.mean())).ravel()[0])
-        return v, v
-    res = [int(x) for x in texture.resolution()]
-    nx, ny = min(max(res[0], 64), 4096), min(max(res[1], 64), 4096)
-    uu, vv = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(ny) + 0.5) / ny)
-    try:
-        if dr.is_array_v(mi.Float):
-            si = dr.zeros(mi.SurfaceInteraction3f, uu.size)
-            si.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
-            vals = np.asarray(dr.detach(texture.eval_1(si)), dtype=np.float64).ravel()
-        else:   # scalar variants: one point at a time, on at most 256×256 of the points
-            si = dr.zeros(mi.SurfaceInteraction3f)
-            step = max(1, -(-max(nx, ny) // 256))
-            vals = []
-            for u, v in zip(uu[::step, ::step].ravel(), vv[::step, ::step].ravel()):
-                si.uv = mi.Point2f(float(u), float(v))
-                vals.append(float(texture.eval_1(si)))
-            vals = np.asarray(vals)
-        if vals.size and np.all(np.isfinite(vals)):
-            return float(vals.min()), float(vals.max())
-    except Exception:  # noqa: BLE001 - textures that need a mesh
-        pass
-    return None, float(texture.max())
-
-
-def _channel_response():
-    """(wavelengths [nm], weights) of the RGB / mono channels, each (channels, N_RESPONSE).
-
-    Each channel's response (CIE 1931 → linear sRGB, negative lobes clipped;
-    ȳ for mono) is represented by ``N_RESPONSE`` wavelengths at equal-weight
-    quantiles of the response, so the channel value is their mean.
-    """
-    from .color import XYZ_TO_SRGB, cie1931_xyz
-    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 2048)
-    xyz = cie1931_xyz(lam).T                                     # (3, n)
-    resp = xyz[1:2] if mi.is_monochromatic else np.maximum(XYZ_TO_SRGB @ xyz, 0.0)
-    chans = []
-    for r in resp:
-        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
-        qs = (np.arange(N_RESPONSE) + 0.5) / N_RESPONSE * cdf[-1]
-        chans.append(np.interp(qs, cdf, lam))
-    chans = np.array(chans)
-    return chans, np.full(chans.shape, 1.0 / N_RESPONSE)
-
-
-def _array(dtype, values):
-    """A Dr.Jit array of ``values`` (float32 / uint32); a numpy array in scalar variants."""
-    if dtype is mi.UInt32:
-        a = np.asarray(values, dtype=np.uint32)
-    else:
-        a = np.asarray(values, dtype=np.float32)
-    return a if dr.is_array_v(dtype) is False else dtype(a)
-
-
-def _positive(x):
-    """``x`` where it is > 0, else 1: a divisor safe in scalar variants too, where
-    ``dr.select`` evaluates both branches (``value / pdf`` raised ZeroDivisionError)."""
-    return dr.select(x > 0, x, 1.0)
-
-
-def _gather(dtype, source, index, active=True):
-    """``dr.gather`` that also works in scalar variants (Python scalars there)."""
-    if dr.is_array_v(dtype):
-        return dr.gather(dtype, source, index, active)
-    return dtype(source[int(index)]) if active else dtype(0)
+#: (kept for :mod:`corona.mitsuba_sphere` until it imports :mod:`corona.mitsuba_common` itself)
+_channel_response = channel_response
+__all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
 
 
 class CoronaBSDFMixin:
@@ -243,7 +138,7 @@ class CoronaBSDFMixin:
 
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
-            lam, w = _channel_response()
+            lam, w = channel_response()
             self.channel_lambdas = lam           # (channels, N) nm
             self.channel_weights = w
 
@@ -376,37 +271,17 @@ class CoronaBSDFMixin:
         self.tail = float(material._plane_integral - material.table.total)
 
     def _set_cdf(self, cdfs):
-        """Normalised CDFs of the rows (float32) plus guide tables that narrow each search.
-
-        ``guide[j]`` is the last bin whose CDF is <= j/G, so a target in
-        [j/G, (j+1)/G) lies in bins ``guide[j] .. guide[j+1]``; a fixed number
-        of bisection steps (the widest such range over all rows) then finds the bin.
-        """
-        n_bins = cdfs[0].size - 1
-        G = int(min(max(n_bins, 16), 1 << 16))
-        marks = (np.arange(G + 1) / G).astype(np.float32)
-        cdf_all, guide_all, width = [], [], 1
-        for cdf64 in cdfs:
-            total = cdf64[-1] if cdf64[-1] > 0 else 1.0
-            cdf32 = (np.asarray(cdf64, dtype=np.float64) / total).astype(np.float32)
-            guide = np.clip(np.searchsorted(cdf32, marks, side="right") - 1, 0, n_bins - 1)
-            width = max(width, int(np.max(guide[1:] - guide[:-1])) + 1)
-            cdf_all.append(cdf32)
-            guide_all.append(guide)
-        self.guide_size = G
-        self.search_steps = max(1, int(np.ceil(np.log2(width + 1))))
-        self.n_bins = n_bins
-        self.cdf = _array(mi.Float, np.concatenate(cdf_all))
-        self.guide = _array(mi.UInt32, np.concatenate(guide_all))
+        """Normalised float32 CDFs of the rows and their guide tables (:func:`corona.mitsuba_common.guided_cdfs`)."""
+        g = guided_cdfs(cdfs)
+        self.guide_size = g["G"]
+        self.search_steps = g["steps"]
+        self.n_bins = g["n_bins"]
+        self.cdf = _array(mi.Float, g["cdf"])
+        self.guide = _array(mi.UInt32, g["guide"])
 
     # ------------------------------------------------------------------
     # helpers (traced Dr.Jit code)
     # ------------------------------------------------------------------
-    @staticmethod
-    def _lambda_um(lam):
-        # wavelength [nm] clamped to the table range, in µm
-        return dr.clip(lam, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
-
     def _layer(self, si, active):
         """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
         and the energies of the coherent beam, the lobe and the reflection."""
@@ -474,43 +349,15 @@ class CoronaBSDFMixin:
         if not self.isotropic:
             return self.kernel.sample(s, active)
         target = s.x
-        # guide table of the row, then bisection with cdf[lo] <= target < cdf[hi]
-        base_c = row * (self.n_bins + 1)
-        g = mi.UInt32(dr.minimum(target * self.guide_size, self.guide_size - 1))
-        base_g = row * (self.guide_size + 1)
-        lo = _gather(mi.UInt32, self.guide, base_g + g, active)
-        hi = dr.minimum(_gather(mi.UInt32, self.guide, base_g + g + 1, active) + 1, self.n_bins)
-        for _ in range(self.search_steps):
-            mid = (lo + hi) >> 1
-            go_right = _gather(mi.Float, self.cdf, base_c + mid, active) <= target
-            lo = dr.select(go_right, mid, lo)
-            hi = dr.select(go_right, hi, mid)
-        idx = dr.minimum(lo, self.n_bins - 1)
-        c0 = _gather(mi.Float, self.cdf, base_c + idx, active)
-        c1 = _gather(mi.Float, self.cdf, base_c + idx + 1, active)
-        # radial: density 2π u v_lin(u) in the bin; its CDF is the cubic
-        # C(t) = c1 t + c2 t² + c3 t³ (normalised), solved by safeguarded Newton
+        idx, c0, c1 = guided_search(self.cdf, self.guide, self.guide_size, self.n_bins,
+                                    self.search_steps, row, target, active)
+        # radial: density 2π u v_lin(u) in the bin; its CDF a cubic, solved by safeguarded Newton
         du = self.du
         u0 = mi.Float(idx) * du
         a = _gather(mi.Float, self.values, row * self.n + idx, active)
         b = _gather(mi.Float, self.values, row * self.n + idx + 1, active) - a
-        norm = 2.0 * dr.pi * du / dr.maximum(_gather(mi.Float, self.totals, row, active), 1e-30)
-        k1 = norm * u0 * a
-        k2 = norm * (u0 * b + du * a) * 0.5
-        k3 = norm * du * b * (1.0 / 3.0)
-        rest = target - c0
-        t = dr.clip(rest / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
-        lo = mi.Float(0.0)
-        hi = mi.Float(1.0)
-        for _ in range(NEWTON_STEPS):
-            f = dr.fma(dr.fma(k3, t, k2), t, k1) * t - rest
-            lo = dr.select(f < 0, t, lo)
-            hi = dr.select(f >= 0, t, hi)
-            df = dr.fma(dr.fma(3.0 * k3, t, 2.0 * k2), t, k1)
-            t_new = t - f / dr.maximum(df, 1e-30)            # df = density >= 0
-            bad = (t_new <= lo) | (t_new >= hi)
-            t = dr.select(bad, 0.5 * (lo + hi), t_new)
-        r = u0 + dr.clip(t, 0.0, 1.0) * du
+        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, self.totals, row, active))
+        r = u0 + t * du
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
         return mi.Vector2f(r * cos_phi, r * sin_phi)
 
@@ -524,7 +371,7 @@ class CoronaBSDFMixin:
         values = []
         pdf = mi.Float(0.0)
         for lam_nm, m in zip(lams, mix):
-            lam = self._lambda_um(lam_nm)
+            lam = lambda_um(lam_nm)
             k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
             ux, uy = dx * k, dy * k
             v = self._table_value(ux, uy, j, active)
@@ -539,42 +386,24 @@ class CoronaBSDFMixin:
             values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
             # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
             pdf += m * p_u * dr.square(k)
-        if mi.is_spectral:
-            f = mi.Spectrum(values)
-        else:
-            nc = self.channel_lambdas.shape[0]
-            per = self.channel_lambdas.shape[1]
-            chans = []
-            for c in range(nc):
-                acc = mi.Float(0.0)
-                for q in range(per):
-                    acc += float(self.channel_weights[c, q]) * values[c * per + q]
-                chans.append(acc)
-            f = mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)
+        f = fold_spectrum(values, getattr(self, "channel_lambdas", None), getattr(self, "channel_weights", None))
         return f, pdf
 
     def _wavelength_mixture(self, wavelengths):
         """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
-        if mi.is_spectral:
-            lams = [wavelengths[k] for k in range(dr.size_v(mi.Spectrum))]
-            return lams, [1.0 / len(lams)] * len(lams)
-        lams = [mi.Float(float(lam)) for lam in self.channel_lambdas.ravel()]
-        return lams, [1.0 / len(lams)] * len(lams)
+        return wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
 
     def _pane_reflectance(self, cos_theta):
-        """``R' = 2R / (1 + R)``: the thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``)."""
-        r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
-        return r * 2.0 / (1.0 + r)
+        """``R'``: the thin pane's reflectance at ``|cos θ|`` (:func:`corona.mitsuba_common.pane_reflectance`)."""
+        return pane_reflectance(cos_theta, self.eta)
 
     def _layer_first(self, cos_i):
         """True where light from ``wi`` meets the layer before the pane."""
-        return (cos_i > 0) if self.layer_on_front else (cos_i < 0)
+        return layer_first(cos_i, self.layer_on_front)
 
     def _delta_weights(self, layer, cos_i):
         """Weights of the coherent transmission and of the specular reflection (pane only)."""
-        r_i = self._pane_reflectance(cos_i)
-        c = layer["coherent"]
-        return c * (1.0 - r_i), dr.select(self._layer_first(cos_i), c * c * r_i, r_i)
+        return pane_delta_weights(layer["coherent"], self._pane_reflectance(cos_i), self._layer_first(cos_i))
 
     def _selection(self, ctx, layer, cos_i=None):
         """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
@@ -591,13 +420,7 @@ class CoronaBSDFMixin:
             energies = (w_coh, layer["lobe"] * t_i,
                         dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
                         dr.select(first, 2.0 * layer["coherent"] * layer["lobe"] * (1.0 - t_i), 0.0))
-        en = [e if ctx.is_enabled(fl, i) else mi.Float(0.0)
-              for i, (e, fl) in enumerate(zip(energies, flags))]
-        total = en[0]
-        for e in en[1:]:
-            total = total + e
-        inv = dr.select(total > 0, 1.0 / dr.maximum(total, 1e-30), 0.0)
-        return tuple(e * inv for e in en)
+        return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
 
     # ------------------------------------------------------------------
     # BSDF interface
@@ -628,9 +451,10 @@ class CoronaBSDFMixin:
         if self.has_pane:   # Fresnel factors of the pane (module docstring's table)
             first = self._layer_first(cos_i)
             r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
-            lobe_reflected = lobe * dr.select(first, layer["coherent"] * (r_i + r_o), 0.0)
-            lobe = lobe * dr.select(first, 1.0 - r_o, 1.0 - r_i)
-            diffuse = diffuse * dr.select(first, 1.0, (1.0 - r_i) * (1.0 - r_o))
+            f_through, f_reflected, f_diffuse = pane_smooth_factors(layer["coherent"], r_i, r_o, first)
+            lobe_reflected = lobe * f_reflected
+            lobe = lobe * f_through
+            diffuse = diffuse * f_diffuse
         value = dr.select(transmit & lobe_on, lobe, 0.0)
         if self.sampling == "cosine":
             pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
@@ -689,21 +513,16 @@ class CoronaBSDFMixin:
             # sample1's position inside the lobe's share picks the wavelength (equal weights)
             # and what is left of it the row (j with probability 1 - t, j + 1 with t)
             lams, _ = self._wavelength_mixture(si.wavelengths)
-            n_lam = len(lams)
             s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
             pick_any_lobe = pick_lobe
             if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
                 s = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s)
                 pick_any_lobe = pick_lobe | pick_rlobe
-            s = dr.clip(s, 0.0, 0.99999994) * n_lam
-            pick = dr.minimum(mi.UInt32(s), n_lam - 1)
-            hero = lams[-1]
-            for q in range(n_lam - 2, -1, -1):
-                hero = dr.select(pick == q, lams[q], hero)
-            lam = self._lambda_um(hero)
+            pick, hero, rest = pick_wavelength(s, lams)
+            lam = lambda_um(hero)
             row = layer["j"]
             if self.n_rows > 1 and self.isotropic:
-                row = dr.select(s - mi.Float(pick) >= 1.0 - layer["t"], row + 1, row)
+                row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
             u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
             d = u * (lam / (2.0 * dr.pi * layer["L"]))
             ox = d.x - wi.x
