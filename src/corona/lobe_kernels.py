@@ -1,4 +1,4 @@
-"""Dr.Jit kernels of the renderer's lobe for anisotropic materials (issue 18).
+"""Dr.Jit kernels of the renderer's lobe for anisotropic materials.
 
 The plugin (:mod:`corona.mitsuba_bsdf`) evaluates, samples and gives the pdf
 of the lobe ``v(u)`` of :class:`corona.render_lobe.RenderLobe` through
@@ -34,6 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .mitsuba_common import array as _array, gather as _gather
 from .render_lobe import TAYLOR_ORDER, TAYLOR_U
 
 # Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
@@ -41,18 +42,6 @@ _J1_SMALL = (0.5, -0.56249985, 0.21093573, -0.03954289, 0.00443319, -0.00031761,
 # 9.4.6: J1(x) = x^{-1/2} f1 cos θ1, x >= 3, in powers of 3/x
 _J1_F1 = (0.79788456, 0.00000156, 0.01659667, 0.00017105, -0.00249511, 0.00113653, -0.00020033)
 _J1_TH = (-2.35619449, 0.12499612, 0.00005650, -0.00637879, 0.00074348, 0.00079824, -0.00029166)
-
-
-def _array(dtype, values):
-    """A Dr.Jit array of ``values`` (float32 / int32); numpy in scalar variants."""
-    a = np.asarray(values, dtype=np.int32 if dtype is mi.Int32 else np.float32)
-    return dtype(a) if dr.is_array_v(dtype) else a
-
-
-def _gather(dtype, source, index, active=True):
-    if dr.is_array_v(dtype):
-        return dr.gather(dtype, source, index, active)
-    return dtype(source[int(index)]) if active else dtype(0)
 
 
 def _poly(coeffs, x):

@@ -1,4 +1,4 @@
-"""What the renderer evaluates: the lobe ``v(u)`` as exact as the model (issue 18).
+"""What the renderer evaluates: the lobe ``v(u)`` as exact as the model.
 
 The model's dimensionless lobe (:mod:`corona.tables`) is
 
@@ -246,7 +246,7 @@ class RenderLobe:
 
 
 def region_points(material, n: int = 100_000, frac: float = 1e-3, scan: int = 401, seed: int = 0):
-    """Points where the renderer's lobe is checked against the model (issue 18).
+    """Points where the renderer's lobe is checked against the model.
 
     Uniform points in the u plane over the part of the reachable disk
     (``|u| <= 2π R · 2 / 360 nm``: every ``|d| <= 2`` at every wavelength)
