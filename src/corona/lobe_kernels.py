@@ -155,14 +155,31 @@ class LobeKernel:
         v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
         return dr.select(inside, dr.maximum(v, 0.0), 0.0)
 
-    def _s_minus_one(self, ux, uy, active):
+    def set_structure_rows(self, s_rows, s_slopes):
+        """Rows of ``S - 1`` over the area fraction (``(n_rows, s_n)``, :func:`corona.render_lobe.structure_rows`)
+        and their slopes in ``F_a``: :meth:`value` then takes the row and Hermite weights of each lane."""
+        self.s_values = _array(mi.Float, np.asarray(s_rows).ravel())
+        self.s_slopes = _array(mi.Float, np.asarray(s_slopes).ravel())
+
+    def _s_minus_one(self, ux, uy, active, srow=None):
+        """``S - 1`` at ``|u|``: linear in ``|u|``; with ``srow = (j, h00, h10, h01, h11)`` the cubic
+        Hermite in ``F_a`` between rows ``j`` and ``j + 1`` (``h10``, ``h11`` times the rows' spacing)."""
         x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.s_du
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.s_n - 1)
-        v0 = _gather(mi.Float, self.s_values, i, inside)
-        v1 = _gather(mi.Float, self.s_values, i + 1, inside)
-        return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
+        if srow is None:
+            v0 = _gather(mi.Float, self.s_values, i, inside)
+            v1 = _gather(mi.Float, self.s_values, i + 1, inside)
+            return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
+        j, h00, h10, h01, h11 = srow
+        k = j * self.s_n + i
+
+        def at(arr, kk):
+            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
+        v = (h00 * at(self.s_values, k) + h01 * at(self.s_values, k + self.s_n)
+             + h10 * at(self.s_slopes, k) + h11 * at(self.s_slopes, k + self.s_n))
+        return dr.select(inside, v, 0.0)
 
     def _cubic(self, grids, ux, uy, active):
         """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
@@ -272,8 +289,8 @@ class LobeKernel:
     # ------------------------------------------------------------------
     # interface
     # ------------------------------------------------------------------
-    def value(self, ux, uy, active):
-        """The renderer's ``v(u)`` (>= 0)."""
+    def value(self, ux, uy, active, srow=None):
+        """The renderer's ``v(u)`` (>= 0); ``srow`` picks rows of ``S - 1`` (:meth:`_s_minus_one`)."""
         if self.kind == "table":
             return self._bilinear(self.near, ux, uy, active)
         if self.kind == "grid":
@@ -299,7 +316,7 @@ class LobeKernel:
                 re = dr.fma(w, a_re, re)
             P = inten * self.inv_area_R2
             C = dr.fma(re, re, im * im) * self.inv_area_R2
-        s1 = self._s_minus_one(ux, uy, active) if self.has_s else 0.0
+        s1 = self._s_minus_one(ux, uy, active, srow) if self.has_s else 0.0
         return dr.select(active, dr.maximum(P + C * s1, 0.0), 0.0)
 
     def pdf(self, ux, uy, active):

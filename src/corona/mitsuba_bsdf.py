@@ -85,7 +85,8 @@ from .mitsuba_common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array
                              pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
                              read_props as _read_props, selection, texture_range, uniform as _uniform,
                              wavelength_mixture)
-from .parameters import SPEC, material_from_parameters, rst_table
+from .parameters import SPEC, material_from_parameters, parse_mixture, rst_table
+from .render_lobe import row_slopes
 
 __doc__ = __doc__.replace("{table}", rst_table())
 
@@ -117,11 +118,18 @@ class CoronaBSDFMixin:
         self.fa_tex = textures["area_fraction"]
         self.radius_tex = textures["radius"]
         self.albedo_tex = textures["albedo"]
-        # sizes that do not follow `radius`: a mask's pixels, a point file's positions, a mixture's radii
-        self.fixed_radius = (params.get("shape") in ("mask", "mixture") or params.get("process") == "points")
         self._textured = {k for k in textures if textures[k].is_spatially_varying()}
+        # a mixture's radius texture is the radius of its largest component: every size scales with it
+        self.mixture_scaled = params.get("shape") == "mixture" and "radius" in self._textured
+        if self.mixture_scaled:
+            self.mixture_items = parse_mixture(params["mixture"])
+            self.mixture_largest = max(r for _, r, w in self.mixture_items if w > 0)
+        # sizes that do not follow `radius`: a mask's pixels, a point file's positions, a mixture's
+        # radii (unless the radius is a texture)
+        self.fixed_radius = ((params.get("shape") == "mask" or params.get("process") == "points"
+                              or params.get("shape") == "mixture") and not self.mixture_scaled)
         if self.fixed_radius and "radius" in self._textured:
-            raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or 'mixture', or "
+            raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or "
                               "process='points' (their sizes and positions are absolute); give a float")
         ranges = self._ranges()
         # absolute lengths (edge_width, exclusion_diameter, jitter) belong to the largest radius at
@@ -200,8 +208,10 @@ class CoronaBSDFMixin:
         def at(radius):      # the parameters with the layer scaled to `radius` (σ/R fixed)
             if self.fixed_radius:
                 return params
-            return {**params, "radius": radius, **{k: params[k] * radius / self.radius_ref
-                                                   for k in lengths if params.get(k) is not None}}
+            scaled = {k: params[k] * radius / self.radius_ref for k in lengths if params.get(k) is not None}
+            if self.mixture_scaled:      # every component's radius, the largest one at `radius`
+                return {**params, **scaled, "mixture": self._mixture_at(radius)}
+            return {**params, "radius": radius, **scaled}
         try:
             # checked at the values given (their messages name those), built at the table's cover
             material = material_from_parameters(**at(radius_range[1]))
@@ -222,24 +232,39 @@ class CoronaBSDFMixin:
             raise CoronaError(f"corona BSDF: area_fraction cannot be a texture with process="
                               f"{self.params.get('process', SPEC['process'].default)!r} (the area fraction "
                               "sets its geometry); use poisson, hard-disk or rsa")
-        if not material.isotropic and (fa_lo != fa_hi or "area_fraction" in self._textured):
-            raise CoronaError("corona BSDF: area_fraction can be a texture only for a radial lobe "
-                              "(a circle, or orientation='random'); this shape's lobe is anisotropic")
         self.material = material
         self.isotropic = material.isotropic
-        self.radius_cover = float(params.get("radius", SPEC["radius"].default))
+        self.radius_cover = (cover if self.mixture_scaled
+                             else float(params.get("radius", SPEC["radius"].default)))
         self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
         self.mode_aperture = material.mode == "aperture"
-        if process.varying_area_fraction and material.isotropic:
-            # rows over the texture's range; a uniform value gets ± FA_WINDOW around it, so that an
+        include = ()
+        if process.varying_area_fraction and not self.fa_tex.is_spatially_varying():
+            # a uniform value gets rows ± FA_WINDOW around it (exact at the value itself), so that an
             # optimiser's steps need no rebuild (leaving the rows rebuilds them: parameters_changed)
-            include = ()
-            if not self.fa_tex.is_spatially_varying():     # exact at the value itself
-                include, fa_lo, fa_hi = (fa_hi,), fa_lo - FA_WINDOW, fa_hi + FA_WINDOW
-            fas, tabs, self.row_error = material.area_fraction_rows(max(fa_lo, 0.0), max(fa_hi, 0.0),
-                                                                    include=include)
+            include, fa_lo, fa_hi = (fa_hi,), fa_lo - FA_WINDOW, fa_hi + FA_WINDOW
+        fa_lo, fa_hi = max(fa_lo, 0.0), max(fa_hi, 0.0)
+        s_rows = None
+        if process.varying_area_fraction and material.isotropic:
+            # rows of the radial table over the texture's range
+            fas, tabs, self.row_error = material.area_fraction_rows(fa_lo, fa_hi, include=include)
+            totals = np.array([t.total for t in tabs])
+        elif process.varying_area_fraction and material.render_lobe.s_minus_one is not None:
+            # anisotropic lobes: F_a only moves S, so rows of the radial S - 1 (Hermite in F_a), and
+            # the energy of each row (the material's table's, changed by ∫ C ΔS)
+            from .render_lobe import row_energy_changes, structure_rows
+            fas, s_rows, s_du, self.row_error = structure_rows(material, fa_lo, fa_hi, include=include)
+            totals = material.table.total + row_energy_changes(material, s_rows, s_du)
+            tabs = [material.table]
+        elif process.varying_area_fraction:
+            # S = 1 (poisson): the lobe does not change with F_a, one row over the whole range
+            limit = float(process.area_fraction_limit(material.shape))
+            fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
+            totals = np.array([material.table.total])
+            self.fa_cover = (min(fa_lo, limit), min(fa_hi, limit))
         else:
             fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
+            totals = np.array([material.table.total])
         self.fa_rows_np = fas
         self.n_rows = len(fas)
         self.fa_rows = _array(mi.Float, fas)
@@ -254,21 +279,52 @@ class CoronaBSDFMixin:
             self.row_guide = _array(mi.UInt32, guide[:-1])
             self.row_cells, self.row_cell_scale = cells, cells / span
             self.row_steps = max(1, int(np.max(guide[1:] - guide[:-1])))   # rows inside one cell
-        self.totals = _array(mi.Float, [t.total for t in tabs])
+        # the rows' energies and their slopes in F_a (cubic Hermite between rows: the lobe and its
+        # derivative in F_a continuous, the derivative second-order accurate in the rows' spacing)
+        self.totals = _array(mi.Float, totals)
+        self.total_slopes = _array(mi.Float, row_slopes(fas, totals))
         if self.isotropic:
             self.du = float(tabs[0].du)
             self.n = int(tabs[0].values.size)
-            self.values = _array(mi.Float, np.concatenate([t.values for t in tabs]))
+            rows = np.stack([t.values for t in tabs])
+            self.values = _array(mi.Float, rows.ravel())
+            if self.n_rows > 1:
+                self.slopes = _array(mi.Float, row_slopes(fas, rows).ravel())
             self._set_cdf([t.cdf for t in tabs])
         else:
             # the lobe as exact as the model (analytic form factors or cubic form-factor
             # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
-            # table: corona.lobe_kernels; one row of F_a (an update of it rebuilds)
+            # table: corona.lobe_kernels
             from .lobe_kernels import LobeKernel
             self.kernel = LobeKernel(material)
-        self.fa_cover = (float(fas[0]), float(fas[-1]))
+            if s_rows is not None and self.n_rows > 1:
+                self.kernel.set_structure_rows(s_rows, row_slopes(fas, s_rows))
+                if self.fa_tex.is_spatially_varying() and fas[0] < material.area_fraction:
+                    # sampled from the table at the lowest F_a (its S closest to 1), so that
+                    # eval / pdf ~ S(F_a) / S(lowest) stays bounded over the texture
+                    self._sample_table_at(at(cover), fas[0])
+        if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
         # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
         self.tail = float(material._plane_integral - material.table.total)
+
+    def _mixture_at(self, radius):
+        """The ``mixture`` string with every radius scaled so that the largest is ``radius`` [µm]."""
+        k = radius / self.mixture_largest
+        return ", ".join(f"{kind}:{r * k!r}:{w!r}" for kind, r, w in self.mixture_items)
+
+    def _sample_table_at(self, params, fa):
+        """Sample the anisotropic lobe from the material's table at area fraction ``fa`` instead."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CoronaWarning)
+            low = material_from_parameters(**{**params, "area_fraction": max(float(fa), 1e-6)})
+        table = low.table
+        tb = self.kernel.near
+        if not (table.n == tb["n"] and abs(float(table.lo) - tb["lo"]) <= 1e-9 * abs(tb["lo"])
+                and float(table.warp) == self.kernel.warp):
+            return                                   # another grid: keep the material's own
+        self.kernel.near = dict(tb, total=float(table.total), values=_array(mi.Float, table.values.ravel()))
+        self.kernel.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(table.values, dtype=np.float32))
 
     def _set_cdf(self, cdfs):
         """Normalised float32 CDFs of the rows and their guide tables (:func:`corona.mitsuba_common.guided_cdfs`)."""
@@ -290,6 +346,8 @@ class CoronaBSDFMixin:
             j, t = mi.UInt32(0), mi.Float(0.0)
             total = _gather(mi.Float, self.totals, j, active)
             total_next = total
+            hermite = None
+            energy = total
         else:
             # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
             # first row, or the next one where that lies inside the cell below fa (float32
@@ -308,10 +366,18 @@ class CoronaBSDFMixin:
             f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
             # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
             # the derivative at a row is the next interval's slope, not zero
-            t = (fa - f0) / dr.maximum(f1 - f0, 1e-12)
+            h = dr.maximum(f1 - f0, 1e-12)
+            t = (fa - f0) / h
             total = _gather(mi.Float, self.totals, j, active)
             total_next = _gather(mi.Float, self.totals, j + 1, active)
-        held = fa * dr.lerp(total, total_next, t) * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
+            # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
+            t2 = dr.square(t)
+            t3 = t2 * t
+            hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
+            energy = (hermite[0] * total + hermite[2] * total_next
+                      + hermite[1] * _gather(mi.Float, self.total_slopes, j, active)
+                      + hermite[3] * _gather(mi.Float, self.total_slopes, j + 1, active))
+        held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
         plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
         coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
         budget = dr.maximum(1.0 - coherent, 0.0)
@@ -327,20 +393,27 @@ class CoronaBSDFMixin:
         else:
             L = self.radius_tex.eval_1(si, active) * self.L_per_radius
         return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
-                    coherent=coherent, lobe=lobe, reflect=reflect)
+                    coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite)
 
-    def _table_value(self, ux, uy, row, active):
-        """v(u) of one row: linear in |u| (radial table) or the kernel (anisotropic lobes)."""
-        if self.isotropic:
-            x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
-            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
-            t = x - mi.Float(i)
-            inside = active & (x <= self.n - 1)
-            k = row * self.n + i
-            v0 = _gather(mi.Float, self.values, k, inside)
-            v1 = _gather(mi.Float, self.values, k + 1, inside)
-            return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
-        return self.kernel.value(ux, uy, active)      # anisotropic: corona.lobe_kernels (one row)
+    def _radial_rows(self, ux, uy, row, active, hermite=None):
+        """v(u) of radial row ``row`` (linear in |u|); with ``hermite`` (the layer's weights) also
+        row ``row + 1`` and the lobe interpolated between them: (v_row, v_row+1, v_interpolated)."""
+        x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
+        t = x - mi.Float(i)
+        inside = active & (x <= self.n - 1)
+        k = row * self.n + i
+
+        def at(arr, kk):
+            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
+        v0 = at(self.values, k)
+        if hermite is None:
+            return dr.select(inside, dr.maximum(v0, 0.0), 0.0), None, None
+        v1 = at(self.values, k + self.n)
+        h00, h10, h01, h11 = hermite
+        v = h00 * v0 + h01 * v1 + h10 * at(self.slopes, k) + h11 * at(self.slopes, k + self.n)
+        return (dr.select(inside, dr.maximum(v0, 0.0), 0.0), dr.select(inside, dr.maximum(v1, 0.0), 0.0),
+                dr.select(inside, dr.maximum(v, 0.0), 0.0))
 
     def _sample_u(self, s, row, fa, active):
         """Invert the CDF of table row ``row``: s (Vector2f) -> u (Vector2f).
@@ -374,15 +447,16 @@ class CoronaBSDFMixin:
             lam = lambda_um(lam_nm)
             k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
             ux, uy = dx * k, dy * k
-            v = self._table_value(ux, uy, j, active)
             if self.isotropic:                         # each row is sampled exactly ∝ v
+                v, v_next, v_mid = self._radial_rows(ux, uy, j, active, layer["hermite"])
                 p_u = v / dr.maximum(layer["total"], 1e-30)
+                if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
+                    p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
+                    v = v_mid
             else:                                      # the exact density of the kernel's sampling table
+                srow = None if layer["hermite"] is None else (j, *layer["hermite"])
+                v = self.kernel.value(ux, uy, active, srow)
                 p_u = self.kernel.pdf(ux, uy, active)
-            if interpolate:                            # linear in F_a between two rows
-                v_next = self._table_value(ux, uy, j + 1, active)
-                p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
-                v = dr.lerp(v, v_next, t)
             values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
             # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
             pdf += m * p_u * dr.square(k)
@@ -591,8 +665,11 @@ class CoronaBSDFMixin:
         # the material at the current (largest) values, not at the table's headroom
         (_, fa), (_, radius), (_, albedo) = self._ranges()
         now = {**self.params, "area_fraction": min(max(fa, 1e-6), 1 - 1e-6), "albedo": albedo}
-        if not self.fixed_radius:
+        if self.mixture_scaled:
+            now["mixture"] = self._mixture_at(radius)
+        elif not self.fixed_radius:
             now["radius"] = radius
+        if not self.fixed_radius:
             for name in ("edge_width", "exclusion_diameter", "jitter"):
                 if now.get(name) is not None:
                     now[name] = now[name] * radius / self.radius_ref
