@@ -49,13 +49,18 @@ layer (a texture: its own keys), all differentiable; ``params.update()``
 re-renders without recompiling.  ``radius`` scales the whole layer (the
 scatterer, the exclusion diameter, edge width and jitter together, σ/R
 fixed: lengths given in µm belong to the largest radius at load), so the
-dimensionless table is unchanged and the lobe stays exact.  The lobe is
-tabulated in rows of ``F_a`` (the texture's range; a uniform value ± 0.1)
-close enough that interpolating linearly between two rows changes it by at
-most 0.1 % (:meth:`corona.Material.area_fraction_rows`), and sampled as the
-mixture of the two rows with the same weights, which is also the pdf.
+dimensionless table is unchanged and the lobe stays exact; for a mixture a
+``radius`` texture is the radius of its largest component, every size scaling
+with it.  The lobe is tabulated in rows of ``F_a`` (the texture's range; a
+uniform value ± 0.1) close enough that interpolating linearly between two rows
+changes it by at most 0.1 % (:meth:`corona.Material.area_fraction_rows`;
+anisotropic lobes: rows of the radial ``S - 1``,
+:func:`corona.render_lobe.structure_rows`), evaluated as the cubic Hermite
+interpolation between the two rows (slopes from the rows:
+:func:`corona.render_lobe.row_slopes`; so ``∂/∂F_a`` is continuous) and sampled
+as the mixture of the two rows with the linear weights, which is also the pdf.
 ``lattice-*`` and ``points`` (whose geometry F_a sets) take no F_a texture;
-``mask``, ``mixture`` and ``points`` (absolute sizes) no radius texture.
+``mask`` and ``points`` (absolute sizes) no radius texture.
 
 Spectral variants evaluate each of the lane's wavelengths.  Sampling picks
 one of the lane's wavelengths at random (each with probability 1/n, reusing
