@@ -59,6 +59,10 @@ anisotropic lobes: rows of the radial ``S - 1``,
 interpolation between the two rows (slopes from the rows:
 :func:`corona.render_lobe.row_slopes`; so ``∂/∂F_a`` is continuous) and sampled
 as the mixture of the two rows with the linear weights, which is also the pdf.
+A uniform ``F_a`` on a radial lobe is evaluated on one row at the value
+itself instead (that Hermite interpolation and its slope in ``F_a``,
+re-centred by each ``params.update()``; sampled exactly from that row, so
+``pdf ∝ eval``): one row's cost, and derivatives in ``F_a`` through the slope.
 ``lattice-*`` and ``points`` (whose geometry F_a sets) take no F_a texture;
 ``mask`` and ``points`` (absolute sizes) no radius texture.
 
@@ -85,7 +89,7 @@ import numpy as np
 
 from ._validation import CoronaError, CoronaWarning
 from .mitsuba_common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
-                             fold_spectrum, gather as _gather, guided_cdfs, guided_search,
+                             fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
                              invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
                              pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
                              read_props as _read_props, selection, texture_range, uniform as _uniform,
@@ -270,6 +274,18 @@ class CoronaBSDFMixin:
         else:
             fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
             totals = np.array([material.table.total])
+        # a uniform F_a on a radial lobe: one row at the value itself, Hermite-interpolated from the
+        # rows (and re-centred by parameters_changed), plus its slope in F_a (module docstring)
+        self.centred = (material.isotropic and process.varying_area_fraction and len(fas) > 1
+                        and not self.fa_tex.is_spatially_varying())
+        if self.centred:
+            self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
+            self.fa_rows_np = fas
+            self.n_rows = 1
+            self._centre(float(np.float32(material.area_fraction)))
+            self.tail = float(material._plane_integral - material.table.total)
+            return
         self.fa_rows_np = fas
         self.n_rows = len(fas)
         self.fa_rows = _array(mi.Float, fas)
@@ -294,7 +310,14 @@ class CoronaBSDFMixin:
             rows = np.stack([t.values for t in tabs])
             self.values = _array(mi.Float, rows.ravel())
             if self.n_rows > 1:
-                self.slopes = _array(mi.Float, row_slopes(fas, rows).ravel())
+                # per row interval j and node i, one packet: v_j, v_j+1 and the Hermite terms
+                # a = h m_j - Δv, b = h m_j+1 - Δv (m the slopes, h the interval, Δv = v_j+1 - v_j):
+                # v(t) = lerp(v_j, v_j+1, t) + t (1 - t) [(1 - t) a - t b]
+                m = row_slopes(fas, rows)
+                h = np.diff(fas)[:, None]
+                dv = rows[1:] - rows[:-1]
+                packed = np.stack([rows[:-1], rows[1:], h * m[:-1] - dv, h * m[1:] - dv], -1)
+                self.packed = _array(mi.Float, packed.ravel())
             self._set_cdf([t.cdf for t in tabs])
         else:
             # the lobe as exact as the model (analytic form factors or cubic form-factor
@@ -312,6 +335,35 @@ class CoronaBSDFMixin:
             self.fa_cover = (float(fas[0]), float(fas[-1]))
         # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
         self.tail = float(material._plane_integral - material.table.total)
+
+    def _centre(self, fa):
+        """Put the uniform layer's one row at area fraction ``fa``: the cubic Hermite of the rows
+        around it, its slope in F_a, their energies, and the sampling CDF of that row."""
+        from .tables import RadialTable
+        fas, rows, du = self._window
+        j = int(np.clip(np.searchsorted(fas, fa, side="right") - 1, 0, fas.size - 2))
+        h = fas[j + 1] - fas[j]
+        t = (fa - fas[j]) / h
+        m = row_slopes(fas, rows)
+        a, b = rows[j], rows[j + 1]
+        ma, mb = m[j], m[j + 1]
+        t2, t3 = t * t, t * t * t
+        v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * h * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * h * mb
+        dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * h * ma + (6 * t - 6 * t2) * b
+              + (3 * t2 - 2 * t) * h * mb) / h
+        v = np.maximum(v, 0.0)
+        row = RadialTable(du, v)
+        # ∫ dv/dF_a d²u of the linear-in-u slope (RadialTable clamps its values at 0: not for a slope)
+        u0 = np.arange(dv.size - 1) * du
+        lo, step = dv[:-1], dv[1:] - dv[:-1]
+        slope_total = float(np.sum(2 * np.pi * du * (u0 * lo + (u0 * step + du * lo) / 2 + du * step / 3)))
+        self.du, self.n = du, int(v.size)
+        self.values = _array(mi.Float, v)
+        self.centre_slopes = _array(mi.Float, dv)
+        self.totals = _array(mi.Float, [row.total])
+        self.total_slopes = _array(mi.Float, [slope_total])
+        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
+        self._set_cdf([row.cdf])
 
     def _mixture_at(self, radius):
         """The ``mixture`` string with every radius scaled so that the largest is ``radius`` [µm]."""
@@ -353,6 +405,8 @@ class CoronaBSDFMixin:
             total_next = total
             hermite = None
             energy = total
+            if self.centred:     # = total in value; its derivative in F_a is the row's slope's energy
+                energy = dr.fma(fa - self.fa_centre, _gather(mi.Float, self.total_slopes, j, active), total)
         else:
             # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
             # first row, or the next one where that lies inside the cell below fa (float32
@@ -398,26 +452,28 @@ class CoronaBSDFMixin:
         else:
             L = self.radius_tex.eval_1(si, active) * self.L_per_radius
         return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
-                    coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite)
+                    coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite, energy=energy)
 
-    def _radial_rows(self, ux, uy, row, active, hermite=None):
-        """v(u) of radial row ``row`` (linear in |u|); with ``hermite`` (the layer's weights) also
-        row ``row + 1`` and the lobe interpolated between them: (v_row, v_row+1, v_interpolated)."""
+    def _radial_rows(self, ux, uy, row, active, t_fa=None):
+        """v(u) of radial row ``row`` (linear in |u|); with ``t_fa`` (the layer's position between
+        rows) also row ``row + 1`` and the cubic Hermite between them: (v_row, v_row+1, v(F_a))."""
         x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.n - 1)
         k = row * self.n + i
-
-        def at(arr, kk):
-            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
-        v0 = at(self.values, k)
-        if hermite is None:
+        if t_fa is None:
+            v0 = dr.lerp(_gather(mi.Float, self.values, k, inside), _gather(mi.Float, self.values, k + 1, inside), t)
             return dr.select(inside, dr.maximum(v0, 0.0), 0.0), None, None
-        v1 = at(self.values, k + self.n)
-        h00, h10, h01, h11 = hermite
-        v = h00 * v0 + h01 * v1 + h10 * at(self.slopes, k) + h11 * at(self.slopes, k + self.n)
-        return (dr.select(inside, dr.maximum(v0, 0.0), 0.0), dr.select(inside, dr.maximum(v1, 0.0), 0.0),
+        if self.centred:         # t_fa = F_a - the row's F_a: 0 in value, the slope for derivatives
+            v0 = dr.lerp(_gather(mi.Float, self.values, k, inside), _gather(mi.Float, self.values, k + 1, inside), t)
+            m0 = dr.lerp(_gather(mi.Float, self.centre_slopes, k, inside),
+                         _gather(mi.Float, self.centre_slopes, k + 1, inside), t)
+            return dr.select(inside, dr.maximum(dr.fma(t_fa, m0, v0), 0.0), 0.0), None, None
+        q = dr.lerp(gather4(self.packed, k, inside), gather4(self.packed, k + 1, inside), t)
+        s = t_fa
+        v = dr.lerp(q.x, q.y, s) + s * (1.0 - s) * ((1.0 - s) * q.z - s * q.w)
+        return (dr.select(inside, dr.maximum(q.x, 0.0), 0.0), dr.select(inside, dr.maximum(q.y, 0.0), 0.0),
                 dr.select(inside, dr.maximum(v, 0.0), 0.0))
 
     def _sample_u(self, s, row, fa, active):
@@ -453,8 +509,12 @@ class CoronaBSDFMixin:
             k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
             ux, uy = dx * k, dy * k
             if self.isotropic:                         # each row is sampled exactly ∝ v
-                v, v_next, v_mid = self._radial_rows(ux, uy, j, active, layer["hermite"])
-                p_u = v / dr.maximum(layer["total"], 1e-30)
+                if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
+                    v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
+                    p_u = v / dr.maximum(layer["energy"], 1e-30)
+                else:
+                    v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None)
+                    p_u = v / dr.maximum(layer["total"], 1e-30)
                 if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
                     p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
                     v = v_mid
@@ -665,6 +725,8 @@ class CoronaBSDFMixin:
                    or (not self.fixed_radius and radius[1] > self.radius_cover * (1 + 1e-6)))
         if outside:
             self._setup(*ranges)
+        elif self.centred:
+            self._centre(float(np.float32(fa_hi)))
 
     def to_string(self):
         # the material at the current (largest) values, not at the table's headroom

@@ -128,6 +128,16 @@ def gather(dtype, source, index, active=True):
     return dtype(source[int(index)]) if active else dtype(0)
 
 
+def gather4(source, index, active=True):
+    """``mi.Vector4f`` of ``source[4 index : 4 index + 4]`` (one packet gather; scalar variants too)."""
+    if dr.is_array_v(mi.Float):
+        return dr.gather(mi.Vector4f, source, index, active)
+    if not active:
+        return mi.Vector4f(0.0)
+    k = 4 * int(index)
+    return mi.Vector4f(*[float(source[k + c]) for c in range(4)])
+
+
 def positive(x):
     """``x`` where it is > 0, else 1: a divisor safe in scalar variants too, where
     ``dr.select`` evaluates both branches (``value / pdf`` raised ZeroDivisionError)."""
