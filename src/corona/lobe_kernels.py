@@ -34,7 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .mitsuba_common import array as _array, gather as _gather
+from .mitsuba_common import array as _array, gather as _gather, gather4
 from .render_lobe import TAYLOR_ORDER, TAYLOR_U
 
 # Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
@@ -161,13 +161,23 @@ class LobeKernel:
         self.s_values = _array(mi.Float, np.asarray(s_rows).ravel())
         self.s_slopes = _array(mi.Float, np.asarray(s_slopes).ravel())
 
-    def _s_minus_one(self, ux, uy, active, srow=None):
+    def set_structure_centre(self, s1, ds1):
+        """One row of ``S - 1`` (``s_n``) at a layer's uniform F_a and its slope in F_a:
+        :meth:`value` then takes ``dfa`` (the lane's F_a minus that one: 0 in value)."""
+        s1, ds1 = np.asarray(s1, dtype=np.float64), np.asarray(ds1, dtype=np.float64)
+        # one packet per node i: S(i), dS(i), S(i + 1), dS(i + 1)
+        self.s_centre = _array(mi.Float, np.stack([s1[:-1], ds1[:-1], s1[1:], ds1[1:]], -1).ravel())
+
+    def _s_minus_one(self, ux, uy, active, srow=None, dfa=None):
         """``S - 1`` at ``|u|``: linear in ``|u|``; with ``srow = (j, h00, h10, h01, h11)`` the cubic
         Hermite in ``F_a`` between rows ``j`` and ``j + 1`` (``h10``, ``h11`` times the rows' spacing)."""
         x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.s_du
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.s_n - 1)
+        if dfa is not None:
+            q = gather4(self.s_centre, i, inside)
+            return dr.select(inside, dr.fma(dfa, dr.lerp(q.y, q.w, t), dr.lerp(q.x, q.z, t)), 0.0)
         if srow is None:
             v0 = _gather(mi.Float, self.s_values, i, inside)
             v1 = _gather(mi.Float, self.s_values, i + 1, inside)
@@ -289,7 +299,7 @@ class LobeKernel:
     # ------------------------------------------------------------------
     # interface
     # ------------------------------------------------------------------
-    def value(self, ux, uy, active, srow=None):
+    def value(self, ux, uy, active, srow=None, dfa=None):
         """The renderer's ``v(u)`` (>= 0); ``srow`` picks rows of ``S - 1`` (:meth:`_s_minus_one`)."""
         if self.kind == "table":
             return self._bilinear(self.near, ux, uy, active)
@@ -316,7 +326,7 @@ class LobeKernel:
                 re = dr.fma(w, a_re, re)
             P = inten * self.inv_area_R2
             C = dr.fma(re, re, im * im) * self.inv_area_R2
-        s1 = self._s_minus_one(ux, uy, active, srow) if self.has_s else 0.0
+        s1 = self._s_minus_one(ux, uy, active, srow, dfa) if self.has_s else 0.0
         return dr.select(active, dr.maximum(P + C * s1, 0.0), 0.0)
 
     def pdf(self, ux, uy, active):

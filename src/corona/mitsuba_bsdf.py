@@ -59,10 +59,11 @@ anisotropic lobes: rows of the radial ``S - 1``,
 interpolation between the two rows (slopes from the rows:
 :func:`corona.render_lobe.row_slopes`; so ``∂/∂F_a`` is continuous) and sampled
 as the mixture of the two rows with the linear weights, which is also the pdf.
-A uniform ``F_a`` on a radial lobe is evaluated on one row at the value
-itself instead (that Hermite interpolation and its slope in ``F_a``,
-re-centred by each ``params.update()``; sampled exactly from that row, so
-``pdf ∝ eval``): one row's cost, and derivatives in ``F_a`` through the slope.
+A uniform ``F_a`` is evaluated on one row at the value itself instead (that
+Hermite interpolation and its slope in ``F_a``, re-centred by each
+``params.update()``; a radial lobe is sampled exactly from that row, so
+``pdf ∝ eval``; an anisotropic one from its table at the loaded value): one
+row's cost, and derivatives in ``F_a`` through the slope.
 ``lattice-*`` and ``points`` (whose geometry F_a sets) take no F_a texture;
 ``mask`` and ``points`` (absolute sizes) no radius texture.
 
@@ -104,6 +105,21 @@ FA_WINDOW = 0.1
 #: (kept for :mod:`corona.mitsuba_sphere` until it imports :mod:`corona.mitsuba_common` itself)
 _channel_response = channel_response
 __all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
+
+
+def _hermite(x, rows, at):
+    """Cubic Hermite interpolation of ``rows`` (n, ...) over ``x`` (n,) at ``at``, with the slopes of
+    :func:`corona.render_lobe.row_slopes`: (value, derivative in x), float64."""
+    j = int(np.clip(np.searchsorted(x, at, side="right") - 1, 0, x.size - 2))
+    h = x[j + 1] - x[j]
+    t = (at - x[j]) / h
+    m = row_slopes(x, rows)
+    a, b, ma, mb = rows[j], rows[j + 1], m[j], m[j + 1]
+    t2, t3 = t * t, t * t * t
+    v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * h * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * h * mb
+    dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * h * ma + (6 * t - 6 * t2) * b
+          + (3 * t2 - 2 * t) * h * mb) / h
+    return v, dv
 
 
 class CoronaBSDFMixin:
@@ -274,12 +290,17 @@ class CoronaBSDFMixin:
         else:
             fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
             totals = np.array([material.table.total])
-        # a uniform F_a on a radial lobe: one row at the value itself, Hermite-interpolated from the
-        # rows (and re-centred by parameters_changed), plus its slope in F_a (module docstring)
-        self.centred = (material.isotropic and process.varying_area_fraction and len(fas) > 1
+        # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
+        # re-centred by parameters_changed), plus its slope in F_a (module docstring)
+        self.centred = (process.varying_area_fraction and len(fas) > 1
                         and not self.fa_tex.is_spatially_varying())
         if self.centred:
-            self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
+            if material.isotropic:
+                self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
+            else:
+                from .lobe_kernels import LobeKernel
+                self.kernel = LobeKernel(material)
+                self._window = (fas, s_rows, np.asarray(totals, dtype=np.float64))
             self.fa_cover = (float(fas[0]), float(fas[-1]))
             self.fa_rows_np = fas
             self.n_rows = 1
@@ -340,17 +361,17 @@ class CoronaBSDFMixin:
         """Put the uniform layer's one row at area fraction ``fa``: the cubic Hermite of the rows
         around it, its slope in F_a, their energies, and the sampling CDF of that row."""
         from .tables import RadialTable
+        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
+        if not self.isotropic:    # rows of S - 1 and of the energy
+            fas, s_rows, totals = self._window
+            s1, ds1 = _hermite(fas, s_rows, fa)
+            tot, dtot = _hermite(fas, totals[:, None], fa)
+            self.kernel.set_structure_centre(s1, ds1)
+            self.totals = _array(mi.Float, tot)
+            self.total_slopes = _array(mi.Float, dtot)
+            return
         fas, rows, du = self._window
-        j = int(np.clip(np.searchsorted(fas, fa, side="right") - 1, 0, fas.size - 2))
-        h = fas[j + 1] - fas[j]
-        t = (fa - fas[j]) / h
-        m = row_slopes(fas, rows)
-        a, b = rows[j], rows[j + 1]
-        ma, mb = m[j], m[j + 1]
-        t2, t3 = t * t, t * t * t
-        v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * h * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * h * mb
-        dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * h * ma + (6 * t - 6 * t2) * b
-              + (3 * t2 - 2 * t) * h * mb) / h
+        v, dv = _hermite(fas, rows, fa)
         v = np.maximum(v, 0.0)
         row = RadialTable(du, v)
         # ∫ dv/dF_a d²u of the linear-in-u slope (RadialTable clamps its values at 0: not for a slope)
@@ -362,7 +383,6 @@ class CoronaBSDFMixin:
         self.centre_slopes = _array(mi.Float, dv)
         self.totals = _array(mi.Float, [row.total])
         self.total_slopes = _array(mi.Float, [slope_total])
-        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
         self._set_cdf([row.cdf])
 
     def _mixture_at(self, radius):
@@ -520,7 +540,8 @@ class CoronaBSDFMixin:
                     v = v_mid
             else:                                      # the exact density of the kernel's sampling table
                 srow = None if layer["hermite"] is None else (j, *layer["hermite"])
-                v = self.kernel.value(ux, uy, active, srow)
+                dfa = layer["fa"] - self.fa_centre if self.centred else None
+                v = self.kernel.value(ux, uy, active, srow, dfa)
                 p_u = self.kernel.pdf(ux, uy, active)
             values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
             # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
