@@ -90,7 +90,7 @@ import numpy as np
 
 from ._validation import CoronaError, CoronaWarning
 from .mitsuba_common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
-                             fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
+                             fold_spectrum, gather as _gather, guided_cdfs, guided_search,
                              invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
                              pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
                              read_props as _read_props, selection, texture_range, uniform as _uniform,
@@ -331,14 +331,7 @@ class CoronaBSDFMixin:
             rows = np.stack([t.values for t in tabs])
             self.values = _array(mi.Float, rows.ravel())
             if self.n_rows > 1:
-                # per row interval j and node i, one packet: v_j, v_j+1 and the Hermite terms
-                # a = h m_j - Δv, b = h m_j+1 - Δv (m the slopes, h the interval, Δv = v_j+1 - v_j):
-                # v(t) = lerp(v_j, v_j+1, t) + t (1 - t) [(1 - t) a - t b]
-                m = row_slopes(fas, rows)
-                h = np.diff(fas)[:, None]
-                dv = rows[1:] - rows[:-1]
-                packed = np.stack([rows[:-1], rows[1:], h * m[:-1] - dv, h * m[1:] - dv], -1)
-                self.packed = _array(mi.Float, packed.ravel())
+                self.slopes = _array(mi.Float, row_slopes(fas, rows).ravel())   # ∂v/∂F_a of each row
             self._set_cdf([t.cdf for t in tabs])
         else:
             # the lobe as exact as the model (analytic form factors or cubic form-factor
@@ -474,9 +467,11 @@ class CoronaBSDFMixin:
         return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
                     coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite, energy=energy)
 
-    def _radial_rows(self, ux, uy, row, active, t_fa=None):
-        """v(u) of radial row ``row`` (linear in |u|); with ``t_fa`` (the layer's position between
-        rows) also row ``row + 1`` and the cubic Hermite between them: (v_row, v_row+1, v(F_a))."""
+    def _radial_rows(self, ux, uy, row, active, t_fa=None, hermite=None):
+        """v(u) of radial row ``row`` (linear in |u|): (v_row, None, None).  With ``t_fa`` (the
+        layer's position between rows) and ``hermite`` (its Hermite weights) also row ``row + 1`` and
+        the cubic Hermite between them: (v_row, v_row+1, v(F_a)); a centred layer's one row takes
+        ``t_fa = F_a - its F_a`` and adds that times the row's slope: (v(F_a), None, None)."""
         x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
         t = x - mi.Float(i)
@@ -490,10 +485,12 @@ class CoronaBSDFMixin:
             m0 = dr.lerp(_gather(mi.Float, self.centre_slopes, k, inside),
                          _gather(mi.Float, self.centre_slopes, k + 1, inside), t)
             return dr.select(inside, dr.maximum(dr.fma(t_fa, m0, v0), 0.0), 0.0), None, None
-        q = dr.lerp(gather4(self.packed, k, inside), gather4(self.packed, k + 1, inside), t)
-        s = t_fa
-        v = dr.lerp(q.x, q.y, s) + s * (1.0 - s) * ((1.0 - s) * q.z - s * q.w)
-        return (dr.select(inside, dr.maximum(q.x, 0.0), 0.0), dr.select(inside, dr.maximum(q.y, 0.0), 0.0),
+        def at(arr, kk):
+            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
+        v0, v1 = at(self.values, k), at(self.values, k + self.n)
+        h00, h10, h01, h11 = hermite
+        v = h00 * v0 + h01 * v1 + h10 * at(self.slopes, k) + h11 * at(self.slopes, k + self.n)
+        return (dr.select(inside, dr.maximum(v0, 0.0), 0.0), dr.select(inside, dr.maximum(v1, 0.0), 0.0),
                 dr.select(inside, dr.maximum(v, 0.0), 0.0))
 
     def _sample_u(self, s, row, fa, active):
@@ -533,7 +530,8 @@ class CoronaBSDFMixin:
                     v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
                     p_u = v / dr.maximum(layer["energy"], 1e-30)
                 else:
-                    v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None)
+                    v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
+                                                         layer["hermite"])
                     p_u = v / dr.maximum(layer["total"], 1e-30)
                 if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
                     p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
