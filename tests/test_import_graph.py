@@ -16,11 +16,7 @@ SRC = pathlib.Path(__file__).resolve().parents[1] / "src"
 PACKAGE = "corona"
 
 #: Cycles that another change removes; each entry is one pair whose mutual edges are ignored.
-KNOWN_CYCLES = {
-    # the Mie sphere's plugin and the opaque-scatterer plugin dispatch to each other; the
-    # plugin refactor (one plugin, one shared Dr.Jit module) breaks this pair: drop it then
-    frozenset({"corona.mitsuba_bsdf", "corona.mitsuba_sphere"}),
-}
+KNOWN_CYCLES: set = set()
 
 #: Modules outside corona.reference allowed to import it, each with the reason.
 REFERENCE_IMPORTERS = {

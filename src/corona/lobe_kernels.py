@@ -1,4 +1,4 @@
-"""Dr.Jit kernels of the renderer's lobe for anisotropic materials (issue 18).
+"""Dr.Jit kernels of the renderer's lobe for anisotropic materials.
 
 The plugin (:mod:`corona.mitsuba_bsdf`) evaluates, samples and gives the pdf
 of the lobe ``v(u)`` of :class:`corona.render_lobe.RenderLobe` through
@@ -34,6 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .mitsuba_common import array as _array, gather as _gather, gather4
 from .render_lobe import TAYLOR_ORDER, TAYLOR_U
 
 # Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
@@ -41,18 +42,6 @@ _J1_SMALL = (0.5, -0.56249985, 0.21093573, -0.03954289, 0.00443319, -0.00031761,
 # 9.4.6: J1(x) = x^{-1/2} f1 cos θ1, x >= 3, in powers of 3/x
 _J1_F1 = (0.79788456, 0.00000156, 0.01659667, 0.00017105, -0.00249511, 0.00113653, -0.00020033)
 _J1_TH = (-2.35619449, 0.12499612, 0.00005650, -0.00637879, 0.00074348, 0.00079824, -0.00029166)
-
-
-def _array(dtype, values):
-    """A Dr.Jit array of ``values`` (float32 / int32); numpy in scalar variants."""
-    a = np.asarray(values, dtype=np.int32 if dtype is mi.Int32 else np.float32)
-    return dtype(a) if dr.is_array_v(dtype) else a
-
-
-def _gather(dtype, source, index, active=True):
-    if dr.is_array_v(dtype):
-        return dr.gather(dtype, source, index, active)
-    return dtype(source[int(index)]) if active else dtype(0)
 
 
 def _poly(coeffs, x):
@@ -166,14 +155,41 @@ class LobeKernel:
         v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
         return dr.select(inside, dr.maximum(v, 0.0), 0.0)
 
-    def _s_minus_one(self, ux, uy, active):
+    def set_structure_rows(self, s_rows, s_slopes):
+        """Rows of ``S - 1`` over the area fraction (``(n_rows, s_n)``, :func:`corona.render_lobe.structure_rows`)
+        and their slopes in ``F_a``: :meth:`value` then takes the row and Hermite weights of each lane."""
+        self.s_values = _array(mi.Float, np.asarray(s_rows).ravel())
+        self.s_slopes = _array(mi.Float, np.asarray(s_slopes).ravel())
+
+    def set_structure_centre(self, s1, ds1):
+        """One row of ``S - 1`` (``s_n``) at a layer's uniform F_a and its slope in F_a:
+        :meth:`value` then takes ``dfa`` (the lane's F_a minus that one: 0 in value)."""
+        s1, ds1 = np.asarray(s1, dtype=np.float64), np.asarray(ds1, dtype=np.float64)
+        # one packet per node i: S(i), dS(i), S(i + 1), dS(i + 1)
+        self.s_centre = _array(mi.Float, np.stack([s1[:-1], ds1[:-1], s1[1:], ds1[1:]], -1).ravel())
+
+    def _s_minus_one(self, ux, uy, active, srow=None, dfa=None):
+        """``S - 1`` at ``|u|``: linear in ``|u|``; with ``srow = (j, h00, h10, h01, h11)`` the cubic
+        Hermite in ``F_a`` between rows ``j`` and ``j + 1`` (``h10``, ``h11`` times the rows' spacing)."""
         x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.s_du
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.s_n - 1)
-        v0 = _gather(mi.Float, self.s_values, i, inside)
-        v1 = _gather(mi.Float, self.s_values, i + 1, inside)
-        return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
+        if dfa is not None:
+            q = gather4(self.s_centre, i, inside)
+            return dr.select(inside, dr.fma(dfa, dr.lerp(q.y, q.w, t), dr.lerp(q.x, q.z, t)), 0.0)
+        if srow is None:
+            v0 = _gather(mi.Float, self.s_values, i, inside)
+            v1 = _gather(mi.Float, self.s_values, i + 1, inside)
+            return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
+        j, h00, h10, h01, h11 = srow
+        k = j * self.s_n + i
+
+        def at(arr, kk):
+            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
+        v = (h00 * at(self.s_values, k) + h01 * at(self.s_values, k + self.s_n)
+             + h10 * at(self.s_slopes, k) + h11 * at(self.s_slopes, k + self.s_n))
+        return dr.select(inside, v, 0.0)
 
     def _cubic(self, grids, ux, uy, active):
         """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
@@ -283,8 +299,8 @@ class LobeKernel:
     # ------------------------------------------------------------------
     # interface
     # ------------------------------------------------------------------
-    def value(self, ux, uy, active):
-        """The renderer's ``v(u)`` (>= 0)."""
+    def value(self, ux, uy, active, srow=None, dfa=None):
+        """The renderer's ``v(u)`` (>= 0); ``srow`` picks rows of ``S - 1`` (:meth:`_s_minus_one`)."""
         if self.kind == "table":
             return self._bilinear(self.near, ux, uy, active)
         if self.kind == "grid":
@@ -310,7 +326,7 @@ class LobeKernel:
                 re = dr.fma(w, a_re, re)
             P = inten * self.inv_area_R2
             C = dr.fma(re, re, im * im) * self.inv_area_R2
-        s1 = self._s_minus_one(ux, uy, active) if self.has_s else 0.0
+        s1 = self._s_minus_one(ux, uy, active, srow, dfa) if self.has_s else 0.0
         return dr.select(active, dr.maximum(P + C * s1, 0.0), 0.0)
 
     def pdf(self, ux, uy, active):

@@ -26,9 +26,7 @@ MODES = ("aperture", "particle")
 #: loses accuracy there, but the model stays computable.
 SMALL_RADIUS_WAVELENGTHS = 2.0
 
-#: Largest relative change of the lobe from interpolating between area-fraction rows
-#: (:meth:`Material.area_fraction_rows`).
-ROW_TOLERANCE = 0.001
+ROW_TOLERANCE = tables.ROW_TOLERANCE
 PROGRESS_DELAY = tables.PROGRESS_DELAY
 _small_radius_warned = False
 

@@ -56,13 +56,23 @@ layer (a texture: its own keys), all differentiable; ``params.update()``
 re-renders without recompiling.  ``radius`` scales the whole layer (the
 scatterer, the exclusion diameter, edge width and jitter together, σ/R
 fixed: lengths given in µm belong to the largest radius at load), so the
-dimensionless table is unchanged and the lobe stays exact.  The lobe is
-tabulated in rows of ``F_a`` (the texture's range; a uniform value ± 0.1)
-close enough that interpolating linearly between two rows changes it by at
-most 0.1 % (:meth:`corona.Material.area_fraction_rows`), and sampled as the
-mixture of the two rows with the same weights, which is also the pdf.
+dimensionless table is unchanged and the lobe stays exact; for a mixture a
+``radius`` texture is the radius of its largest component, every size scaling
+with it.  The lobe is tabulated in rows of ``F_a`` (the texture's range; a
+uniform value ± 0.1) close enough that interpolating linearly between two rows
+changes it by at most 0.1 % (:meth:`corona.Material.area_fraction_rows`;
+anisotropic lobes: rows of the radial ``S - 1``,
+:func:`corona.render_lobe.structure_rows`), evaluated as the cubic Hermite
+interpolation between the two rows (slopes from the rows:
+:func:`corona.render_lobe.row_slopes`; so ``∂/∂F_a`` is continuous) and sampled
+as the mixture of the two rows with the linear weights, which is also the pdf.
+A uniform ``F_a`` is evaluated on one row at the value itself instead (that
+Hermite interpolation and its slope in ``F_a``, re-centred by each
+``params.update()``; a radial lobe is sampled exactly from that row, so
+``pdf ∝ eval``; an anisotropic one from its table at the loaded value): one
+row's cost, and derivatives in ``F_a`` through the slope.
 ``lattice-*`` and ``points`` (whose geometry F_a sets) take no F_a texture;
-``mask``, ``mixture`` and ``points`` (absolute sizes) no radius texture.
+``mask`` and ``points`` (absolute sizes) no radius texture.
 
 Spectral variants evaluate each of the lane's wavelengths.  Sampling picks
 one of the lane's wavelengths at random (each with probability 1/n, reusing
@@ -86,152 +96,45 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from . import tables
 from ._validation import CoronaError, CoronaWarning
-from .parameters import SPEC, material_from_parameters, rst_table
+from .mitsuba_common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_curves, channel_response,
+                             fold_spectrum, gather as _gather, guided_cdfs, guided_search,
+                             invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
+                             pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
+                             read_props as _read_props, selection, texture_range, uniform as _uniform,
+                             wavelength_mixture)
+from .parameters import SPEC, material_from_parameters, parse_mixture, rst_table
+from .render_lobe import row_slopes
 from .substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
 
 __doc__ = __doc__.replace("{table}", rst_table())
 
-N_RESPONSE = 8
 #: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
 FA_WINDOW = 0.1
-NEWTON_STEPS = 5
-
-
-#: Parameters that take a Mitsuba texture as well as a float (a float becomes a
-#: ``uniform`` texture, so ``mi.traverse`` shows ``area_fraction.value`` etc.).
-TEXTURED = ("area_fraction", "radius", "albedo")
-
-
-def _read_props(props) -> tuple[dict, dict]:
-    """Named parameters from a ``mi.Properties``, checked against :data:`SPEC`
-    (unknown names are an error), and the textures of :data:`TEXTURED`."""
-    out, textures = {}, {}
-    for name in props.keys():
-        if name not in SPEC:
-            raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(SPEC))}")
-        value = props.get(name)
-        if name in TEXTURED and isinstance(value, mi.Texture):
-            textures[name] = value
-            continue
-        if SPEC[name].kind in ("float", "int"):
-            if isinstance(value, bool):   # <boolean name="radius" value="true"/> is no size
-                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; allowed {SPEC[name].allowed}")
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; "
-                                  f"allowed {SPEC[name].allowed}") from None
-        else:
-            value = str(value)
-        out[name] = SPEC[name].check(value)
-    return out, textures
-
-
-def _uniform(value: float):
-    """A ``uniform`` texture of ``value``, made by the plugin manager, not the scene parser.
-
-    The BSDF is built while Mitsuba loads a scene, on one of its loader threads.  Mitsuba's
-    parser (``mi.load_dict``, ``load_string``, ``load_file``) replaces the process-wide
-    ``FileResolver`` for the duration of a load and frees its copy at the end, while the other
-    loader threads read that resolver (resolving plugin libraries, ``data/srgb.coeff``, bitmap
-    file names): a nested load from here left them reading freed memory
-    (``basic_string::_M_create``, ``std::bad_alloc`` in the next emitter).
-    ``PluginManager.create_object`` only reads the resolver.
-    """
-    props = mi.Properties("uniform")
-    props["value"] = float(value)
-    return mi.PluginManager.instance().create_object(props)
-
-
-def texture_range(texture) -> tuple[float | None, float]:
-    """(min, max) of a scalar texture's values.
-
-    Evaluated at the texel centres of a bitmap (``texture.resolution()``) or
-    on a 64×64 grid of uv for procedural textures (scalar variants: every
-    k-th of these points, at most 256×256); where the texture cannot
-    be evaluated without a mesh (``mesh_attribute``) the minimum is unknown
-    (None) and the maximum is ``texture.max()``.  A NaN texel makes both NaN,
-    an infinite one the end it lies on (the caller refuses them by name).
-    """
-    if not texture.is_spatially_varying():
-        v = float(np.asarray(dr.detach(texture.mean())).ravel()[0])
-        return v, v
-    res = [int(x) for x in texture.resolution()]
-    nx, ny = min(max(res[0], 64), 4096), min(max(res[1], 64), 4096)
-    uu, vv = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(ny) + 0.5) / ny)
-    try:
-        if dr.is_array_v(mi.Float):
-            si = dr.zeros(mi.SurfaceInteraction3f, uu.size)
-            si.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
-            vals = np.asarray(dr.detach(texture.eval_1(si)), dtype=np.float64).ravel()
-        else:   # scalar variants: one point at a time, on at most 256×256 of the points
-            si = dr.zeros(mi.SurfaceInteraction3f)
-            step = max(1, -(-max(nx, ny) // 256))
-            vals = []
-            for u, v in zip(uu[::step, ::step].ravel(), vv[::step, ::step].ravel()):
-                si.uv = mi.Point2f(float(u), float(v))
-                vals.append(float(texture.eval_1(si)))
-            vals = np.asarray(vals)
-        if vals.size:          # NaN / ±inf texels come out as such: the caller names them
-            return float(np.min(vals)), float(np.max(vals))
-    except Exception:  # noqa: BLE001 - textures that need a mesh
-        pass
-    return None, float(texture.max())
-
-
-def _channel_curves():
-    """(wavelengths [nm] (n,), responses (channels, n)) of the RGB / mono channels."""
-    from .color import XYZ_TO_SRGB, cie1931_xyz
-    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 2048)
-    xyz = cie1931_xyz(lam).T                                     # (3, n)
-    return lam, (xyz[1:2] if mi.is_monochromatic else np.maximum(XYZ_TO_SRGB @ xyz, 0.0))
+#: (the old private name, for callers outside the package)
+_channel_response = channel_response
+__all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
 
 
 @functools.lru_cache(maxsize=2)
 def _channel_envelopes(mono: bool):
     """The double pass's fringe tables of the active variant's channels (built once per kind)."""
-    return channel_envelopes(*_channel_curves(), N_RESPONSE)
+    return channel_envelopes(*channel_curves(), N_RESPONSE)
 
 
-def _channel_response():
-    """(wavelengths [nm], weights) of the RGB / mono channels, each (channels, N_RESPONSE).
-
-    Each channel's response (CIE 1931 → linear sRGB, negative lobes clipped;
-    ȳ for mono) is represented by ``N_RESPONSE`` wavelengths at equal-weight
-    quantiles of the response, so the channel value is their mean.
-    """
-    lam, resp = _channel_curves()
-    chans = []
-    for r in resp:
-        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
-        qs = (np.arange(N_RESPONSE) + 0.5) / N_RESPONSE * cdf[-1]
-        chans.append(np.interp(qs, cdf, lam))
-    chans = np.array(chans)
-    return chans, np.full(chans.shape, 1.0 / N_RESPONSE)
-
-
-def _array(dtype, values):
-    """A Dr.Jit array of ``values`` (float32 / uint32); a numpy array in scalar variants."""
-    if dtype is mi.UInt32:
-        a = np.asarray(values, dtype=np.uint32)
-    else:
-        a = np.asarray(values, dtype=np.float32)
-    return a if dr.is_array_v(dtype) is False else dtype(a)
-
-
-def _positive(x):
-    """``x`` where it is > 0, else 1: a divisor safe in scalar variants too, where
-    ``dr.select`` evaluates both branches (``value / pdf`` raised ZeroDivisionError)."""
-    return dr.select(x > 0, x, 1.0)
-
-
-def _gather(dtype, source, index, active=True):
-    """``dr.gather`` that also works in scalar variants (Python scalars there)."""
-    if dr.is_array_v(dtype):
-        return dr.gather(dtype, source, index, active)
-    return dtype(source[int(index)]) if active else dtype(0)
+def _hermite(x, rows, at):
+    """Cubic Hermite interpolation of ``rows`` (n, ...) over ``x`` (n,) at ``at``, with the slopes of
+    :func:`corona.render_lobe.row_slopes`: (value, derivative in x), float64."""
+    j = int(np.clip(np.searchsorted(x, at, side="right") - 1, 0, x.size - 2))
+    h = x[j + 1] - x[j]
+    t = (at - x[j]) / h
+    m = row_slopes(x, rows)
+    a, b, ma, mb = rows[j], rows[j + 1], m[j], m[j + 1]
+    t2, t3 = t * t, t * t * t
+    v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * h * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * h * mb
+    dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * h * ma + (6 * t - 6 * t2) * b
+          + (3 * t2 - 2 * t) * h * mb) / h
+    return v, dv
 
 
 class CoronaBSDFMixin:
@@ -255,11 +158,18 @@ class CoronaBSDFMixin:
         self.fa_tex = textures["area_fraction"]
         self.radius_tex = textures["radius"]
         self.albedo_tex = textures["albedo"]
-        # sizes that do not follow `radius`: a mask's pixels, a point file's positions, a mixture's radii
-        self.fixed_radius = (params.get("shape") in ("mask", "mixture") or params.get("process") == "points")
         self._textured = {k for k in textures if textures[k].is_spatially_varying()}
+        # a mixture's radius texture is the radius of its largest component: every size scales with it
+        self.mixture_scaled = params.get("shape") == "mixture" and "radius" in self._textured
+        if self.mixture_scaled:
+            self.mixture_items = parse_mixture(params["mixture"])
+            self.mixture_largest = max(r for _, r, w in self.mixture_items if w > 0)
+        # sizes that do not follow `radius`: a mask's pixels, a point file's positions, a mixture's
+        # radii (unless the radius is a texture)
+        self.fixed_radius = ((params.get("shape") == "mask" or params.get("process") == "points"
+                              or params.get("shape") == "mixture") and not self.mixture_scaled)
         if self.fixed_radius and "radius" in self._textured:
-            raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or 'mixture', or "
+            raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or "
                               "process='points' (their sizes and positions are absolute); give a float")
         ranges = self._ranges()
         # absolute lengths (edge_width, exclusion_diameter, jitter) belong to the largest radius at
@@ -277,7 +187,7 @@ class CoronaBSDFMixin:
 
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
-            lam, w = _channel_response()
+            lam, w = channel_response()
             self.channel_lambdas = lam           # (channels, N) nm
             self.channel_weights = w
 
@@ -339,8 +249,10 @@ class CoronaBSDFMixin:
         def at(radius):      # the parameters with the layer scaled to `radius` (σ/R fixed)
             if self.fixed_radius:
                 return params
-            return {**params, "radius": radius, **{k: params[k] * radius / self.radius_ref
-                                                   for k in lengths if params.get(k) is not None}}
+            scaled = {k: params[k] * radius / self.radius_ref for k in lengths if params.get(k) is not None}
+            if self.mixture_scaled:      # every component's radius, the largest one at `radius`
+                return {**params, **scaled, "mixture": self._mixture_at(radius)}
+            return {**params, "radius": radius, **scaled}
         try:
             # checked at the values given (their messages name those), built at the table's cover
             material = material_from_parameters(**at(radius_range[1]))
@@ -361,24 +273,56 @@ class CoronaBSDFMixin:
             raise CoronaError(f"corona BSDF: area_fraction cannot be a texture with process="
                               f"{self.params.get('process', SPEC['process'].default)!r} (the area fraction "
                               "sets its geometry); use poisson, hard-disk or rsa")
-        if not material.isotropic and (fa_lo != fa_hi or "area_fraction" in self._textured):
-            raise CoronaError("corona BSDF: area_fraction can be a texture only for a radial lobe "
-                              "(a circle, or orientation='random'); this shape's lobe is anisotropic")
         self.material = material
         self.isotropic = material.isotropic
-        self.radius_cover = float(params.get("radius", SPEC["radius"].default))
+        self.radius_cover = (cover if self.mixture_scaled
+                             else float(params.get("radius", SPEC["radius"].default)))
         self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
         self.mode_aperture = material.mode == "aperture"
-        if process.varying_area_fraction and material.isotropic:
-            # rows over the texture's range; a uniform value gets ± FA_WINDOW around it, so that an
+        include = ()
+        if process.varying_area_fraction and not self.fa_tex.is_spatially_varying():
+            # a uniform value gets rows ± FA_WINDOW around it (exact at the value itself), so that an
             # optimiser's steps need no rebuild (leaving the rows rebuilds them: parameters_changed)
-            include = ()
-            if not self.fa_tex.is_spatially_varying():     # exact at the value itself
-                include, fa_lo, fa_hi = (fa_hi,), fa_lo - FA_WINDOW, fa_hi + FA_WINDOW
-            fas, tabs, self.row_error = material.area_fraction_rows(max(fa_lo, 0.0), max(fa_hi, 0.0),
-                                                                    include=include)
+            include, fa_lo, fa_hi = (fa_hi,), fa_lo - FA_WINDOW, fa_hi + FA_WINDOW
+        fa_lo, fa_hi = max(fa_lo, 0.0), max(fa_hi, 0.0)
+        s_rows = None
+        if process.varying_area_fraction and material.isotropic:
+            # rows of the radial table over the texture's range
+            fas, tabs, self.row_error = material.area_fraction_rows(fa_lo, fa_hi, include=include)
+            totals = np.array([t.total for t in tabs])
+        elif process.varying_area_fraction and material.render_lobe.s_minus_one is not None:
+            # anisotropic lobes: F_a only moves S, so rows of the radial S - 1 (Hermite in F_a), and
+            # the energy of each row (the material's table's, changed by ∫ C ΔS)
+            from .render_lobe import row_energy_changes, structure_rows
+            fas, s_rows, s_du, self.row_error = structure_rows(material, fa_lo, fa_hi, include=include)
+            totals = material.table.total + row_energy_changes(material, s_rows, s_du)
+            tabs = [material.table]
+        elif process.varying_area_fraction:
+            # S = 1 (poisson): the lobe does not change with F_a, one row over the whole range
+            limit = float(process.area_fraction_limit(material.shape))
+            fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
+            totals = np.array([material.table.total])
+            self.fa_cover = (min(fa_lo, limit), min(fa_hi, limit))
         else:
             fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
+            totals = np.array([material.table.total])
+        # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
+        # re-centred by parameters_changed), plus its slope in F_a (module docstring)
+        self.centred = (process.varying_area_fraction and len(fas) > 1
+                        and not self.fa_tex.is_spatially_varying())
+        if self.centred:
+            if material.isotropic:
+                self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
+            else:
+                from .lobe_kernels import LobeKernel
+                self.kernel = LobeKernel(material)
+                self._window = (fas, s_rows, np.asarray(totals, dtype=np.float64))
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
+            self.fa_rows_np = fas
+            self.n_rows = 1
+            self._centre(float(np.float32(material.area_fraction)))
+            self.tail = float(material._plane_integral - material.table.total)
+            return
         self.fa_rows_np = fas
         self.n_rows = len(fas)
         self.fa_rows = _array(mi.Float, fas)
@@ -393,54 +337,93 @@ class CoronaBSDFMixin:
             self.row_guide = _array(mi.UInt32, guide[:-1])
             self.row_cells, self.row_cell_scale = cells, cells / span
             self.row_steps = max(1, int(np.max(guide[1:] - guide[:-1])))   # rows inside one cell
-        self.totals = _array(mi.Float, [t.total for t in tabs])
+        # the rows' energies and their slopes in F_a (cubic Hermite between rows: the lobe and its
+        # derivative in F_a continuous, the derivative second-order accurate in the rows' spacing)
+        self.totals = _array(mi.Float, totals)
+        self.total_slopes = _array(mi.Float, row_slopes(fas, totals))
         if self.isotropic:
             self.du = float(tabs[0].du)
             self.n = int(tabs[0].values.size)
-            self.values = _array(mi.Float, np.concatenate([t.values for t in tabs]))
+            rows = np.stack([t.values for t in tabs])
+            self.values = _array(mi.Float, rows.ravel())
+            if self.n_rows > 1:
+                self.slopes = _array(mi.Float, row_slopes(fas, rows).ravel())   # ∂v/∂F_a of each row
             self._set_cdf([t.cdf for t in tabs])
         else:
             # the lobe as exact as the model (analytic form factors or cubic form-factor
             # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
-            # table: corona.lobe_kernels; one row of F_a (an update of it rebuilds)
+            # table: corona.lobe_kernels
             from .lobe_kernels import LobeKernel
             self.kernel = LobeKernel(material)
-        self.fa_cover = (float(fas[0]), float(fas[-1]))
+            if s_rows is not None and self.n_rows > 1:
+                self.kernel.set_structure_rows(s_rows, row_slopes(fas, s_rows))
+                if self.fa_tex.is_spatially_varying() and fas[0] < material.area_fraction:
+                    # sampled from the table at the lowest F_a (its S closest to 1), so that
+                    # eval / pdf ~ S(F_a) / S(lowest) stays bounded over the texture
+                    self._sample_table_at(at(cover), fas[0])
+        if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
         # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
         self.tail = float(material._plane_integral - material.table.total)
 
-    def _set_cdf(self, cdfs):
-        """Normalised CDFs of the rows (float32) plus guide tables that narrow each search.
+    def _centre(self, fa):
+        """Put the uniform layer's one row at area fraction ``fa``: the cubic Hermite of the rows
+        around it, its slope in F_a, their energies, and the sampling CDF of that row."""
+        from .tables import RadialTable
+        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
+        if not self.isotropic:    # rows of S - 1 and of the energy
+            fas, s_rows, totals = self._window
+            s1, ds1 = _hermite(fas, s_rows, fa)
+            tot, dtot = _hermite(fas, totals[:, None], fa)
+            self.kernel.set_structure_centre(s1, ds1)
+            self.totals = _array(mi.Float, tot)
+            self.total_slopes = _array(mi.Float, dtot)
+            return
+        fas, rows, du = self._window
+        v, dv = _hermite(fas, rows, fa)
+        v = np.maximum(v, 0.0)
+        row = RadialTable(du, v)
+        # ∫ dv/dF_a d²u of the linear-in-u slope (RadialTable clamps its values at 0: not for a slope)
+        u0 = np.arange(dv.size - 1) * du
+        lo, step = dv[:-1], dv[1:] - dv[:-1]
+        slope_total = float(np.sum(2 * np.pi * du * (u0 * lo + (u0 * step + du * lo) / 2 + du * step / 3)))
+        self.du, self.n = du, int(v.size)
+        self.values = _array(mi.Float, v)
+        self.centre_slopes = _array(mi.Float, dv)
+        self.totals = _array(mi.Float, [row.total])
+        self.total_slopes = _array(mi.Float, [slope_total])
+        self._set_cdf([row.cdf])
 
-        ``guide[j]`` is the last bin whose CDF is <= j/G, so a target in
-        [j/G, (j+1)/G) lies in bins ``guide[j] .. guide[j+1]``; a fixed number
-        of bisection steps (the widest such range over all rows) then finds the bin.
-        """
-        n_bins = cdfs[0].size - 1
-        G = int(min(max(n_bins, 16), 1 << 16))
-        marks = (np.arange(G + 1) / G).astype(np.float32)
-        cdf_all, guide_all, width = [], [], 1
-        for cdf64 in cdfs:
-            total = cdf64[-1] if cdf64[-1] > 0 else 1.0
-            cdf32 = (np.asarray(cdf64, dtype=np.float64) / total).astype(np.float32)
-            guide = np.clip(np.searchsorted(cdf32, marks, side="right") - 1, 0, n_bins - 1)
-            width = max(width, int(np.max(guide[1:] - guide[:-1])) + 1)
-            cdf_all.append(cdf32)
-            guide_all.append(guide)
-        self.guide_size = G
-        self.search_steps = max(1, int(np.ceil(np.log2(width + 1))))
-        self.n_bins = n_bins
-        self.cdf = _array(mi.Float, np.concatenate(cdf_all))
-        self.guide = _array(mi.UInt32, np.concatenate(guide_all))
+    def _mixture_at(self, radius):
+        """The ``mixture`` string with every radius scaled so that the largest is ``radius`` [µm]."""
+        k = radius / self.mixture_largest
+        return ", ".join(f"{kind}:{r * k!r}:{w!r}" for kind, r, w in self.mixture_items)
+
+    def _sample_table_at(self, params, fa):
+        """Sample the anisotropic lobe from the material's table at area fraction ``fa`` instead."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CoronaWarning)
+            low = material_from_parameters(**{**params, "area_fraction": max(float(fa), 1e-6)})
+        table = low.table
+        tb = self.kernel.near
+        if not (table.n == tb["n"] and abs(float(table.lo) - tb["lo"]) <= 1e-9 * abs(tb["lo"])
+                and float(table.warp) == self.kernel.warp):
+            return                                   # another grid: keep the material's own
+        self.kernel.near = dict(tb, total=float(table.total), values=_array(mi.Float, table.values.ravel()))
+        self.kernel.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(table.values, dtype=np.float32))
+
+    def _set_cdf(self, cdfs):
+        """Normalised float32 CDFs of the rows and their guide tables (:func:`corona.mitsuba_common.guided_cdfs`)."""
+        g = guided_cdfs(cdfs)
+        self.guide_size = g["G"]
+        self.search_steps = g["steps"]
+        self.n_bins = g["n_bins"]
+        self.cdf = _array(mi.Float, g["cdf"])
+        self.guide = _array(mi.UInt32, g["guide"])
 
     # ------------------------------------------------------------------
     # helpers (traced Dr.Jit code)
     # ------------------------------------------------------------------
-    @staticmethod
-    def _lambda_um(lam):
-        # wavelength [nm] clamped to the table range, in µm
-        return dr.clip(lam, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
-
     def _layer(self, si, active):
         """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
         and the energies of the coherent beam, the lobe and the reflection."""
@@ -449,6 +432,10 @@ class CoronaBSDFMixin:
             j, t = mi.UInt32(0), mi.Float(0.0)
             total = _gather(mi.Float, self.totals, j, active)
             total_next = total
+            hermite = None
+            energy = total
+            if self.centred:     # = total in value; its derivative in F_a is the row's slope's energy
+                energy = dr.fma(fa - self.fa_centre, _gather(mi.Float, self.total_slopes, j, active), total)
         else:
             # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
             # first row, or the next one where that lies inside the cell below fa (float32
@@ -467,10 +454,18 @@ class CoronaBSDFMixin:
             f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
             # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
             # the derivative at a row is the next interval's slope, not zero
-            t = (fa - f0) / dr.maximum(f1 - f0, 1e-12)
+            h = dr.maximum(f1 - f0, 1e-12)
+            t = (fa - f0) / h
             total = _gather(mi.Float, self.totals, j, active)
             total_next = _gather(mi.Float, self.totals, j + 1, active)
-        held = fa * dr.lerp(total, total_next, t) * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
+            # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
+            t2 = dr.square(t)
+            t3 = t2 * t
+            hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
+            energy = (hermite[0] * total + hermite[2] * total_next
+                      + hermite[1] * _gather(mi.Float, self.total_slopes, j, active)
+                      + hermite[3] * _gather(mi.Float, self.total_slopes, j + 1, active))
+        held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
         plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
         coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
         budget = dr.maximum(1.0 - coherent, 0.0)
@@ -486,20 +481,34 @@ class CoronaBSDFMixin:
         else:
             L = self.radius_tex.eval_1(si, active) * self.L_per_radius
         return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
-                    coherent=coherent, lobe=lobe, reflect=reflect, plane=plane)
+                    coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite, energy=energy,
+                    plane=plane)
 
-    def _table_value(self, ux, uy, row, active):
-        """v(u) of one row: linear in |u| (radial table) or the kernel (anisotropic lobes)."""
-        if self.isotropic:
-            x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
-            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
-            t = x - mi.Float(i)
-            inside = active & (x <= self.n - 1)
-            k = row * self.n + i
-            v0 = _gather(mi.Float, self.values, k, inside)
-            v1 = _gather(mi.Float, self.values, k + 1, inside)
-            return dr.select(inside, dr.maximum(dr.lerp(v0, v1, t), 0.0), 0.0)
-        return self.kernel.value(ux, uy, active)      # anisotropic: corona.lobe_kernels (one row)
+    def _radial_rows(self, ux, uy, row, active, t_fa=None, hermite=None):
+        """v(u) of radial row ``row`` (linear in |u|): (v_row, None, None).  With ``t_fa`` (the
+        layer's position between rows) and ``hermite`` (its Hermite weights) also row ``row + 1`` and
+        the cubic Hermite between them: (v_row, v_row+1, v(F_a)); a centred layer's one row takes
+        ``t_fa = F_a - its F_a`` and adds that times the row's slope: (v(F_a), None, None)."""
+        x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
+        t = x - mi.Float(i)
+        inside = active & (x <= self.n - 1)
+        k = row * self.n + i
+        if t_fa is None:
+            v0 = dr.lerp(_gather(mi.Float, self.values, k, inside), _gather(mi.Float, self.values, k + 1, inside), t)
+            return dr.select(inside, dr.maximum(v0, 0.0), 0.0), None, None
+        if self.centred:         # t_fa = F_a - the row's F_a: 0 in value, the slope for derivatives
+            v0 = dr.lerp(_gather(mi.Float, self.values, k, inside), _gather(mi.Float, self.values, k + 1, inside), t)
+            m0 = dr.lerp(_gather(mi.Float, self.centre_slopes, k, inside),
+                         _gather(mi.Float, self.centre_slopes, k + 1, inside), t)
+            return dr.select(inside, dr.maximum(dr.fma(t_fa, m0, v0), 0.0), 0.0), None, None
+        def at(arr, kk):
+            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
+        v0, v1 = at(self.values, k), at(self.values, k + self.n)
+        h00, h10, h01, h11 = hermite
+        v = h00 * v0 + h01 * v1 + h10 * at(self.slopes, k) + h11 * at(self.slopes, k + self.n)
+        return (dr.select(inside, dr.maximum(v0, 0.0), 0.0), dr.select(inside, dr.maximum(v1, 0.0), 0.0),
+                dr.select(inside, dr.maximum(v, 0.0), 0.0))
 
     def _sample_u(self, s, row, fa, active):
         """Invert the CDF of table row ``row``: s (Vector2f) -> u (Vector2f).
@@ -508,43 +517,15 @@ class CoronaBSDFMixin:
         if not self.isotropic:
             return self.kernel.sample(s, active)
         target = s.x
-        # guide table of the row, then bisection with cdf[lo] <= target < cdf[hi]
-        base_c = row * (self.n_bins + 1)
-        g = mi.UInt32(dr.minimum(target * self.guide_size, self.guide_size - 1))
-        base_g = row * (self.guide_size + 1)
-        lo = _gather(mi.UInt32, self.guide, base_g + g, active)
-        hi = dr.minimum(_gather(mi.UInt32, self.guide, base_g + g + 1, active) + 1, self.n_bins)
-        for _ in range(self.search_steps):
-            mid = (lo + hi) >> 1
-            go_right = _gather(mi.Float, self.cdf, base_c + mid, active) <= target
-            lo = dr.select(go_right, mid, lo)
-            hi = dr.select(go_right, hi, mid)
-        idx = dr.minimum(lo, self.n_bins - 1)
-        c0 = _gather(mi.Float, self.cdf, base_c + idx, active)
-        c1 = _gather(mi.Float, self.cdf, base_c + idx + 1, active)
-        # radial: density 2π u v_lin(u) in the bin; its CDF is the cubic
-        # C(t) = c1 t + c2 t² + c3 t³ (normalised), solved by safeguarded Newton
+        idx, c0, c1 = guided_search(self.cdf, self.guide, self.guide_size, self.n_bins,
+                                    self.search_steps, row, target, active)
+        # radial: density 2π u v_lin(u) in the bin; its CDF a cubic, solved by safeguarded Newton
         du = self.du
         u0 = mi.Float(idx) * du
         a = _gather(mi.Float, self.values, row * self.n + idx, active)
         b = _gather(mi.Float, self.values, row * self.n + idx + 1, active) - a
-        norm = 2.0 * dr.pi * du / dr.maximum(_gather(mi.Float, self.totals, row, active), 1e-30)
-        k1 = norm * u0 * a
-        k2 = norm * (u0 * b + du * a) * 0.5
-        k3 = norm * du * b * (1.0 / 3.0)
-        rest = target - c0
-        t = dr.clip(rest / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
-        lo = mi.Float(0.0)
-        hi = mi.Float(1.0)
-        for _ in range(NEWTON_STEPS):
-            f = dr.fma(dr.fma(k3, t, k2), t, k1) * t - rest
-            lo = dr.select(f < 0, t, lo)
-            hi = dr.select(f >= 0, t, hi)
-            df = dr.fma(dr.fma(3.0 * k3, t, 2.0 * k2), t, k1)
-            t_new = t - f / dr.maximum(df, 1e-30)            # df = density >= 0
-            bad = (t_new <= lo) | (t_new >= hi)
-            t = dr.select(bad, 0.5 * (lo + hi), t_new)
-        r = u0 + dr.clip(t, 0.0, 1.0) * du
+        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, self.totals, row, active))
+        r = u0 + t * du
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
         return mi.Vector2f(r * cos_phi, r * sin_phi)
 
@@ -559,18 +540,25 @@ class CoronaBSDFMixin:
         values = []
         pdf = mi.Float(0.0)
         for lam_nm, m in zip(lams, mix):
-            lam = self._lambda_um(lam_nm)
+            lam = lambda_um(lam_nm)
             k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
             ux, uy = dx * k, dy * k
-            v = self._table_value(ux, uy, j, active)
             if self.isotropic:                         # each row is sampled exactly ∝ v
-                p_u = v / dr.maximum(layer["total"], 1e-30)
+                if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
+                    v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
+                    p_u = v / dr.maximum(layer["energy"], 1e-30)
+                else:
+                    v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
+                                                         layer["hermite"])
+                    p_u = v / dr.maximum(layer["total"], 1e-30)
+                if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
+                    p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
+                    v = v_mid
             else:                                      # the exact density of the kernel's sampling table
+                srow = None if layer["hermite"] is None else (j, *layer["hermite"])
+                dfa = layer["fa"] - self.fa_centre if self.centred else None
+                v = self.kernel.value(ux, uy, active, srow, dfa)
                 p_u = self.kernel.pdf(ux, uy, active)
-            if interpolate:                            # linear in F_a between two rows
-                v_next = self._table_value(ux, uy, j + 1, active)
-                p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
-                v = dr.lerp(v, v_next, t)
             values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
             # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
             pdf += m * p_u * dr.square(k)
@@ -581,35 +569,19 @@ class CoronaBSDFMixin:
 
     def _fold(self, values):
         """The Spectrum of per-wavelength values: spectral as is, RGB/mono each channel's mean."""
-        if mi.is_spectral:
-            f = mi.Spectrum(values)
-        else:
-            nc = self.channel_lambdas.shape[0]
-            per = self.channel_lambdas.shape[1]
-            chans = []
-            for c in range(nc):
-                acc = mi.Float(0.0)
-                for q in range(per):
-                    acc += float(self.channel_weights[c, q]) * values[c * per + q]
-                chans.append(acc)
-            f = mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)
-        return f
+        return fold_spectrum(values, getattr(self, "channel_lambdas", None), getattr(self, "channel_weights", None))
 
     def _wavelength_mixture(self, wavelengths):
         """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
-        if mi.is_spectral:
-            lams = [wavelengths[k] for k in range(dr.size_v(mi.Spectrum))]
-            return lams, [1.0 / len(lams)] * len(lams)
-        lams = [mi.Float(float(lam)) for lam in self.channel_lambdas.ravel()]
-        return lams, [1.0 / len(lams)] * len(lams)
+        return wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
 
     def _pane_reflectance(self, cos_theta):
-        """``R' = 2R / (1 + R)``: the thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``);
+        """``R'``: the thin pane's reflectance at ``|cos θ|`` (:func:`corona.mitsuba_common.pane_reflectance`);
         a mirror's ``R + T² R_m / (1 - R R_m)``."""
-        r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
         if self.is_mirror:
+            r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
             return r + dr.square(1.0 - r) * self.silver / (1.0 - r * self.silver)
-        return r * 2.0 / (1.0 + r)
+        return pane_reflectance(cos_theta, self.eta)
 
     def _pane_transmittance(self, cos_theta):
         """``T' = 1 - R'`` of the pane at ``|cos θ|``; 0 for a mirror."""
@@ -670,7 +642,7 @@ class CoronaBSDFMixin:
 
         def factor(q, lam_nm):
             if mi.is_spectral:
-                c = dr.cos(2.0 * dr.pi * delta / self._lambda_um(lam_nm))
+                c = dr.cos(2.0 * dr.pi * delta / lambda_um(lam_nm))
                 qv = a * (c - x) / (1.0 - 2.0 * x * c + x * x)
             else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
                 qv = mi.Float(0.0)
@@ -684,14 +656,14 @@ class CoronaBSDFMixin:
 
     def _layer_first(self, cos_i):
         """True where light from ``wi`` meets the layer before the pane."""
-        return (cos_i > 0) if self.layer_on_front else (cos_i < 0)
+        return layer_first(cos_i, self.layer_on_front)
 
     def _delta_weights(self, layer, cos_i):
         """Weights of the coherent transmission and of the specular reflection (pane only)."""
         r_i = self._pane_reflectance(cos_i)
-        c = layer["coherent"]
-        behind = 0.0 if self.is_mirror else r_i                           # a mirror's back is black
-        return c * self._pane_transmittance(cos_i), dr.select(self._layer_first(cos_i), c * c * r_i, behind)
+        return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
+                                  t_i=self._pane_transmittance(cos_i),
+                                  behind=0.0 if self.is_mirror else r_i)     # a mirror's back is black
 
     def _selection(self, ctx, layer, cos_i=None):
         """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
@@ -709,13 +681,7 @@ class CoronaBSDFMixin:
                         dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
                         dr.select(first, 2.0 * layer["coherent"] * layer["lobe"] * self._pane_reflectance(cos_i),
                                   0.0))
-        en = [e if ctx.is_enabled(fl, i) else mi.Float(0.0)
-              for i, (e, fl) in enumerate(zip(energies, flags))]
-        total = en[0]
-        for e in en[1:]:
-            total = total + e
-        inv = dr.select(total > 0, 1.0 / dr.maximum(total, 1e-30), 0.0)
-        return tuple(e * inv for e in en)
+        return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
 
     # ------------------------------------------------------------------
     # BSDF interface
@@ -749,10 +715,14 @@ class CoronaBSDFMixin:
             first = self._layer_first(cos_i)
             r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
             t_i, t_o = self._pane_transmittance(cos_i), self._pane_transmittance(cos_o)
-            reflected = f_mod[0] * abs_cos_o if coherent else lobe * (r_i + r_o)
-            lobe_reflected = dr.select(first, layer["coherent"] * reflected, 0.0)
-            lobe = lobe * dr.select(first, t_o, t_i)
-            diffuse = diffuse * dr.select(first, 1.0, t_i * t_o)
+            f_through, f_reflected, f_diffuse = pane_smooth_factors(layer["coherent"], r_i, r_o, first,
+                                                                    t_i=t_i, t_o=t_o)
+            if coherent:   # the double pass: C f [R'(θi) + R'(θo) + 2 V Q] (f_reflected's bracket modulated)
+                lobe_reflected = dr.select(first, layer["coherent"] * f_mod[0] * abs_cos_o, 0.0)
+            else:
+                lobe_reflected = lobe * f_reflected
+            lobe = lobe * f_through
+            diffuse = diffuse * f_diffuse
         value = dr.select(transmit & lobe_on, lobe, 0.0)
         if self.sampling == "cosine":
             pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
@@ -811,21 +781,16 @@ class CoronaBSDFMixin:
             # sample1's position inside the lobe's share picks the wavelength (equal weights)
             # and what is left of it the row (j with probability 1 - t, j + 1 with t)
             lams, _ = self._wavelength_mixture(si.wavelengths)
-            n_lam = len(lams)
             s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
             pick_any_lobe = pick_lobe
             if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
                 s = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s)
                 pick_any_lobe = pick_lobe | pick_rlobe
-            s = dr.clip(s, 0.0, 0.99999994) * n_lam
-            pick = dr.minimum(mi.UInt32(s), n_lam - 1)
-            hero = lams[-1]
-            for q in range(n_lam - 2, -1, -1):
-                hero = dr.select(pick == q, lams[q], hero)
-            lam = self._lambda_um(hero)
+            pick, hero, rest = pick_wavelength(s, lams)
+            lam = lambda_um(hero)
             row = layer["j"]
             if self.n_rows > 1 and self.isotropic:
-                row = dr.select(s - mi.Float(pick) >= 1.0 - layer["t"], row + 1, row)
+                row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
             u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
             d = u * (lam / (2.0 * dr.pi * layer["L"]))
             ox = d.x - wi.x
@@ -889,13 +854,18 @@ class CoronaBSDFMixin:
                    or (not self.fixed_radius and radius[1] > self.radius_cover * (1 + 1e-6)))
         if outside:
             self._setup(*ranges)
+        elif self.centred:
+            self._centre(float(np.float32(fa_hi)))
 
     def to_string(self):
         # the material at the current (largest) values, not at the table's headroom
         (_, fa), (_, radius), (_, albedo) = self._ranges()
         now = {**self.params, "area_fraction": min(max(fa, 1e-6), 1 - 1e-6), "albedo": albedo}
-        if not self.fixed_radius:
+        if self.mixture_scaled:
+            now["mixture"] = self._mixture_at(radius)
+        elif not self.fixed_radius:
             now["radius"] = radius
+        if not self.fixed_radius:
             for name in ("edge_width", "exclusion_diameter", "jitter"):
                 if now.get(name) is not None:
                     now[name] = now[name] * radius / self.radius_ref

@@ -45,14 +45,9 @@ import numpy as np
 
 from . import tables
 from ._validation import CoronaError
+from .mitsuba_common import channel_response  # the channels the corona BSDF uses
 
 _KEYS = ("radius", "distribution", "variance", "gamma_exponent", "ior", "ior_imag", "volume_fraction")
-
-
-def channel_response():
-    """(wavelengths [nm], weights) of the RGB / mono channels, as the corona BSDF uses them."""
-    from .mitsuba_bsdf import _channel_response
-    return _channel_response()
 
 
 def _array(dtype, values):

@@ -38,7 +38,9 @@ import numpy as np
 
 from . import tables
 from ._validation import CoronaError
-from .mitsuba_bsdf import NEWTON_STEPS, _array, _channel_response, _gather, _read_props, texture_range
+from .mitsuba_common import NEWTON_STEPS, texture_range
+from .mitsuba_common import array as _array, channel_response as _channel_response, gather as _gather
+from .mitsuba_common import read_props as _read_props
 from .parameters import SPEC, material_from_parameters
 from .sphere_material import ENERGY_MARGIN, INCIDENCE_MU
 

@@ -1,4 +1,4 @@
-"""What the renderer evaluates: the lobe ``v(u)`` as exact as the model (issue 18).
+"""What the renderer evaluates: the lobe ``v(u)`` as exact as the model.
 
 The model's dimensionless lobe (:mod:`corona.tables`) is
 
@@ -250,7 +250,7 @@ class RenderLobe:
 
 
 def region_points(material, n: int = 100_000, frac: float = 1e-3, scan: int = 401, seed: int = 0):
-    """Points where the renderer's lobe is checked against the model (issue 18).
+    """Points where the renderer's lobe is checked against the model.
 
     Uniform points in the u plane over the part of the reachable disk
     (``|u| <= 2π R · 2 / 360 nm``: every ``|d| <= 2`` at every wavelength)
@@ -282,3 +282,130 @@ def relative_error(approx, exact) -> dict:
     """RMS and largest ``|approx / exact - 1|``."""
     r = np.asarray(approx, dtype=np.float64) / np.asarray(exact, dtype=np.float64) - 1.0
     return {"rms": float(np.sqrt(np.mean(r * r))), "max": float(np.max(np.abs(r))), "points": int(r.size)}
+
+
+# --------------------------------------------------------------------------
+# rows over the area fraction of anisotropic lobes
+# --------------------------------------------------------------------------
+def row_slopes(x, y) -> np.ndarray:
+    """``dy/dx`` at the rows ``x`` (n,) of ``y`` (n, ...): the derivative of the parabola through
+    each row and its two neighbours (one-sided at the ends; the secant for two rows).
+
+    The tangents of the cubic Hermite interpolation between rows, which makes an
+    interpolated table continuously differentiable in ``x`` (its derivative is
+    second-order accurate in the row spacing, where a linear interpolation's is
+    a secant's, first-order).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    n = x.size
+    if n < 2:
+        return np.zeros_like(y)
+    h = np.diff(x).reshape((-1,) + (1,) * (y.ndim - 1))
+    s = np.diff(y, axis=0) / h                       # secants
+    if n == 2:
+        return np.concatenate([s, s])
+    h0, h1 = h[:-1], h[1:]
+    inner = (h1 * s[:-1] + h0 * s[1:]) / (h0 + h1)
+    first = ((2 * h[0] + h[1]) * s[0] - h[0] * s[1]) / (h[0] + h[1])
+    last = ((2 * h[-1] + h[-2]) * s[-1] - h[-1] * s[-2]) / (h[-1] + h[-2])
+    return np.concatenate([first[None], inner, last[None]])
+
+
+def structure_rows(material, lo: float, hi: float, include=(), tolerance: float | None = None,
+                   max_rows: int = 160):
+    """``S(|u|/R) - 1`` of an anisotropic material's process at rows of area fraction.
+
+    The anisotropic lobe ``v = [P + C (S - 1)] / R²`` depends on ``F_a`` only
+    through ``S`` (:mod:`corona.render_lobe`), so a layer whose ``F_a`` varies
+    needs rows of the radial ``S - 1`` alone, on the step of
+    :attr:`RenderLobe.s_du`.  The rows start at the process's tabulation nodes
+    and ``include`` and are bisected until the linear interpolation of ``S``
+    at every interval's midpoint is within ``tolerance`` (relative, default
+    :data:`corona.material.ROW_TOLERANCE`) of the exact one; since
+    ``|Δv| <= C |ΔS|`` and ``v >= C S`` (``P >= C``), that bounds the lobe's
+    relative change too.  ``F_a = 0`` is ``S = 1``.
+
+    Returns
+    -------
+    area_fractions : ndarray (n_rows,)
+    s_minus_one : ndarray (n_rows, n_s)
+        float64, at ``|u| = i · s_du``.
+    s_du : float
+    error : float
+        The largest relative midpoint error of the final rows.
+    """
+    from . import tables
+    from .tables import ROW_TOLERANCE
+    tolerance = ROW_TOLERANCE if tolerance is None else tolerance
+    rl = material.render_lobe
+    process, shape = material.process, material.shape
+    R = float(rl.R)
+    ns = int(rl.s_minus_one.size)
+    s_du = float(rl.s_du)
+    q = np.arange(ns) * s_du / R
+    limit = float(process.area_fraction_limit(shape))
+    hi = min(float(hi), limit)
+    lo = max(0.0, min(float(lo), hi))
+    include = sorted(float(f) for f in include if lo <= f <= hi)
+
+    def s_of(fa):
+        return np.zeros(ns) if fa <= 0.0 else process.with_area_fraction(float(fa)).structure_factor_radial(
+            q, shape) - 1.0
+
+    def build():
+        nodes = np.concatenate([process.area_fraction_nodes(shape), include]).astype(np.float64)
+        inner = nodes[(nodes > lo) & (nodes < hi)]
+        fas = np.unique(np.concatenate([[lo, hi], inner]))
+        rows = {f: s_of(f) for f in fas.tolist()}
+        todo = list(zip(fas[:-1].tolist(), fas[1:].tolist()))
+        worst = 0.0
+        while todo and len(rows) < max_rows:
+            split = []
+            for a, b in todo:
+                m = 0.5 * (a + b)
+                e = s_of(m)
+                err = float(np.max(np.abs(0.5 * (rows[a] + rows[b]) - e) / np.maximum(e + 1.0, 1e-6)))
+                if err > tolerance:
+                    rows[m] = e
+                    split += [(a, m), (m, b)]
+                else:
+                    worst = max(worst, err)
+            todo = split
+        keys = [k for i, k in enumerate(sorted(rows))     # rows distinct in float32 too
+                if i == 0 or np.float32(k) != np.float32(sorted(rows)[i - 1])]
+        return {"area_fraction": np.array(keys), "s_minus_one": np.stack([rows[k] for k in keys]),
+                "error": np.array(worst if not todo else np.inf)}
+
+    arrays = tables.cached({**material.table_params(), "s_rows": [lo, hi], "tolerance": tolerance,
+                            "max_rows": max_rows, "include": include}, build, use_cache=material.use_cache)
+    return (np.asarray(arrays["area_fraction"], dtype=np.float64),
+            np.asarray(arrays["s_minus_one"], dtype=np.float64), s_du, float(arrays["error"]))
+
+
+def row_energy_changes(material, s_rows: np.ndarray, s_du: float, n_phi: int = 64) -> np.ndarray:
+    """``∫ C(u) [S_j(|u|) - S(|u|)] d²u / R²`` for each row ``j`` of :func:`structure_rows`.
+
+    The change of the lobe's integral ``∫ v d²u`` from the material's own ``S``
+    to row ``j``'s: ``∫ c̄(ρ) ΔS(ρ) 2πρ dρ`` with ``c̄`` the azimuthal mean of
+    ``C/R²`` (``n_phi`` azimuths) on the rows' radii (trapezoid in ρ).
+    """
+    rl = material.render_lobe
+    ns = s_rows.shape[1]
+    rho = np.arange(ns) * s_du
+    phi = (np.arange(n_phi) + 0.5) * 2 * np.pi / n_phi
+    cbar = np.zeros(ns)
+    for a in range(0, ns, 1024):
+        r = rho[a:a + 1024, None]
+        u = np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+        if rl.kind == "analytic":
+            _, amp = terms_amplitudes(rl.terms, u / rl.R)
+            C = np.abs(amp) ** 2 / rl.area / rl.R**2
+        else:
+            C = (rl.P if rl.C is None else rl.C).eval(u)
+        cbar[a:a + 1024] = C.mean(axis=1)
+    own = np.zeros(ns) if rl.s_minus_one is None else rl.s_minus_one
+    w = 2 * np.pi * rho * s_du
+    w[0] *= 0.5
+    w[-1] *= 0.5
+    return np.array([float(np.sum(w * cbar * (row - own))) for row in s_rows])

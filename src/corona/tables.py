@@ -53,6 +53,9 @@ RADIAL_MAX_SAMPLES = 2**18  # cap; the step grows beyond it
 RADIAL_MIN_UMAX = 32.0
 #: Table builds longer than this [s] show a progress bar on stderr.
 PROGRESS_DELAY = 2.0
+#: Largest relative change of the lobe from interpolating between area-fraction rows
+#: (:meth:`corona.Material.area_fraction_rows`).
+ROW_TOLERANCE = 0.001
 GRID2D_SIZE = 512           # default N of an N×N table
 
 

@@ -470,7 +470,7 @@ def _spectrum(wavelengths, values):
     if mi.is_spectral:
         return {"type": "irregular", "wavelengths": ", ".join(f"{x:.6g}" for x in lam),
                 "values": ", ".join(f"{x:.8g}" for x in val)}
-    from .mitsuba_phase import channel_response
+    from .mitsuba_common import channel_response
     cl, cw = channel_response()
     rgb = [float(np.sum(w * np.interp(c, lam, val))) for c, w in zip(cl, cw)]
     if mi.is_monochromatic:

@@ -1,0 +1,388 @@
+"""Dr.Jit parts every ``corona`` BSDF shares (opaque scatterers and Mie spheres).
+
+What the plugin's scatterer families have in common lives here once, like a
+header that Mitsuba's plugins include: the constants, reading and checking
+the parameters, texture ranges, arrays and gathers that also work in scalar
+variants, the guide-table CDFs of piecewise-linear radial densities and their
+Newton inversion, the lane's wavelengths (one-sample mixture over them), the
+RGB / mono folding of per-wavelength values, and the thin glass pane's
+Fresnel weights (docs/physics.md#the-layer-on-glass-substrateglass).
+
+This module imports no plugin module (:mod:`corona.mitsuba_bsdf`,
+:mod:`corona.mitsuba_sphere`): they import it.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from . import tables
+from ._validation import CoronaError
+from .parameters import SPEC
+
+#: Wavelengths per RGB / mono channel (equal-weight quantiles of its response).
+N_RESPONSE = 8
+#: Safeguarded Newton steps inverting a bin's cubic CDF (radial densities).
+NEWTON_STEPS = 5
+#: Parameters that take a Mitsuba texture as well as a float (a float becomes a
+#: ``uniform`` texture, so ``mi.traverse`` shows ``area_fraction.value`` etc.).
+TEXTURED = ("area_fraction", "radius", "albedo")
+
+
+# --------------------------------------------------------------------------
+# parameters and textures (load time, Python)
+# --------------------------------------------------------------------------
+def read_props(props) -> tuple[dict, dict]:
+    """Named parameters from a ``mi.Properties``, checked against :data:`corona.parameters.SPEC`
+    (unknown names are an error), and the textures of :data:`TEXTURED`.
+
+    Returns
+    -------
+    params : dict
+        name -> checked Python value (floats as float, choices as str).
+    textures : dict
+        name -> ``mi.Texture`` for the :data:`TEXTURED` parameters given as a texture.
+    """
+    out, textures = {}, {}
+    for name in props.keys():
+        if name not in SPEC:
+            raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(SPEC))}")
+        value = props.get(name)
+        if name in TEXTURED and isinstance(value, mi.Texture):
+            textures[name] = value
+            continue
+        if SPEC[name].kind in ("float", "int"):
+            if isinstance(value, bool):   # <boolean name="radius" value="true"/> is no size
+                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; allowed {SPEC[name].allowed}")
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; "
+                                  f"allowed {SPEC[name].allowed}") from None
+        else:
+            value = str(value)
+        out[name] = SPEC[name].check(value)
+    return out, textures
+
+
+def uniform(value: float):
+    """A ``uniform`` Mitsuba texture of ``value`` (its key in ``mi.traverse``: ``value``), made by
+    the plugin manager, not the scene parser.
+
+    The BSDF is built while Mitsuba loads a scene, on one of its loader threads.  Mitsuba's
+    parser (``mi.load_dict``, ``load_string``, ``load_file``) replaces the process-wide
+    ``FileResolver`` for the duration of a load and frees its copy at the end, while the other
+    loader threads read that resolver (resolving plugin libraries, ``data/srgb.coeff``, bitmap
+    file names): a nested load from here left them reading freed memory
+    (``basic_string::_M_create``, ``std::bad_alloc`` in the next emitter).
+    ``PluginManager.create_object`` only reads the resolver.
+    """
+    props = mi.Properties("uniform")
+    props["value"] = float(value)
+    return mi.PluginManager.instance().create_object(props)
+
+
+def texture_range(texture) -> tuple[float | None, float]:
+    """(min, max) of a scalar texture's values.
+
+    Evaluated at the texel centres of a bitmap (``texture.resolution()``) or
+    on a 64×64 grid of uv for procedural textures (scalar variants: every
+    k-th of these points, at most 256×256); where the texture cannot
+    be evaluated without a mesh (``mesh_attribute``) the minimum is unknown
+    (None) and the maximum is ``texture.max()``.  A NaN texel makes both NaN,
+    an infinite one the end it lies on (the caller refuses them by name).
+    """
+    if not texture.is_spatially_varying():
+        v = float(np.asarray(dr.detach(texture.mean())).ravel()[0])
+        return v, v
+    res = [int(x) for x in texture.resolution()]
+    nx, ny = min(max(res[0], 64), 4096), min(max(res[1], 64), 4096)
+    uu, vv = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(ny) + 0.5) / ny)
+    try:
+        if dr.is_array_v(mi.Float):
+            si = dr.zeros(mi.SurfaceInteraction3f, uu.size)
+            si.uv = mi.Point2f(uu.ravel().astype(np.float32), vv.ravel().astype(np.float32))
+            vals = np.asarray(dr.detach(texture.eval_1(si)), dtype=np.float64).ravel()
+        else:   # scalar variants: one point at a time, on at most 256×256 of the points
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            step = max(1, -(-max(nx, ny) // 256))
+            vals = []
+            for u, v in zip(uu[::step, ::step].ravel(), vv[::step, ::step].ravel()):
+                si.uv = mi.Point2f(float(u), float(v))
+                vals.append(float(texture.eval_1(si)))
+            vals = np.asarray(vals)
+        if vals.size:          # NaN / ±inf texels come out as such: the caller names them
+            return float(np.min(vals)), float(np.max(vals))
+    except Exception:  # noqa: BLE001 - textures that need a mesh
+        pass
+    return None, float(texture.max())
+
+
+# --------------------------------------------------------------------------
+# arrays (scalar variants too)
+# --------------------------------------------------------------------------
+def array(dtype, values):
+    """A Dr.Jit array of ``values`` (``mi.Float``: float32, ``mi.UInt32``, ``mi.Int32``);
+    a numpy array in scalar variants."""
+    if dtype is mi.UInt32:
+        a = np.asarray(values, dtype=np.uint32)
+    elif dtype is mi.Int32:
+        a = np.asarray(values, dtype=np.int32)
+    else:
+        a = np.asarray(values, dtype=np.float32)
+    return a if dr.is_array_v(dtype) is False else dtype(a)
+
+
+def gather(dtype, source, index, active=True):
+    """``dr.gather`` that also works in scalar variants (Python scalars there)."""
+    if dr.is_array_v(dtype):
+        return dr.gather(dtype, source, index, active)
+    return dtype(source[int(index)]) if active else dtype(0)
+
+
+def gather4(source, index, active=True):
+    """``mi.Vector4f`` of ``source[4 index : 4 index + 4]`` (one packet gather; scalar variants too)."""
+    if dr.is_array_v(mi.Float):
+        return dr.gather(mi.Vector4f, source, index, active)
+    if not active:
+        return mi.Vector4f(0.0)
+    k = 4 * int(index)
+    return mi.Vector4f(*[float(source[k + c]) for c in range(4)])
+
+
+def positive(x):
+    """``x`` where it is > 0, else 1: a divisor safe in scalar variants too, where
+    ``dr.select`` evaluates both branches (``value / pdf`` raised ZeroDivisionError)."""
+    return dr.select(x > 0, x, 1.0)
+
+
+def logical_not(x):
+    """Logical not of a mask (a Dr.Jit Bool, or a Python bool in scalar variants, where ``~`` is wrong)."""
+    return ~x if dr.is_array_v(x) else (not x)
+
+
+# --------------------------------------------------------------------------
+# piecewise-linear radial densities: guide tables, search, Newton
+# --------------------------------------------------------------------------
+def guided_cdfs(cdfs) -> dict:
+    """Normalised float32 CDFs of rows of a radial table plus guide tables that narrow each search.
+
+    Parameters
+    ----------
+    cdfs : sequence of ndarray
+        Each row's CDF (float64, ``n_bins + 1`` values from 0, all rows the same
+        length), e.g. :attr:`corona.tables.RadialTable.cdf`; a row of total 0 stays 0.
+
+    Returns
+    -------
+    dict
+        ``cdf`` (rows concatenated, float32 numpy), ``guide`` (uint32 numpy,
+        ``G + 1`` a row), ``G`` (guide cells a row), ``n_bins`` and ``steps``
+        (bisection steps, enough for the widest guide cell).  ``guide[j]`` is the
+        last bin whose CDF is <= j/G, so a target in [j/G, (j+1)/G) lies in
+        bins ``guide[j] .. guide[j+1]``; :func:`guided_search` then finds the bin
+        in ``steps`` bisection steps.
+    """
+    n_bins = cdfs[0].size - 1
+    G = int(min(max(n_bins, 16), 1 << 16))
+    marks = (np.arange(G + 1) / G).astype(np.float32)
+    cdf_all, guide_all, width = [], [], 1
+    for cdf64 in cdfs:
+        total = cdf64[-1] if cdf64[-1] > 0 else 1.0
+        cdf32 = (np.asarray(cdf64, dtype=np.float64) / total).astype(np.float32)
+        guide = np.clip(np.searchsorted(cdf32, marks, side="right") - 1, 0, n_bins - 1)
+        width = max(width, int(np.max(guide[1:] - guide[:-1])) + 1)
+        cdf_all.append(cdf32)
+        guide_all.append(guide)
+    return dict(cdf=np.concatenate(cdf_all), guide=np.concatenate(guide_all), G=G, n_bins=n_bins,
+                steps=max(1, int(np.ceil(np.log2(width + 1)))))
+
+
+def guided_search(cdf, guide, G, n_bins, steps, row, xi, active, guide_offset=0, cdf_offset=0):
+    """The bin of ``xi`` in row ``row`` of a :func:`guided_cdfs` table (Dr.Jit).
+
+    ``cdf``, ``guide`` are the tables as ``mi.Float`` / ``mi.UInt32``;
+    ``guide_offset`` / ``cdf_offset`` (UInt32 or int) move into a second table
+    concatenated behind the first (e.g. a forward and a backward lobe).
+
+    Returns
+    -------
+    idx, c0, c1
+        The bin (UInt32, ``cdf[idx] <= xi < cdf[idx + 1]``) and the CDF at its ends.
+    """
+    base_c = row * (n_bins + 1) + cdf_offset
+    g = mi.UInt32(dr.minimum(xi * G, G - 1))
+    base_g = row * (G + 1) + guide_offset
+    lo = gather(mi.UInt32, guide, base_g + g, active)
+    hi = dr.minimum(gather(mi.UInt32, guide, base_g + g + 1, active) + 1, n_bins)
+    for _ in range(steps):
+        mid = (lo + hi) >> 1
+        go_right = gather(mi.Float, cdf, base_c + mid, active) <= xi
+        lo = dr.select(go_right, mid, lo)
+        hi = dr.select(go_right, hi, mid)
+    idx = dr.minimum(lo, n_bins - 1)
+    c0 = gather(mi.Float, cdf, base_c + idx, active)
+    c1 = gather(mi.Float, cdf, base_c + idx + 1, active)
+    return idx, c0, c1
+
+
+def invert_radial_bin(rest, c0, c1, x0, dx, a, b, total):
+    """Position ``t`` in [0, 1] inside a bin of a radial density ``2π x v(x)``, ``v`` linear (Dr.Jit).
+
+    In the bin ``[x0, x0 + dx]`` with ``v = a + b t`` the normalised CDF past
+    its start is the cubic ``C(t) = k1 t + k2 t² + k3 t³``
+    (``k1 = N x0 a``, ``k2 = N (x0 b + dx a) / 2``, ``k3 = N dx b / 3``,
+    ``N = 2π dx / total``); ``C(t) = rest`` is solved by :data:`NEWTON_STEPS`
+    safeguarded Newton steps (bisection where a step leaves the bracket),
+    started from the linear guess ``rest / (c1 - c0)``.  The point is ``x0 + t dx``.
+    """
+    norm = 2.0 * dr.pi * dx / dr.maximum(total, 1e-30)
+    k1 = norm * x0 * a
+    k2 = norm * (x0 * b + dx * a) * 0.5
+    k3 = norm * dx * b * (1.0 / 3.0)
+    t = dr.clip(rest / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
+    lo = mi.Float(0.0)
+    hi = mi.Float(1.0)
+    for _ in range(NEWTON_STEPS):
+        f = dr.fma(dr.fma(k3, t, k2), t, k1) * t - rest
+        lo = dr.select(f < 0, t, lo)
+        hi = dr.select(f >= 0, t, hi)
+        df = dr.fma(dr.fma(3.0 * k3, t, 2.0 * k2), t, k1)
+        t_new = t - f / dr.maximum(df, 1e-30)            # df = density >= 0
+        bad = (t_new <= lo) | (t_new >= hi)
+        t = dr.select(bad, 0.5 * (lo + hi), t_new)
+    return dr.clip(t, 0.0, 1.0)
+
+
+# --------------------------------------------------------------------------
+# wavelengths: the lane's mixture, the RGB / mono channels
+# --------------------------------------------------------------------------
+def lambda_um(lam_nm):
+    """Wavelength [nm] clamped to the tables' range [360, 830] nm, in µm (a zero stays finite)."""
+    return dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+
+
+def channel_curves():
+    """(wavelengths [nm] (n,), responses (channels, n)) of the RGB / mono channels
+    (CIE 1931 → linear sRGB, negative lobes clipped; ȳ for mono)."""
+    from .color import XYZ_TO_SRGB, cie1931_xyz
+    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 2048)
+    xyz = cie1931_xyz(lam).T                                     # (3, n)
+    return lam, (xyz[1:2] if mi.is_monochromatic else np.maximum(XYZ_TO_SRGB @ xyz, 0.0))
+
+
+def channel_response():
+    """(wavelengths [nm], weights) of the RGB / mono channels, each (channels, N_RESPONSE).
+
+    Each channel's response (:func:`channel_curves`) is represented by ``N_RESPONSE``
+    wavelengths at equal-weight quantiles of the response, so the channel value is their mean.
+    """
+    lam, resp = channel_curves()
+    chans = []
+    for r in resp:
+        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (r[1:] + r[:-1]) * np.diff(lam))])
+        qs = (np.arange(N_RESPONSE) + 0.5) / N_RESPONSE * cdf[-1]
+        chans.append(np.interp(qs, cdf, lam))
+    chans = np.array(chans)
+    return chans, np.full(chans.shape, 1.0 / N_RESPONSE)
+
+
+def wavelength_mixture(wavelengths, channel_lambdas=None):
+    """The wavelengths [nm] a lane evaluates and their (equal) mixture weights.
+
+    Spectral variants: the lane's own wavelengths (``si.wavelengths``); RGB and
+    mono: the channels' response wavelengths ``channel_lambdas``
+    (:func:`channel_response`), flattened channel by channel.  Sampling picks
+    one of them with its weight (:func:`pick_wavelength`) and the pdf is the
+    weighted mean of theirs: a one-sample balance-heuristic mixture
+    (docs/physics.md#hero-wavelength-and-the-mixture-pdf).
+    """
+    if mi.is_spectral:
+        lams = [wavelengths[k] for k in range(dr.size_v(mi.Spectrum))]
+    else:
+        lams = [mi.Float(float(lam)) for lam in np.asarray(channel_lambdas).ravel()]
+    return lams, [1.0 / len(lams)] * len(lams)
+
+
+def pick_wavelength(s, lams):
+    """One of ``lams`` picked by ``s`` in [0, 1) with equal probability (Dr.Jit).
+
+    Returns ``(pick, lam, rest)``: the index (UInt32), its wavelength and what is
+    left of ``s`` (``s n - pick``, in [0, 1)), free for a further choice.
+    """
+    n = len(lams)
+    s = dr.clip(s, 0.0, 0.99999994) * n
+    pick = dr.minimum(mi.UInt32(s), n - 1)
+    lam = lams[-1]
+    for q in range(n - 2, -1, -1):
+        lam = dr.select(pick == q, lams[q], lam)
+    return pick, lam, s - mi.Float(pick)
+
+
+def fold_spectrum(values, channel_lambdas=None, channel_weights=None):
+    """Per-wavelength values (list, in :func:`wavelength_mixture`'s order) as a ``mi.Spectrum``.
+
+    Spectral variants: the values themselves; RGB and mono: each channel's
+    weighted sum over its response wavelengths (:func:`channel_response`).
+    """
+    if mi.is_spectral:
+        return mi.Spectrum(values)
+    nc, per = np.asarray(channel_lambdas).shape
+    chans = []
+    for c in range(nc):
+        acc = mi.Float(0.0)
+        for q in range(per):
+            acc += float(channel_weights[c, q]) * values[c * per + q]
+        chans.append(acc)
+    return mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)
+
+
+# --------------------------------------------------------------------------
+# the thin glass pane (docs/physics.md#the-layer-on-glass-substrateglass)
+# --------------------------------------------------------------------------
+def pane_reflectance(cos_theta, eta):
+    """``R' = 2R / (1 + R)``: a thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``),
+    ``R`` the polarisation-averaged Fresnel reflectance of one face at index ``eta``."""
+    r = mi.fresnel(dr.abs(cos_theta), eta)[0]
+    return r * 2.0 / (1.0 + r)
+
+
+def layer_first(cos_i, layer_on_front):
+    """True where light from ``wi`` meets the layer before the pane (layer on the front face or not)."""
+    return (cos_i > 0) if layer_on_front else (cos_i < 0)
+
+
+def pane_delta_weights(coherent, r_i, first, t_i=None, behind=None):
+    """Weights of the coherent transmission ``C T'`` and of the specular reflection
+    (``C² R'`` when light meets the layer first, else ``behind``, by default ``R'``);
+    ``r_i = R'(θi)``, ``t_i = T'(θi)`` (default ``1 - R'``: a pane that does not absorb)."""
+    t_i = 1.0 - r_i if t_i is None else t_i
+    behind = r_i if behind is None else behind
+    return coherent * t_i, dr.select(first, coherent * coherent * r_i, behind)
+
+
+def pane_smooth_factors(coherent, r_i, r_o, first, t_i=None, t_o=None):
+    """Factors of the smooth components on the pane: (lobe in transmission, lobe in reflection, diffuse).
+
+    Light meeting the layer first: ``T'(θo)``, ``C [R'(θi) + R'(θo)]``, 1; the
+    glass first: ``T'(θi)``, 0, ``T'(θi) T'(θo)`` (the module docstring of
+    :mod:`corona.mitsuba_bsdf` tabulates them).
+    """
+    t_i = 1.0 - r_i if t_i is None else t_i
+    t_o = 1.0 - r_o if t_o is None else t_o
+    transmitted = dr.select(first, t_o, t_i)
+    reflected = dr.select(first, coherent * (r_i + r_o), 0.0)
+    diffuse = dr.select(first, 1.0, t_i * t_o)
+    return transmitted, reflected, diffuse
+
+
+def selection(energies, enabled):
+    """Per-lane probabilities of components ∝ their energies, 0 where a component is disabled
+    (``enabled`` a list of Python bools, e.g. ``ctx.is_enabled(flag, index)``); all 0 where none is left."""
+    en = [e if on else mi.Float(0.0) for e, on in zip(energies, enabled)]
+    total = en[0]
+    for e in en[1:]:
+        total = total + e
+    inv = dr.select(total > 0, 1.0 / dr.maximum(total, 1e-30), 0.0)
+    return tuple(e * inv for e in en)
