@@ -269,5 +269,5 @@ def test_lobe_picture_without_matplotlib_is_one_line(tmp_path, monkeypatch):
         monkeypatch.delitem(sys.modules, name)
     monkeypatch.setitem(sys.modules, "matplotlib", None)          # import matplotlib -> ImportError
     line = assert_one_line_error(run("lobe", "--radius", "5", "--out", tmp_path / "x.png"),
-                                 "matplotlib", "corona[reference]")
+                                 "matplotlib", "corona-bsdf[reference]")
     assert not (tmp_path / "x.png").exists(), line
