@@ -39,7 +39,7 @@ demo: venv
 	$(PY) scripts/demo.py
 
 # everything: the tests, the doctests, the chi-square runs, renders, the browser
-test: venv chromium
+test: venv chromium $(DOCS_STAMP)
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
 # the physics and the plugin's pointwise checks (-m "not slow": no chi-square runs, renders,

@@ -16,6 +16,19 @@ def interaction(n, wi, wavelengths=(450.0, 520.0, 600.0, 700.0)):
     return si
 
 
+def uv_interaction(n, wi, uv, wavelengths=(450.0, 520.0, 600.0, 700.0)):
+    """:func:`interaction` at the texture coordinates ``uv`` (a textured layer's texel)."""
+    si = interaction(n, wi, wavelengths)
+    si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
+    return si
+
+
+def bitmap_texture(values):
+    """A ``bitmap`` texture of a 2-D array of raw values, read at the nearest texel."""
+    return {"type": "bitmap", "bitmap": mi.Bitmap(np.asarray(values, np.float32)[..., None]),
+            "raw": True, "filter_type": "nearest"}
+
+
 def chi2_test(params, theta_deg, ctx=None, **kwargs):
     """Run mitsuba.chi2 on the corona BSDF with the given parameters (see :func:`chi2_bsdf`)."""
     return chi2_bsdf(mi.load_dict({"type": "corona", **params}), theta_deg, ctx, **kwargs)

@@ -201,21 +201,6 @@ def test_white_furnace(mi_variant, mode):
             assert energy == pytest.approx(expected, abs=5e-3)
 
 
-def test_zero_initialised_interaction_gives_no_nan(mi_variant):
-    """mitsuba.chi2.BSDFAdapter's si has zero wavelengths and no `active`."""
-    import mitsuba as mi
-    bsdf = mi.load_dict({"type": "corona", **CIRCLE_POISSON})
-    si = dr.zeros(mi.SurfaceInteraction3f, 16)
-    si.wi = mi.Vector3f(0, 0, 1)
-    bs, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(np.linspace(0, 0.99, 16)),
-                        mi.Point2f(np.linspace(0, 0.99, 16), np.linspace(0.1, 0.9, 16)))
-    assert np.all(np.isfinite(np.array(w)))
-    p = bsdf.pdf(mi.BSDFContext(), si, mi.Vector3f(0.1, 0.0, -0.99))
-    assert np.all(np.isfinite(np.array(p)))
-    # grazing, exactly opposite and exactly equal directions
-    for wo in [(1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 0.0, 1.0)]:
-        e = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(*wo)))
-        assert np.all(np.isfinite(e)) and np.all(e >= 0)
 
 
 def test_stock_chi2_adapter(mi_variant):

@@ -668,15 +668,15 @@ def test_non_finite_texels_are_named(variant, tmp_path, name, bad, scalar):
 @pytest.mark.parametrize("params", [
     {"process": "poisson", "radius": 5.0, "area_fraction": 0.3},
     {"substrate": "glass", "radius": 0.4, "area_fraction": 0.3, "albedo": 0.5},
+    {"substrate": "mirror", "radius": 0.4, "area_fraction": 0.3},
     {"shape": "square", "radius": 2.0, "orientation": "fixed"},
     {"shape": "sphere", "radius": 2.0},
     {"area_fraction": {"type": "checkerboard", "color0": 0.1, "color1": 0.4}},
-], ids=["circle-poisson", "glass", "square", "sphere", "textured"])
+], ids=["circle-poisson", "glass", "mirror", "square", "sphere", "textured"])
 def test_zero_initialised_interaction_gives_no_nan(variant, params):
     """mitsuba.chi2's adapters pass a zero-initialised interaction (wavelengths 0) and no
     ``active``: every family's sample / eval / pdf / eval_pdf stay finite (one helper,
-    bsdf_checks.assert_finite_at_a_zero_interaction, for what test_plugin.py and
-    test_substrate.py check for one family each)."""
+    bsdf_checks.assert_finite_at_a_zero_interaction)."""
     import mitsuba as mi
 
     from bsdf_checks import assert_finite_at_a_zero_interaction

@@ -5,7 +5,6 @@ Brewster's angle; Mitsuba's own ``mi.fresnel`` and ``thindielectric`` plugin;
 a brute-force random walk through the layer-pane stack (every path, any
 order: corona.reference.stack); mitsuba.chi2.
 """
-import drjit as dr
 import numpy as np
 import pytest
 
@@ -258,16 +257,3 @@ def test_bad_substrate_parameters(mi_variant, params, word):
         material_from_parameters(**params)
     with pytest.raises(Exception, match=word):
         mi.load_dict({"type": "corona", **params})
-
-
-def test_zero_initialised_interaction_gives_no_nan(mi_variant):
-    import mitsuba as mi
-    bsdf = mi.load_dict({"type": "corona", **PANE})
-    si = dr.zeros(mi.SurfaceInteraction3f, 16)
-    si.wi = mi.Vector3f(0, 0, 1)
-    bs, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(np.linspace(0, 0.99, 16)),
-                        mi.Point2f(np.linspace(0, 0.99, 16), np.linspace(0.1, 0.9, 16)))
-    assert np.all(np.isfinite(np.array(w)))
-    for wo in [(1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 0.0, 1.0)]:
-        e, p = bsdf.eval_pdf(mi.BSDFContext(), si, mi.Vector3f(*wo))
-        assert np.all(np.isfinite(np.array(e))) and np.all(np.isfinite(np.array(p)))

@@ -5,13 +5,13 @@ References are independent of the plugin's rows: ``Material`` built at the
 local parameter values (the exact numpy model), Mitsuba's chi-square test at
 texels between rows, and the energy each texel holds.
 """
-import drjit as dr
 import numpy as np
 import pytest
 
 from corona.parameters import material_from_parameters
 
-from bsdf_checks import chi2_bsdf, smooth_context
+from bsdf_checks import bitmap_texture as _bitmap, chi2_bsdf, smooth_context
+from bsdf_checks import uv_interaction as _si
 
 #: F_a at the four texel centres; below the hard-disk limit of every shape here (square: ~0.46)
 FA_MAP = np.array([[0.05, 0.15], [0.26, 0.33]], dtype=np.float32)
@@ -24,21 +24,6 @@ FAMILIES = {
     "mixture": {"shape": "mixture", "mixture": "circle:1.5:0.5, square:1.2:0.5"},
     "soft-rectangle": {"shape": "rectangle", "radius": 1.5, "aspect": 0.5, "edge_width": 0.1},
 }
-
-
-def _bitmap(arr):
-    import mitsuba as mi
-    return {"type": "bitmap", "bitmap": mi.Bitmap(np.asarray(arr, np.float32)[..., None]),
-            "raw": True, "filter_type": "nearest"}
-
-
-def _si(n, wi, uv, lams=LAMS):
-    import mitsuba as mi
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(*[float(x) for x in wi])
-    si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
-    si.wavelengths = mi.Spectrum(*lams)
-    return si
 
 
 def _transmitted(n, seed, theta, spread=0.08):

@@ -11,26 +11,12 @@ import pytest
 from corona import CoronaError
 from corona.parameters import material_from_parameters
 
-from bsdf_checks import chi2_bsdf, smooth_context
+from bsdf_checks import bitmap_texture as _bitmap, chi2_bsdf, smooth_context
+from bsdf_checks import uv_interaction as _si
 
 FA_MAP = np.array([[0.05, 0.2], [0.37, 0.61]], dtype=np.float32)   # hard-disk rows and values between
 UV = [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]         # the four texel centres
 LAMS = (450.0, 520.0, 600.0, 700.0)
-
-
-def _bitmap(arr):
-    import mitsuba as mi
-    return {"type": "bitmap", "bitmap": mi.Bitmap(np.asarray(arr, np.float32)[..., None]),
-            "raw": True, "filter_type": "nearest"}
-
-
-def _si(n, wi, uv, lams=LAMS):
-    import mitsuba as mi
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(*[float(x) for x in wi])
-    si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
-    si.wavelengths = mi.Spectrum(*lams)
-    return si
 
 
 def _transmitted(n, seed, theta):

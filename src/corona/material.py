@@ -561,25 +561,15 @@ class Material:
         ends = [below.max() if below.size else lo, above.min() if above.size else hi]
         fas = np.unique(np.concatenate([ends, inner, [lo, hi]]))
         vals = dict(zip(fas.tolist(), self._row_values(u, fas)))
-        todo = list(zip(fas[:-1].tolist(), fas[1:].tolist()))
-        worst = 0.0
-        while todo and len(vals) < max_rows:
-            mids = [0.5 * (a + b) for a, b in todo]
-            split = []
-            for (a, b), m, e in zip(todo, mids, self._row_values(u, mids)):
-                lerp = 0.5 * (vals[a] + vals[b])
-                sel = e > 1e-3 * e.max()
-                err = float(np.max(np.abs(lerp[sel] - e[sel]) / e[sel])) if np.any(sel) else 0.0
-                if err > tolerance:
-                    vals[m] = e
-                    split += [(a, m), (m, b)]
-                else:
-                    worst = max(worst, err)
-            todo = split
-        keys = [k for i, k in enumerate(sorted(vals))     # rows distinct in float32 too
-                if i == 0 or np.float32(k) != np.float32(sorted(vals)[i - 1])]
+
+        def error(lerp, e):          # relative, where the lobe is above 1e-3 of its peak
+            sel = e > 1e-3 * e.max()
+            return np.max(np.abs(lerp[sel] - e[sel]) / e[sel]) if np.any(sel) else 0.0
+
+        keys, worst = tables.bisect_rows(vals, lambda mids: self._row_values(u, mids), error,
+                                         tolerance, max_rows)
         return {"area_fraction": np.array(keys), "values": np.stack([vals[k] for k in keys]).astype(np.float32),
-                "geometry": np.array(geo), "error": np.array(worst if not todo else np.inf)}
+                "geometry": np.array(geo), "error": np.array(worst)}
 
     def _in_chunks(self, f, points) -> np.ndarray:
         """``f(points)`` evaluated in blocks, with a progress bar (on stderr) when

@@ -358,24 +358,11 @@ def structure_rows(material, lo: float, hi: float, include=(), tolerance: float 
         inner = nodes[(nodes > lo) & (nodes < hi)]
         fas = np.unique(np.concatenate([[lo, hi], inner]))
         rows = {f: s_of(f) for f in fas.tolist()}
-        todo = list(zip(fas[:-1].tolist(), fas[1:].tolist()))
-        worst = 0.0
-        while todo and len(rows) < max_rows:
-            split = []
-            for a, b in todo:
-                m = 0.5 * (a + b)
-                e = s_of(m)
-                err = float(np.max(np.abs(0.5 * (rows[a] + rows[b]) - e) / np.maximum(e + 1.0, 1e-6)))
-                if err > tolerance:
-                    rows[m] = e
-                    split += [(a, m), (m, b)]
-                else:
-                    worst = max(worst, err)
-            todo = split
-        keys = [k for i, k in enumerate(sorted(rows))     # rows distinct in float32 too
-                if i == 0 or np.float32(k) != np.float32(sorted(rows)[i - 1])]
+        keys, worst = tables.bisect_rows(
+            rows, lambda mids: [s_of(m) for m in mids],
+            lambda lerp, e: np.max(np.abs(lerp - e) / np.maximum(e + 1.0, 1e-6)), tolerance, max_rows)
         return {"area_fraction": np.array(keys), "s_minus_one": np.stack([rows[k] for k in keys]),
-                "error": np.array(worst if not todo else np.inf)}
+                "error": np.array(worst)}
 
     arrays = tables.cached({**material.table_params(), "s_rows": [lo, hi], "tolerance": tolerance,
                             "max_rows": max_rows, "include": include}, build, use_cache=material.use_cache)

@@ -59,6 +59,50 @@ ROW_TOLERANCE = 0.001
 GRID2D_SIZE = 512           # default N of an N×N table
 
 
+def bisect_rows(rows: dict, values_of, error, tolerance: float, max_rows: int):
+    """Refine rows of a table in one parameter until linear interpolation between them is exact
+    to ``tolerance``.
+
+    Every interval whose midpoint value differs from the mean of its ends by more than
+    ``tolerance`` (``error(mean of the ends, value at the midpoint) -> float``) is halved, until
+    none is left or ``max_rows`` rows are made.
+
+    Parameters
+    ----------
+    rows : dict
+        ``{x: values}`` of the starting rows (refined in place).
+    values_of : callable
+        ``values_of([x, ...]) -> [values, ...]``: the exact rows at new points.
+    error, tolerance, max_rows
+        As above.
+
+    Returns
+    -------
+    keys : list of float
+        The rows' ``x`` in increasing order, distinct in float32 too.
+    worst : float
+        The largest midpoint error of the accepted intervals; ``inf`` when ``max_rows`` stopped
+        the refinement first.
+    """
+    xs = sorted(rows)
+    todo = list(zip(xs[:-1], xs[1:]))
+    worst = 0.0
+    while todo and len(rows) < max_rows:
+        mids = [0.5 * (a + b) for a, b in todo]
+        split = []
+        for (a, b), m, e in zip(todo, mids, values_of(mids)):
+            err = float(error(0.5 * (rows[a] + rows[b]), e))
+            if err > tolerance:
+                rows[m] = e
+                split += [(a, m), (m, b)]
+            else:
+                worst = max(worst, err)
+        todo = split
+    xs = sorted(rows)
+    keys = [k for i, k in enumerate(xs) if i == 0 or np.float32(k) != np.float32(xs[i - 1])]
+    return keys, (worst if not todo else np.inf)
+
+
 def u_max_for(length_scale: float, wavelength_min: float = WAVELENGTH_MIN) -> float:
     """Largest u reachable for |d| <= 2 at the shortest wavelength [dimensionless]."""
     return max(RADIAL_MIN_UMAX, 1.05 * 2.0 * np.pi * length_scale * D_MAX / (wavelength_min * 1e-3))
