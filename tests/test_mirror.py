@@ -306,7 +306,7 @@ def test_rgb_channels_average_the_fringes():
         import corona, numpy as np, mitsuba as mi, json
         mi.set_variant("scalar_rgb"); corona.register()
         from corona.color import XYZ_TO_SRGB, cie1931_xyz
-        from corona.mitsuba_bsdf import _channel_response
+        from corona.mitsuba_common import channel_response as _channel_response
         from corona.parameters import material_from_parameters
         P = dict(process="hard-disk", radius=5.0, area_fraction=0.1, mode="particle")
         layers = [dict(P, substrate="mirror", substrate_thickness=4000.0), dict(P, substrate="glass")]

@@ -101,7 +101,7 @@ from .mitsuba_common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array
                              fold_spectrum, gather as _gather, guided_cdfs, guided_search,
                              invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
                              pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
-                             read_props as _read_props, selection, texture_range, uniform as _uniform,
+                             read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
                              wavelength_mixture)
 from .parameters import SPEC, material_from_parameters, parse_mixture, rst_table
 from .render_lobe import row_slopes
@@ -111,8 +111,6 @@ __doc__ = __doc__.replace("{table}", rst_table())
 
 #: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
 FA_WINDOW = 0.1
-#: (the old private name, for callers outside the package)
-_channel_response = channel_response
 __all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
 
 
@@ -873,18 +871,12 @@ class CoronaBSDFMixin:
         return f"CoronaBSDF[{material_from_parameters(**now)!r}{textured}]"
 
 
-_CLASSES: dict[str, type] = {}
 _REGISTERED: set[str] = set()
 
 
 def bsdf_class() -> type:
     """The ``CoronaBSDF`` class of the active variant."""
-    variant = mi.variant()
-    if variant not in _CLASSES:
-        methods = {k: v for k, v in vars(CoronaBSDFMixin).items()
-                   if k not in ("__dict__", "__weakref__")}
-        _CLASSES[variant] = type("CoronaBSDF", (mi.BSDF,), methods)
-    return _CLASSES[variant]
+    return variant_class(CoronaBSDFMixin, "BSDF", "CoronaBSDF")
 
 
 def register() -> None:

@@ -119,6 +119,23 @@ def texture_range(texture) -> tuple[float | None, float]:
     return None, float(texture.max())
 
 
+_VARIANT_CLASSES: dict = {}
+
+
+def variant_class(mixin: type, base_name: str, name: str) -> type:
+    """The subclass ``name`` of the active variant's ``mi.<base_name>`` (``"BSDF"``,
+    ``"PhaseFunction"``) holding ``mixin``'s methods, made once per variant.
+
+    Each Mitsuba variant has its own base classes and nanobind types take a single base, so the
+    plugins keep their methods in plain mixins and copy them into one subclass per variant.
+    """
+    key = (mi.variant(), mixin, base_name)
+    if key not in _VARIANT_CLASSES:
+        methods = {k: v for k, v in vars(mixin).items() if k not in ("__dict__", "__weakref__")}
+        _VARIANT_CLASSES[key] = type(name, (getattr(mi, base_name),), methods)
+    return _VARIANT_CLASSES[key]
+
+
 # --------------------------------------------------------------------------
 # arrays (scalar variants too)
 # --------------------------------------------------------------------------

@@ -45,7 +45,7 @@ import numpy as np
 
 from . import tables
 from ._validation import CoronaError
-from .mitsuba_common import channel_response  # the channels the corona BSDF uses
+from .mitsuba_common import channel_response, variant_class  # the channels the corona BSDF uses
 
 _KEYS = ("radius", "distribution", "variance", "gamma_exponent", "ior", "ior_imag", "volume_fraction")
 
@@ -239,17 +239,12 @@ class CoronaMiePhaseMixin:
                 f"volume_fraction={v.volume_fraction:g}, rows={self.n_rows}, nodes={self.K}]")
 
 
-_CLASSES: dict[str, type] = {}
 _REGISTERED: set[str] = set()
 
 
 def phase_class() -> type:
     """The ``CoronaMiePhase`` class of the active variant."""
-    variant = mi.variant()
-    if variant not in _CLASSES:
-        methods = {k: v for k, v in vars(CoronaMiePhaseMixin).items() if k not in ("__dict__", "__weakref__")}
-        _CLASSES[variant] = type("CoronaMiePhase", (mi.PhaseFunction,), methods)
-    return _CLASSES[variant]
+    return variant_class(CoronaMiePhaseMixin, "PhaseFunction", "CoronaMiePhase")
 
 
 def register() -> None:

@@ -38,16 +38,12 @@ import numpy as np
 
 from . import tables
 from ._validation import CoronaError
-from .mitsuba_common import NEWTON_STEPS, texture_range
+from .mitsuba_common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, texture_range
+from .mitsuba_common import variant_class, wavelength_mixture
 from .mitsuba_common import array as _array, channel_response as _channel_response, gather as _gather
 from .mitsuba_common import read_props as _read_props
 from .parameters import SPEC, material_from_parameters
 from .sphere_material import ENERGY_MARGIN, INCIDENCE_MU
-
-
-def _not(x):
-    """Logical not of a mask (a Dr.Jit Bool, or a Python bool in scalar variants, where ``~`` is wrong)."""
-    return ~x if dr.is_array_v(x) else (not x)
 
 
 def _cdf_rows(values: np.ndarray, ds: float):
@@ -148,11 +144,9 @@ class SphereBSDFMixin:
     # per-wavelength state
     # ------------------------------------------------------------------
     def _wavelengths(self, wavelengths):
-        if mi.is_spectral:
-            lams = [wavelengths[k] for k in range(dr.size_v(mi.Spectrum))]
-        else:
-            lams = [mi.Float(float(v)) for v in self.channel_lambdas.ravel()]
-        return lams, 1.0 / len(lams)
+        """The lane's wavelengths [nm] and their (equal) mixture weight (:func:`wavelength_mixture`)."""
+        lams, weights = wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
+        return lams, weights[0]
 
     def _row(self, lam_nm):
         lam = dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
@@ -221,16 +215,8 @@ class SphereBSDFMixin:
         return en[0] * inv, en[1] * inv, en[2] * inv
 
     def _spectrum(self, values):
-        if mi.is_spectral:
-            return mi.Spectrum(values)
-        nc, per = self.channel_lambdas.shape
-        chans = []
-        for c in range(nc):
-            acc = mi.Float(0.0)
-            for q in range(per):
-                acc += float(self.channel_weights[c, q]) * values[c * per + q]
-            chans.append(acc)
-        return mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)
+        """Per-wavelength values as a Spectrum (:func:`fold_spectrum`)."""
+        return fold_spectrum(values, getattr(self, "channel_lambdas", None), getattr(self, "channel_weights", None))
 
     # ------------------------------------------------------------------
     # tables
@@ -382,9 +368,7 @@ class SphereBSDFMixin:
             s = dr.select(pick_f, (sample1 - p_coh) / dr.maximum(p_f, 1e-30),
                           (sample1 - p_coh - p_f) / dr.maximum(p_b, 1e-30))
             n = len(states)
-            s = dr.clip(s, 0.0, 0.99999994) * n
-            pick = dr.minimum(mi.UInt32(s), n - 1)
-            rest = s - mi.Float(pick)
+            pick, _, rest = pick_wavelength(s, [st["x"] for st in states])
             j, p_next, x = states[-1]["j"], mi.Float(0.0), states[-1]["x"]
             for q in range(n - 1, -1, -1):
                 st = states[q]
@@ -429,13 +413,6 @@ class SphereBSDFMixin:
         return f"CoronaSphereBSDF[{self.material!r}]"
 
 
-_CLASSES: dict[str, type] = {}
-
-
 def sphere_bsdf_class() -> type:
     """The sphere BSDF class of the active variant."""
-    variant = mi.variant()
-    if variant not in _CLASSES:
-        methods = {k: v for k, v in vars(SphereBSDFMixin).items() if k not in ("__dict__", "__weakref__")}
-        _CLASSES[variant] = type("CoronaSphereBSDF", (mi.BSDF,), methods)
-    return _CLASSES[variant]
+    return variant_class(SphereBSDFMixin, "BSDF", "CoronaSphereBSDF")

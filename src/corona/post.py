@@ -194,10 +194,10 @@ def channel_responses(colorspace: str = "srgb", channels: int = 3,
 def plugin_response() -> tuple[np.ndarray, np.ndarray]:
     """The spectral quadrature of the plugin in the active RGB (or mono) Mitsuba
     variant as a ``response`` for :func:`apply`: its ``N_RESPONSE`` wavelengths per
-    channel at equal weights (``corona.mitsuba_bsdf._channel_response``), so that
+    channel at equal weights (:func:`corona.mitsuba_common.channel_response`), so that
     ``apply`` and a render through the plugin integrate the same wavelengths."""
-    from .mitsuba_bsdf import _channel_response
-    chans, w = _channel_response()                             # (C, n) each
+    from .mitsuba_common import channel_response
+    chans, w = channel_response()                              # (C, n) each
     lams = chans.ravel()
     weights = np.zeros((chans.shape[0], lams.size))
     for c in range(chans.shape[0]):

@@ -123,6 +123,24 @@ class Circle(Shape):
         return total
 
 
+def _old_two_lengths(cls: str, names: tuple[str, str], radius, legacy, x, y, aspect, angle):
+    """The previous release's ``cls(x, y, angle [rad])`` (positional or by the keywords ``names``):
+    ``(x, y)`` [µm] and the angle in degrees; ``radius`` stands for ``x`` when given positionally."""
+    if len(legacy) > 2:
+        raise TypeError(f"{cls} takes at most 3 positional arguments ({1 + len(legacy)} given)")
+    if legacy:
+        y = legacy[0]
+    if len(legacy) > 1:
+        angle = legacy[1]
+    if radius is not None and x is not None:
+        raise CoronaError(f"{cls}: give radius or {names[0]}, not both")
+    if aspect is not None:
+        raise CoronaError(f"{cls}: give aspect or {names[1]}, not both")
+    x = check_positive(names[0], radius if x is None else x, "µm")
+    y = check_positive(names[1], y, "µm")
+    return x, y, math.degrees(_check_finite("angle", angle, "rad"))
+
+
 class Ellipse(Shape):
     """An elliptical aperture or particle: semi-axis ``radius`` along x, ``aspect · radius`` along y.
 
@@ -184,19 +202,8 @@ class Ellipse(Shape):
             self.angle = _check_finite("angle", angle, "degree")
             return
         # the previous release: Ellipse(semi_axis_x, semi_axis_y, angle [rad])
-        if len(legacy) > 2:
-            raise TypeError(f"Ellipse takes at most 3 positional arguments ({1 + len(legacy)} given)")
-        if legacy:
-            semi_axis_y = legacy[0]
-        if len(legacy) > 1:
-            angle = legacy[1]
-        if radius is not None and semi_axis_x is not None:
-            raise CoronaError("Ellipse: give radius or semi_axis_x, not both")
-        if aspect is not None:
-            raise CoronaError("Ellipse: give aspect or semi_axis_y, not both")
-        self.semi_axis_x = check_positive("semi_axis_x", radius if semi_axis_x is None else semi_axis_x, "µm")
-        self.semi_axis_y = check_positive("semi_axis_y", semi_axis_y, "µm")
-        self.angle = math.degrees(_check_finite("angle", angle, "rad"))
+        self.semi_axis_x, self.semi_axis_y, self.angle = _old_two_lengths(
+            "Ellipse", ("semi_axis_x", "semi_axis_y"), radius, legacy, semi_axis_x, semi_axis_y, aspect, angle)
         _warn_old_spelling(f"Ellipse({_g(self.semi_axis_x)}, {_g(self.semi_axis_y)}, angle={_g(math.radians(self.angle))})",
                            f"Ellipse({_g(self.semi_axis_x)}, aspect={_g(self.aspect)}, angle={_g(self.angle)})")
 
@@ -283,18 +290,7 @@ class Rectangle(Shape):
             self._set(2.0 * r, 2.0 * r * aspect, _check_finite("angle", angle, "degree"))
             return
         # the previous release: Rectangle(width, height, angle [rad])
-        if len(legacy) > 2:
-            raise TypeError(f"Rectangle takes at most 3 positional arguments ({1 + len(legacy)} given)")
-        if legacy:
-            height = legacy[0]
-        if len(legacy) > 1:
-            angle = legacy[1]
-        if radius is not None and width is not None:
-            raise CoronaError("Rectangle: give radius or width, not both")
-        if aspect is not None:
-            raise CoronaError("Rectangle: give aspect or height, not both")
-        w = check_positive("width", radius if width is None else width, "µm")
-        self._set(w, check_positive("height", height, "µm"), math.degrees(_check_finite("angle", angle, "rad")))
+        self._set(*_old_two_lengths("Rectangle", ("width", "height"), radius, legacy, width, height, aspect, angle))
         _warn_old_spelling(f"Rectangle({_g(self.width)}, {_g(self.height)}, angle={_g(math.radians(self.angle))})",
                            f"Rectangle({_g(self.radius)}, aspect={_g(self.aspect)}, angle={_g(self.angle)})")
 
