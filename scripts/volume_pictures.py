@@ -88,7 +88,7 @@ def glory_scene(truncation=5.0, radius=10.0, variance=0.01, sigma_t=0.05, res=12
                     "irradiance": {"type": "rgb", "value": [1.0, 0.97, 0.92]}}}
 
 
-def glory(truncation=5.0, res=128, spp=512, out="volumes_glory.png"):
+def glory(truncation=5.0, res=128, spp=1536, out="volumes_glory.png"):
     """docs/volumes_glory.png: the glory above the cloud deck with multiple scattering, the
     droplets' forward peak truncated (docs/volumes.md#forward-peak-truncation); an sRGB PNG
     (exposure: the median pixel at 0.4)."""

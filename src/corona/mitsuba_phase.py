@@ -14,12 +14,21 @@ radius              10         droplet radius, or effective radius ⟨r³⟩/⟨
 distribution        "mono"     "mono", "lognormal", "gamma", "modified_gamma"
 variance            0          effective variance v_eff (0 for "mono")
 gamma_exponent      1          γ of "modified_gamma" (n(r) ∝ r^α exp(-B r^γ))
-ior                 "water"    "water" (dispersion, in air) or the real index relative to the host
+ior                 "water"    "water" (with its dispersion) or the particles' real index [1, 10]
 ior_imag            0          κ >= 0 (absorption)
 volume_fraction     0          φ > 0: the Percus–Yevick structure factor (dense media)
+host_ior            1          index of the host in [1, 3]: m = (ior + i ior_imag) / host_ior,
+                               wavelength λ / host_ior (water 1.33, a resin 1.5)
+truncation          0          forward-peak truncation angle [degrees], 0 or [0.5, 30]: the
+                               phase function capped inside the cone, renormalised; the medium's
+                               σ_t, albedo must be the truncated ones
+                               (corona.volume.homogeneous_medium(..., truncation=...))
 ==================  =========  ==========================================================
 
-Evaluation.  Spectral variants evaluate each of the lane's wavelengths
+Evaluation.  One packet gather per lane reads the table around a direction:
+spectral variants the two rows around the wavelength times the two angle nodes
+around the direction (four floats), RGB and mono variants every channel's two
+nodes.  Spectral variants evaluate each of the lane's wavelengths
 (rows linear in size parameter ``x = 2πr/λ``, nodes linear in
 ``v = sin²(Θ/2)``; the node is found from the chords ``|wo + wi| / 2 =
 sin(Θ/2)`` (forward half) and ``|wo - wi| / 2 = cos(Θ/2)`` (backward half),
@@ -32,8 +41,10 @@ function averaged over the channel's spectral response weighted by ``σ_s``
 Sampling.  ``sample1`` picks one of the lane's wavelengths (or channels)
 with probability 1/n and, for spectral rows, row ``j + 1`` with probability
 ``t`` (both rows integrate to 1, so the mixture is the interpolated value);
-``sample2.x`` inverts the row's CDF exactly (a guide table and a bisection find the bin, then
-the quadratic of a density linear in v), ``sample2.y`` the azimuth.  The
+``sample2.x`` inverts the row's CDF exactly (a guide table of 2 cells per angle bin and a
+bisection while the cell holds more than one bin find the bin, then the quadratic of a density
+linear in v), ``sample2.y`` the azimuth; the packets read at the sampled bin give both the
+quadratic's two nodes and the returned value.  The
 returned pdf is the mean of the lanes' (channels') values, the one-sample
 balance-heuristic mixture, and the weight is value / pdf.
 """
