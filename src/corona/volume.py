@@ -104,7 +104,7 @@ def _moments_check(r_eff, v_eff, distribution):
 
 
 def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
-               gamma_exponent: float = 1.0, n: int | None = None):
+               gamma_exponent: float = 1.0, n: int | None = None, host_ior: float = 1.0):
     """Quadrature radii [µm] and number weights (sum 1) of a droplet size distribution.
 
     Parameters
@@ -117,8 +117,10 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
     gamma_exponent : float
         ``γ`` of the modified gamma distribution (> 0).
     n : int, optional
-        Number of nodes (default: one per unit of size parameter at 360 nm across the
-        range, within :data:`SIZE_NODES`).
+        Number of nodes (default: one per unit of size parameter at 360 nm in the host across
+        the range, within :data:`SIZE_NODES`).
+    host_ior : float
+        Index of the host (the wavelength in it is ``λ / host_ior``); only sets the default ``n``.
 
     Returns
     -------
@@ -171,7 +173,8 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
         logpdf = lambda r: alpha * np.log(r) - B * r**g
     lo_r, hi_r = float(area.ppf(1e-4)), float(area.ppf(1 - 1e-4))
     if n is None:
-        n = int(np.clip(math.ceil(2 * np.pi * (hi_r - lo_r) / (tables.WAVELENGTH_MIN * 1e-3)), *SIZE_NODES))
+        n = int(np.clip(math.ceil(2 * np.pi * float(host_ior) * (hi_r - lo_r) / (tables.WAVELENGTH_MIN * 1e-3)),
+                        *SIZE_NODES))
     t, wt = np.polynomial.legendre.leggauss(int(n))
     r = lo_r + (hi_r - lo_r) * 0.5 * (t + 1)
     lw = logpdf(r)
@@ -179,18 +182,42 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
     return r, w / w.sum()
 
 
-def droplet_index(ior, ior_imag: float = 0.0):
-    """A function ``λ [nm] → m`` for the droplets' relative index.
+#: Range of the host's index (a gas, a liquid, a resin or a glass).
+HOST_IOR_RANGE = (1.0, 3.0)
 
-    ``ior="water"`` is water in air with its dispersion (:func:`corona.mie.water_ior`);
-    a number is a constant real part.  ``ior_imag`` (κ >= 0) adds absorption.
+
+def check_host_ior(host_ior) -> float:
+    """The host's refractive index, in [1, 3] (one clear error otherwise)."""
+    return check_range("host_ior", host_ior, *HOST_IOR_RANGE)
+
+
+def droplet_index(ior, ior_imag: float = 0.0, host_ior: float = 1.0):
+    """A function ``λ [nm] → m`` for the particles' index relative to the host.
+
+    ``m = (n + iκ) / n_host``: ``ior="water"`` is water with its dispersion
+    (:func:`corona.mie.water_ior`, relative to air), a number a constant real
+    part ``n`` in [1, 10]; ``ior_imag`` (κ >= 0) adds absorption; ``host_ior``
+    (``n_host`` in [1, 3], constant over wavelength; 1: air) is the medium the
+    particles are suspended in (water droplets in air, latex spheres in water,
+    pigments in a resin).  ``m`` may be below 1 (air bubbles in water, water in
+    oil), not equal to 1 (no scattering): ``|m - 1| >= 1e-4`` at 550 nm.
+
+    ``λ`` is the wavelength in air (the renderer's); in the host it is ``λ / n_host``.
     """
     k = check_range("ior_imag", ior_imag, 0.0, 10.0)
+    nh = check_host_ior(host_ior)
     if isinstance(ior, str):
         check_choice("ior", ior, ("water",))
-        return lambda lam: mie.water_ior(lam) + 1j * k
-    n = check_range("ior", ior, 1.0001, 10.0)
-    return lambda lam: np.full(np.shape(lam), n) + 1j * k
+        f = lambda lam: (mie.water_ior(lam) + 1j * k) / nh
+    else:
+        n = check_range("ior", ior, 1.0, 10.0)
+        f = lambda lam: (np.full(np.shape(lam), n) + 1j * k) / nh
+    m = complex(np.asarray(f(np.array(550.0))))
+    if abs(m - 1) < 1e-4:
+        raise CoronaError(f"ior={ior!r} is out of range for host_ior={nh:g}: the particles' relative "
+                          f"index {m.real:.5g} would equal the host's (no scattering); allowed "
+                          "|ior / host_ior - 1| >= 1e-4")
+    return f
 
 
 def _structure(phi: float, diameter: float):
@@ -229,6 +256,72 @@ def node_bin(a, b, ds: float, M: int):
     return i, np.clip(np.where(fwd, f_fwd, f_bwd), 0.0, 1.0)
 
 
+#: Allowed forward-peak truncation angles [degrees] (besides 0: none).
+TRUNCATION_RANGE = (0.5, 30.0)
+
+
+def check_truncation(truncation) -> float:
+    """0 (no truncation) or an angle [degrees] in :data:`TRUNCATION_RANGE`."""
+    if isinstance(truncation, (int, float)) and not isinstance(truncation, bool) and truncation == 0:
+        return 0.0
+    return check_range("truncation", truncation, *TRUNCATION_RANGE, unit="degrees (or 0: none)")
+
+
+def truncate_table(table: dict, truncation: float) -> dict:
+    """Forward-peak truncation of phase rows (Potter 1970; the delta-M idea of Wiscombe 1977).
+
+    Each row ``p`` is capped inside the cone ``Θ < Θ_c`` at its value at the first node
+    at or beyond ``Θ_c`` (``p_c = min(p, p(Θ_c))``); the removed fraction
+    ``f = 1 - ∫ p_c dΩ`` is treated as a delta function forward, i.e. as no scattering:
+
+        p* = p_c / (1 - f),   C_sca* = (1 - f) C_sca,   C_ext* = C_ext - f C_sca,
+
+    so ``σ_s* p*(Θ) = σ_s p(Θ)`` exactly outside the cone (the glory, the bows and all
+    wide angles keep their single scattering), ``σ_a`` is unchanged and the
+    transport coefficient ``σ_s (1 - g)`` changes by at most ``f (1 - cos Θ_c) σ_s``
+    (the removed light's deflection).  Inside the cone the aureole is lost: use it
+    where the camera does not look near the light through the medium.
+
+    Parameters
+    ----------
+    table : dict
+        A :attr:`MieVolume.table` (``p``, ``theta``, ``v``, ``ds``, ``M``, ``c_ext``, ``c_sca``).
+    truncation : float
+        ``Θ_c`` [degrees].
+
+    Returns
+    -------
+    dict
+        The table with ``p``, ``c_sca``, ``c_ext``, ``g`` replaced, ``truncated_fraction`` =
+        ``f`` per row, ``truncation_node`` the first node kept (its angle ``theta[node]`` >= Θ_c),
+        and the untruncated ``c_sca_full``, ``c_ext_full``, ``g_full``.
+
+    References
+    ----------
+    J. F. Potter, "The delta function approximation in radiative transfer theory",
+    J. Atmos. Sci. 27, 943–949 (1970).  W. J. Wiscombe, "The delta-M method", J. Atmos. Sci.
+    34, 1408–1422 (1977).
+    """
+    out = dict(table)
+    theta = np.asarray(table["theta"])
+    ic = int(np.searchsorted(theta, math.radians(float(truncation)) * (1 - 1e-12)))
+    p = np.asarray(table["p"], dtype=np.float64)
+    cap = p[:, ic:ic + 1]
+    pc = p.copy()
+    pc[:, :ic] = np.minimum(p[:, :ic], cap)
+    dv = node_dv(float(table["ds"]), int(table["M"]))
+    keep = 4 * np.pi * np.sum(0.5 * (pc[:, 1:] + pc[:, :-1]) * dv, axis=1)
+    f = 1.0 - keep
+    ps = pc / keep[:, None]
+    v = np.asarray(table["v"])
+    g = 4 * np.pi * np.sum(0.5 * (ps[:, 1:] + ps[:, :-1]) * (1 - (v[1:] + v[:-1])) * dv, axis=1)
+    c_sca, c_ext = np.asarray(table["c_sca"]), np.asarray(table["c_ext"])
+    out.update(p=ps, c_sca=c_sca * keep, c_ext=c_ext - f * c_sca, g=g, truncated_fraction=f,
+               truncation_node=np.array(ic), c_sca_full=c_sca, c_ext_full=c_ext,
+               g_full=np.asarray(table["g"]))
+    return out
+
+
 class MieVolume:
     """The spheres of a volume: cross-sections and the tabulated phase function per wavelength.
 
@@ -239,7 +332,7 @@ class MieVolume:
     distribution, variance, gamma_exponent
         The size distribution (:func:`size_nodes`).
     ior : "water" or float
-        Real part of the index relative to the host (water: with dispersion).
+        Real part of the particles' index (water: with dispersion), relative to air.
     ior_imag : float
         Imaginary part κ (absorption), >= 0.
     volume_fraction : float
@@ -247,6 +340,16 @@ class MieVolume:
         (decoupling approximation, module docstring).  0: dilute (S = 1).
     use_cache : bool
         Keep the tables in corona's on-disk cache.
+    host_ior : float
+        Index ``n_host`` of the medium around the particles, in [1, 3] (1: air): the
+        relative index is ``m = (ior + i ior_imag) / n_host`` and the wavelength in the host
+        ``λ / n_host``, so ``x = 2π r n_host / λ`` and ``k = 2π n_host / λ`` (``λ`` the
+        renderer's wavelength in air).
+    truncation : float
+        Forward-peak truncation angle ``Θ_c`` [degrees], 0 (default: none) or in [0.5, 30]:
+        the phase function is capped at its value at ``Θ_c`` inside the cone,
+        the removed fraction ``f`` of the scattered light counts as unscattered and
+        ``C_sca``, ``C_ext`` drop by ``f C_sca`` (:func:`truncate_table`; docs/volumes.md#forward-peak-truncation).
 
     Examples
     --------
@@ -260,26 +363,39 @@ class MieVolume:
     """
 
     def __init__(self, radius, distribution="mono", variance=0.0, gamma_exponent=1.0,
-                 ior="water", ior_imag=0.0, volume_fraction=0.0, use_cache=True):
-        self.radii, self.weights = size_nodes(radius, distribution, variance, gamma_exponent)
+                 ior="water", ior_imag=0.0, volume_fraction=0.0, use_cache=True, host_ior=1.0,
+                 truncation=0.0):
+        self.host_ior = check_host_ior(host_ior)
+        self.radii, self.weights = size_nodes(radius, distribution, variance, gamma_exponent,
+                                              host_ior=self.host_ior)
         self.radius = float(radius)
         self.distribution, self.variance = distribution, float(variance or 0.0)
         self.gamma_exponent = float(gamma_exponent)
-        self.index = droplet_index(ior, ior_imag)
+        self.index = droplet_index(ior, ior_imag, self.host_ior)
         self.ior, self.ior_imag = ior, float(ior_imag)
         self.volume_fraction = check_range("volume_fraction", volume_fraction, 0.0, 0.494, hi_open=True)
+        self.truncation = check_truncation(truncation)
         self.use_cache = bool(use_cache)
-        x_top = 2 * np.pi * float(self.radii.max()) / (tables.WAVELENGTH_MIN * 1e-3)
+        x_top = 2 * np.pi * self.host_ior * float(self.radii.max()) / (tables.WAVELENGTH_MIN * 1e-3)
         if x_top > X_MAX:
             raise CoronaError(f"radius={radius!r} is out of range with this distribution: the largest "
                               f"droplets reach x = {x_top:.0f} > {X_MAX:g} at 360 nm")
 
+    @property
+    def k_scale(self) -> float:
+        """``2π n_host`` [rad]: ``k = k_scale / λ`` and ``x = k_scale r / λ``."""
+        return 2 * np.pi * self.host_ior
+
     def key(self) -> dict:
-        return {"volume_format": VOLUME_FORMAT, "radius": self.radius, "distribution": self.distribution,
+        """The cache key of the untruncated table (truncation is applied on reading)."""
+        key = {"volume_format": VOLUME_FORMAT, "radius": self.radius, "distribution": self.distribution,
                 "variance": self.variance, "gamma_exponent": self.gamma_exponent, "ior": str(self.ior),
                 "ior_imag": self.ior_imag, "volume_fraction": self.volume_fraction,
                 "grid": [ROW_DX, MIN_ROWS, MAX_ROWS, THETA_DX, MIN_NODES, MAX_NODES, SIZE_NODES],
                 "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+        if self.host_ior != 1.0:                   # (air keeps the keys of tables cached before)
+            key["host_ior"] = self.host_ior
+        return key
 
     @property
     def mean_radius(self) -> float:
@@ -295,8 +411,8 @@ class MieVolume:
         ``sin(Θ/2) = k ds`` (k = 0 … M, forward half) then ``cos(Θ/2) = (2M - k) ds``
         (k = M … 2M, backward half), ``M ds = 1/√2``; K = 2M + 1 nodes."""
         r = self.radius
-        x_lo = 2 * np.pi * r / (tables.WAVELENGTH_MAX * 1e-3)
-        x_hi = 2 * np.pi * r / (tables.WAVELENGTH_MIN * 1e-3)
+        x_lo = self.k_scale * r / (tables.WAVELENGTH_MAX * 1e-3)
+        x_hi = self.k_scale * r / (tables.WAVELENGTH_MIN * 1e-3)
         spread = math.sqrt(self.variance)
         row_dx = max(ROW_DX, min(2.0, 0.25 * spread * x_lo))
         J = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
@@ -309,15 +425,19 @@ class MieVolume:
 
     @functools.cached_property
     def table(self) -> dict:
-        """The rows (cached on disk): ``wavelength`` (J,) [nm], ``theta`` (K,), ``p`` (J, K) [1/sr]
-        normalised, ``c_ext``, ``c_sca`` (J,) [µm²] per droplet (``c_sca`` with S), ``s_gain`` (J,) the
-        factor S brought to ``c_sca``, ``g`` (J,) the asymmetry of ``p``."""
+        """The rows (cached on disk): ``wavelength`` (J,) [nm, in air], ``theta`` (K,), ``p`` (J, K)
+        [1/sr] normalised, ``c_ext``, ``c_sca`` (J,) [µm²] per droplet (``c_sca`` with S and
+        truncation), ``s_gain`` (J,) the factor S brought to ``c_sca``, ``g`` (J,) the asymmetry of
+        ``p``, ``truncated_fraction`` (J,) the fraction ``f`` of the scattering folded into the
+        unscattered beam (0 without truncation)."""
         arrays = tables.cached(self.key(), self._build, use_cache=self.use_cache)
-        return {k: np.asarray(v) for k, v in arrays.items()}
+        out = {k: np.asarray(v) for k, v in arrays.items()}
+        out["truncated_fraction"] = np.zeros(out["p"].shape[0])
+        return truncate_table(out, self.truncation) if self.truncation > 0 else out
 
     def _build(self) -> dict:
         x_rows, ds, M = self.grid()
-        lam = 2 * np.pi * self.radius / x_rows * 1e3
+        lam = self.k_scale * self.radius / x_rows * 1e3        # in air [nm]
         v = node_v(ds, M)
         K = v.size
         mu = 1.0 - 2.0 * v
@@ -329,7 +449,7 @@ class MieVolume:
         c_ext = np.zeros(J)
         c_sca = np.zeros(J)
         m = self.index(lam)
-        k = 2 * np.pi / (lam * 1e-3)                   # rad/µm
+        k = self.k_scale / (lam * 1e-3)                # in the host [rad/µm]
         n_all = int(mie.n_terms(float(k.max() * self.radii.max())))
         pi_all, tau_all = mie.angular_functions(mu, n_all)      # π_n, τ_n do not depend on N
         n = np.arange(1, n_all + 1)
@@ -372,7 +492,7 @@ class MieVolume:
     def _row(self, wavelength):
         lam = np.clip(np.asarray(wavelength, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
         xr = self.table["x"]
-        f = (2 * np.pi * self.radius / (lam * 1e-3) - xr[0]) / (xr[1] - xr[0])
+        f = (self.k_scale * self.radius / (lam * 1e-3) - xr[0]) / (xr[1] - xr[0])
         j = np.clip(np.floor(f).astype(np.int64), 0, xr.size - 2)
         return j, np.clip(f - j, 0.0, 1.0)
 
@@ -409,12 +529,12 @@ class MieVolume:
         """Mie theory directly at ``cos Θ`` and ``wavelength`` [nm] (float64, no tables; dilute)."""
         mu = np.atleast_1d(np.asarray(cos_theta, dtype=np.float64))
         lam = float(wavelength)
-        k = 2 * np.pi / (lam * 1e-3)
+        k = self.k_scale / (lam * 1e-3)
         m = complex(self.index(np.array(lam)))
         num = np.zeros(mu.shape)
         csca = 0.0
         for r, w in zip(self.radii, self.weights):
-            num += w * mie.differential_cross_section(m, r, lam * 1e-3, mu)
+            num += w * mie.differential_cross_section(m, r, lam * 1e-3 / self.host_ior, mu)
             csca += w * float(mie.efficiencies(m, k * r)["q_sca"]) * np.pi * r * r
         return num / csca
 
@@ -479,14 +599,16 @@ def _spectrum(wavelengths, values):
 
 
 def _medium_parts(radius, lwc, number_density, number_density_cm3, distribution, variance,
-                  gamma_exponent, ior, ior_imag, scene_unit, correlated, use_cache):
+                  gamma_exponent, ior, ior_imag, scene_unit, correlated, use_cache, host_ior=1.0,
+                  truncation=0.0):
     unit = check_positive("scene_unit", scene_unit, "m")
-    dilute = MieVolume(radius, distribution, variance, gamma_exponent, ior, ior_imag, 0.0, use_cache)
+    dilute = MieVolume(radius, distribution, variance, gamma_exponent, ior, ior_imag, 0.0, use_cache,
+                       host_ior=host_ior, truncation=truncation)
     N = _number_density(dilute, lwc, number_density, number_density_cm3)
     phi = N * dilute.mean_volume * 1e-18
     use = phi if correlated else 0.0
-    vol = MieVolume(radius, distribution, variance, gamma_exponent, ior, ior_imag, use, use_cache) \
-        if use > 0 else dilute
+    vol = MieVolume(radius, distribution, variance, gamma_exponent, ior, ior_imag, use, use_cache,
+                    host_ior=host_ior, truncation=truncation) if use > 0 else dilute
     lam = vol.table["wavelength"]
     per_unit = N * 1e-12 * unit                        # droplets per m³ × µm² → 1/m, × m per unit
     sigma_t = vol.table["c_ext"] * per_unit
@@ -496,15 +618,19 @@ def _medium_parts(radius, lwc, number_density, number_density_cm3, distribution,
     if distribution == "modified_gamma":
         phase["gamma_exponent"] = float(gamma_exponent)
     phase["ior"] = ior if isinstance(ior, str) else float(ior)
+    if vol.host_ior != 1.0:
+        phase["host_ior"] = vol.host_ior
+    if vol.truncation > 0:
+        phase["truncation"] = vol.truncation
     info = {"number_density": N, "volume_fraction": phi, "wavelength": lam, "sigma_t": sigma_t,
-            "albedo": albedo, "volume": vol}
+            "albedo": albedo, "volume": vol, "truncated_fraction": vol.table["truncated_fraction"]}
     return phase, info
 
 
 def homogeneous_medium(radius, *, lwc=None, number_density=None, number_density_cm3=None,
                        distribution="mono", variance=0.0, gamma_exponent=1.0, ior="water",
                        ior_imag=0.0, scene_unit=1.0, correlated=True, use_cache=True,
-                       return_info=False):
+                       return_info=False, host_ior=1.0, truncation=0.0):
     """A Mitsuba ``homogeneous`` medium dict of droplets with the ``corona_mie`` phase function.
 
     Parameters
@@ -520,7 +646,15 @@ def homogeneous_medium(radius, *, lwc=None, number_density=None, number_density_
     distribution, variance, gamma_exponent
         The size distribution (:func:`size_nodes`).
     ior, ior_imag
-        The droplets' index relative to the host (:func:`droplet_index`).
+        The particles' index (relative to air; :func:`droplet_index`).
+    host_ior : float
+        The host's index in [1, 3] (1: air; water 1.33, a resin 1.5): relative index
+        ``m = (ior + i ior_imag) / host_ior``, wavelength in the host ``λ / host_ior``.
+    truncation : float
+        Forward-peak truncation angle [degrees] (0: none; [0.5, 30]): the part ``f`` of the
+        forward peak inside it counts as unscattered, ``σ_s → (1 - f) σ_s``, ``σ_t → σ_t - f σ_s``
+        (:func:`truncate_table`); exact outside the cone, far less noise in thick media lit by
+        a small light (docs/volumes.md#forward-peak-truncation).
     scene_unit : float
         Metres per scene length unit (1: the scene is in metres; 1e-3: millimetres).
     correlated : bool
@@ -553,7 +687,7 @@ def homogeneous_medium(radius, *, lwc=None, number_density=None, number_density_
     """
     phase, info = _medium_parts(radius, lwc, number_density, number_density_cm3, distribution,
                                 variance, gamma_exponent, ior, ior_imag, scene_unit, correlated,
-                                use_cache)
+                                use_cache, host_ior, truncation)
     lam = info["wavelength"]
     scale = float(np.max(info["sigma_t"]))          # RGB spectra must lie in [0, 1]: σ_t = scale × shape
     med = {"type": "homogeneous", "sigma_t": _spectrum(lam, info["sigma_t"] / scale), "scale": scale,
@@ -564,7 +698,7 @@ def homogeneous_medium(radius, *, lwc=None, number_density=None, number_density_
 def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, number_density_cm3=None,
                          bbox=None, distribution="mono", variance=0.0, gamma_exponent=1.0,
                          ior="water", ior_imag=0.0, scene_unit=1.0, reference_wavelength=550.0,
-                         use_cache=True, return_info=False):
+                         use_cache=True, return_info=False, host_ior=1.0, truncation=0.0):
     """A Mitsuba ``heterogeneous`` medium dict: droplets with a density grid.
 
     ``density`` (Z, Y, X) >= 0 multiplies the number density given by ``lwc``,
@@ -576,7 +710,7 @@ def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, numb
     structure of Q_ext: about 0.2 for one droplet size of a few µm, less for broad
     size distributions and large droplets).  No structure factor (the density varies).
 
-    Other parameters as :func:`homogeneous_medium`; ``bbox`` ((3,), (3,)) places the grid
+    Other parameters (``host_ior``, ``truncation`` too) as :func:`homogeneous_medium`; ``bbox`` ((3,), (3,)) places the grid
     (Mitsuba's default: the unit cube).
     """
     import mitsuba as mi
@@ -586,7 +720,7 @@ def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, numb
                           "each side >= 2, finite values >= 0")
     phase, info = _medium_parts(radius, lwc, number_density, number_density_cm3, distribution,
                                 variance, gamma_exponent, ior, ior_imag, scene_unit, False,
-                                use_cache)
+                                use_cache, host_ior, truncation)
     peak = info["number_density"] * float(grid.max())
     if peak * info["volume"].mean_volume * 1e-18 >= 0.494:
         raise CoronaError(f"density max {grid.max():g} is out of range: the droplets would fill a "
