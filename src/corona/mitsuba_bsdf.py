@@ -581,6 +581,10 @@ class CoronaBSDFMixin:
             return r + dr.square(1.0 - r) * self.silver / (1.0 - r * self.silver)
         return pane_reflectance(cos_theta, self.eta)
 
+    def _face_reflectance(self, cos_theta):
+        """``R``: the Fresnel reflectance of the face the layer lies on, at ``|cos θ|``."""
+        return mi.fresnel(dr.abs(cos_theta), self.eta)[0]
+
     def _pane_transmittance(self, cos_theta):
         """``T' = 1 - R'`` of the pane at ``|cos θ|``; 0 for a mirror."""
         if self.is_mirror:
@@ -617,26 +621,30 @@ class CoronaBSDFMixin:
         return dr.select(inside, c * re - s * im, 0.0)
 
     def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o, active=True):
-        """Per evaluated wavelength, the factor ``R'_i + R'_o + 2 V Q`` on ``C f`` (a callable
+        """Per evaluated wavelength, the factor ``min(R_i, R_o) + C (P_i + P_o + 2 V Q)`` on ``f`` (a callable
         ``(q, λ [nm]) -> Float`` for :meth:`_lobe_and_pdf`), ``Q`` the interference of the round
         trips: exact per wavelength (spectral), averaged over each response bin (RGB/mono)."""
         n = self.eta
-        base = self._pane_reflectance(cos_i) + self._pane_reflectance(cos_o)
+        ri = self._face_reflectance(cos_i)
+        ro = self._face_reflectance(cos_o)
+        c2 = layer["coherent"]
+        base = dr.minimum(ri, ro) + c2 * (self._pane_reflectance(cos_i) - ri + self._pane_reflectance(cos_o) - ro)
         s2i = dr.fma(wi.x, wi.x, wi.y * wi.y)
         s2o = dr.fma(wo.x, wo.x, wo.y * wo.y)
         cri = dr.safe_sqrt(1.0 - s2i / (n * n))
         cro = dr.safe_sqrt(1.0 - s2o / (n * n))
         delta = (2.0 * self.thickness / n) * (s2o - s2i) / (cri + cro)        # 2 n t (cos r_s - cos r_o), µm
-        ri = mi.fresnel(dr.abs(cos_i), n)[0]
-        ro = mi.fresnel(dr.abs(cos_o), n)[0]
         rb = self.silver if self.is_mirror else dr.sqrt(ri * ro)
         a = (1.0 - ri) * (1.0 - ro) * rb
         x = rb * dr.sqrt(ri * ro)
-        c2 = layer["coherent"]
         lobe = layer["plane"] * layer["weight"] / dr.maximum(layer["fa"], 1e-30)
-        cd = 2.0 * c2 * lobe                                                  # the visibility cap
-        vis = dr.select(cd > 0, dr.clip((1.0 - layer["reflect"] - c2 * c2 - cd) / dr.maximum(cd, 1e-30),
-                                        0.0, 1.0), 1.0)
+        cd = c2 * lobe                         # the visibility cap (substrate.double_pass_visibility)
+        slack = 1.0 - layer["reflect"]
+        inv = 1.0 / dr.maximum(cd, 1e-30)
+        e = (slack - c2 * c2 - lobe - cd) * inv
+        vis = dr.minimum(dr.minimum((slack - c2 * c2 - 2.0 * cd) * 0.5 * inv, (slack - c2 - cd) * inv), e)
+        vis = dr.maximum(vis, dr.safe_sqrt(e * (1.0 - c2) / dr.maximum(c2, 1e-30)))
+        vis = dr.select(cd > 0, dr.clip(vis, 0.0, 1.0), 1.0)
 
         def factor(q, lam_nm):
             if mi.is_spectral:
@@ -649,7 +657,7 @@ class CoronaBSDFMixin:
                     qv += xk * self._bin_average_cos(q, k * dr.abs(delta), active)
                     xk = xk * x
                 qv = a * qv
-            return base + 2.0 * vis * qv
+            return base + 2.0 * c2 * vis * qv
         return factor
 
     def _layer_first(self, cos_i):
@@ -661,7 +669,14 @@ class CoronaBSDFMixin:
         r_i = self._pane_reflectance(cos_i)
         return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
                                   t_i=self._pane_transmittance(cos_i),
-                                  behind=0.0 if self.is_mirror else r_i)     # a mirror's back is black
+                                  behind=0.0 if self.is_mirror else r_i,     # a mirror's back is black
+                                  front=self._face_reflectance(cos_i))
+
+    def _reflected_lobe_energy(self, coherent, cos_i):
+        """The reflected lobe's energy over ``D`` at ``θi``, the two angles taken equal:
+        ``R + 2 C P`` (its selection weight)."""
+        r = self._face_reflectance(cos_i)
+        return r + 2.0 * coherent * (self._pane_reflectance(cos_i) - r)
 
     def _selection(self, ctx, layer, cos_i=None):
         """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
@@ -677,7 +692,7 @@ class CoronaBSDFMixin:
             w_coh, w_spec = self._delta_weights(layer, cos_i)
             energies = (w_coh, layer["lobe"] * t_i,
                         dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
-                        dr.select(first, 2.0 * layer["coherent"] * layer["lobe"] * self._pane_reflectance(cos_i),
+                        dr.select(first, layer["lobe"] * self._reflected_lobe_energy(layer["coherent"], cos_i),
                                   0.0))
         return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
 
@@ -713,10 +728,11 @@ class CoronaBSDFMixin:
             first = self._layer_first(cos_i)
             r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
             t_i, t_o = self._pane_transmittance(cos_i), self._pane_transmittance(cos_o)
-            f_through, f_reflected, f_diffuse = pane_smooth_factors(layer["coherent"], r_i, r_o, first,
-                                                                    t_i=t_i, t_o=t_o)
-            if coherent:   # the double pass: C f [R'(θi) + R'(θo) + 2 V Q] (f_reflected's bracket modulated)
-                lobe_reflected = dr.select(first, layer["coherent"] * f_mod[0] * abs_cos_o, 0.0)
+            f_through, f_reflected, f_diffuse = pane_smooth_factors(
+                layer["coherent"], r_i, r_o, first, t_i=t_i, t_o=t_o,
+                front_i=self._face_reflectance(cos_i), front_o=self._face_reflectance(cos_o))
+            if coherent:   # the double pass: f [R_min + C (P_i + P_o + 2 V Q)] (f_reflected modulated)
+                lobe_reflected = dr.select(first, f_mod[0] * abs_cos_o, 0.0)
             else:
                 lobe_reflected = lobe * f_reflected
             lobe = lobe * f_through

@@ -178,23 +178,45 @@ class GlassPane:
         c = np.cos(2 * np.pi * self.path_difference(cos_s, cos_o) / lam)
         return a * (c - x) / (1.0 - 2.0 * x * c + x * x)
 
-    def reflected_lobe_factor(self, cos_s, cos_o, wavelength, visibility=1.0) -> np.ndarray:
-        """The pane's factor on ``C f`` in the lobe seen in reflection (light meets the layer first).
+    def inner_reflectance(self, cos_theta, wavelength=550.0) -> np.ndarray:
+        """``P = R' - R = Σ_{k≥1} I_k``: the part of the pane's reflectance that has crossed the
+        glass (every round trip), at ``|cos θ|``; the front face's own ``R`` is the rest."""
+        c = np.abs(np.asarray(cos_theta, dtype=np.float64))
+        return self.reflectance(c, wavelength) - self.face_reflectance(c)
 
-        Without a thickness the incoherent sum ``R'(θs) + R'(θo)`` (scattered on the way in, or
-        on the way out).  With one, the two single-scattering paths of the same particle and the
-        same ``d`` after ``k >= 1`` round trips add as amplitudes:
+    def specular_through_layer(self, cos_theta, wavelength, coherent) -> np.ndarray:
+        """Weight of the pane's mirror image seen through a layer on its face (light meets the
+        layer first): ``C R + C² P``.
 
-            R'(θs) + R'(θo) + 2 V Q(θs, θo, λ)
-
-        (:meth:`interference`; the front face's own reflection, ``k = 0``, stays incoherent).
-        ``V`` in [0, 1] is the energy cap's visibility (1 unless the layer is very reflective,
-        :func:`double_pass_visibility`).  The factor lies in ``[0, 2 (R'_s + R'_o)]``.
+        The front face reflects the light that crossed the layer back through the same place of
+        the layer (a screen on the face is crossed once, ``t(x)² = t(x)`` for a binary screen:
+        ``C R``); the light of the round trips crosses it a second time (``C² P``,
+        :meth:`inner_reflectance`).  ``coherent`` is the layer's ``C``.
         """
-        base = self.reflectance(cos_s) + self.reflectance(cos_o)
-        if not self.coherent:
-            return base
-        return base + 2.0 * visibility * self.interference(cos_s, cos_o, wavelength)
+        c = np.abs(np.asarray(cos_theta, dtype=np.float64))
+        return coherent * self.face_reflectance(c) + coherent * coherent * self.inner_reflectance(c, wavelength)
+
+    def reflected_lobe_factor(self, cos_s, cos_o, wavelength, coherent, visibility=1.0) -> np.ndarray:
+        """The pane's factor on the lobe ``f`` seen in reflection (light meets the layer first).
+
+            min(R_s, R_o) + C [P_s + P_o + 2 V Q(θs, θo, λ)]
+
+        ``R`` the front face's Fresnel reflectance, ``P`` the round trips'
+        (:meth:`inner_reflectance`), ``C`` = ``coherent``, the layer's coherent weight.  The front
+        face reflects the lobe once (a screen on the face: ``R f``, not ``2 C R f``); the
+        smaller of the two angles' ``R`` keeps it reciprocal and within each scattered
+        direction's budget (equal to first order about the mirror direction).  The round trips
+        add the two single-scattering paths (scattered on the way in, or on the way out), and,
+        with a thickness, their interference ``Q`` (:meth:`interference`) with the energy cap's
+        visibility ``V`` in [0, 1] (:func:`double_pass_visibility`); without a thickness the two
+        paths add incoherently.  See ``docs/physics.md#the-front-face``.
+        """
+        cs, co = np.abs(np.asarray(cos_s, dtype=np.float64)), np.abs(np.asarray(cos_o, dtype=np.float64))
+        front = np.minimum(self.face_reflectance(cs), self.face_reflectance(co))
+        inner = self.inner_reflectance(cs, wavelength) + self.inner_reflectance(co, wavelength)
+        if self.coherent:
+            inner = inner + 2.0 * visibility * self.interference(cs, co, wavelength)
+        return front + coherent * inner
 
 
 class Mirror(GlassPane):
@@ -261,22 +283,31 @@ class Mirror(GlassPane):
     def layer_first(self, cos_theta_i) -> np.ndarray:
         return np.asarray(cos_theta_i, dtype=np.float64) > 0
 
-    def reflected_lobe_factor(self, cos_s, cos_o, wavelength, visibility=1.0) -> np.ndarray:
-        base = self.reflectance(np.abs(cos_s), wavelength) + self.reflectance(np.abs(cos_o), wavelength)
-        return base + 2.0 * visibility * self.interference(cos_s, cos_o, wavelength)
-
 
 def double_pass_visibility(coherent: float, lobe: float, reflectance: float) -> float:
-    """The energy cap's visibility ``V = min(1, (1 - ρ - C² - 2 C D) / (2 C D))``.
+    """The energy cap's visibility ``V`` in [0, 1] of the double pass's interference.
 
-    The reflected lobe with interference is at most twice the incoherent one, so the light
-    reflected is at most ``ρ + C² + 2 C D (1 + V)`` (``R' <= 1``): ``V`` keeps that <= 1.  ``D``
-    is the lobe's plane integral (evanescent part included: an upper bound).
+    With the layer's ``C`` (``coherent``), ``D`` (``lobe``, its plane integral, evanescent part
+    included: an upper bound) and ``ρ`` (``reflectance``), the light reflected plus transmitted
+    exceeds the layer's own ``ρ + C + D`` by an amount linear in the round trips' ``P_s`` in
+    [0, 1], zero at ``P_s = 0`` unless ``C V > 1 - C``.  Two bounds on it
+    (``docs/physics.md#energy-1``), each sufficient, give
+
+        V₁ = min((1 - ρ - C² - 2CD) / 2CD, (1 - ρ - C - CD) / CD, E),   E = (1 - ρ - C² - D - CD) / CD
+        V₂ = √(E (1 - C) / C)
+
+    (``|Q| <= (P_s + P_o) / 2`` and ``|Q| <= √(P_s P_o)`` with the best ``P_o``), and
+    ``V = min(1, max(V₁, V₂, 0))``: 1 for every layer with some slack, 0 where the layer
+    itself returns all the light (``E = 0``).
     """
-    cd = 2.0 * coherent * lobe
+    c, d, rho = float(coherent), float(lobe), float(reflectance)
+    cd = c * d
     if cd <= 0:
         return 1.0
-    return float(np.clip((1.0 - reflectance - coherent**2 - cd) / cd, 0.0, 1.0))
+    e = (1.0 - rho - c * c - d - cd) / cd
+    v1 = min((1.0 - rho - c * c - 2.0 * cd) / (2.0 * cd), (1.0 - rho - c - cd) / cd, e)
+    v2 = np.sqrt(max(e, 0.0) * (1.0 - c) / c)
+    return float(np.clip(max(v1, v2), 0.0, 1.0))
 
 
 def channel_envelopes(wavelengths, responses, n_per_channel: int, delta_max: float = DELTA_MAX,

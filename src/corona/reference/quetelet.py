@@ -103,7 +103,9 @@ def double_pass(theta_s_deg=0.0, wavelength=550.0, thickness=4000.0, ior=1.52, b
     ``sin_s``, ``ratio`` (the double-pass diffuse intensity over ``C`` times the single-pass
     one), ``sigma`` (its standard error from 8 batches of screens), ``single`` (the
     single-pass diffuse intensity per component, normalised so that its sum is the diffuse
-    energy fraction), ``coherent`` (``C``).
+    energy fraction), ``coherent`` (``C``), ``specular`` (the intensity of the reflected
+    component along the mirror direction: the pane's coherent image seen through the screen,
+    band-averaged; its diffuse share, one component of the speckle, is of order 1/n_samples).
     """
     check_range("area_fraction", area_fraction, 0.0, 1.0, lo_open=True, hi_open=True)
     k = 2 * np.pi / (wavelength * 1e-3)
@@ -117,6 +119,7 @@ def double_pass(theta_s_deg=0.0, wavelength=550.0, thickness=4000.0, ior=1.52, b
     n_batch = 8
     sums = np.zeros((n_batch, 4, n_samples))      # single |A|², single A (for the mean), double |B|², B
     tmean = np.zeros(n_batch, complex)
+    specular = 0.0
     for i, t in enumerate(screens(rng, n_screens, n_samples, length, radius, area_fraction)):
         b = i % n_batch
         k_i = 2 * np.pi / (1e-3 * (wavelength + bandwidth * (rng.uniform() - 0.5)))
@@ -130,6 +133,7 @@ def double_pass(theta_s_deg=0.0, wavelength=550.0, thickness=4000.0, ior=1.52, b
             c_k = np.fft.fft(t * up) / n_samples
             c_k = np.where(prop, c_k, 0.0)
             sums[b, 2] += 0.5 * np.abs(c_k) ** 2
+            specular += 0.5 * abs(c_k[m0 % n_samples]) ** 2 / n_screens
     counts = np.bincount(np.arange(n_screens) % n_batch, minlength=n_batch)[:, None]
     # diffuse parts: the coherent beams are single components (kx0 and the mirror image kx0)
     tm = tmean.sum() / n_screens
@@ -142,4 +146,4 @@ def double_pass(theta_s_deg=0.0, wavelength=550.0, thickness=4000.0, ior=1.52, b
     sigma = ratio_b.std(0, ddof=1) / np.sqrt(n_batch)
     sin_o = kx[keep] / k
     return {"sin_o": sin_o, "sin_s": kx0 / k, "ratio": ratio, "sigma": sigma,
-            "single": single_b[:, keep].mean(0), "coherent": coherent}
+            "single": single_b[:, keep].mean(0), "coherent": coherent, "specular": float(specular)}
