@@ -230,6 +230,38 @@ def test_wave_reference(theta_s, back, t):
     assert np.mean(np.abs(ratio - wrong) <= tol) < 0.7                      # negative control: thickness
 
 
+def test_wave_reference_2d_rings():
+    """2-D screens of discs on a 1 mm mirror, lit on the normal: the ring profile of the
+    double-pass diffuse intensity over C times the single pass of the same screens, against the
+    model's round trips averaged over each ring as measured; the incoherent sum and a 3 %
+    thicker pane are rejected (negative controls)."""
+    from corona.reference.quetelet import double_pass_2d
+    t, area_fraction = 1000.0, 0.03
+    ref = double_pass_2d(thickness=t, back=0.97, radius=1.5, area_fraction=area_fraction, n_screens=3,
+                         n_samples=1024, length=512.0, n_rings=60, orders=2, seed=2)
+    inside = ref["ring_of"] >= 0
+    idx, w = ref["ring_of"][inside], ref["single_grid"][inside]
+    co = np.sqrt(1 - ref["sin_grid"][inside] ** 2)
+    n = len(ref["ratio"])
+
+    def model(pane):
+        inc = pane.round_trips(1.0, 550.0, 80)[1:].sum(0) + pane.round_trips(co, 550.0, 80)[1:].sum(0)
+        coh = inc + 2 * pane.interference(1.0, co, 550.0)
+        tot = np.bincount(idx, w, n)
+        return np.bincount(idx, w * inc, n) / tot, np.bincount(idx, w * coh, n) / tot
+
+    inc, coh = model(Mirror(N, t, 0.97))
+    ratio, sigma = ref["ratio"], ref["sigma"]
+    assert ref["sin_o"][-1] > 0.06 and np.ptp(coh) > 3.0            # ten rings, deep fringes
+    tol = 4 * sigma + area_fraction * inc
+    assert np.mean(np.abs(ratio - coh) <= tol) > 0.97, np.max(np.abs(ratio - coh) / tol)
+    assert np.mean((ratio - coh) / inc) == pytest.approx(0.0, abs=0.01)
+    assert np.sqrt(np.mean(((ratio - coh) / inc) ** 2)) < 0.03
+    assert np.mean(np.abs(ratio - inc) <= tol) < 0.3                        # negative control: no fringes
+    _, wrong = model(Mirror(N, 1.03 * t, 0.97))
+    assert np.mean(np.abs(ratio - wrong) <= tol) < 0.7                      # negative control: thickness
+
+
 @pytest.mark.parametrize("area_fraction", [0.03, 0.2])
 def test_wave_reference_front_face_once(area_fraction):
     """A screen on the front face, no back reflection: the face's reflection crosses the screen

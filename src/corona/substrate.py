@@ -291,7 +291,7 @@ def double_pass_visibility(coherent: float, lobe: float, reflectance: float) -> 
     included: an upper bound) and ``ρ`` (``reflectance``), the light reflected plus transmitted
     exceeds the layer's own ``ρ + C + D`` by an amount linear in the round trips' ``P_s`` in
     [0, 1], zero at ``P_s = 0`` unless ``C V > 1 - C``.  Two bounds on it
-    (``docs/physics.md#energy-1``), each sufficient, give
+    (``docs/physics.md#energy``), each sufficient, give
 
         V₁ = min((1 - ρ - C² - 2CD) / 2CD, (1 - ρ - C - CD) / CD, E),   E = (1 - ρ - C² - D - CD) / CD
         V₂ = √(E (1 - C) / C)
