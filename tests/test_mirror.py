@@ -468,3 +468,84 @@ def test_sample_weight_is_eval_over_pdf_and_furnace(mi_variant):
         e, p = bsdf.eval_pdf(mi.BSDFContext(), si, bs.wo)
         ok = (comp == 4) & (np.array(p) > 0)
         np.testing.assert_allclose(w[ok], np.array(e)[0][ok] / np.array(p)[ok], rtol=1e-4)
+
+
+# --- the silvering's spectrum ---------------------------------------------------------------------
+def test_named_silvering_is_the_metal_behind_glass():
+    """'silver' is |(n - N)/(n + N)|² from the metal's tabulated index behind the glass; its blue
+    end is darker (the plasma edge), aluminium is flatter; a wrong name is one clear error."""
+    ag = Mirror(N, 4000.0, "silver")
+    assert ag.spectral and ag.silver(550.0) == pytest.approx(0.945, abs=0.01)
+    assert ag.silver(400.0) < ag.silver(550.0) - 0.05
+    al = Mirror(N, 4000.0, "aluminium")
+    assert np.ptp(al.silver(np.linspace(420, 700, 8))) < 0.06
+    # the index matters: behind air (n = 1) silver reflects more
+    assert Mirror(1.0001, 4000.0, "silver").silver(550.0) > ag.silver(550.0)
+    text = Mirror(N, 4000.0, "400:0.85, 700:0.97")
+    assert text.silver(550.0) == pytest.approx(0.91)
+    with pytest.raises(corona.CoronaError, match="mirror_reflectance"):
+        material_from_parameters(**MIRROR, mirror_reflectance="tin")
+
+
+@pytest.mark.parametrize("reflectance", ["silver", "400:0.85, 700:0.97", "object"])
+def test_plugin_silvering_spectrum_per_wavelength(mi_variant, reflectance):
+    """Spectral plugin against numpy at each lane's wavelength: the reflected lobe with its fringes
+    and the mirror image's weight (a constant R_m at 550 nm would be off by the spectrum's slope)."""
+    import mitsuba as mi
+    if not mi.is_spectral:
+        pytest.skip("spectral check")
+    lams = (420.0, 500.0, 600.0, 690.0)
+    prop = ({"type": "spectrum", "value": [(400.0, 0.85), (700.0, 0.97)]} if reflectance == "object"
+            else reflectance)
+    bsdf = mi.load_dict({"type": "corona", **MIRROR, "mirror_reflectance": prop})
+    m = material_from_parameters(**MIRROR, mirror_reflectance="400:0.85, 700:0.97" if reflectance == "object"
+                                 else reflectance)
+    wi = _wo(5.0, 180.0)
+    wo = _wo(np.linspace(5.02, 9.0, 400), 20.0)
+    si = interaction(len(wo), wi, lams)
+    e = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wo.T.astype(np.float32))))
+    const = material_from_parameters(**MIRROR, mirror_reflectance=float(m.substrate.silver(550.0)))
+    for k, lam in enumerate(lams):
+        ref = m.eval(wi, wo, lam)
+        assert np.max(np.abs(e[k] - ref)) < 2e-3 * ref.max()
+        if abs(lam - 550.0) > 100:                                  # negative control: R_m at 550 nm
+            assert np.max(np.abs(const.eval(wi, wo, lam) - ref)) > 1e-2 * ref.max()
+    ctx = mi.BSDFContext()
+    ctx.type_mask = mi.BSDFFlags.DeltaReflection
+    _, w = bsdf.sample(ctx, interaction(1, wi, lams), 0.5, mi.Point2f(0.5, 0.5))
+    np.testing.assert_allclose(np.array(w).ravel(), [m.specular_reflection(wi[2], lam) for lam in lams], rtol=1e-4)
+
+
+def test_rgb_silvering_spectrum(mi_variant):
+    """RGB variants take a metal's name, 'nm:value' text or a <spectrum> of wavelength:value pairs
+    (each response wavelength gets its R_m); a texture object, already a colour there, is refused
+    by name."""
+    import subprocess
+    import sys
+    import textwrap
+    code = textwrap.dedent("""
+        import corona, mitsuba as mi, numpy as np
+        mi.set_variant("scalar_rgb"); corona.register()
+        P = dict(process="hard-disk", radius=5.0, area_fraction=0.1, mode="particle", substrate="mirror")
+        si = mi.SurfaceInteraction3f(); si.wi = mi.Vector3f(0, 0, 1)
+        ctx = mi.BSDFContext(); ctx.type_mask = mi.BSDFFlags.DeltaReflection
+        for r in ("silver", 0.97):
+            _, w = mi.load_dict({"type": "corona", **P, "mirror_reflectance": r}).sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5))
+            print(list(np.array(w)))
+        sp = {"type": "spectrum", "value": [(400.0, 0.85), (700.0, 0.97)]}
+        _, w = mi.load_dict({"type": "corona", **P, "mirror_reflectance": sp}).sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5))
+        print(list(np.array(w)))
+        try:
+            mi.load_dict({"type": "corona", **P, "mirror_reflectance": {"type": "srgb", "color": [0.9, 0.9, 0.9]}})
+            print("loaded")
+        except Exception as err:
+            print("refused", "mirror_reflectance" in str(err))
+    """)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    lines = res.stdout.strip().splitlines()
+    silver, flat, ramp = (np.array(eval(x)) for x in lines[-4:-1])
+    assert silver[2] < silver[0] - 0.01                 # silver's blue channel darker than its red
+    assert np.ptp(flat) < 1e-6
+    assert ramp[2] < ramp[1] < ramp[0]
+    assert lines[-1] == "refused True"

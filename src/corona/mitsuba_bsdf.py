@@ -107,6 +107,9 @@ from .parameters import SPEC, material_from_parameters, parse_mixture, rst_table
 from .render_lobe import row_slopes
 from .substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
 
+#: Wavelengths [nm] of the plugin's table of a silvering spectrum (1 nm apart).
+SILVER_GRID = np.arange(360.0, 831.0, 1.0)
+
 __doc__ = __doc__.replace("{table}", rst_table())
 
 #: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
@@ -573,13 +576,21 @@ class CoronaBSDFMixin:
         """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
         return wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
 
-    def _pane_reflectance(self, cos_theta):
+    def _pane_reflectance(self, cos_theta, lam_nm=None):
         """``R'``: the thin pane's reflectance at ``|cos θ|`` (:func:`corona.mitsuba_common.pane_reflectance`);
-        a mirror's ``R + T² R_m / (1 - R R_m)``."""
+        a mirror's ``R + T² R_m / (1 - R R_m)``, ``R_m`` at ``lam_nm`` when given (else at 550 nm)."""
         if self.is_mirror:
             r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
-            return r + dr.square(1.0 - r) * self.silver / (1.0 - r * self.silver)
+            rm = self.silver if lam_nm is None or not self.silver_varies else self._silver_at(lam_nm)
+            return r + dr.square(1.0 - r) * rm / (1.0 - r * rm)
         return pane_reflectance(cos_theta, self.eta)
+
+    def _silver_at(self, lam_nm):
+        """``R_m(λ)`` of a silvering spectrum, linear between its 1 nm table entries (clamped)."""
+        x = dr.clip(mi.Float(lam_nm) - SILVER_GRID[0], 0.0, float(SILVER_GRID.size - 1))
+        i = mi.UInt32(dr.minimum(dr.floor(x), float(SILVER_GRID.size - 2)))
+        t = x - mi.Float(i)
+        return dr.lerp(_gather(mi.Float, self.silver_table, i), _gather(mi.Float, self.silver_table, i + 1), t)
 
     def _face_reflectance(self, cos_theta):
         """``R``: the Fresnel reflectance of the face the layer lies on, at ``|cos θ|``."""
@@ -596,6 +607,9 @@ class CoronaBSDFMixin:
         """Constants of the pane's thickness, silvering and (RGB) the wavenumber bins."""
         self.is_mirror = isinstance(pane, Mirror)
         self.silver = float(pane.silver(550.0)) if self.is_mirror else 0.0
+        self.silver_varies = self.is_mirror and pane.spectral
+        if self.silver_varies:   # R_m(λ) per evaluated wavelength
+            self.silver_table = _array(mi.Float, pane.silver(SILVER_GRID))
         self.coherent_pane = pane.coherent
         if not self.coherent_pane:
             return
@@ -637,6 +651,7 @@ class CoronaBSDFMixin:
         rb = self.silver if self.is_mirror else dr.sqrt(ri * ro)
         a = (1.0 - ri) * (1.0 - ro) * rb
         x = rb * dr.sqrt(ri * ro)
+        front = dr.minimum(ri, ro)
         lobe = layer["plane"] * layer["weight"] / dr.maximum(layer["fa"], 1e-30)
         cd = c2 * lobe                         # the visibility cap (substrate.double_pass_visibility)
         slack = 1.0 - layer["reflect"]
@@ -647,30 +662,42 @@ class CoronaBSDFMixin:
         vis = dr.select(cd > 0, dr.clip(vis, 0.0, 1.0), 1.0)
 
         def factor(q, lam_nm):
+            b, aq, xq = base, a, x
+            if self.silver_varies:   # the silvering's R_m at this wavelength
+                rm = self._silver_at(lam_nm)
+                b = front + c2 * (self._pane_reflectance(cos_i, lam_nm) - ri + self._pane_reflectance(cos_o, lam_nm) - ro)
+                aq, xq = (1.0 - ri) * (1.0 - ro) * rm, rm * dr.sqrt(ri * ro)
             if mi.is_spectral:
                 c = dr.cos(2.0 * dr.pi * delta / lambda_um(lam_nm))
-                qv = a * (c - x) / (1.0 - 2.0 * x * c + x * x)
+                qv = aq * (c - xq) / (1.0 - 2.0 * xq * c + xq * xq)
             else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
                 qv = mi.Float(0.0)
                 xk = mi.Float(1.0)
                 for k in range(1, RGB_ORDERS + 1):
                     qv += xk * self._bin_average_cos(q, k * dr.abs(delta), active)
-                    xk = xk * x
-                qv = a * qv
-            return base + 2.0 * c2 * vis * qv
+                    xk = xk * xq
+                qv = aq * qv
+            return b + 2.0 * c2 * vis * qv
         return factor
 
     def _layer_first(self, cos_i):
         """True where light from ``wi`` meets the layer before the pane."""
         return layer_first(cos_i, self.layer_on_front)
 
-    def _delta_weights(self, layer, cos_i):
-        """Weights of the coherent transmission and of the specular reflection (pane only)."""
-        r_i = self._pane_reflectance(cos_i)
-        return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
-                                  t_i=self._pane_transmittance(cos_i),
-                                  behind=0.0 if self.is_mirror else r_i,     # a mirror's back is black
-                                  front=self._face_reflectance(cos_i))
+    def _delta_weights(self, layer, cos_i, wavelengths=None):
+        """Weights of the coherent transmission and of the specular reflection (pane only); with
+        ``wavelengths`` and a silvering spectrum, the specular weight per wavelength (a Spectrum)."""
+        def weights(lam_nm=None):
+            r_i = self._pane_reflectance(cos_i, lam_nm)
+            return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
+                                      t_i=self._pane_transmittance(cos_i),
+                                      behind=0.0 if self.is_mirror else r_i,     # a mirror's back is black
+                                      front=self._face_reflectance(cos_i))
+        w_coh, w_spec = weights()
+        if wavelengths is not None and self.silver_varies:
+            lams, _ = self._wavelength_mixture(wavelengths)
+            w_spec = self._fold([weights(lam)[1] for lam in lams])
+        return w_coh, w_spec
 
     def _reflected_lobe_energy(self, coherent, cos_i):
         """The reflected lobe's energy over ``D`` at ``θi``, the two angles taken equal:
@@ -842,7 +869,7 @@ class CoronaBSDFMixin:
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
         weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)          # no 0/0 (scalar variants too)
         if self.has_pane:
-            w_coh, w_spec = self._delta_weights(layer, cos_i)
+            w_coh, w_spec = self._delta_weights(layer, cos_i, si.wavelengths)
             bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
             weight = dr.select(pick_spec, w_spec / dr.maximum(p_spec, 1e-30), weight)
         else:

@@ -52,6 +52,14 @@ def read_props(props) -> tuple[dict, dict]:
         if name in TEXTURED and isinstance(value, mi.Texture):
             textures[name] = value
             continue
+        if name == "mirror_reflectance" and all(hasattr(value, a) for a in ("wavelengths", "values", "is_uniform")):
+            # a <spectrum> given in the scene: its wavelength:value pairs, unresolved (every variant)
+            lam, val = np.asarray(value.wavelengths, dtype=np.float64), np.asarray(value.values, dtype=np.float64)
+            uniform_ = value.is_uniform() if callable(value.is_uniform) else value.is_uniform
+            value = float(val.ravel()[0]) if uniform_ or lam.size < 2 else (lam, val)
+        if name == "mirror_reflectance" and isinstance(value, (str, tuple, mi.Texture)):
+            out[name] = spectrum_samples(value) if isinstance(value, mi.Texture) else value   # Mirror checks it
+            continue
         if SPEC[name].kind in ("float", "int"):
             if isinstance(value, bool):   # <boolean name="radius" value="true"/> is no size
                 raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; allowed {SPEC[name].allowed}")
@@ -64,6 +72,24 @@ def read_props(props) -> tuple[dict, dict]:
             value = str(value)
         out[name] = SPEC[name].check(value)
     return out, textures
+
+
+def spectrum_samples(texture, wavelengths=None):
+    """A Mitsuba spectrum (texture) sampled at ``wavelengths`` [nm] (default
+    :data:`corona.substrate.SPECTRUM_GRID`): (wavelengths, values), spectral variants only (RGB
+    and mono variants have turned a spectrum into a colour when they loaded it)."""
+    from .substrate import SPECTRUM_GRID
+    if not mi.is_spectral:
+        raise CoronaError("corona BSDF: mirror_reflectance as a spectrum object needs a spectral variant "
+                          f"({mi.variant()} turns spectra into colours); give it as 'nm:value, ...' text, "
+                          "a metal (silver, aluminium, gold, copper) or a number")
+    lam = np.asarray(SPECTRUM_GRID if wavelengths is None else wavelengths, dtype=np.float64)
+    vals = []
+    for x in lam:
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        si.wavelengths = mi.Spectrum(float(x))
+        vals.append(float(np.array(texture.eval(si)).ravel()[0]))
+    return lam, np.array(vals)
 
 
 def uniform(value: float):

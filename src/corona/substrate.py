@@ -29,6 +29,11 @@ MIRROR_THICKNESS = 4000.0
 #: behind glass of index 1.52 gives |(1.52 - N)/(1.52 + N)|² ≈ 0.975; 0.97 allows for the
 #: protective layers of a household mirror.
 SILVER_REFLECTANCE = 0.97
+#: Named silverings: the metal's complex index (Mitsuba 3's tabulated optical constants,
+#: ``mitsuba/data/ior/<X>.eta.spd`` and ``.k.spd``) behind the glass, ``|(n - N) / (n + N)|²``.
+METALS = {"silver": "Ag", "aluminium": "Al", "aluminum": "Al", "gold": "Au", "copper": "Cu"}
+#: Wavelengths [nm] on which a named or textual silvering spectrum is tabulated.
+SPECTRUM_GRID = np.arange(360.0, 831.0, 5.0)
 #: Allowed pane thickness [µm] for the coherent double pass (0.05–100 mm).
 THICKNESS_RANGE = (50.0, 1.0e5)
 #: Internal round trips whose interference is summed in closed form (all of them); the
@@ -37,6 +42,46 @@ RGB_ORDERS = 3
 #: The channel-averaged fringe table: path differences up to this [µm], every DELTA_STEP [µm].
 DELTA_MAX = 100.0
 DELTA_STEP = 0.25
+
+
+def metal_reflectance(metal: str, ior: float, wavelengths=SPECTRUM_GRID) -> np.ndarray:
+    """Normal-incidence reflectance of a metal seen from inside glass of index ``ior``.
+
+    ``R_m(λ) = |(n - N) / (n + N)|²`` with ``N = η + iκ`` the metal's complex index from Mitsuba 3's
+    tabulated optical constants (``mitsuba/data/ior``, from the luxpop database), interpolated
+    linearly in ``λ`` [nm].  The metal is one of :data:`METALS`.  Silver behind glass of 1.52:
+    0.84 at 400 nm, 0.90 at 450 nm, 0.945 at 550 nm, 0.957 at 650 nm.
+    """
+    import importlib.util
+    import os
+    import sys
+    name = check_choice("mirror_reflectance", metal, tuple(METALS))
+    module = sys.modules.get("mitsuba")
+    origin = getattr(module, "__file__", None)
+    if origin is None:
+        spec = importlib.util.find_spec("mitsuba")
+        origin = None if spec is None else spec.origin
+    base = None if origin is None else os.path.join(os.path.dirname(origin), "data", "ior", METALS[name])
+    if base is None or not os.path.isfile(base + ".eta.spd"):
+        raise CoronaError(f"mirror_reflectance={metal!r} needs Mitsuba 3's tabulated optical constants "
+                          "(pip install mitsuba); give a number or a 'wavelength:value, ...' spectrum instead")
+    eta, kappa = (np.loadtxt(base + ext, comments="#") for ext in (".eta.spd", ".k.spd"))
+    lam = np.asarray(wavelengths, dtype=np.float64)
+    n_c = np.interp(lam, eta[:, 0], eta[:, 1]) + 1j * np.interp(lam, kappa[:, 0], kappa[:, 1])
+    return np.abs((ior - n_c) / (ior + n_c)) ** 2
+
+
+def parse_spectrum(text: str, name: str = "mirror_reflectance"):
+    """``'λ:value, λ:value, ...'`` (Mitsuba's spectrum syntax, λ in nm) as two arrays."""
+    try:
+        pairs = [item.split(":") for item in str(text).replace(";", ",").split(",") if item.strip()]
+        lam, val = (np.array([float(p[i]) for p in pairs]) for i in (0, 1))
+        if any(len(p) != 2 for p in pairs):
+            raise ValueError
+    except (ValueError, IndexError):
+        raise CoronaError(f"{name}={text!r} is not a spectrum; allowed a number in [0, 1], a metal "
+                          f"({', '.join(METALS)}) or 'wavelength:value, ...' (nm, increasing)") from None
+    return lam, val
 
 
 def fresnel_dielectric(cos_theta_i, eta) -> np.ndarray:
@@ -228,9 +273,11 @@ class Mirror(GlassPane):
         Index of the glass.
     thickness : float [µm], default 4000
         Thickness of the glass (the two passes through the layer interfere; always coherent).
-    reflectance : float in [0, 1], or (wavelengths [nm], values), default 0.97
+    reflectance : float in [0, 1], str, or (wavelengths [nm], values), default 0.97
         Reflectance ``R_m`` of the silvering seen from inside the glass, constant in angle:
-        a number, or a spectrum interpolated linearly (clamped at its ends).
+        a number; a metal of :data:`METALS` (``"silver"``: its tabulated spectrum behind this
+        glass, :func:`metal_reflectance`); ``'λ:value, ...'`` text or a (wavelengths, values)
+        pair, interpolated linearly (clamped at its ends).
 
     Notes
     -----
@@ -242,6 +289,16 @@ class Mirror(GlassPane):
     def __init__(self, ior: float = GLASS_IOR, thickness: float | None = None,
                  reflectance=SILVER_REFLECTANCE):
         super().__init__(ior, "front", MIRROR_THICKNESS if thickness is None else thickness)
+        if isinstance(reflectance, str) and reflectance.strip().lower() in METALS:
+            self.metal = reflectance.strip().lower()
+            self._rm = (SPECTRUM_GRID, metal_reflectance(self.metal, self.ior))
+            return
+        self.metal = None
+        if isinstance(reflectance, str):
+            try:
+                reflectance = float(reflectance)
+            except ValueError:
+                reflectance = parse_spectrum(reflectance)
         if np.ndim(reflectance) == 0:
             self._rm = (None, float(check_range("mirror_reflectance", reflectance, 0.0, 1.0)))
         else:
@@ -254,12 +311,17 @@ class Mirror(GlassPane):
             self._rm = (lam, val)
 
     def __repr__(self):
-        rm = self._rm[1] if self._rm[0] is None else "spectrum"
+        rm = self._rm[1] if self._rm[0] is None else repr(self.metal or "spectrum")
         return f"Mirror(ior={self.ior:g}, thickness={self.thickness:g}, reflectance={rm})"
 
     def key(self) -> dict:
         lam, val = self._rm
         return {**super().key(), "mirror": val if lam is None else (tuple(lam), tuple(val))}
+
+    @property
+    def spectral(self) -> bool:
+        """True when the silvering's reflectance depends on the wavelength."""
+        return self._rm[0] is not None
 
     def silver(self, wavelength) -> np.ndarray:
         """``R_m(λ)`` of the silvering (``wavelength`` in nm)."""
