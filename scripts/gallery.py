@@ -105,13 +105,13 @@ STRIPS = [
           "the droplets' corona, and across it run faint coloured Quetelet rings: each droplet scatters the "
           "light on its way to the back face and again after the back face's reflection, the two paths "
           "differing by 2 n t (cos r_s - cos r_o). The bare back face reflects 4 %: the rings modulate the "
-          "reflected corona by about ±40 %. Left: a 4 mm pane; middle: a 2 mm pane, the rings wider; "
-          "right: the droplets outside, so the glass mirrors the lamp before any droplet: a sharp image, no "
-          "corona, no rings. Same exposure.",
-          [Panel("4 mm pane", {}),
-           Panel("2 mm pane", {"thickness": 2000}),
-           Panel("droplets outside", {"substrate_side": "front"})],
-          shared_exposure=0),
+          "reflected corona by about ±40 %. Left: a 2 mm pane; middle: 4 mm; right: 6 mm, the rings closer "
+          "(bright order m where sin²θo = sin²θs + m n λ / t). The lamp's light crosses the droplets once where "
+          "the near face reflects it (the sharp image) and twice where the far face does. Same exposure.",
+          [Panel("2 mm pane", {"thickness": 2000}),
+           Panel("4 mm pane", {}),
+           Panel("6 mm pane", {"thickness": 6000})],
+          shared_exposure=1),
     Strip("teaser_spheres", "Teaser with transparent droplets (Mie spheres)", "teaser.xml",
           "The teaser's condensation (radius 5 µm, 40 % cover, hard disks) modelled two ways: left, opaque "
           "disks (Fraunhofer diffraction); right, transparent water spheres (Mie theory, water's "

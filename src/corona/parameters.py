@@ -242,7 +242,7 @@ PARAMETERS: tuple[Parameter, ...] = (
               low=50.0, high=1.0e5, applies=("substrate=glass", "substrate=mirror")),
     Parameter("mirror_reflectance", "float", "", None, "reflectance of the silvering seen from inside the "
               "glass: a number, a metal (silver, aluminium, gold, copper: its tabulated spectrum) or a "
-              "spectrum ('nm:value, ...'; a spectrum object in spectral variants); default 0.97 (silver "
+              "spectrum ('nm:value, ...' text, or in the plugin a <spectrum>); default 0.97 (silver "
               "behind glass at normal incidence)", low=0.0, high=1.0,
               applies=("substrate=mirror",)),
     Parameter("sampling", "choice", "", "lobe", "how the lobe is sampled: lobe (T_a T_s exactly) or "
