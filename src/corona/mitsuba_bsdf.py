@@ -24,7 +24,9 @@ scattered, with a reflection off the pane in between).  The pane reflects
 ``R' = 2R/(1 + R)`` of what reaches it (``R`` the polarisation-averaged
 Fresnel reflectance of one face, the internal bounces summed, as Mitsuba's
 ``thindielectric``) and transmits ``T' = 1 - R'`` undeviated.  With ``C`` the
-coherent weight, ``f`` the lobe, ``ρ`` the opaque part's reflectance:
+coherent weight, ``f`` the lobe, ``ρ`` the opaque part's reflectance, ``P = R' - R`` the
+round trips through the glass (the face under the layer returns its ``R`` through the layer
+once, ``docs/physics.md#the-front-face``):
 
 =====================  =================================  =========================
 component              light meets the layer first        light meets the glass first
@@ -32,14 +34,15 @@ component              light meets the layer first        light meets the glass 
 coherent transmission  ``C T'(θi)``                       ``T'(θi) C``
 lobe                   ``f T'(θo)``                       ``T'(θi) f``
 diffuse reflection     ``ρ/π``                            ``T'(θi) ρ/π T'(θo)``
-specular reflection    ``C² R'(θi)``                      ``R'(θi)``
-lobe in reflection     ``C f [R'(θi) + R'(θo)]``          0
+specular reflection    ``C R(θi) + C² P(θi)``             ``R'(θi)``
+lobe in reflection     ``f [R_min + C (P_i + P_o)]``      0
 =====================  =================================  =========================
 
-With ``substrate=mirror`` the pane is silvered behind (``mirror_reflectance``, default 0.97):
+With ``substrate=mirror`` the pane is silvered behind (``mirror_reflectance``, default 0.97,
+or a spectrum: a metal's name, ``'nm:value, ...'`` or a ``<spectrum>``, taken per wavelength):
 it reflects ``R' = R + T² R_m / (1 - R R_m)``, transmits nothing, and its back is black.
 With a ``substrate_thickness`` [µm] (a mirror's default 4000) the two single-scattering
-paths of the lobe in reflection interfere: ``C f [R'(θi) + R'(θo) + 2 V Q]``, Quetelet
+paths of the lobe in reflection interfere: ``f [R_min + C (P_i + P_o + 2 V Q)]``, Quetelet
 rings (``docs/physics.md#the-coherent-double-pass-quetelet-rings``); RGB and mono variants
 average the fringes over each response wavelength's bin (:func:`corona.substrate.channel_envelopes`).
 
