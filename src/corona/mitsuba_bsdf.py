@@ -625,16 +625,21 @@ class CoronaBSDFMixin:
             self.env_re = _array(mi.Float, env.real.ravel())
             self.env_im = _array(mi.Float, env.imag.ravel())
 
-    def _bin_average_cos(self, q, delta, active):
-        """``G_q(Δ) = Re[e^{2πiΔσ_q} E_q(Δ)]``, the envelope linear between table entries, 0 beyond."""
+    def _envelope_index(self, delta, active):
+        """Where ``Δ`` falls in the fringe tables (shared by every bin): (entry, weight, inside)."""
         x = delta * (1.0 / DELTA_STEP)
         inside = active & (x < self.env_n - 1)
         i = mi.UInt32(dr.clip(dr.floor(x), 0, self.env_n - 2))
-        t = x - mi.Float(i)
+        return i, x - mi.Float(i), inside
+
+    def _bin_average_cos(self, q, index, sin_cos):
+        """``G_q(Δ) = Re[e^{2πiΔσ_q} E_q(Δ)]``, the envelope linear between table entries, 0 beyond;
+        ``index`` from :meth:`_envelope_index`, ``sin_cos`` = sincos(2π σ_q Δ)."""
+        i, t, inside = index
         k = i + q * self.env_n
         re = dr.lerp(_gather(mi.Float, self.env_re, k, inside), _gather(mi.Float, self.env_re, k + 1, inside), t)
         im = dr.lerp(_gather(mi.Float, self.env_im, k, inside), _gather(mi.Float, self.env_im, k + 1, inside), t)
-        s, c = dr.sincos(2.0 * dr.pi * float(self.bin_sigma[q]) * delta)
+        s, c = sin_cos
         return dr.select(inside, c * re - s * im, 0.0)
 
     def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o, active=True):
@@ -663,6 +668,8 @@ class CoronaBSDFMixin:
         vis = dr.minimum(dr.minimum((slack - c2 * c2 - 2.0 * cd) * 0.5 * inv, (slack - c2 - cd) * inv), e)
         vis = dr.maximum(vis, dr.safe_sqrt(e * (1.0 - c2) / dr.maximum(c2, 1e-30)))
         vis = dr.select(cd > 0, dr.clip(vis, 0.0, 1.0), 1.0)
+        if not mi.is_spectral:   # the table position of each order's k |Δ|, the same for every bin
+            index = [self._envelope_index(k * dr.abs(delta), active) for k in range(1, RGB_ORDERS + 1)]
 
         def factor(q, lam_nm):
             b, aq, xq = base, a, x
@@ -676,8 +683,11 @@ class CoronaBSDFMixin:
             else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
                 qv = mi.Float(0.0)
                 xk = mi.Float(1.0)
-                for k in range(1, RGB_ORDERS + 1):
-                    qv += xk * self._bin_average_cos(q, k * dr.abs(delta), active)
+                s1, c1 = dr.sincos(2.0 * dr.pi * float(self.bin_sigma[q]) * dr.abs(delta))
+                sk, ck = s1, c1
+                for k in range(1, RGB_ORDERS + 1):   # e^{ikφ} by recurrence: one sincos a bin
+                    qv += xk * self._bin_average_cos(q, index[k - 1], (sk, ck))
+                    sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
                     xk = xk * xq
                 qv = aq * qv
             return b + 2.0 * c2 * vis * qv
