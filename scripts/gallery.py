@@ -75,8 +75,9 @@ STRIPS = [
           "A room lamp behind the camera, mirrored in a fogged window pane (corona BSDF with "
           "substrate=glass, index 1.52), and three street lights behind the pane; droplets of radius 6 µm "
           "on 35 % of the glass, hard disks, particle mode. Left: droplets on the room side, so the lamp's "
-          "light crosses them on its way to the glass and back: its mirror image (C² R' = 1.5 % of the "
-          "lamp) wears the same corona as the street lights. Middle: droplets outside, so the glass "
+          "light crosses them on its way to the glass and back: its mirror image (C R + C² (R' − R) = 2.5 % of "
+          "the lamp: the room-side face returns the light through the droplets once, the far face's light "
+          "crosses them twice) wears the same corona as the street lights. Middle: droplets outside, so the glass "
           "mirrors the lamp before any droplet: a sharp image of R' = 8 %. Right: the droplets without "
           "the glass (substrate=none): no reflection. Same exposure.",
           [Panel("droplets on the room side", {}),
@@ -86,7 +87,7 @@ STRIPS = [
     Strip("dusty_mirror", "A dusty mirror and a torch: Quetelet rings", "dusty_mirror.xml",
           "A torch (4000 K, radius 4 mm) 3 cm beside the camera, a dusty mirror 1 m away (substrate=mirror: "
           "glass of index 1.52, 4 mm thick, silvered behind; grains of radius 10 µm on 5 % of the glass, hard "
-          "disks, particle mode). The torch's mirror image (C² R' = 0.88 of the torch) wears the dust's corona, "
+          "disks, particle mode). The torch's mirror image (C R + C² (R' − R) = 0.79 of the torch) wears the dust's corona, "
           "and across it run Stokes' fringes: each grain scatters the light on its way to the silvering and on "
           "its way out, the two paths differing by 2 n t (cos r_s - cos r_o). Their zero order (θo = θs) "
           "passes through the torch's image. Left: the torch at the camera's distance from the mirror, the "
@@ -97,6 +98,20 @@ STRIPS = [
            Panel("torch at half the distance", {"torch_z": 0.5}),
            Panel("torch at twice the distance", {"torch_z": -1})],
           shared_exposure=0),
+    Strip("fogged_window", "A fogged window at night: Quetelet rings of a thick pane", "fogged_window.xml",
+          "A small room lamp (2700 K, radius 5 mm) behind the camera, mirrored in a fogged window pane 0.6 m "
+          "away (substrate=glass, index 1.52, with its thickness: substrate_thickness; droplets of radius 6 µm "
+          "on 35 % of the glass, hard disks, particle mode, on the room side). The lamp's mirror image wears "
+          "the droplets' corona, and across it run faint coloured Quetelet rings: each droplet scatters the "
+          "light on its way to the back face and again after the back face's reflection, the two paths "
+          "differing by 2 n t (cos r_s - cos r_o). The bare back face reflects 4 %: the rings modulate the "
+          "reflected corona by about ±40 %. Left: a 2 mm pane; middle: 4 mm; right: 6 mm, the rings closer "
+          "(bright order m where sin²θo = sin²θs + m n λ / t). The lamp's light crosses the droplets once where "
+          "the near face reflects it (the sharp image) and twice where the far face does. Same exposure.",
+          [Panel("2 mm pane", {"thickness": 2000}),
+           Panel("4 mm pane", {}),
+           Panel("6 mm pane", {"thickness": 6000})],
+          shared_exposure=1),
     Strip("teaser_spheres", "Teaser with transparent droplets (Mie spheres)", "teaser.xml",
           "The teaser's condensation (radius 5 µm, 40 % cover, hard disks) modelled two ways: left, opaque "
           "disks (Fraunhofer diffraction); right, transparent water spheres (Mie theory, water's "

@@ -43,7 +43,8 @@ def test_there_are_scenes():
     for required in ["teaser.xml", "lycopodium.xml", "fabric.xml", "sweep_radius.xml",
                      "sweep_area_fraction.xml", "sweep_incidence.xml", "circle_vs_square.xml",
                      "babinet.xml", "monochromatic.xml", "mixed.xml", "sampling.xml",
-                     "window_at_night.xml", "wiped_window.xml", "condensation_gradient.xml"]:
+                     "window_at_night.xml", "wiped_window.xml", "condensation_gradient.xml",
+                     "dusty_mirror.xml", "fogged_window.xml"]:
         assert required in names
 
 

@@ -700,12 +700,14 @@ class Material:
         return double_pass_visibility(self.coherent_transmittance, lobe, self.reflectance)
 
     def _reflected_lobe_factor(self, cos_i, cos_o, wavelength):
-        """The pane's factor on ``C f`` in the reflected lobe: ``R'_i + R'_o``, plus the coherent
-        double pass's interference on a pane with a thickness (GlassPane.reflected_lobe_factor)."""
+        """The pane's factor on ``f`` in the reflected lobe: ``min(R_i, R_o) + C (P_i + P_o)``, plus
+        the coherent double pass's interference on a pane with a thickness
+        (:meth:`corona.GlassPane.reflected_lobe_factor`)."""
         if self.substrate is None:
             return np.zeros(np.broadcast(cos_i, cos_o).shape)
         vis = self.double_pass_visibility if self.substrate.coherent else 1.0
-        return self.substrate.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength, vis)
+        return self.substrate.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength,
+                                                    self.coherent_transmittance, vis)
 
     def _layer_first(self, cos_theta_i):
         """True where light from ``wi`` meets the layer before the pane (always without one)."""
@@ -726,16 +728,20 @@ class Material:
     def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
         """Weight of the delta reflection (the mirror direction of ``wi``).
 
-        0 without a substrate; ``C² R'(θi)`` when the light meets the layer
-        first (through the layer coherently, off the pane, back through the
-        layer coherently); ``R'(θi)`` when it meets the glass first.
+        0 without a substrate; ``C R(θi) + C² (R'(θi) - R(θi))`` when the light meets the
+        layer first (the front face's ``R`` reflects it back through the same place of the
+        layer, which it crosses once; the round trips cross it coherently twice:
+        :meth:`corona.GlassPane.specular_through_layer`); ``R'(θi)`` when it meets the glass
+        first.
         ``R' = 2R/(1 + R)`` is the thin pane's reflectance
         (:meth:`corona.GlassPane.reflectance`; a :class:`corona.substrate.Mirror`'s at
         ``wavelength`` [nm]).
         """
         r, _ = self._pane(cos_theta_i, wavelength)
-        c = self.coherent_transmittance
-        return np.where(self._layer_first(cos_theta_i), c * c * r, r)
+        if self.substrate is None:
+            return r
+        through = self.substrate.specular_through_layer(cos_theta_i, wavelength, self.coherent_transmittance)
+        return np.where(self._layer_first(cos_theta_i), through, r)
 
     def eval(self, wi, wo, wavelength) -> np.ndarray:
         """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``.
@@ -759,12 +765,14 @@ class Material:
         component           light meets the layer first      meets the glass first
         ==================  ===============================  =====================
         lobe, transmitted   ``f T'(θo)``                     ``T'(θi) f``
-        lobe, reflected     ``C f [R'(θi) + R'(θo)]``        0
+        lobe, reflected     ``f [R_min + C (P_i + P_o)]``    0
         diffuse reflection  ``ρ / π``                        ``T'(θi) ρ/π T'(θo)``
         ==================  ===============================  =====================
 
+        ``R_min = min(R(θi), R(θo))`` is the front face's own Fresnel reflectance (a layer on
+        the face is crossed once on that path), ``P = R' - R`` the round trips through the glass.
         On a pane with a thickness (always on a :class:`corona.Mirror`) the reflected lobe's
-        ``R'(θi) + R'(θo)`` gains the double pass's interference ``2 V Q``
+        ``C (P_i + P_o)`` gains the double pass's interference ``2 C V Q``
         (:meth:`corona.GlassPane.reflected_lobe_factor`: Quetelet rings); a mirror
         transmits nothing.  The delta parts are :meth:`coherent_transmission` and
         :meth:`specular_reflection`.  Paths that meet the layer again after a
@@ -783,12 +791,11 @@ class Material:
         reflect = ci * co > 0
         first = self._layer_first(ci)
         lam = self._wavelength(wavelength) * 1e3                 # checked, nm
-        ri, ti = self._pane(ci, lam)
-        ro, to = self._pane(co, lam)
+        _, ti = self._pane(ci, lam)
+        _, to = self._pane(co, lam)
         f = self.lobe(wi[..., :2] + wo[..., :2], wavelength)
-        c = self.coherent_transmittance
         lobe_t = f * np.where(first, to, ti)
-        lobe_r = f * np.where(first, c * self._reflected_lobe_factor(ci, co, lam), 0.0)
+        lobe_r = f * np.where(first, self._reflected_lobe_factor(ci, co, lam), 0.0)
         diffuse = self.reflectance / np.pi * np.where(first, 1.0, ti * to)
         value = np.where(transmit, lobe_t, 0.0) + np.where(reflect, lobe_r + diffuse, 0.0)
         return value * np.abs(co)
@@ -868,14 +875,18 @@ class Material:
         def pane_t(co):
             return self._pane(co, wavelength)[1]
 
-        def pane_r(co):   # R'_i + R'_o (the interference of a thick pane: its own integral below)
-            return ri + self._pane(np.copysign(co, ci), wavelength)[0]
+        def pane_r(co):   # min(R_i, R_o) + C (P_i + P_o) (a thick pane's interference: below)
+            if self.substrate is None:
+                return np.zeros_like(co)
+            pane = self.substrate
+            front = np.minimum(pane.face_reflectance(ci), pane.face_reflectance(co))
+            return front + c * (pane.inner_reflectance(ci, wavelength) + pane.inner_reflectance(co, wavelength))
 
         plain, transmitted, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_t, pane_r])
         out = {"coherent": c * ti, "specular": float(self.specular_reflection(ci, wavelength))}
         if first:
             out["lobe_transmission"] = transmitted                  # ∫ f T'(θo)
-            out["lobe_reflection"] = c * reflected                  # ∫ C f [R'(θi) + R'(θo)]
+            out["lobe_reflection"] = reflected                      # ∫ f [R_min + C (P_i + P_o)]
             if self.substrate is not None and self.substrate.coherent:
                 out["lobe_reflection"] += 2.0 * self.double_pass_visibility * c * interference_integral(
                     self, ci, wavelength, phi_i)                    # + 2 V C ∫ f Q

@@ -24,7 +24,9 @@ scattered, with a reflection off the pane in between).  The pane reflects
 ``R' = 2R/(1 + R)`` of what reaches it (``R`` the polarisation-averaged
 Fresnel reflectance of one face, the internal bounces summed, as Mitsuba's
 ``thindielectric``) and transmits ``T' = 1 - R'`` undeviated.  With ``C`` the
-coherent weight, ``f`` the lobe, ``ρ`` the opaque part's reflectance:
+coherent weight, ``f`` the lobe, ``ρ`` the opaque part's reflectance, ``P = R' - R`` the
+round trips through the glass (the face under the layer returns its ``R`` through the layer
+once, ``docs/physics.md#the-front-face``):
 
 =====================  =================================  =========================
 component              light meets the layer first        light meets the glass first
@@ -32,14 +34,15 @@ component              light meets the layer first        light meets the glass 
 coherent transmission  ``C T'(θi)``                       ``T'(θi) C``
 lobe                   ``f T'(θo)``                       ``T'(θi) f``
 diffuse reflection     ``ρ/π``                            ``T'(θi) ρ/π T'(θo)``
-specular reflection    ``C² R'(θi)``                      ``R'(θi)``
-lobe in reflection     ``C f [R'(θi) + R'(θo)]``          0
+specular reflection    ``C R(θi) + C² P(θi)``             ``R'(θi)``
+lobe in reflection     ``f [R_min + C (P_i + P_o)]``      0
 =====================  =================================  =========================
 
-With ``substrate=mirror`` the pane is silvered behind (``mirror_reflectance``, default 0.97):
+With ``substrate=mirror`` the pane is silvered behind (``mirror_reflectance``, default 0.97,
+or a spectrum: a metal's name, ``'nm:value, ...'`` or a ``<spectrum>``, taken per wavelength):
 it reflects ``R' = R + T² R_m / (1 - R R_m)``, transmits nothing, and its back is black.
 With a ``substrate_thickness`` [µm] (a mirror's default 4000) the two single-scattering
-paths of the lobe in reflection interfere: ``C f [R'(θi) + R'(θo) + 2 V Q]``, Quetelet
+paths of the lobe in reflection interfere: ``f [R_min + C (P_i + P_o + 2 V Q)]``, Quetelet
 rings (``docs/physics.md#the-coherent-double-pass-quetelet-rings``); RGB and mono variants
 average the fringes over each response wavelength's bin (:func:`corona.substrate.channel_envelopes`).
 
@@ -106,6 +109,9 @@ from .mitsuba_common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array
 from .parameters import SPEC, material_from_parameters, parse_mixture, rst_table
 from .render_lobe import row_slopes
 from .substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
+
+#: Wavelengths [nm] of the plugin's table of a silvering spectrum (1 nm apart).
+SILVER_GRID = np.arange(360.0, 831.0, 1.0)
 
 __doc__ = __doc__.replace("{table}", rst_table())
 
@@ -573,13 +579,25 @@ class CoronaBSDFMixin:
         """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
         return wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
 
-    def _pane_reflectance(self, cos_theta):
+    def _pane_reflectance(self, cos_theta, lam_nm=None):
         """``R'``: the thin pane's reflectance at ``|cos θ|`` (:func:`corona.mitsuba_common.pane_reflectance`);
-        a mirror's ``R + T² R_m / (1 - R R_m)``."""
+        a mirror's ``R + T² R_m / (1 - R R_m)``, ``R_m`` at ``lam_nm`` when given (else at 550 nm)."""
         if self.is_mirror:
             r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
-            return r + dr.square(1.0 - r) * self.silver / (1.0 - r * self.silver)
+            rm = self.silver if lam_nm is None or not self.silver_varies else self._silver_at(lam_nm)
+            return r + dr.square(1.0 - r) * rm / (1.0 - r * rm)
         return pane_reflectance(cos_theta, self.eta)
+
+    def _silver_at(self, lam_nm):
+        """``R_m(λ)`` of a silvering spectrum, linear between its 1 nm table entries (clamped)."""
+        x = dr.clip(mi.Float(lam_nm) - SILVER_GRID[0], 0.0, float(SILVER_GRID.size - 1))
+        i = mi.UInt32(dr.minimum(dr.floor(x), float(SILVER_GRID.size - 2)))
+        t = x - mi.Float(i)
+        return dr.lerp(_gather(mi.Float, self.silver_table, i), _gather(mi.Float, self.silver_table, i + 1), t)
+
+    def _face_reflectance(self, cos_theta):
+        """``R``: the Fresnel reflectance of the face the layer lies on, at ``|cos θ|``."""
+        return mi.fresnel(dr.abs(cos_theta), self.eta)[0]
 
     def _pane_transmittance(self, cos_theta):
         """``T' = 1 - R'`` of the pane at ``|cos θ|``; 0 for a mirror."""
@@ -592,6 +610,9 @@ class CoronaBSDFMixin:
         """Constants of the pane's thickness, silvering and (RGB) the wavenumber bins."""
         self.is_mirror = isinstance(pane, Mirror)
         self.silver = float(pane.silver(550.0)) if self.is_mirror else 0.0
+        self.silver_varies = self.is_mirror and pane.spectral
+        if self.silver_varies:   # R_m(λ) per evaluated wavelength
+            self.silver_table = _array(mi.Float, pane.silver(SILVER_GRID))
         self.coherent_pane = pane.coherent
         if not self.coherent_pane:
             return
@@ -604,64 +625,98 @@ class CoronaBSDFMixin:
             self.env_re = _array(mi.Float, env.real.ravel())
             self.env_im = _array(mi.Float, env.imag.ravel())
 
-    def _bin_average_cos(self, q, delta, active):
-        """``G_q(Δ) = Re[e^{2πiΔσ_q} E_q(Δ)]``, the envelope linear between table entries, 0 beyond."""
+    def _envelope_index(self, delta, active):
+        """Where ``Δ`` falls in the fringe tables (shared by every bin): (entry, weight, inside)."""
         x = delta * (1.0 / DELTA_STEP)
         inside = active & (x < self.env_n - 1)
         i = mi.UInt32(dr.clip(dr.floor(x), 0, self.env_n - 2))
-        t = x - mi.Float(i)
+        return i, x - mi.Float(i), inside
+
+    def _bin_average_cos(self, q, index, sin_cos):
+        """``G_q(Δ) = Re[e^{2πiΔσ_q} E_q(Δ)]``, the envelope linear between table entries, 0 beyond;
+        ``index`` from :meth:`_envelope_index`, ``sin_cos`` = sincos(2π σ_q Δ)."""
+        i, t, inside = index
         k = i + q * self.env_n
         re = dr.lerp(_gather(mi.Float, self.env_re, k, inside), _gather(mi.Float, self.env_re, k + 1, inside), t)
         im = dr.lerp(_gather(mi.Float, self.env_im, k, inside), _gather(mi.Float, self.env_im, k + 1, inside), t)
-        s, c = dr.sincos(2.0 * dr.pi * float(self.bin_sigma[q]) * delta)
+        s, c = sin_cos
         return dr.select(inside, c * re - s * im, 0.0)
 
     def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o, active=True):
-        """Per evaluated wavelength, the factor ``R'_i + R'_o + 2 V Q`` on ``C f`` (a callable
+        """Per evaluated wavelength, the factor ``min(R_i, R_o) + C (P_i + P_o + 2 V Q)`` on ``f`` (a callable
         ``(q, λ [nm]) -> Float`` for :meth:`_lobe_and_pdf`), ``Q`` the interference of the round
         trips: exact per wavelength (spectral), averaged over each response bin (RGB/mono)."""
         n = self.eta
-        base = self._pane_reflectance(cos_i) + self._pane_reflectance(cos_o)
+        ri = self._face_reflectance(cos_i)
+        ro = self._face_reflectance(cos_o)
+        c2 = layer["coherent"]
+        base = dr.minimum(ri, ro) + c2 * (self._pane_reflectance(cos_i) - ri + self._pane_reflectance(cos_o) - ro)
         s2i = dr.fma(wi.x, wi.x, wi.y * wi.y)
         s2o = dr.fma(wo.x, wo.x, wo.y * wo.y)
         cri = dr.safe_sqrt(1.0 - s2i / (n * n))
         cro = dr.safe_sqrt(1.0 - s2o / (n * n))
         delta = (2.0 * self.thickness / n) * (s2o - s2i) / (cri + cro)        # 2 n t (cos r_s - cos r_o), µm
-        ri = mi.fresnel(dr.abs(cos_i), n)[0]
-        ro = mi.fresnel(dr.abs(cos_o), n)[0]
         rb = self.silver if self.is_mirror else dr.sqrt(ri * ro)
         a = (1.0 - ri) * (1.0 - ro) * rb
         x = rb * dr.sqrt(ri * ro)
-        c2 = layer["coherent"]
+        front = dr.minimum(ri, ro)
         lobe = layer["plane"] * layer["weight"] / dr.maximum(layer["fa"], 1e-30)
-        cd = 2.0 * c2 * lobe                                                  # the visibility cap
-        vis = dr.select(cd > 0, dr.clip((1.0 - layer["reflect"] - c2 * c2 - cd) / dr.maximum(cd, 1e-30),
-                                        0.0, 1.0), 1.0)
+        cd = c2 * lobe                         # the visibility cap (substrate.double_pass_visibility)
+        slack = 1.0 - layer["reflect"]
+        inv = 1.0 / dr.maximum(cd, 1e-30)
+        e = (slack - c2 * c2 - lobe - cd) * inv
+        vis = dr.minimum(dr.minimum((slack - c2 * c2 - 2.0 * cd) * 0.5 * inv, (slack - c2 - cd) * inv), e)
+        vis = dr.maximum(vis, dr.safe_sqrt(e * (1.0 - c2) / dr.maximum(c2, 1e-30)))
+        vis = dr.select(cd > 0, dr.clip(vis, 0.0, 1.0), 1.0)
+        if not mi.is_spectral:   # the table position of each order's k |Δ|, the same for every bin
+            index = [self._envelope_index(k * dr.abs(delta), active) for k in range(1, RGB_ORDERS + 1)]
 
         def factor(q, lam_nm):
+            b, aq, xq = base, a, x
+            if self.silver_varies:   # the silvering's R_m at this wavelength
+                rm = self._silver_at(lam_nm)
+                b = front + c2 * (self._pane_reflectance(cos_i, lam_nm) - ri + self._pane_reflectance(cos_o, lam_nm) - ro)
+                aq, xq = (1.0 - ri) * (1.0 - ro) * rm, rm * dr.sqrt(ri * ro)
             if mi.is_spectral:
                 c = dr.cos(2.0 * dr.pi * delta / lambda_um(lam_nm))
-                qv = a * (c - x) / (1.0 - 2.0 * x * c + x * x)
+                qv = aq * (c - xq) / (1.0 - 2.0 * xq * c + xq * xq)
             else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
                 qv = mi.Float(0.0)
                 xk = mi.Float(1.0)
-                for k in range(1, RGB_ORDERS + 1):
-                    qv += xk * self._bin_average_cos(q, k * dr.abs(delta), active)
-                    xk = xk * x
-                qv = a * qv
-            return base + 2.0 * vis * qv
+                s1, c1 = dr.sincos(2.0 * dr.pi * float(self.bin_sigma[q]) * dr.abs(delta))
+                sk, ck = s1, c1
+                for k in range(1, RGB_ORDERS + 1):   # e^{ikφ} by recurrence: one sincos a bin
+                    qv += xk * self._bin_average_cos(q, index[k - 1], (sk, ck))
+                    sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
+                    xk = xk * xq
+                qv = aq * qv
+            return b + 2.0 * c2 * vis * qv
         return factor
 
     def _layer_first(self, cos_i):
         """True where light from ``wi`` meets the layer before the pane."""
         return layer_first(cos_i, self.layer_on_front)
 
-    def _delta_weights(self, layer, cos_i):
-        """Weights of the coherent transmission and of the specular reflection (pane only)."""
-        r_i = self._pane_reflectance(cos_i)
-        return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
-                                  t_i=self._pane_transmittance(cos_i),
-                                  behind=0.0 if self.is_mirror else r_i)     # a mirror's back is black
+    def _delta_weights(self, layer, cos_i, wavelengths=None):
+        """Weights of the coherent transmission and of the specular reflection (pane only); with
+        ``wavelengths`` and a silvering spectrum, the specular weight per wavelength (a Spectrum)."""
+        def weights(lam_nm=None):
+            r_i = self._pane_reflectance(cos_i, lam_nm)
+            return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
+                                      t_i=self._pane_transmittance(cos_i),
+                                      behind=0.0 if self.is_mirror else r_i,     # a mirror's back is black
+                                      front=self._face_reflectance(cos_i))
+        w_coh, w_spec = weights()
+        if wavelengths is not None and self.silver_varies:
+            lams, _ = self._wavelength_mixture(wavelengths)
+            w_spec = self._fold([weights(lam)[1] for lam in lams])
+        return w_coh, w_spec
+
+    def _reflected_lobe_energy(self, coherent, cos_i):
+        """The reflected lobe's energy over ``D`` at ``θi``, the two angles taken equal:
+        ``R + 2 C P`` (its selection weight)."""
+        r = self._face_reflectance(cos_i)
+        return r + 2.0 * coherent * (self._pane_reflectance(cos_i) - r)
 
     def _selection(self, ctx, layer, cos_i=None):
         """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
@@ -677,7 +732,7 @@ class CoronaBSDFMixin:
             w_coh, w_spec = self._delta_weights(layer, cos_i)
             energies = (w_coh, layer["lobe"] * t_i,
                         dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
-                        dr.select(first, 2.0 * layer["coherent"] * layer["lobe"] * self._pane_reflectance(cos_i),
+                        dr.select(first, layer["lobe"] * self._reflected_lobe_energy(layer["coherent"], cos_i),
                                   0.0))
         return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
 
@@ -713,10 +768,11 @@ class CoronaBSDFMixin:
             first = self._layer_first(cos_i)
             r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
             t_i, t_o = self._pane_transmittance(cos_i), self._pane_transmittance(cos_o)
-            f_through, f_reflected, f_diffuse = pane_smooth_factors(layer["coherent"], r_i, r_o, first,
-                                                                    t_i=t_i, t_o=t_o)
-            if coherent:   # the double pass: C f [R'(θi) + R'(θo) + 2 V Q] (f_reflected's bracket modulated)
-                lobe_reflected = dr.select(first, layer["coherent"] * f_mod[0] * abs_cos_o, 0.0)
+            f_through, f_reflected, f_diffuse = pane_smooth_factors(
+                layer["coherent"], r_i, r_o, first, t_i=t_i, t_o=t_o,
+                front_i=self._face_reflectance(cos_i), front_o=self._face_reflectance(cos_o))
+            if coherent:   # the double pass: f [R_min + C (P_i + P_o + 2 V Q)] (f_reflected modulated)
+                lobe_reflected = dr.select(first, f_mod[0] * abs_cos_o, 0.0)
             else:
                 lobe_reflected = lobe * f_reflected
             lobe = lobe * f_through
@@ -826,7 +882,7 @@ class CoronaBSDFMixin:
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
         weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)          # no 0/0 (scalar variants too)
         if self.has_pane:
-            w_coh, w_spec = self._delta_weights(layer, cos_i)
+            w_coh, w_spec = self._delta_weights(layer, cos_i, si.wavelengths)
             bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
             weight = dr.select(pick_spec, w_spec / dr.maximum(p_spec, 1e-30), weight)
         else:

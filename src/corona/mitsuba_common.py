@@ -52,6 +52,14 @@ def read_props(props) -> tuple[dict, dict]:
         if name in TEXTURED and isinstance(value, mi.Texture):
             textures[name] = value
             continue
+        if name == "mirror_reflectance" and all(hasattr(value, a) for a in ("wavelengths", "values", "is_uniform")):
+            # a <spectrum> given in the scene: its wavelength:value pairs, unresolved (every variant)
+            lam, val = np.asarray(value.wavelengths, dtype=np.float64), np.asarray(value.values, dtype=np.float64)
+            uniform_ = value.is_uniform() if callable(value.is_uniform) else value.is_uniform
+            value = float(val.ravel()[0]) if uniform_ or lam.size < 2 else (lam, val)
+        if name == "mirror_reflectance" and isinstance(value, (str, tuple, mi.Texture)):
+            out[name] = spectrum_samples(value) if isinstance(value, mi.Texture) else value   # Mirror checks it
+            continue
         if SPEC[name].kind in ("float", "int"):
             if isinstance(value, bool):   # <boolean name="radius" value="true"/> is no size
                 raise CoronaError(f"corona BSDF: {name}={value!r} is not a number; allowed {SPEC[name].allowed}")
@@ -64,6 +72,24 @@ def read_props(props) -> tuple[dict, dict]:
             value = str(value)
         out[name] = SPEC[name].check(value)
     return out, textures
+
+
+def spectrum_samples(texture, wavelengths=None):
+    """A Mitsuba spectrum (texture) sampled at ``wavelengths`` [nm] (default
+    :data:`corona.substrate.SPECTRUM_GRID`): (wavelengths, values), spectral variants only (RGB
+    and mono variants have turned a spectrum into a colour when they loaded it)."""
+    from .substrate import SPECTRUM_GRID
+    if not mi.is_spectral:
+        raise CoronaError("corona BSDF: mirror_reflectance as a spectrum object needs a spectral variant "
+                          f"({mi.variant()} turns spectra into colours); give it as 'nm:value, ...' text, "
+                          "a metal (silver, aluminium, gold, copper) or a number")
+    lam = np.asarray(SPECTRUM_GRID if wavelengths is None else wavelengths, dtype=np.float64)
+    vals = []
+    for x in lam:
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        si.wavelengths = mi.Spectrum(float(x))
+        vals.append(float(np.array(texture.eval(si)).ravel()[0]))
+    return lam, np.array(vals)
 
 
 def uniform(value: float):
@@ -370,26 +396,38 @@ def layer_first(cos_i, layer_on_front):
     return (cos_i > 0) if layer_on_front else (cos_i < 0)
 
 
-def pane_delta_weights(coherent, r_i, first, t_i=None, behind=None):
+def _face_from_pane(r):
+    """The one face's Fresnel ``R`` of a thin non-absorbing pane of reflectance ``R' = 2R / (1 + R)``."""
+    return r / (2.0 - r)
+
+
+def pane_delta_weights(coherent, r_i, first, t_i=None, behind=None, front=None):
     """Weights of the coherent transmission ``C T'`` and of the specular reflection
-    (``C² R'`` when light meets the layer first, else ``behind``, by default ``R'``);
-    ``r_i = R'(θi)``, ``t_i = T'(θi)`` (default ``1 - R'``: a pane that does not absorb)."""
+    (``C R + C² (R' - R)`` when light meets the layer first, else ``behind``, by default ``R'``);
+    ``r_i = R'(θi)``, ``t_i = T'(θi)`` (default ``1 - R'``: a pane that does not absorb), ``front``
+    the Fresnel ``R(θi)`` of the face the layer lies on (default: that of a thin glass pane of
+    reflectance ``r_i``).  The front face returns the light through the same place of the layer,
+    which it crosses once (docs/physics.md#the-front-face)."""
     t_i = 1.0 - r_i if t_i is None else t_i
     behind = r_i if behind is None else behind
-    return coherent * t_i, dr.select(first, coherent * coherent * r_i, behind)
+    front = _face_from_pane(r_i) if front is None else front
+    return coherent * t_i, dr.select(first, coherent * (front + coherent * (r_i - front)), behind)
 
 
-def pane_smooth_factors(coherent, r_i, r_o, first, t_i=None, t_o=None):
+def pane_smooth_factors(coherent, r_i, r_o, first, t_i=None, t_o=None, front_i=None, front_o=None):
     """Factors of the smooth components on the pane: (lobe in transmission, lobe in reflection, diffuse).
 
-    Light meeting the layer first: ``T'(θo)``, ``C [R'(θi) + R'(θo)]``, 1; the
-    glass first: ``T'(θi)``, 0, ``T'(θi) T'(θo)`` (the module docstring of
-    :mod:`corona.mitsuba_bsdf` tabulates them).
+    Light meeting the layer first: ``T'(θo)``, ``min(R_i, R_o) + C [P_i + P_o]``, 1 (``R`` the
+    front face's Fresnel reflectance, ``front_i``/``front_o``, by default that of a thin glass
+    pane; ``P = R' - R`` the round trips); the glass first: ``T'(θi)``, 0, ``T'(θi) T'(θo)``
+    (the module docstring of :mod:`corona.mitsuba_bsdf` tabulates them).
     """
     t_i = 1.0 - r_i if t_i is None else t_i
     t_o = 1.0 - r_o if t_o is None else t_o
+    front_i = _face_from_pane(r_i) if front_i is None else front_i
+    front_o = _face_from_pane(r_o) if front_o is None else front_o
     transmitted = dr.select(first, t_o, t_i)
-    reflected = dr.select(first, coherent * (r_i + r_o), 0.0)
+    reflected = dr.select(first, dr.minimum(front_i, front_o) + coherent * (r_i - front_i + r_o - front_o), 0.0)
     diffuse = dr.select(first, 1.0, t_i * t_o)
     return transmitted, reflected, diffuse
 

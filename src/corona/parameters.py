@@ -241,7 +241,9 @@ PARAMETERS: tuple[Parameter, ...] = (
               "layer interfere (Quetelet rings); default 4000 for mirror, none (incoherent) for glass",
               low=50.0, high=1.0e5, applies=("substrate=glass", "substrate=mirror")),
     Parameter("mirror_reflectance", "float", "", None, "reflectance of the silvering seen from inside the "
-              "glass; default 0.97 (silver behind glass at normal incidence)", low=0.0, high=1.0,
+              "glass: a number, a metal (silver, aluminium, gold, copper: its tabulated spectrum) or a "
+              "spectrum ('nm:value, ...' text, or in the plugin a <spectrum>); default 0.97 (silver "
+              "behind glass at normal incidence)", low=0.0, high=1.0,
               applies=("substrate=mirror",)),
     Parameter("sampling", "choice", "", "lobe", "how the lobe is sampled: lobe (T_a T_s exactly) or "
               "cosine (for comparisons only)", SAMPLINGS, plugin_only=True),
@@ -506,6 +508,15 @@ def warn_unused(given, p: dict, stacklevel: int = 3) -> None:
                       "ignored", CoronaWarning, stacklevel=stacklevel)
 
 
+def _check_given(name, value):
+    """A given value checked by its spec; ``mirror_reflectance`` may also be a metal's name or a
+    spectrum (``'λ:value, ...'`` text or a (wavelengths, values) pair: :class:`corona.Mirror`)."""
+    import numpy as np
+    if name == "mirror_reflectance" and (isinstance(value, str) or np.ndim(value) > 0):
+        return value
+    return SPEC[name].check(value)
+
+
 def material_from_parameters(**params):
     """A :class:`corona.Material` from the named parameters of :data:`PARAMETERS`.
 
@@ -522,7 +533,7 @@ def material_from_parameters(**params):
     if unknown:
         raise CoronaError(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
     given = {k: v for k, v in params.items() if v is not None}
-    p = {**DEFAULTS, **{k: SPEC[k].check(v) for k, v in given.items()}}
+    p = {**DEFAULTS, **{k: _check_given(k, v) for k, v in given.items()}}
     from .substrate import make_substrate
     substrate = make_substrate(p["substrate"], p["substrate_ior"], p["substrate_side"],
                                p["substrate_thickness"], p["mirror_reflectance"])

@@ -29,6 +29,11 @@ MIRROR_THICKNESS = 4000.0
 #: behind glass of index 1.52 gives |(1.52 - N)/(1.52 + N)|² ≈ 0.975; 0.97 allows for the
 #: protective layers of a household mirror.
 SILVER_REFLECTANCE = 0.97
+#: Named silverings: the metal's complex index (Mitsuba 3's tabulated optical constants,
+#: ``mitsuba/data/ior/<X>.eta.spd`` and ``.k.spd``) behind the glass, ``|(n - N) / (n + N)|²``.
+METALS = {"silver": "Ag", "aluminium": "Al", "aluminum": "Al", "gold": "Au", "copper": "Cu"}
+#: Wavelengths [nm] on which a named or textual silvering spectrum is tabulated.
+SPECTRUM_GRID = np.arange(360.0, 831.0, 5.0)
 #: Allowed pane thickness [µm] for the coherent double pass (0.05–100 mm).
 THICKNESS_RANGE = (50.0, 1.0e5)
 #: Internal round trips whose interference is summed in closed form (all of them); the
@@ -37,6 +42,46 @@ RGB_ORDERS = 3
 #: The channel-averaged fringe table: path differences up to this [µm], every DELTA_STEP [µm].
 DELTA_MAX = 100.0
 DELTA_STEP = 0.25
+
+
+def metal_reflectance(metal: str, ior: float, wavelengths=SPECTRUM_GRID) -> np.ndarray:
+    """Normal-incidence reflectance of a metal seen from inside glass of index ``ior``.
+
+    ``R_m(λ) = |(n - N) / (n + N)|²`` with ``N = η + iκ`` the metal's complex index from Mitsuba 3's
+    tabulated optical constants (``mitsuba/data/ior``, from the luxpop database), interpolated
+    linearly in ``λ`` [nm].  The metal is one of :data:`METALS`.  Silver behind glass of 1.52:
+    0.84 at 400 nm, 0.90 at 450 nm, 0.945 at 550 nm, 0.957 at 650 nm.
+    """
+    import importlib.util
+    import os
+    import sys
+    name = check_choice("mirror_reflectance", metal, tuple(METALS))
+    module = sys.modules.get("mitsuba")
+    origin = getattr(module, "__file__", None)
+    if origin is None:
+        spec = importlib.util.find_spec("mitsuba")
+        origin = None if spec is None else spec.origin
+    base = None if origin is None else os.path.join(os.path.dirname(origin), "data", "ior", METALS[name])
+    if base is None or not os.path.isfile(base + ".eta.spd"):
+        raise CoronaError(f"mirror_reflectance={metal!r} needs Mitsuba 3's tabulated optical constants "
+                          "(pip install mitsuba); give a number or a 'wavelength:value, ...' spectrum instead")
+    eta, kappa = (np.loadtxt(base + ext, comments="#") for ext in (".eta.spd", ".k.spd"))
+    lam = np.asarray(wavelengths, dtype=np.float64)
+    n_c = np.interp(lam, eta[:, 0], eta[:, 1]) + 1j * np.interp(lam, kappa[:, 0], kappa[:, 1])
+    return np.abs((ior - n_c) / (ior + n_c)) ** 2
+
+
+def parse_spectrum(text: str, name: str = "mirror_reflectance"):
+    """``'λ:value, λ:value, ...'`` (Mitsuba's spectrum syntax, λ in nm) as two arrays."""
+    try:
+        pairs = [item.split(":") for item in str(text).replace(";", ",").split(",") if item.strip()]
+        lam, val = (np.array([float(p[i]) for p in pairs]) for i in (0, 1))
+        if any(len(p) != 2 for p in pairs):
+            raise ValueError
+    except (ValueError, IndexError):
+        raise CoronaError(f"{name}={text!r} is not a spectrum; allowed a number in [0, 1], a metal "
+                          f"({', '.join(METALS)}) or 'wavelength:value, ...' (nm, increasing)") from None
+    return lam, val
 
 
 def fresnel_dielectric(cos_theta_i, eta) -> np.ndarray:
@@ -178,23 +223,45 @@ class GlassPane:
         c = np.cos(2 * np.pi * self.path_difference(cos_s, cos_o) / lam)
         return a * (c - x) / (1.0 - 2.0 * x * c + x * x)
 
-    def reflected_lobe_factor(self, cos_s, cos_o, wavelength, visibility=1.0) -> np.ndarray:
-        """The pane's factor on ``C f`` in the lobe seen in reflection (light meets the layer first).
+    def inner_reflectance(self, cos_theta, wavelength=550.0) -> np.ndarray:
+        """``P = R' - R = Σ_{k≥1} I_k``: the part of the pane's reflectance that has crossed the
+        glass (every round trip), at ``|cos θ|``; the front face's own ``R`` is the rest."""
+        c = np.abs(np.asarray(cos_theta, dtype=np.float64))
+        return self.reflectance(c, wavelength) - self.face_reflectance(c)
 
-        Without a thickness the incoherent sum ``R'(θs) + R'(θo)`` (scattered on the way in, or
-        on the way out).  With one, the two single-scattering paths of the same particle and the
-        same ``d`` after ``k >= 1`` round trips add as amplitudes:
+    def specular_through_layer(self, cos_theta, wavelength, coherent) -> np.ndarray:
+        """Weight of the pane's mirror image seen through a layer on its face (light meets the
+        layer first): ``C R + C² P``.
 
-            R'(θs) + R'(θo) + 2 V Q(θs, θo, λ)
-
-        (:meth:`interference`; the front face's own reflection, ``k = 0``, stays incoherent).
-        ``V`` in [0, 1] is the energy cap's visibility (1 unless the layer is very reflective,
-        :func:`double_pass_visibility`).  The factor lies in ``[0, 2 (R'_s + R'_o)]``.
+        The front face reflects the light that crossed the layer back through the same place of
+        the layer (a screen on the face is crossed once, ``t(x)² = t(x)`` for a binary screen:
+        ``C R``); the light of the round trips crosses it a second time (``C² P``,
+        :meth:`inner_reflectance`).  ``coherent`` is the layer's ``C``.
         """
-        base = self.reflectance(cos_s) + self.reflectance(cos_o)
-        if not self.coherent:
-            return base
-        return base + 2.0 * visibility * self.interference(cos_s, cos_o, wavelength)
+        c = np.abs(np.asarray(cos_theta, dtype=np.float64))
+        return coherent * self.face_reflectance(c) + coherent * coherent * self.inner_reflectance(c, wavelength)
+
+    def reflected_lobe_factor(self, cos_s, cos_o, wavelength, coherent, visibility=1.0) -> np.ndarray:
+        """The pane's factor on the lobe ``f`` seen in reflection (light meets the layer first).
+
+            min(R_s, R_o) + C [P_s + P_o + 2 V Q(θs, θo, λ)]
+
+        ``R`` the front face's Fresnel reflectance, ``P`` the round trips'
+        (:meth:`inner_reflectance`), ``C`` = ``coherent``, the layer's coherent weight.  The front
+        face reflects the lobe once (a screen on the face: ``R f``, not ``2 C R f``); the
+        smaller of the two angles' ``R`` keeps it reciprocal and within each scattered
+        direction's budget (equal to first order about the mirror direction).  The round trips
+        add the two single-scattering paths (scattered on the way in, or on the way out), and,
+        with a thickness, their interference ``Q`` (:meth:`interference`) with the energy cap's
+        visibility ``V`` in [0, 1] (:func:`double_pass_visibility`); without a thickness the two
+        paths add incoherently.  See ``docs/physics.md#the-front-face``.
+        """
+        cs, co = np.abs(np.asarray(cos_s, dtype=np.float64)), np.abs(np.asarray(cos_o, dtype=np.float64))
+        front = np.minimum(self.face_reflectance(cs), self.face_reflectance(co))
+        inner = self.inner_reflectance(cs, wavelength) + self.inner_reflectance(co, wavelength)
+        if self.coherent:
+            inner = inner + 2.0 * visibility * self.interference(cs, co, wavelength)
+        return front + coherent * inner
 
 
 class Mirror(GlassPane):
@@ -206,9 +273,11 @@ class Mirror(GlassPane):
         Index of the glass.
     thickness : float [µm], default 4000
         Thickness of the glass (the two passes through the layer interfere; always coherent).
-    reflectance : float in [0, 1], or (wavelengths [nm], values), default 0.97
+    reflectance : float in [0, 1], str, or (wavelengths [nm], values), default 0.97
         Reflectance ``R_m`` of the silvering seen from inside the glass, constant in angle:
-        a number, or a spectrum interpolated linearly (clamped at its ends).
+        a number; a metal of :data:`METALS` (``"silver"``: its tabulated spectrum behind this
+        glass, :func:`metal_reflectance`); ``'λ:value, ...'`` text or a (wavelengths, values)
+        pair, interpolated linearly (clamped at its ends).
 
     Notes
     -----
@@ -220,6 +289,16 @@ class Mirror(GlassPane):
     def __init__(self, ior: float = GLASS_IOR, thickness: float | None = None,
                  reflectance=SILVER_REFLECTANCE):
         super().__init__(ior, "front", MIRROR_THICKNESS if thickness is None else thickness)
+        if isinstance(reflectance, str) and reflectance.strip().lower() in METALS:
+            self.metal = reflectance.strip().lower()
+            self._rm = (SPECTRUM_GRID, metal_reflectance(self.metal, self.ior))
+            return
+        self.metal = None
+        if isinstance(reflectance, str):
+            try:
+                reflectance = float(reflectance)
+            except ValueError:
+                reflectance = parse_spectrum(reflectance)
         if np.ndim(reflectance) == 0:
             self._rm = (None, float(check_range("mirror_reflectance", reflectance, 0.0, 1.0)))
         else:
@@ -232,12 +311,17 @@ class Mirror(GlassPane):
             self._rm = (lam, val)
 
     def __repr__(self):
-        rm = self._rm[1] if self._rm[0] is None else "spectrum"
+        rm = self._rm[1] if self._rm[0] is None else repr(self.metal or "spectrum")
         return f"Mirror(ior={self.ior:g}, thickness={self.thickness:g}, reflectance={rm})"
 
     def key(self) -> dict:
         lam, val = self._rm
         return {**super().key(), "mirror": val if lam is None else (tuple(lam), tuple(val))}
+
+    @property
+    def spectral(self) -> bool:
+        """True when the silvering's reflectance depends on the wavelength."""
+        return self._rm[0] is not None
 
     def silver(self, wavelength) -> np.ndarray:
         """``R_m(λ)`` of the silvering (``wavelength`` in nm)."""
@@ -261,22 +345,31 @@ class Mirror(GlassPane):
     def layer_first(self, cos_theta_i) -> np.ndarray:
         return np.asarray(cos_theta_i, dtype=np.float64) > 0
 
-    def reflected_lobe_factor(self, cos_s, cos_o, wavelength, visibility=1.0) -> np.ndarray:
-        base = self.reflectance(np.abs(cos_s), wavelength) + self.reflectance(np.abs(cos_o), wavelength)
-        return base + 2.0 * visibility * self.interference(cos_s, cos_o, wavelength)
-
 
 def double_pass_visibility(coherent: float, lobe: float, reflectance: float) -> float:
-    """The energy cap's visibility ``V = min(1, (1 - ρ - C² - 2 C D) / (2 C D))``.
+    """The energy cap's visibility ``V`` in [0, 1] of the double pass's interference.
 
-    The reflected lobe with interference is at most twice the incoherent one, so the light
-    reflected is at most ``ρ + C² + 2 C D (1 + V)`` (``R' <= 1``): ``V`` keeps that <= 1.  ``D``
-    is the lobe's plane integral (evanescent part included: an upper bound).
+    With the layer's ``C`` (``coherent``), ``D`` (``lobe``, its plane integral, evanescent part
+    included: an upper bound) and ``ρ`` (``reflectance``), the light reflected plus transmitted
+    exceeds the layer's own ``ρ + C + D`` by an amount linear in the round trips' ``P_s`` in
+    [0, 1], zero at ``P_s = 0`` unless ``C V > 1 - C``.  Two bounds on it
+    (``docs/physics.md#energy``), each sufficient, give
+
+        V₁ = min((1 - ρ - C² - 2CD) / 2CD, (1 - ρ - C - CD) / CD, E),   E = (1 - ρ - C² - D - CD) / CD
+        V₂ = √(E (1 - C) / C)
+
+    (``|Q| <= (P_s + P_o) / 2`` and ``|Q| <= √(P_s P_o)`` with the best ``P_o``), and
+    ``V = min(1, max(V₁, V₂, 0))``: 1 for every layer with some slack, 0 where the layer
+    itself returns all the light (``E = 0``).
     """
-    cd = 2.0 * coherent * lobe
+    c, d, rho = float(coherent), float(lobe), float(reflectance)
+    cd = c * d
     if cd <= 0:
         return 1.0
-    return float(np.clip((1.0 - reflectance - coherent**2 - cd) / cd, 0.0, 1.0))
+    e = (1.0 - rho - c * c - d - cd) / cd
+    v1 = min((1.0 - rho - c * c - 2.0 * cd) / (2.0 * cd), (1.0 - rho - c - cd) / cd, e)
+    v2 = np.sqrt(max(e, 0.0) * (1.0 - c) / c)
+    return float(np.clip(max(v1, v2), 0.0, 1.0))
 
 
 def channel_envelopes(wavelengths, responses, n_per_channel: int, delta_max: float = DELTA_MAX,

@@ -11,7 +11,11 @@ layer's and the pane's own statistics only:
   lobe with the lobe's plane integral (:meth:`~corona.Material.sample`: the
   table; evanescent draws ``|wo.xy| > 1`` are lost), and absorbs the rest;
 * the pane: reflects specularly with ``R'(θ)``
-  (:meth:`corona.GlassPane.reflectance`) and transmits otherwise.
+  (:meth:`corona.GlassPane.reflectance`) and transmits otherwise; light that has just
+  crossed the layer towards the pane is reflected by the front face (``R``, the Fresnel
+  reflectance of the face the layer lies on) back through the same place of the layer, which
+  it does not meet again (a screen on a face is crossed once: ``t(x)² = t(x)``), and by the
+  round trips (``R' - R``) back to the layer, which it meets again.
 
 It sorts the escaping energy by path (how many scatterings, how many
 reflections off the pane), so that each component of the model can be
@@ -50,7 +54,9 @@ def random_walk(material, cos_theta_i: float, wavelength: float = 550.0, n: int 
     Returns
     -------
     dict: the energy (fraction of the photons) per class of :data:`CLASSES`
-    (``dropped``: escaping paths the model leaves out), ``reflected`` and
+    (``dropped``: escaping paths the model leaves out), ``lobe_reflection_front`` (the part
+    of ``lobe_reflection`` the front face returned: scattered, then reflected at the
+    scattered angle, ``∫ f R(θo)``), ``reflected`` and
     ``transmitted`` (all escaping paths, on the side of ``wi`` or not),
     ``unfinished``, and ``sigma`` (the binomial standard error of a class
     holding a fraction p is ``sqrt(p (1 - p) / n)``; this is the largest).
@@ -76,7 +82,9 @@ def random_walk(material, cos_theta_i: float, wavelength: float = 550.0, n: int 
     nxt = np.full(n, 0 if first else 1)
     lobes = np.zeros(n, int)        # scatterings into the lobe
     diffuse = np.zeros(n, int)      # diffuse reflections off the layer
-    pane_r = np.zeros(n, int)       # reflections off the pane
+    pane_r = np.zeros(n, int)       # reflections off the pane that meet the layer again (or glass first)
+    pane_f = np.zeros(n, int)       # front-face reflections back through the place of the layer just crossed
+    crossed = np.zeros(n, bool)     # the last layer event let the photon through towards the pane
     layer_hits = np.zeros(n, int)
     for _ in range(max_events):
         at_l = np.flatnonzero(nxt == 0)
@@ -86,12 +94,16 @@ def random_walk(material, cos_theta_i: float, wavelength: float = 550.0, n: int 
         # --- the pane ---------------------------------------------------------
         if at_p.size:
             d = dirs[at_p]
-            refl = rng.random(at_p.size) < pane.reflectance(d[:, 2])
+            x = rng.random(at_p.size)
+            refl = x < pane.reflectance(np.abs(d[:, 2]))
+            front = crossed[at_p] & (x < pane.face_reflectance(np.abs(d[:, 2])))
             d[refl, 2] *= -1.0
             dirs[at_p] = d
-            pane_r[at_p] += refl
+            pane_r[at_p] += refl & ~front
+            pane_f[at_p] += front
             up = d[:, 2] > 0
-            nxt[at_p] = np.where(up, 0, 3)           # up: back to the layer; down: out below
+            # up: back to the layer (out above if the front face returned it through the layer)
+            nxt[at_p] = np.where(front, 2, np.where(up, 0, 3))
         # --- the layer --------------------------------------------------------
         if at_l.size:
             d = dirs[at_l]
@@ -122,26 +134,31 @@ def random_walk(material, cos_theta_i: float, wavelength: float = 550.0, n: int 
                 is_absorbed[k[~ok]] = True
             dirs[at_l] = d
             up = d[:, 2] > 0
+            crossed[at_l] = ~is_diffuse & ~up
             nxt[at_l] = np.where(is_absorbed, 4, np.where(up, 2, 1))   # down: on to the pane
     unfinished = float(np.mean((nxt == 0) | (nxt == 1)))
     # the side of wi: above for layer-first light, below for glass-first light
     out_refl = nxt == (2 if first else 3)
     out_trans = nxt == (3 if first else 2)
     one_layer = layer_hits == 1
+    no_pane = (pane_r == 0) & (pane_f == 0)
+    # one reflection off the pane: by the front face through the layer once, or a round trip
+    # between two crossings of the layer (light meeting the layer first); glass first: the pane
+    one_refl = (((pane_f == 1) & (pane_r == 0) & one_layer) | ((pane_f == 0) & (pane_r == 1) & (layer_hits == 2))
+                if first else (pane_f == 0) & (pane_r == 1) & (layer_hits == 0))
     classes = {
-        "coherent": out_trans & (lobes == 0) & (diffuse == 0) & (pane_r == 0) & one_layer,
-        "specular": out_refl & (lobes == 0) & (diffuse == 0) & (pane_r == 1)
-                    & (layer_hits == (2 if first else 0)),
-        "lobe_transmission": out_trans & (lobes == 1) & (diffuse == 0) & (pane_r == 0) & one_layer,
-        "lobe_reflection": out_refl & (lobes == 1) & (diffuse == 0) & (pane_r == 1)
-                           & (layer_hits == 2) & first,
-        "diffuse": out_refl & (lobes == 0) & (diffuse == 1) & (pane_r == 0) & one_layer,
+        "coherent": out_trans & (lobes == 0) & (diffuse == 0) & no_pane & one_layer,
+        "specular": out_refl & (lobes == 0) & (diffuse == 0) & one_refl,
+        "lobe_transmission": out_trans & (lobes == 1) & (diffuse == 0) & no_pane & one_layer,
+        "lobe_reflection": out_refl & (lobes == 1) & (diffuse == 0) & one_refl & first,
+        "diffuse": out_refl & (lobes == 0) & (diffuse == 1) & no_pane & one_layer,
     }
     out = {k: float(np.mean(v)) for k, v in classes.items()}
     kept = np.zeros(n, bool)
     for v in classes.values():
         kept |= v
     out["dropped"] = float(np.mean((out_refl | out_trans) & ~kept))
+    out["lobe_reflection_front"] = float(np.mean(classes["lobe_reflection"] & (pane_f == 1)))
     out["reflected"] = float(np.mean(out_refl))
     out["transmitted"] = float(np.mean(out_trans))
     out["unfinished"] = unfinished
