@@ -349,8 +349,15 @@ def lobe_rgb(m, d: np.ndarray, spectrum: np.ndarray, lams: np.ndarray) -> np.nda
         i = np.minimum(x.astype(np.intp), rho_grid.size - 2)
         frac = (x - i)[..., None]
         return prof[i] * (1.0 - frac) + prof[i + 1] * frac
-    spectra = np.stack([m.lobe_tabulated(d, lam) * s for lam, s in zip(lams, spectrum)], -1)
-    return spectrum_to_linear_srgb(spectra, lams)
+    # anisotropic: the renderer's lobe F_a (R/λ)² v(2π R d / λ) at each pixel and λ, then one
+    # matrix (nλ, 3) from the spectrum to linear sRGB (the integral is linear in the spectrum)
+    to_rgb = spectrum_to_linear_srgb(np.diag(spectrum), lams)                 # (nλ, 3)
+    if m.render_kind == "table":    # the bilinear table itself: every wavelength in one pass
+        lam_um = lams * 1e-3
+        v = m.render_lobe.table.eval_scaled(d, 2 * np.pi * R / lam_um)          # (..., nλ)
+        return v @ (m.lobe_weight * (R / lam_um)[:, None] ** 2 * to_rgb)
+    spectra = np.stack([m.lobe_tabulated(d, lam) for lam in lams], -1)
+    return spectra @ to_rgb
 
 
 def _pixel_offsets(field_deg: float, size: int) -> tuple[np.ndarray, float]:
@@ -394,9 +401,10 @@ def _fft_convolve_same(img: np.ndarray, k: np.ndarray) -> np.ndarray:
     from scipy import fft as sfft
     n, h = img.shape[0], k.shape[0] // 2
     size = sfft.next_fast_len(n + 2 * h, real=True)
-    spec = sfft.rfft2(img, s=(size, size), axes=(0, 1)) * sfft.rfft2(k, s=(size, size))[..., None]
-    full = sfft.irfft2(spec, s=(size, size), axes=(0, 1))
-    return full[h:h + n, h:h + n]
+    planes = np.ascontiguousarray(np.moveaxis(img, -1, 0))           # (c, n, n): contiguous transforms
+    spec = sfft.rfft2(planes, s=(size, size)) * sfft.rfft2(k, s=(size, size))
+    full = sfft.irfft2(spec, s=(size, size))
+    return np.moveaxis(full[:, h:h + n, h:h + n], 0, -1)
 
 
 def corona_linear(m, view: dict) -> tuple[np.ndarray, dict]:
