@@ -351,11 +351,18 @@ def lobe_rgb(m, d: np.ndarray, spectrum: np.ndarray, lams: np.ndarray) -> np.nda
         return prof[i] * (1.0 - frac) + prof[i + 1] * frac
     # anisotropic: the renderer's lobe F_a (R/λ)² v(2π R d / λ) at each pixel and λ, then one
     # matrix (nλ, 3) from the spectrum to linear sRGB (the integral is linear in the spectrum)
+    if d.ndim == 3 and min(d.shape[:2]) > 1 and np.allclose(d[::-1, ::-1], -d, rtol=1e-12, atol=0.0):
+        # every lobe is even, v(-u) = v(u) (real profiles and point patterns; the tables are built
+        # so): on a grid symmetric about its centre the lower rows are the upper ones turned round
+        n = d.shape[0]
+        rows = (n + 1) // 2
+        top = lobe_rgb(m, d[:rows], spectrum, lams)
+        return np.concatenate([top, top[:n - rows][::-1, ::-1]])
     to_rgb = spectrum_to_linear_srgb(np.diag(spectrum), lams)                 # (nλ, 3)
     if m.render_kind == "table":    # the bilinear table itself: every wavelength in one pass
         lam_um = lams * 1e-3
         v = m.render_lobe.table.eval_scaled(d, 2 * np.pi * R / lam_um)          # (..., nλ)
-        return v @ (m.lobe_weight * (R / lam_um)[:, None] ** 2 * to_rgb)
+        return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
     spectra = np.stack([m.lobe_tabulated(d, lam) for lam in lams], -1)
     return spectra @ to_rgb
 
