@@ -8,11 +8,12 @@ encoding): GET /api/corona.png (256² picture), GET /api/profiles, and
 GET /api/material (energy split and exports: needs the material's full
 lobe table).  Writes benchmarks/results/designer.json.
 
-Goal (issue 16): each update <= 100 ms for radial materials on 2 cores;
+Goal: every update <= 100 ms on 2 cores, radial and 2-D materials alike;
 "update" = the picture and the profiles (what moves under the knob).  Both
 wall-clock and CPU time (all threads of the process) are recorded: on a
 shared, loaded machine the wall clock measures the neighbours too, while
-the CPU time is what the update costs (numpy runs it on one core).
+the CPU time is what the update costs (numpy runs it on one core).  The
+1-minute load average is recorded at the start and at the end of the run.
 
     python benchmarks/bench_designer.py [--steps 12]
 """
@@ -39,6 +40,9 @@ MATERIALS = {
     "hexagons 3 µm, random orientation": ({"shape": "polygon", "sides": 6, "radius": 3.0,
                                            "orientation": "random", "area_fraction": 0.3}, {}),
     "voile fabric (square lattice, 2-D)": "voile fabric",
+    "ellipses 2 µm 2:1 at 25°, poisson (2-D, closed form)": (
+        {"shape": "ellipse", "radius": 2.0, "aspect": 2.0, "angle": 25.0, "area_fraction": 0.2,
+         "process": "poisson"}, {}),
 }
 
 
@@ -50,6 +54,7 @@ def main():
 
     from corona.designer import compute, create_app
     client = TestClient(create_app(timeout=120.0), base_url="http://127.0.0.1")
+    load_start = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     # warm: imports, shipped tables, the first JIT of nothing (numpy only)
     client.get("/api/corona.png", params={"radius": 1.0})
     results = {}
@@ -87,8 +92,8 @@ def main():
             "energy_median_ms": 1e3 * statistics.median(times["material"]),
             "energy_cpu_median_ms": 1e3 * statistics.median(cpu["material"]),
             "energy_max_ms": 1e3 * max(times["material"]),
-            "meets_100ms_wall": bool(radial and statistics.median(update) <= 0.1),
-            "meets_100ms_cpu": bool(radial and statistics.median(update_cpu) <= 0.1),
+            "meets_100ms_wall": bool(statistics.median(update) <= 0.1),
+            "meets_100ms_cpu": bool(statistics.median(update_cpu) <= 0.1),
         }
         r = results[name]
         print(f"{name:48s} {'radial' if radial else '2-D   '}  update {r['update_median_ms']:6.1f} ms "
@@ -96,8 +101,10 @@ def main():
               f"(picture {r['picture_median_ms']:5.1f}, profiles {r['profiles_median_ms']:5.1f}, "
               f"max {r['update_max_ms']:6.1f})  energy {r['energy_median_ms']:7.1f} ms", flush=True)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None   # at the end of the run
-    write("designer", {"steps": args.steps, "load_average_1min": load, "results": results,
-                       "goal": "each update (picture + profiles) <= 100 ms for radial materials on 2 cores "
+    print(f"load average (1 min): {load_start} at the start, {load} at the end", flush=True)
+    write("designer", {"steps": args.steps, "load_average_1min": load, "load_average_1min_start": load_start,
+                       "results": results,
+                       "goal": "every update (picture + profiles) <= 100 ms on 2 cores, radial and 2-D "
                                "(median over a drag of the radius slider; energy split reported apart)"})
 
 

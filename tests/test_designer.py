@@ -134,6 +134,7 @@ def test_fast_radial_picture_matches_far_field_corona(params):
     dict(shape="polygon", sides=6, radius=1.5, area_fraction=0.3, process="lattice-hex", jitter=0.2,
          angle=10.0),
     dict(shape="ellipse", radius=2.0, aspect=2.0, angle=25.0, area_fraction=0.2, process="poisson"),
+    dict(shape="rectangle", radius=1.5, aspect=0.5, angle=-30.0, area_fraction=0.3, process="hard-disk"),
 ])
 def test_anisotropic_picture_matches_far_field_corona(params):
     """The designer's 2-D path (every wavelength in one pass over the table, one matrix to
@@ -143,10 +144,11 @@ def test_anisotropic_picture_matches_far_field_corona(params):
     m = compute.material(params)
     field, n = compute.auto_field(m), 48
     lams = np.linspace(compute.WAVELENGTHS[0], compute.WAVELENGTHS[-1], compute.N_WAVELENGTHS_2D)
-    ref = far_field_corona(m, field, n, 3000.0, lams.size)
     d, _ = compute._pixel_offsets(field, n)
     spd = blackbody(lams, 3000.0)
-    mine = compute.lobe_rgb(m, d, spd / spd.max(), lams)
+    mine = compute.lobe_rgb(m, d, spd / spd.max(), lams)     # first: before the table is built
+    assert ("_arrays" in m.__dict__) == (m.render_kind == "table" or params["process"] == "poisson")
+    ref = far_field_corona(m, field, n, 3000.0, lams.size)
     np.testing.assert_allclose(mine, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
     shifted = d[:, :-5] + [0.3 * d[0, 0, 1], 0.0]           # not symmetric about its centre
     direct = np.stack([m.lobe_tabulated(shifted, lam) * s for lam, s in zip(lams, spd)], -1)
@@ -168,6 +170,22 @@ def test_grid_table_eval_scaled_is_eval_at_each_scale():
         ref = np.stack([t.eval(d * s) for s in scales], -1).reshape(-1, 3, scales.size)
         assert got.shape == ref.shape and np.any(ref == 0) and np.any(ref > 0)
         np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14)
+
+
+def test_preview_of_a_2d_picture_is_half_size_and_the_exact_one_is_not(client):
+    """While a slider moves the page asks for preview=1: a 2-D picture at half the pixels per
+    axis (the header says so); radial pictures, and every picture without preview, are exact."""
+    def get(**q):
+        res = client.get("/api/corona.png", params={"size": 96, "exposure": 0, **q})
+        assert res.status_code == 200, res.text
+        return res.headers["X-Corona-Preview"], Image.open(io.BytesIO(res.content)).size
+    lattice = dict(shape="square", radius=4.0, area_fraction=0.25, process="lattice-square", jitter=0.5)
+    assert get(**lattice, preview=1) == ("1", (48, 48))
+    assert get(**lattice) == ("0", (96, 96)) == get(**lattice, preview=0)
+    assert get(radius=5.0, area_fraction=0.4, preview=1) == ("0", (96, 96))
+    assert "preview" not in {p["name"] for p in client.get("/api/parameters").json()["parameters"]}
+    bad = client.get("/api/corona.png", params={"preview": 2})
+    assert bad.status_code == 400 and "preview" in bad.json()["error"]
 
 
 def test_fft_convolution_is_scipys_direct_convolution():

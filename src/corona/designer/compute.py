@@ -50,6 +50,9 @@ VIEW_PARAMETERS: tuple[Parameter, ...] = (
     Parameter("field", "float", "degree", None, "half-width of the view; empty: the first rings",
               low=0.01, high=60.0),
     Parameter("size", "int", "pixel", 256, "width and height of the picture", low=32, high=512),
+    Parameter("preview", "int", "", 0, "1: while a slider moves, an anisotropic (2-D) picture at half "
+              "the pixels per axis (the page scales it up and says so; the exact picture follows "
+              "when the slider is let go); 0: the exact picture", low=0, high=1),
 )
 VIEW_SPEC = {p.name: p for p in VIEW_PARAMETERS}
 
@@ -136,7 +139,7 @@ def spec_json() -> dict:
         return d
 
     out = [one(p, "material") for p in PARAMETERS if not p.plugin_only]
-    out += [one(p, "light") for p in VIEW_PARAMETERS]
+    out += [one(p, "light") for p in VIEW_PARAMETERS if p.name != "preview"]   # the page sets preview itself
     out += [one(p, "kernel") for p in KERNEL_PARAMETERS]
     return {"parameters": out, "presets": PRESETS,
             "ring_wavelengths": list(RING_WAVELENGTHS), "profile_wavelength": PROFILE_WAVELENGTH}
@@ -363,8 +366,32 @@ def lobe_rgb(m, d: np.ndarray, spectrum: np.ndarray, lams: np.ndarray) -> np.nda
         lam_um = lams * 1e-3
         v = m.render_lobe.table.eval_scaled(d, 2 * np.pi * R / lam_um)          # (..., nλ)
         return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
-    spectra = np.stack([m.lobe_tabulated(d, lam) for lam in lams], -1)
-    return spectra @ to_rgb
+    lam_um = lams * 1e-3
+    rl = _render_lobe(m)
+    v = np.stack([rl.eval(d * (2 * np.pi * R / lam)) for lam in lam_um], -1)      # (..., nλ)
+    return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
+
+
+_render_lobes: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # material -> RenderLobe
+
+
+def _render_lobe(m):
+    """The renderer's lobe of ``m`` (:attr:`corona.Material.render_lobe`).  Closed-form shapes
+    over an isotropic process need only their outlines and ``S - 1``
+    (:meth:`corona.Material.radial_s_minus_one`): built so, without the sampling table, unless
+    the material holds its table already."""
+    if m.render_kind != "analytic" or "_arrays" in m.__dict__:
+        return m.render_lobe
+    with _profiles_lock:
+        rl = _render_lobes.get(m)
+    if rl is None:
+        from ..render_lobe import RenderLobe
+        s_du, s1 = m.radial_s_minus_one()
+        rl = RenderLobe("analytic", m.length_scale, float(m.shape.area), terms=m.analytic_terms,
+                        s_du=s_du, s_minus_one=None if np.all(s1 == 0.0) else s1)
+        with _profiles_lock:
+            _render_lobes[m] = rl
+    return rl
 
 
 def _pixel_offsets(field_deg: float, size: int) -> tuple[np.ndarray, float]:
@@ -417,11 +444,15 @@ def _fft_convolve_same(img: np.ndarray, k: np.ndarray) -> np.ndarray:
 def corona_linear(m, view: dict) -> tuple[np.ndarray, dict]:
     """Linear sRGB radiance around the light, relative to the light's (size, size, 3).
 
-    Returns the picture and a dict of what was used (``field`` [degree], ``pitch`` [degree/pixel]).
+    Returns the picture and a dict of what was used (``field`` [degree], ``pitch`` [degree/pixel],
+    ``preview``: whether it is the half-size preview of a 2-D picture, ``view["preview"]``).
     """
     from scipy import ndimage
     field = view.get("field") or auto_field(m)
     size = int(view.get("size") or VIEW_SPEC["size"].default)
+    preview = bool(view.get("preview")) and not m.isotropic    # radial pictures are exact at any speed
+    if preview:
+        size = max(32, size // 2)
     temperature = view.get("temperature") or VIEW_SPEC["temperature"].default
     diameter = math.radians(view.get("light_size") or VIEW_SPEC["light_size"].default)
     d, pitch = _pixel_offsets(field, size)
@@ -440,7 +471,7 @@ def corona_linear(m, view: dict) -> tuple[np.ndarray, dict]:
     light_rgb = spectrum_to_linear_srgb(spectrum, lams)                     # luminance 1
     img = img + m.coherent_transmittance * direct[..., None] * light_rgb
     img = np.maximum(np.nan_to_num(img, nan=0.0, posinf=0.0), 0.0)
-    return img, {"field": float(field), "pitch": math.degrees(pitch)}
+    return img, {"field": float(field), "pitch": math.degrees(pitch), "preview": preview}
 
 
 def exposure_of(img: np.ndarray, exposure, percentile: float = 99.5) -> float:
