@@ -105,11 +105,11 @@ def headline() -> list[str]:
         if sc:
             lobe = max(sc.items(), key=lambda kv: kv[1]["lobe_cpu_s"])
             mie = max(sc.items(), key=lambda kv: kv[1]["corona_cpu_s"])
-            load = t.get("load_average_1min", [None])[0]
+            loads = t.get("load_average_1min") or [float("nan")] * 2
             rows.append(("Scene tables cold, corona's plugins (slowest without Mie theory; slowest in all, "
                          "its Mie part)",
                          f"{lobe[1]['lobe_cpu_s']:.2f} s CPU ({lobe[0]}); {mie[1]['corona_cpu_s']:.2f} s CPU "
-                         f"({mie[0]}, Mie {mie[1]['mie_cpu_s']:.2f} s); load {load:.1f} on "
+                         f"({mie[0]}, Mie {mie[1]['mie_cpu_s']:.2f} s); load {loads[0]:.1f}–{loads[-1]:.1f} on "
                          f"{t['machine'].get('cores', '?')} cores", "≤ 2 s each"))
     mie = _load("mie")
     if mie:
