@@ -101,6 +101,16 @@ def headline() -> list[str]:
     if t:
         worst = max(t["results"].items(), key=lambda kv: kv[1]["build_median_s"])
         rows.append(("Slowest lobe table build (" + worst[0] + ")", f"{worst[1]['build_median_s']:.3f} s", "—"))
+        sc = {k: v for k, v in t.get("scenes", {}).items() if "error" not in v}
+        if sc:
+            lobe = max(sc.items(), key=lambda kv: kv[1]["lobe_cpu_s"])
+            mie = max(sc.items(), key=lambda kv: kv[1]["corona_cpu_s"])
+            loads = t.get("load_average_1min") or [float("nan")] * 2
+            rows.append(("Scene tables cold, corona's plugins (slowest without Mie theory; slowest in all, "
+                         "its Mie part)",
+                         f"{lobe[1]['lobe_cpu_s']:.2f} s CPU ({lobe[0]}); {mie[1]['corona_cpu_s']:.2f} s CPU "
+                         f"({mie[0]}, Mie {mie[1]['mie_cpu_s']:.2f} s); load {loads[0]:.1f}–{loads[-1]:.1f} on "
+                         f"{t['machine'].get('cores', '?')} cores", "≤ 2 s each"))
     mie = _load("mie")
     if mie:
         b = mie["table_build"]
@@ -181,6 +191,15 @@ def headline() -> list[str]:
                          f"CPU (median; load {load:.1f} on {d['machine'].get('cores', '?')} cores); energy split "
                          f"{worst['energy_median_ms']:.0f} ms" if load is not None else
                          f"{worst['update_median_ms']:.0f} ms median", "≤ 100 ms"))
+        flat = {k: v for k, v in d["results"].items() if not v.get("radial")}
+        if flat:
+            name, worst = max(flat.items(), key=lambda kv: kv[1]["update_cpu_median_ms"])
+            load = d.get("load_average_1min")
+            drag = (f"; while dragging (half-size preview) {worst['drag_update_cpu_median_ms']:.0f} ms CPU"
+                    if "drag_update_cpu_median_ms" in worst else "")
+            rows.append((f"Designer update, 2-D (slowest: {name})",
+                         f"{worst['update_median_ms']:.0f} ms wall, {worst['update_cpu_median_ms']:.0f} ms CPU"
+                         f"{drag} (median; load {load:.1f})", "≤ 100 ms"))
     pp = _load("post")
     if pp:
         rows.append((f"corona post, {pp['width']}x{pp['height']} frame, radial lobe (5 µm droplets, fov 60°)",
@@ -204,7 +223,10 @@ def section(name: str, data: dict) -> list[str]:
     res = data.get("results")
     if isinstance(res, dict) and res and all(isinstance(v, dict) for v in res.values()):
         out += _table(res) + [""]
-    rest = {k: v for k, v in data.items() if k not in ("machine", "results", "goal")}
+    scenes = data.get("scenes")
+    if isinstance(scenes, dict) and scenes and all(isinstance(v, dict) for v in scenes.values()):
+        out += ["Scenes (each cold: a fresh process, an empty cache):", ""] + _table(scenes) + [""]
+    rest = {k: v for k, v in data.items() if k not in ("machine", "results", "goal", "scenes")}
     if rest:
         text = json.dumps(rest, indent=1)
         if len(text) > 4000:

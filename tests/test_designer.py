@@ -128,6 +128,66 @@ def test_fast_radial_picture_matches_far_field_corona(params):
     assert np.abs(mine - ref).max() <= 2e-3 * np.abs(ref).max()
 
 
+@pytest.mark.parametrize("params", [
+    dict(shape="square", radius=20.0, area_fraction=0.25, process="lattice-square", jitter=4.0,
+         mode="aperture"),                                                       # the bilinear table
+    dict(shape="polygon", sides=6, radius=1.5, area_fraction=0.3, process="lattice-hex", jitter=0.2,
+         angle=10.0),
+    dict(shape="ellipse", radius=2.0, aspect=2.0, angle=25.0, area_fraction=0.2, process="poisson"),
+    dict(shape="rectangle", radius=1.5, aspect=0.5, angle=-30.0, area_fraction=0.3, process="hard-disk"),
+])
+def test_anisotropic_picture_matches_far_field_corona(params):
+    """The designer's 2-D path (every wavelength in one pass over the table, one matrix to
+    sRGB, the lower half of a centred grid mirrored) against corona.pictures.far_field_corona
+    (the renderer's lobe at every pixel and wavelength); off-centre offsets (no mirror) against
+    the lobe itself."""
+    m = compute.material(params)
+    field, n = compute.auto_field(m), 48
+    lams = np.linspace(compute.WAVELENGTHS[0], compute.WAVELENGTHS[-1], compute.N_WAVELENGTHS_2D)
+    d, _ = compute._pixel_offsets(field, n)
+    spd = blackbody(lams, 3000.0)
+    mine = compute.lobe_rgb(m, d, spd / spd.max(), lams)     # first: before the table is built
+    assert ("_arrays" in m.__dict__) == (m.render_kind == "table" or params["process"] == "poisson")
+    ref = far_field_corona(m, field, n, 3000.0, lams.size)
+    np.testing.assert_allclose(mine, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    shifted = d[:, :-5] + [0.3 * d[0, 0, 1], 0.0]           # not symmetric about its centre
+    direct = np.stack([m.lobe_tabulated(shifted, lam) * s for lam, s in zip(lams, spd)], -1)
+    np.testing.assert_allclose(compute.lobe_rgb(m, shifted, spd, lams),
+                               spectrum_to_linear_srgb(direct, lams), rtol=1e-9,
+                               atol=1e-12 * np.abs(direct).max())
+
+
+def test_grid_table_eval_scaled_is_eval_at_each_scale():
+    """GridTable.eval_scaled (one pass, flat gathers) is GridTable.eval at d * s for each s,
+    inside, on the edges and outside the vertex square (0), warped or not."""
+    from corona.tables import GridTable
+    rng = np.random.default_rng(3)
+    for warp in (0.0, 40.0):
+        t = GridTable(8.0, rng.random((33, 33)), warp)
+        d = np.concatenate([rng.uniform(-1.2, 1.2, (501, 2)), [[0.0, 0.0], [t.lo, t.lo], [-t.lo, t.lo]]])
+        scales = np.array([1.0, 3.7, 9.0, 25.0])
+        got = t.eval_scaled(d.reshape(-1, 3, 2), scales)
+        ref = np.stack([t.eval(d * s) for s in scales], -1).reshape(-1, 3, scales.size)
+        assert got.shape == ref.shape and np.any(ref == 0) and np.any(ref > 0)
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14)
+
+
+def test_preview_of_a_2d_picture_is_half_size_and_the_exact_one_is_not(client):
+    """While a slider moves the page asks for preview=1: a 2-D picture at half the pixels per
+    axis (the header says so); radial pictures, and every picture without preview, are exact."""
+    def get(**q):
+        res = client.get("/api/corona.png", params={"size": 96, "exposure": 0, **q})
+        assert res.status_code == 200, res.text
+        return res.headers["X-Corona-Preview"], Image.open(io.BytesIO(res.content)).size
+    lattice = dict(shape="square", radius=4.0, area_fraction=0.25, process="lattice-square", jitter=0.5)
+    assert get(**lattice, preview=1) == ("1", (48, 48))
+    assert get(**lattice) == ("0", (96, 96)) == get(**lattice, preview=0)
+    assert get(radius=5.0, area_fraction=0.4, preview=1) == ("0", (96, 96))
+    assert "preview" not in {p["name"] for p in client.get("/api/parameters").json()["parameters"]}
+    bad = client.get("/api/corona.png", params={"preview": 2})
+    assert bad.status_code == 400 and "preview" in bad.json()["error"]
+
+
 def test_fft_convolution_is_scipys_direct_convolution():
     from scipy import ndimage
     rng = np.random.default_rng(1)

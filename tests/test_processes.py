@@ -303,6 +303,27 @@ def test_lattice_cell_mean_keeps_peak_weights():
     assert np.max(np.abs(ss - cm)) < 2e-3 * cm.max()
 
 
+@pytest.mark.parametrize("kind, spacing, jitter, angle, domain", [
+    ("square", 4.0, 0.4, 0.0, None), ("hexagonal", 1.0, 0.05, 17.0, None),
+    ("square", 2.0, 0.0, 30.0, 3.0), ("square", 40.0, 4.0, 0.0, None)])   # the last: many peaks per cell
+def test_lattice_cell_means_on_a_grid_are_the_pointwise_ones(kind, spacing, jitter, angle, domain):
+    """On a tensor grid (the tables' vertices) the cell means sum each peak's outer product
+    of 1-D cell means near it; the same points given as a list take the neighbour loop."""
+    lat = Lattice(kind, spacing, jitter=jitter, domain_size=domain, angle=angle)
+    cell = 0.2
+    x = -9.0 + (np.arange(80) + 0.5) * cell
+    y = -5.0 + (np.arange(60) + 0.5) * cell
+    q = np.stack(np.meshgrid(x, y), -1)
+    flat = q.reshape(-1, 2)
+    for factor in (None, Circle(0.3).coherent_form_factor):
+        grid = lat.bragg_cell_mean(q, cell, peak_factor=factor)
+        points = lat.bragg_cell_mean(flat, cell, peak_factor=factor).reshape(q.shape[:-1])
+        assert grid.max() > 0
+        np.testing.assert_allclose(grid, points, rtol=1e-9, atol=1e-12 * points.max())
+    np.testing.assert_allclose(lat.background_cell_mean(q, cell),
+                               lat.background_cell_mean(flat, cell).reshape(q.shape[:-1]), rtol=1e-14, atol=0)
+
+
 def test_lattice_powder_rings():
     a, delta = 1.0, 0.05
     lat = Lattice("hexagonal", a, jitter=delta, orientation="random")

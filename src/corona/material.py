@@ -409,6 +409,16 @@ class Material:
                 rl.C = rlobe.CubicGrid(t.lo, t.cell, np.array(a["C_coef"])) if "C_coef" in a else None
         return rl
 
+    def radial_s_minus_one(self) -> tuple[float, np.ndarray]:
+        """``(s_du, S(|u|/R) - 1 at |u| = i·s_du)``: the isotropic process's structure factor on the
+        step of the radial tables up to ``u_max`` (what :attr:`render_lobe` holds for anisotropic shapes)."""
+        R = self.length_scale
+        u_max = tables.u_max_for(R)
+        du_target = min(tables.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
+        ns = min(int(np.ceil(u_max / du_target)) + 1, tables.RADIAL_MAX_SAMPLES)
+        s_du = u_max / (ns - 1)
+        return s_du, self.process.structure_factor_radial(np.arange(ns) * s_du / R, self.shape) - 1.0
+
     def _build_table(self) -> dict:
         u_max = tables.u_max_for(self.length_scale)
         R = self.length_scale
@@ -435,9 +445,12 @@ class Material:
         u = np.stack([ux, uy], -1)
         q = u / R
         kind = self.render_kind
+        half = (n + 1) // 2       # v(-u) = v(u): the rows below the centre mirror those above
         if kind == "analytic":
-            inten, amp = rlobe.terms_amplitudes(self.analytic_terms, q)
-            P, C = inten / self.shape.area, np.abs(amp) ** 2 / self.shape.area
+            inten, amp = rlobe.terms_amplitudes(self.analytic_terms, q[:half])
+            P, C = np.empty((n, n)), np.empty((n, n))
+            P[:half], C[:half] = inten / self.shape.area, np.abs(amp) ** 2 / self.shape.area
+            P[half:], C[half:] = P[:n - half][::-1, ::-1], C[:n - half][::-1, ::-1]
         else:   # in blocks, with a progress bar for slow shapes (half the grid: v(-u) = v(u))
             P, C = np.moveaxis(self._in_chunks(lambda x: np.stack(self._form_factors(x, radial=False), -1), q),
                                -1, 0)
@@ -458,9 +471,7 @@ class Material:
             out["form_total"] = np.array(form_total)
             return out
         # isotropic process: S - 1 on the radial tables' step, the sampling grid of v
-        ns = min(int(np.ceil(u_max / du_target)) + 1, tables.RADIAL_MAX_SAMPLES)
-        s_du = u_max / (ns - 1)
-        s1 = self.process.structure_factor_radial(np.arange(ns) * s_du / R, self.shape) - 1.0
+        s_du, s1 = self.radial_s_minus_one()
         poisson = bool(np.all(s1 == 0.0))
         rl = rlobe.RenderLobe(kind, R, float(self.shape.area), terms=self.analytic_terms or [],
                                     s_du=s_du, s_minus_one=None if poisson else s1)
@@ -473,11 +484,12 @@ class Material:
             k = rlobe.SUPERSAMPLE
             sub = ((np.arange(k) + 0.5) / k - 0.5) * cell
             acc = np.zeros((n, n))
-            for sy in sub:
+            for sy in sub:       # the sub-samples are symmetric about each vertex: acc is even too
                 for sx in sub:
-                    tx, ty = np.meshgrid(c + sx, c + sy, indexing="xy")
+                    tx, ty = np.meshgrid(c + sx, c[:half] + sy, indexing="xy")
                     uu = g.to_u(np.stack([tx, ty], -1))
-                    acc += rl.eval(uu) * g.jacobian(uu)
+                    acc[:half] += rl.eval(uu) * g.jacobian(uu)
+            acc[half:] = acc[:n - half][::-1, ::-1]
             out = tables.GridTable(u_range, acc / k**2, g.warp).arrays()
         else:
             v = decoupled_lobe(P, C, 1.0 + rl.s1(np.hypot(ux, uy)), R)

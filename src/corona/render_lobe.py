@@ -380,7 +380,9 @@ def row_energy_changes(material, s_rows: np.ndarray, s_du: float, n_phi: int = 6
     rl = material.render_lobe
     ns = s_rows.shape[1]
     rho = np.arange(ns) * s_du
-    phi = (np.arange(n_phi) + 0.5) * 2 * np.pi / n_phi
+    # C is even, C(-u) = C(u) (a real profile): for an even n_phi the azimuths phi + π repeat
+    # those in [0, π), so the mean over the first half is the mean over all
+    phi = (np.arange(n_phi // 2 if n_phi % 2 == 0 else n_phi) + 0.5) * 2 * np.pi / n_phi
     cbar = np.zeros(ns)
     for a in range(0, ns, 1024):
         r = rho[a:a + 1024, None]

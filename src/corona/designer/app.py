@@ -168,7 +168,9 @@ class _App:
             png, used = await self._run(compute.corona_png, material, view)
             headers = {"X-Corona-Exposure": f"{used['exposure']:.4f}", "X-Corona-Field": f"{used['field']:.6g}",
                        "X-Corona-Seconds": f"{time.perf_counter() - t0:.4f}", "Cache-Control": "no-store",
-                       "Access-Control-Expose-Headers": "X-Corona-Exposure, X-Corona-Field, X-Corona-Seconds"}
+                       "X-Corona-Preview": "1" if used.get("preview") else "0",
+                       "Access-Control-Expose-Headers": "X-Corona-Exposure, X-Corona-Field, X-Corona-Seconds, "
+                                                        "X-Corona-Preview"}
             return Response(png, media_type="image/png", headers=headers)
         return await self._guard(go)
 

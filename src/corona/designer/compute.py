@@ -50,6 +50,9 @@ VIEW_PARAMETERS: tuple[Parameter, ...] = (
     Parameter("field", "float", "degree", None, "half-width of the view; empty: the first rings",
               low=0.01, high=60.0),
     Parameter("size", "int", "pixel", 256, "width and height of the picture", low=32, high=512),
+    Parameter("preview", "int", "", 0, "1: while a slider moves, an anisotropic (2-D) picture at half "
+              "the pixels per axis (the page scales it up and says so; the exact picture follows "
+              "when the slider is let go); 0: the exact picture", low=0, high=1),
 )
 VIEW_SPEC = {p.name: p for p in VIEW_PARAMETERS}
 
@@ -136,7 +139,7 @@ def spec_json() -> dict:
         return d
 
     out = [one(p, "material") for p in PARAMETERS if not p.plugin_only]
-    out += [one(p, "light") for p in VIEW_PARAMETERS]
+    out += [one(p, "light") for p in VIEW_PARAMETERS if p.name != "preview"]   # the page sets preview itself
     out += [one(p, "kernel") for p in KERNEL_PARAMETERS]
     return {"parameters": out, "presets": PRESETS,
             "ring_wavelengths": list(RING_WAVELENGTHS), "profile_wavelength": PROFILE_WAVELENGTH}
@@ -349,8 +352,46 @@ def lobe_rgb(m, d: np.ndarray, spectrum: np.ndarray, lams: np.ndarray) -> np.nda
         i = np.minimum(x.astype(np.intp), rho_grid.size - 2)
         frac = (x - i)[..., None]
         return prof[i] * (1.0 - frac) + prof[i + 1] * frac
-    spectra = np.stack([m.lobe_tabulated(d, lam) * s for lam, s in zip(lams, spectrum)], -1)
-    return spectrum_to_linear_srgb(spectra, lams)
+    # anisotropic: the renderer's lobe F_a (R/λ)² v(2π R d / λ) at each pixel and λ, then one
+    # matrix (nλ, 3) from the spectrum to linear sRGB (the integral is linear in the spectrum)
+    if d.ndim == 3 and min(d.shape[:2]) > 1 and np.allclose(d[::-1, ::-1], -d, rtol=1e-12, atol=0.0):
+        # every lobe is even, v(-u) = v(u) (real profiles and point patterns; the tables are built
+        # so): on a grid symmetric about its centre the lower rows are the upper ones turned round
+        n = d.shape[0]
+        rows = (n + 1) // 2
+        top = lobe_rgb(m, d[:rows], spectrum, lams)
+        return np.concatenate([top, top[:n - rows][::-1, ::-1]])
+    to_rgb = spectrum_to_linear_srgb(np.diag(spectrum), lams)                 # (nλ, 3)
+    if m.render_kind == "table":    # the bilinear table itself: every wavelength in one pass
+        lam_um = lams * 1e-3
+        v = m.render_lobe.table.eval_scaled(d, 2 * np.pi * R / lam_um)          # (..., nλ)
+        return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
+    lam_um = lams * 1e-3
+    rl = _render_lobe(m)
+    v = np.stack([rl.eval(d * (2 * np.pi * R / lam)) for lam in lam_um], -1)      # (..., nλ)
+    return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
+
+
+_render_lobes: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # material -> RenderLobe
+
+
+def _render_lobe(m):
+    """The renderer's lobe of ``m`` (:attr:`corona.Material.render_lobe`).  Closed-form shapes
+    over an isotropic process need only their outlines and ``S - 1``
+    (:meth:`corona.Material.radial_s_minus_one`): built so, without the sampling table, unless
+    the material holds its table already."""
+    if m.render_kind != "analytic" or "_arrays" in m.__dict__:
+        return m.render_lobe
+    with _profiles_lock:
+        rl = _render_lobes.get(m)
+    if rl is None:
+        from ..render_lobe import RenderLobe
+        s_du, s1 = m.radial_s_minus_one()
+        rl = RenderLobe("analytic", m.length_scale, float(m.shape.area), terms=m.analytic_terms,
+                        s_du=s_du, s_minus_one=None if np.all(s1 == 0.0) else s1)
+        with _profiles_lock:
+            _render_lobes[m] = rl
+    return rl
 
 
 def _pixel_offsets(field_deg: float, size: int) -> tuple[np.ndarray, float]:
@@ -394,19 +435,24 @@ def _fft_convolve_same(img: np.ndarray, k: np.ndarray) -> np.ndarray:
     from scipy import fft as sfft
     n, h = img.shape[0], k.shape[0] // 2
     size = sfft.next_fast_len(n + 2 * h, real=True)
-    spec = sfft.rfft2(img, s=(size, size), axes=(0, 1)) * sfft.rfft2(k, s=(size, size))[..., None]
-    full = sfft.irfft2(spec, s=(size, size), axes=(0, 1))
-    return full[h:h + n, h:h + n]
+    planes = np.ascontiguousarray(np.moveaxis(img, -1, 0))           # (c, n, n): contiguous transforms
+    spec = sfft.rfft2(planes, s=(size, size)) * sfft.rfft2(k, s=(size, size))
+    full = sfft.irfft2(spec, s=(size, size))
+    return np.moveaxis(full[:, h:h + n, h:h + n], 0, -1)
 
 
 def corona_linear(m, view: dict) -> tuple[np.ndarray, dict]:
     """Linear sRGB radiance around the light, relative to the light's (size, size, 3).
 
-    Returns the picture and a dict of what was used (``field`` [degree], ``pitch`` [degree/pixel]).
+    Returns the picture and a dict of what was used (``field`` [degree], ``pitch`` [degree/pixel],
+    ``preview``: whether it is the half-size preview of a 2-D picture, ``view["preview"]``).
     """
     from scipy import ndimage
     field = view.get("field") or auto_field(m)
     size = int(view.get("size") or VIEW_SPEC["size"].default)
+    preview = bool(view.get("preview")) and not m.isotropic    # radial pictures are exact at any speed
+    if preview:
+        size = max(32, size // 2)
     temperature = view.get("temperature") or VIEW_SPEC["temperature"].default
     diameter = math.radians(view.get("light_size") or VIEW_SPEC["light_size"].default)
     d, pitch = _pixel_offsets(field, size)
@@ -425,7 +471,7 @@ def corona_linear(m, view: dict) -> tuple[np.ndarray, dict]:
     light_rgb = spectrum_to_linear_srgb(spectrum, lams)                     # luminance 1
     img = img + m.coherent_transmittance * direct[..., None] * light_rgb
     img = np.maximum(np.nan_to_num(img, nan=0.0, posinf=0.0), 0.0)
-    return img, {"field": float(field), "pitch": math.degrees(pitch)}
+    return img, {"field": float(field), "pitch": math.degrees(pitch), "preview": preview}
 
 
 def exposure_of(img: np.ndarray, exposure, percentile: float = 99.5) -> float:

@@ -9,6 +9,19 @@ from .._validation import CoronaError, check_choice, check_positive, check_range
 from .base import Process
 
 
+def _grid_axes(q):
+    """``(xs, ys)`` when ``q`` (ny, nx, 2) is the tensor grid ``q[iy, ix] = (xs[ix], ys[iy])`` with
+    both axes increasing (``np.meshgrid(xs, ys)``), else None."""
+    if q.ndim != 3 or q.shape[0] < 2 or q.shape[1] < 2:
+        return None
+    xs, ys = q[0, :, 0], q[:, 0, 1]
+    if not (np.all(np.diff(xs) > 0) and np.all(np.diff(ys) > 0)):
+        return None
+    if (q[..., 0] != xs).any() or (q[..., 1] != ys[:, None]).any():
+        return None
+    return xs, ys
+
+
 class Lattice(Process):
     """Square or hexagonal lattice of centres with Gaussian jitter.
 
@@ -207,18 +220,21 @@ class Lattice(Process):
         from scipy.special import erf
         q, c = self._check_cells(q, cell)
         h, d = 0.5 * c, self.jitter
-        dw = np.ones(q.shape[:-1])
-        if d > 0.0:
-            for i in range(2):
-                x = q[..., i]
-                # √π/(2δc) [erf((x+h)δ) - erf((x-h)δ)]; for (|x|+h)δ << 1 (a tiny
-                # jitter, where the quotient is 0/0 in floating point) its series
-                # e^{-δ²(x² + c²/12)}
-                small = (np.abs(x) + h) * d < 1e-4
-                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                    exact = np.sqrt(np.pi) / (2.0 * d * c) * (erf((x + h) * d) - erf((x - h) * d))
-                dw = dw * np.where(small, np.exp(-d * d * (x * x + c * c / 12.0)), exact)
-        return 1.0 - dw
+        axes = _grid_axes(q)
+
+        def factor(x):
+            # √π/(2δc) [erf((x+h)δ) - erf((x-h)δ)]; for (|x|+h)δ << 1 (a tiny
+            # jitter, where the quotient is 0/0 in floating point) its series
+            # e^{-δ²(x² + c²/12)}
+            small = (np.abs(x) + h) * d < 1e-4
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                exact = np.sqrt(np.pi) / (2.0 * d * c) * (erf((x + h) * d) - erf((x - h) * d))
+            return np.where(small, np.exp(-d * d * (x * x + c * c / 12.0)), exact)
+        if d <= 0.0:
+            return np.zeros(q.shape[:-1])
+        if axes is not None:       # a tensor grid: the product of one factor per axis
+            return 1.0 - factor(axes[1])[:, None] * factor(axes[0])[None, :]
+        return 1.0 - factor(q[..., 0]) * factor(q[..., 1])
 
     #: above this many Bragg peaks per table cell their sum is taken as smooth
     PEAKS_PER_CELL_MAX = 16.0
@@ -252,12 +268,19 @@ class Lattice(Process):
             # a sparse lattice: many peaks per cell, whose cell mean is that of
             # their smooth envelope e^{-q²δ²} (total weight kept), less the
             # q = 0 peak (the coherent beam, not part of S)
-            out = (1.0 - self.background_cell_mean(q, c)
-                   - wt * mean_gauss_1d(q[..., 0], 0.0, w) * mean_gauss_1d(q[..., 1], 0.0, w))
+            axes = _grid_axes(q)
+            centre = (mean_gauss_1d(axes[1], 0.0, w)[:, None] * mean_gauss_1d(axes[0], 0.0, w)[None, :]
+                      if axes is not None else mean_gauss_1d(q[..., 0], 0.0, w) * mean_gauss_1d(q[..., 1], 0.0, w))
+            out = 1.0 - self.background_cell_mean(q, c) - wt * centre
             if peak_factor is not None:
                 out = out * np.asarray(peak_factor(q.reshape(-1, 2)), dtype=np.float64).reshape(q.shape[:-1])
             return np.maximum(out, 0.0)
-        f0 = np.rint(q @ A.T / (2.0 * np.pi))
+        axes = _grid_axes(q)
+        if axes is None:
+            f0 = np.rint(q @ A.T / (2.0 * np.pi))
+        else:   # the extremes of the nearest lattice indices sit at the grid's corners
+            corners = np.array([[x, y] for x in (axes[0][0], axes[0][-1]) for y in (axes[1][0], axes[1][-1])])
+            f0 = np.rint(corners @ A.T / (2.0 * np.pi))
         m = max(1, int(np.ceil(0.5 + (6.0 * w + h * np.sqrt(2.0)) * self.spacing / (2.0 * np.pi))))
         factor = centre_factor = None
         if peak_factor is not None and f0.size:
@@ -265,12 +288,20 @@ class Lattice(Process):
             lo = f0.reshape(-1, 2).min(axis=0).astype(int) - m
             hi = f0.reshape(-1, 2).max(axis=0).astype(int) + m
             if np.prod(hi - lo + 1) <= max(q.size // 2, 1024):
-                hh, kk = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
-                G_all = np.stack([hh, kk], -1).reshape(-1, 2) @ B
-                factor = np.asarray(peak_factor(G_all), dtype=np.float64).reshape(hh.shape)
+                if axes is not None:
+                    factor = True     # the grid path evaluates the factor on its own peaks
+                else:
+                    hh, kk = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1),
+                                         indexing="ij")
+                    G_all = np.stack([hh, kk], -1).reshape(-1, 2) @ B
+                    factor = np.asarray(peak_factor(G_all), dtype=np.float64).reshape(hh.shape)
             else:
                 # more peaks than cells: the many peaks of a cell share the factor at its centre
                 centre_factor = np.asarray(peak_factor(q.reshape(-1, 2)), dtype=np.float64).reshape(q.shape[:-1])
+        if axes is not None:
+            out = self._bragg_on_grid(axes[0], axes[1], c, mean_gauss_1d,
+                                      None if factor is None else (lambda G: peak_factor(G)))
+            return out if centre_factor is None else out * centre_factor
         out = np.zeros(q.shape[:-1])
         for dh in range(-m, m + 1):
             for dk in range(-m, m + 1):
@@ -285,6 +316,59 @@ class Lattice(Process):
                     peak = peak * factor[ih, ik]
                 out = out + np.where((hk[..., 0] == 0) & (hk[..., 1] == 0), 0.0, peak)
         return out if centre_factor is None else out * centre_factor
+
+    #: Peaks whose cell means are summed in one block of :meth:`_bragg_on_grid`.
+    _PEAK_BLOCK = 32768
+
+    def _bragg_on_grid(self, xs, ys, c, mean_gauss_1d, peak_factor=None) -> np.ndarray:
+        """The sum of :meth:`bragg_cell_mean` on the tensor grid ``(xs[ix], ys[iy])`` (both increasing).
+
+        A peak's cell mean is the product of one 1-D cell mean per axis, which
+        reaches ``8 w + c/2`` at most (beyond, ``erfc(4√2) ≈ 1e-15`` of its weight),
+        so every peak adds a small outer product to the cells near it: the cost
+        is that of the peaks, not of (cells × neighbouring peaks).
+        """
+        A, B = self.lattice_vectors, self.reciprocal_vectors
+        w, d = self.peak_width, self.jitter
+        wt = (2.0 * np.pi) ** 2 * self.number_density
+        reach = 8.0 * w + 0.5 * c
+        nx, ny = xs.size, ys.size
+        corners = np.array([[x, y] for x in (xs[0] - reach, xs[-1] + reach)
+                            for y in (ys[0] - reach, ys[-1] + reach)])
+        f = corners @ A.T / (2.0 * np.pi)
+        lo, hi = np.floor(f.min(axis=0)).astype(int), np.ceil(f.max(axis=0)).astype(int)
+        out = np.zeros(ny * nx)
+        hs = np.arange(lo[0], hi[0] + 1)
+        per_row = hi[1] - lo[1] + 1
+        rows = max(1, self._PEAK_BLOCK // per_row)
+        for a in range(0, hs.size, rows):
+            hh, kk = np.meshgrid(hs[a:a + rows], np.arange(lo[1], hi[1] + 1), indexing="ij")
+            hk = np.stack([hh.ravel(), kk.ravel()], -1)
+            hk = hk[np.any(hk != 0, axis=1)]               # the forward peak is not part of S
+            G = hk.astype(np.float64) @ B
+            ix0 = np.searchsorted(xs, G[:, 0] - reach, side="left")
+            ix1 = np.searchsorted(xs, G[:, 0] + reach, side="right")
+            iy0 = np.searchsorted(ys, G[:, 1] - reach, side="left")
+            iy1 = np.searchsorted(ys, G[:, 1] + reach, side="right")
+            keep = (ix1 > ix0) & (iy1 > iy0)
+            if not np.any(keep):
+                continue
+            G, ix0, ix1, iy0, iy1 = G[keep], ix0[keep], ix1[keep], iy0[keep], iy1[keep]
+            amp = wt * np.exp(-(G[:, 0] ** 2 + G[:, 1] ** 2) * d * d)
+            if peak_factor is not None:
+                amp = amp * np.asarray(peak_factor(G), dtype=np.float64)
+
+            def one_axis(grid, g, i0, i1):
+                idx = i0[:, None] + np.arange(int((i1 - i0).max()))[None, :]
+                inside = idx < i1[:, None]
+                idx = np.minimum(idx, grid.size - 1)
+                return idx, np.where(inside, mean_gauss_1d(grid[idx], g[:, None], w), 0.0)
+            jx, mx = one_axis(xs, G[:, 0], ix0, ix1)
+            jy, my = one_axis(ys, G[:, 1], iy0, iy1)
+            vals = (amp[:, None, None] * my[:, :, None]) * mx[:, None, :]
+            flat = jy[:, :, None] * nx + jx[:, None, :]
+            out += np.bincount(flat.ravel(), weights=vals.ravel(), minlength=ny * nx)
+        return out.reshape(ny, nx)
 
     def structure_factor_radial(self, q_abs, shape=None) -> np.ndarray:
         """Powder-averaged ``S(|q|)`` (only for ``orientation="random"``)."""

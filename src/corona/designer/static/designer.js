@@ -116,10 +116,11 @@ function makeControl(p) {
       range.type = "range"; range.id = "slider-" + p.name;
       range.min = 0; range.max = SLIDER_STEPS; range.step = 1;
       range.setAttribute("aria-label", p.name);
-      range.addEventListener("input", () => {
+      range.addEventListener("input", () => {      // while it moves: a preview of 2-D pictures
         state.values[p.name] = num.value = sliderToValue(p, range.value);
-        changed();
+        changed(true);
       });
+      range.addEventListener("change", () => changed());   // let go: the exact picture
       row.appendChild(range);
     } else {
       const gap = document.createElement("span");
@@ -264,7 +265,10 @@ function pictureHandler(side) {
     img.onload = () => { img.dataset.version = String(Number(img.dataset.version) + 1); if (old) URL.revokeObjectURL(old); };
     img.src = url;
     img.dataset.url = url;
-    $("cap-" + side).textContent = `±${field.toPrecision(3)}° · ${ev.toFixed(1)} EV${state.values.exposure ? "" : " (auto)"}`;
+    const preview = res.headers.get("X-Corona-Preview") === "1";
+    img.dataset.preview = preview ? "1" : "0";
+    $("cap-" + side).textContent = `±${field.toPrecision(3)}° · ${ev.toFixed(1)} EV${state.values.exposure ? "" : " (auto)"}`
+      + (preview ? " · preview: half the pixels while the slider moves, exact when let go" : "");
     if (side === "a") {
       clearError();
       showTiming("corona", ms);
@@ -307,8 +311,9 @@ function requestB() {
 }
 
 let scheduled = false;
-function changed() {
+function changed(preview = false) {
   showAll();
+  state.preview = preview;             // the last change decides: a slider let go asks for the exact picture
   if (scheduled) return;
   scheduled = true;
   requestAnimationFrame(() => { scheduled = false; update(); });
@@ -316,7 +321,7 @@ function changed() {
 
 function update() {
   const q = query(["material", "light"], state.values);
-  chanA.request("/api/corona.png?" + q, "a");
+  chanA.request("/api/corona.png?" + q + (state.preview ? "&preview=1" : ""), "a");
   chanProfiles.request("/api/profiles?" + q, "a");
   chanMaterial.request("/api/material?" + query(["material"], state.values), "a");
   $("energy-a").classList.add("stale");            // until the new numbers arrive (the table can take a while)
