@@ -64,7 +64,7 @@ from .processes import Poisson, Process
 from .shapes.sphere import Sphere, sphere_parts
 
 #: Format of the sphere tables in the cache.
-SPHERE_FORMAT = 2
+SPHERE_FORMAT = 3
 #: Step of the rows in size parameter x.
 ROW_DX = 0.02
 #: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes to the first Airy minimum).
@@ -85,8 +85,15 @@ ENERGY_MARGIN = 1.006
 SPHERE_RADIUS_MAX = 25.0
 #: Rows computed together (memory of the amplitudes: ROW_CHUNK x nodes complex values).
 ROW_CHUNK = 128
-#: Size distributions: at most this many radii per row.
-MAX_SIZE_NODES = 96
+#: Size distributions: step of the fine grid of size parameters the rows average (at most), the
+#: grid's steps per standard deviation of the sizes (at least), its most samples per index node,
+#: the part of the scattered power ``s² p(s)`` left out at each end of the distribution, and the
+#: largest change of the index between the index nodes of a dispersive sphere.
+SIZE_DX = 0.25
+SIZE_PER_SIGMA = 4.0
+MAX_SIZE_SAMPLES = 8000
+SIZE_TAIL = 1e-6
+SIZE_DM = 0.002
 
 
 def _grid(radius: float, radius_max: float, spread: float = 0.0):
@@ -107,8 +114,46 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0):
     return x_rows, s_max / (n_nodes - 1), n_nodes
 
 
+def _size_quadrature(sizes):
+    """Density of ``y = ln s`` of a size distribution on a fine grid, trimmed to where the
+    scattered power lives: (y grid, density) holding all but ``SIZE_TAIL`` of ``s² p(s)`` at each
+    end, normalised in number."""
+    y = np.linspace(sizes._y_lo, sizes._y_hi, 20001)
+    p = np.exp(sizes._logpdf(y))
+    power = np.cumsum(p * np.exp(2 * y))
+    power /= power[-1]
+    lo = max(int(np.searchsorted(power, SIZE_TAIL)) - 1, 0)
+    hi = min(int(np.searchsorted(power, 1.0 - SIZE_TAIL)) + 1, y.size - 1)
+    return y[lo:hi + 1], p[lo:hi + 1]
+
+
+def _mono_sums(m, X, basis, amplitudes=False):
+    """|S|² forward and backward, S(0) and the efficiencies' sums of the spheres (m, X) (arrays
+    (B,)) on the nodes of ``basis``; with ``amplitudes`` the forward S1, S2 as rows [Re; Im]."""
+    a, b = mie.coefficients(m, X)
+    N = a.shape[-1]
+    n = np.arange(1, N + 1)
+    S1f, S2f, S1b, S2b = mie._both_ways_parts(m, X, basis, (a, b))          # rows [Re; Im]
+    B = X.size
+    sq = lambda v: v[:B] * v[:B] + v[B:] * v[B:]
+    out = {"P_f": sq(S1f) + sq(S2f), "P_b": sq(S1b) + sq(S2b),
+           "s0": 0.5 * np.sum((2 * n + 1) * (a + b), axis=-1),
+           "q_sca": 2 * np.sum((2 * n + 1) * (np.abs(a) ** 2 + np.abs(b) ** 2), axis=-1),
+           "q_ext": 2 * np.sum((2 * n + 1) * (a + b).real, axis=-1)}
+    if amplitudes:
+        out["A1"], out["A2"] = S1f, S2f
+    return out
+
+
 def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
     """The Mie tables of a sphere (optionally a size distribution of it) over wavelength rows.
+
+    One sphere: each row is Mie theory at its size parameter.  A size distribution: the rows
+    share the evaluations of one fine grid of size parameters ``X`` (step ``SIZE_DX`` or finer,
+    see :func:`_size_plan`); row j (mean size ``x_j``, index ``m_j``) is the quadrature
+    ``Σ_k W_jk F(X_k)`` with ``W_jk ∝ p_y(ln(X_k/x_j)) ΔX/X_k`` (a convolution in ``ln x``; the
+    trapezoid in X).  A dispersive index is handled by evaluating the grid at index nodes
+    ``m(λ_q)`` at most ``SIZE_DM`` apart and interpolating the rows linearly in λ between them.
 
     Returns
     -------
@@ -118,73 +163,108 @@ def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
         (``C_f`` empty for one size), ``s0`` (J, 2) real and imaginary part of
         ``2⟨S(0)⟩/⟨x²⟩``, ``q_sca``, ``q_ext`` (J,) efficiencies per ``⟨π r²⟩``.
     """
+    from tqdm import tqdm
+
     r = sphere.radius
-    if sizes is None:
-        s_nodes, s_weights = np.ones(1), np.ones(1)
-    else:
-        k_max = 2 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
-        s_nodes, s_weights = sizes._nodes(2.0 * k_max)     # resolves Â(s q) up to q = 2k
-        if s_nodes.size > MAX_SIZE_NODES:                  # thin out, keeping the weights' sum
-            keep = np.unique(np.linspace(0, s_nodes.size - 1, MAX_SIZE_NODES).round().astype(int))
-            cdf = np.concatenate([[0.0], np.cumsum(s_weights)])
-            edges = np.concatenate([[0], (keep[1:] + keep[:-1] + 1) // 2, [s_nodes.size]])
-            s_weights = cdf[edges[1:]] - cdf[edges[:-1]]
-            s_nodes = s_nodes[keep]
     spread = 0.0 if sizes is None else float(sizes.spread)
+    if sizes is not None and spread > 0.0:
+        yq, pq = _size_quadrature(sizes)
+        s_lo, s_hi = math.exp(yq[0]), math.exp(yq[-1])
+    else:
+        sizes, s_lo, s_hi = None, 1.0, 1.0
     # chord resolution for the radii that carry the light (mean + 3 std); the rare larger
     # droplets' forward peaks are narrower than the grid and get smoothed
-    x_rows, ds, K = _grid(r, r * min(float(s_nodes.max()), 1.0 + 3.0 * spread), spread)
+    x_rows, ds, K = _grid(r, r * min(s_hi, 1.0 + 3.0 * spread), spread)
     lam = 2 * np.pi * r / x_rows * 1e3                                    # nm
-    m = sphere.index(lam)
+    m = np.asarray(sphere.index(lam), dtype=np.complex128) * np.ones(x_rows.size)
     chord = np.arange(K) * ds
     mu = 1.0 - 0.5 * chord * chord                                        # cos Θ of the forward nodes
     J = x_rows.size
-    x2_mean = x_rows**2 * float(np.sum(s_weights * s_nodes**2))
-    P_f = np.zeros((J, K))
-    P_b = np.zeros((J, K))
-    A1f = np.zeros((J, K), complex)
-    A2f = np.zeros((J, K), complex)
-    s0 = np.zeros(J, complex)
-    q_sca = np.zeros(J)
-    q_ext = np.zeros(J)
-    cache = {}
-    from tqdm import tqdm
-
-    chunks = [slice(a, min(a + ROW_CHUNK, J)) for a in range(0, J, ROW_CHUNK)]
-    with tqdm(total=len(s_nodes) * J, unit="row", leave=False, delay=tables.PROGRESS_DELAY,
+    x_top = float(x_rows[-1]) * s_hi
+    basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)))
+    out = {k: np.zeros((J, K)) for k in ("P_f", "P_b")}
+    out.update({"s0": np.zeros(J, complex), "q_sca": np.zeros(J), "q_ext": np.zeros(J), "x2": np.zeros(J)})
+    if sizes is not None:        # the mean forward amplitudes, rows [Re; Im]
+        out.update({"A1": np.zeros((2 * J, K)), "A2": np.zeros((2 * J, K))})
+    if sizes is None:
+        plan = [(np.arange(J), np.ones(J), m, x_rows, None)]
+    else:
+        plan = _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi)
+    total = sum(p[3].size for p in plan)
+    with tqdm(total=total, unit="size", leave=False, delay=tables.PROGRESS_DELAY,
               desc="corona: building the Mie sphere table") as bar:
-        for s, w in zip(s_nodes, s_weights):
-            for c in chunks:
-                a, b = mie.coefficients(m[c], x_rows[c] * s)
-                N = a.shape[-1]
-                if N not in cache:
-                    pi, tau = mie.angular_functions(mu, N)
-                    sign = (-1.0) ** np.arange(1, N + 1)
-                    cache = {N: (pi, tau, sign)}
-                pi, tau, sign = cache[N]
-                n = np.arange(1, N + 1)
-                cn = (2 * n + 1) / (n * (n + 1.0))
-                ca, cb = a * cn, b * cn
-                S1 = ca @ pi + cb @ tau
-                S2 = ca @ tau + cb @ pi
-                # backward: π_n(-μ) = (-1)^(n-1) π_n(μ), τ_n(-μ) = (-1)^n τ_n(μ)
-                S1b = -(ca * sign) @ pi + (cb * sign) @ tau
-                S2b = (ca * sign) @ tau - (cb * sign) @ pi
-                P_f[c] += w * (np.abs(S1) ** 2 + np.abs(S2) ** 2)
-                P_b[c] += w * (np.abs(S1b) ** 2 + np.abs(S2b) ** 2)
-                A1f[c] += w * S1
-                A2f[c] += w * S2
-                s0[c] += w * 0.5 * np.sum((2 * n + 1) * (a + b), axis=-1)
-                q_sca[c] += w * 2 * np.sum((2 * n + 1) * (np.abs(a) ** 2 + np.abs(b) ** 2), axis=-1)
-                q_ext[c] += w * 2 * np.sum((2 * n + 1) * (a + b).real, axis=-1)
+        for rows_q, node_w, m_q, X, W in plan:
+            for a0 in range(0, X.size, ROW_CHUNK):
+                c = slice(a0, min(a0 + ROW_CHUNK, X.size))
+                mm = m_q[c] if np.ndim(m_q) else np.full(c.stop - c.start, m_q)
+                sums = _mono_sums(mm, X[c], basis, amplitudes=W is not None)
+                if W is None:          # one size: the chunk's rows are the sizes
+                    for k, v in sums.items():
+                        out[k][rows_q[c]] = v
+                    out["x2"][rows_q[c]] = X[c] ** 2
+                else:
+                    G = W[:, c] * node_w[:, None]                  # (rows of this node, chunk)
+                    for k in ("P_f", "P_b"):
+                        out[k][rows_q] += G @ sums[k]
+                    B = c.stop - c.start
+                    for k in ("A1", "A2"):           # [Re; Im] rows
+                        out[k][rows_q] += G @ sums[k][:B]
+                        out[k][J + rows_q] += G @ sums[k][B:]
+                    for k in ("s0", "q_sca", "q_ext"):
+                        out[k][rows_q] += G @ sums[k]
+                    out["x2"][rows_q] += G @ (X[c] ** 2)
                 bar.update(c.stop - c.start)
-    norm = 1.0 / (2 * np.pi * x2_mean[:, None])
-    out = {"x": x_rows, "wavelength": lam, "ds": np.array(ds),
-           "P_f": P_f * norm, "P_b": P_b * norm,
-           "C_f": ((np.abs(A1f) ** 2 + np.abs(A2f) ** 2) * norm) if sizes is not None else np.zeros((0, K)),
-           "s0": np.stack([2 * s0.real / x2_mean, 2 * s0.imag / x2_mean], -1),
-           "q_sca": q_sca / x2_mean, "q_ext": q_ext / x2_mean}
-    return out
+    x2 = out["x2"]
+    norm = 1.0 / (2 * np.pi * x2[:, None])
+    s0 = out["s0"]
+    return {"x": x_rows, "wavelength": lam, "ds": np.array(ds),
+            "P_f": out["P_f"] * norm, "P_b": out["P_b"] * norm,
+            "C_f": ((out["A1"][:J] ** 2 + out["A1"][J:] ** 2 + out["A2"][:J] ** 2 + out["A2"][J:] ** 2) * norm)
+            if sizes is not None
+            else np.zeros((0, K)),
+            "s0": np.stack([2 * s0.real / x2, 2 * s0.imag / x2], -1),
+            "q_sca": out["q_sca"] / x2, "q_ext": out["q_ext"] / x2}
+
+
+def _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi):
+    """The evaluations of a size distribution's table: per index node q, (rows, their weights of
+    that node, index, the fine size parameters X, the quadrature weights W (rows, X))."""
+    J = x_rows.size
+    m = np.asarray(sphere.index(lam), dtype=np.complex128) * np.ones(J)
+    # index nodes in λ, at most SIZE_DM apart in m (one node for a constant index)
+    lam_f = np.linspace(lam.min(), lam.max(), 4 * J + 1)
+    m_f = np.asarray(sphere.index(lam_f), dtype=np.complex128) * np.ones(lam_f.size)
+    arc = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(m_f)))])
+    n_q = int(math.ceil(arc[-1] / SIZE_DM)) + 1 if arc[-1] > 0 else 1
+    if n_q == 1:
+        lam_q = np.array([float(np.mean(lam))])
+        node = np.zeros(J, np.int64)
+        frac = np.zeros(J)
+    else:
+        lam_q = np.interp(np.linspace(0.0, arc[-1], n_q), arc, lam_f)
+        g = np.interp(lam, lam_q, np.arange(n_q))
+        node = np.clip(np.floor(g).astype(np.int64), 0, n_q - 2)
+        frac = g - node
+    m_q = np.asarray(sphere.index(lam_q), dtype=np.complex128) * np.ones(lam_q.size)
+    sig_y = float(np.sqrt(np.sum(pq * yq**2) / np.sum(pq) - (np.sum(pq * yq) / np.sum(pq)) ** 2))
+    plan = []
+    for q in range(lam_q.size):
+        wq = np.where(node == q, 1.0 - frac, 0.0) + (np.where(node + 1 == q, frac, 0.0) if n_q > 1 else 0.0)
+        rows_q = np.nonzero(wq > 0)[0]
+        if rows_q.size == 0:
+            continue
+        x_a, x_b = float(x_rows[rows_q].min()) * s_lo, float(x_rows[rows_q].max()) * s_hi
+        dX = min(SIZE_DX, sig_y * float(x_rows[rows_q].min()) * s_lo / SIZE_PER_SIGMA)
+        n = int(math.ceil((x_b - x_a) / dX)) + 1
+        if n > MAX_SIZE_SAMPLES:
+            n = MAX_SIZE_SAMPLES
+        X = np.linspace(x_a, x_b, n)
+        yy = np.log(X[None, :] / x_rows[rows_q, None])
+        W = np.interp(yy, yq, pq, left=0.0, right=0.0) / X[None, :]          # p_y dy = p_y dX / X
+        W[:, [0, -1]] *= 0.5
+        W /= W.sum(axis=1, keepdims=True)
+        plan.append((rows_q, wq[rows_q], m_q[q], X, W))
+    return plan
 
 
 def _lerp_rows(values, j, t, i, f):
@@ -319,7 +399,7 @@ class SphereMaterial:
     def table_params(self) -> dict:
         return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(), "row_dx": ROW_DX,
                 "chord_dx": CHORD_DX, "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
-                "size_nodes": MAX_SIZE_NODES, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+                "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM], "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
 
     @functools.cached_property
     def rows(self) -> dict:
