@@ -86,9 +86,9 @@ def _check_mx(m, x):
 def _riccati_bessel(x, N: int):
     """``ψ_n(x) = x j_n(x)`` and ``x y_n(x)``, n = 0 … N, shape ``(B, N + 1)``, by the upward
     recurrence ``f_n = (2n - 1)/x f_{n-1} - f_{n-2}`` from ``ψ_{-1} = cos x``, ``ψ_0 = sin x``,
-    ``x y_{-1} = sin x``, ``x y_0 = -cos x`` (Bohren & Huffman App. A).  Upward recurrence of
-    ``ψ_n`` loses accuracy only beyond ``n ≈ x``; up to Wiscombe's ``N`` the loss is below 1e-12
-    relative (checked against scipy.special in the tests).  Terms past a size's own ``N`` may
+    ``x y_{-1} = sin x``, ``x y_0 = -cos x`` (Bohren & Huffman App. A).  The upward recurrence of
+    ``ψ_n`` loses accuracy beyond ``n ≈ x``, where ψ_n decays; up to Wiscombe's ``N`` the error
+    stays below 1e-9 of the largest ``ψ_n`` (checked against scipy.special in the tests).  Terms past a size's own ``N`` may
     overflow; :func:`coefficients` discards them."""
     x = np.asarray(x, dtype=np.float64)
     psi = np.empty((x.size, N + 1))

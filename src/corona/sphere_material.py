@@ -38,18 +38,24 @@ Model (per unit layer area; ``μ_i = |cos θi|``; λ the wavelength in air)
 Tables (what the renderer evaluates and samples)
 ------------------------------------------------
 
-Rows at size parameters ``x_j`` uniform (step ``ROW_DX``) from ``2π r/830 nm``
-to ``2π r/360 nm``; in each row the forward ``P`` (and ``C``) on a uniform grid
-of the chord ``s = |wo - wt| = 2 sin(Θ/2)`` in ``[0, √2]`` and the backward
-``P`` on the chord ``s' = |wo - wi| = 2 cos(Θ/2)`` from the backscatter
-direction.  Since ``dΩ = s ds dφ`` exactly, each row is a radial table in the
-chord (:class:`corona.tables.RadialTable`: density ``2π s P(s)``, exact CDF
-inversion) with the chord computed accurately in float32 as a vector norm.
-A wavelength between two rows interpolates them linearly in x
-(``(1 - t) P_j + t P_j+1``) and is sampled exactly by picking row j with
-probability ``(1 - t) T_j / ((1 - t) T_j + t T_j+1)`` (``T`` the rows' totals):
-the pdf is the interpolated P over the interpolated total, so sampling is
-proportional to the tabulated ``P``.
+Rows at size parameters ``x_j`` from ``2π r/830 nm`` to ``2π r/360 nm``: for one
+size, rows ``ROW_DLNX`` apart in ``ln x``, halved where the lookup between two rows
+misses Mie theory at the midpoint by more than ``ROW_TOLERANCE`` (so rows crowd
+where the lobes change fastest in x: the resonances), up to ``MAX_ROWS``; for a
+size distribution, rows ``σ x / 4`` apart, each the exact average of one shared
+fine grid of sizes (:func:`build_mie_rows`).  In each row the forward ``P`` (and
+``C``) on a uniform grid of the chord ``s = |wo - wt| = 2 sin(Θ/2)`` in ``[0, √2]``
+(a sliver beyond) and the backward ``P`` on the chord ``s' = |wo - wi| = 2 cos(Θ/2)``
+from the backscatter direction.  Since ``dΩ = s ds dφ`` exactly, each row is a
+radial table in the chord (:class:`corona.tables.RadialTable`: density
+``2π s P(s)``, exact CDF inversion) with the chord computed accurately in float32
+as a vector norm.  A wavelength between two rows j, j+1 (weight t, linear in x)
+reads each row at the chord scaled by ``x / x_row`` (the rings at a fixed ``x·s``
+line up; :func:`_scaled_blend`), with Catmull–Rom cubics in the chord for the
+value, and is sampled exactly by picking row j with probability
+``(1 - t) T_j / ((1 - t) T_j + t T_j+1)`` (``T`` the rows' totals), drawing that
+row's chord and scaling it: the pdf is the interpolated P over the interpolated
+total, so sampling is proportional to the tabulated ``P``.
 """
 from __future__ import annotations
 
@@ -65,12 +71,17 @@ from .shapes.sphere import Sphere, sphere_parts
 
 #: Format of the sphere tables in the cache.
 SPHERE_FORMAT = 3
-#: Step of the rows in size parameter x.
-ROW_DX = 0.02
+#: One size: the rows start ``ROW_DLNX`` apart in ln x (x the size parameter; a lobe's sampler
+#: reaches ``√2 x_j+1/x_j`` in the chord, a sliver past 90°); an interval is halved (down to
+#: ``ROW_DX_MIN`` in x) where the lookup between its rows misses Mie theory at its midpoint by more
+#: than ``ROW_TOLERANCE`` (energy-weighted RMS of either lobe), up to ``MAX_ROWS`` rows.
+ROW_DLNX = 0.001
+ROW_DX_MIN = 0.005
+ROW_TOLERANCE = 0.007
 #: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes to the first Airy minimum).
 CHORD_DX = 0.15
 MIN_NODES, MAX_NODES = 512, 8192
-MIN_ROWS, MAX_ROWS = 8, 2048
+MIN_ROWS, MAX_ROWS = 8, 4096
 CHORD_MAX = math.sqrt(2.0)
 #: ``|cos θi|`` nodes (uniform, decreasing) of the forward lobe's energy with S(q).
 INCIDENCE_MU = tuple(np.linspace(1.0, 0.0, 11))
@@ -89,7 +100,9 @@ ROW_CHUNK = 128
 #: grid's steps per standard deviation of the sizes (at least), its most samples per index node,
 #: the part of the scattered power ``s² p(s)`` left out at each end of the distribution, and the
 #: largest change of the index between the index nodes of a dispersive sphere.
-SIZE_DX = 0.25
+SIZE_DX = 0.06
+#: Size distributions: rows ``σ x_lo / 4`` apart in x (σ the spread), at least this.
+SIZE_ROW_DX = 0.02
 SIZE_PER_SIGMA = 4.0
 MAX_SIZE_SAMPLES = 8000
 SIZE_TAIL = 1e-6
@@ -99,15 +112,20 @@ SIZE_DM = 0.002
 def _grid(radius: float, radius_max: float, spread: float = 0.0):
     """(x rows, chord step ds, number of chord nodes) for spheres of mean radius ``radius`` [µm].
 
-    A size distribution of relative spread σ smears the pattern over ``σ x`` in size parameter:
-    its rows are ``min(2, σ x_lo / 4)`` apart (at least ``ROW_DX``).  The chord grid runs to
+    One size: rows ``ROW_DLNX`` apart in ln x, refined by :func:`_refine_rows`.  A size distribution of
+    relative spread σ smears the pattern over ``σ x`` in size parameter: its rows are
+    ``min(2, σ x_lo / 4)`` apart (at least ``SIZE_ROW_DX``).  The chord grid runs to
     ``√2 x_1 / x_0`` (a little past Θ = 90°): a row is read at the chord scaled by ``x / x_j``
     (see :func:`_scaled_blend`), up to ``√2 x_j+1 / x_j`` for the wavelengths above it."""
     lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
     x_lo, x_hi = 2 * np.pi * radius / lam_hi, 2 * np.pi * radius / lam_lo
-    row_dx = max(ROW_DX, min(2.0, 0.25 * spread * x_lo))
-    n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
-    x_rows = np.linspace(x_lo, x_hi, n_rows)
+    if spread == 0.0:
+        n_rows = int(np.clip(math.ceil(math.log(x_hi / x_lo) / ROW_DLNX) + 1, MIN_ROWS, MAX_ROWS))
+        x_rows = np.geomspace(x_lo, x_hi, n_rows)
+    else:
+        row_dx = max(SIZE_ROW_DX, min(2.0, 0.25 * spread * x_lo))
+        n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
+        x_rows = np.linspace(x_lo, x_hi, n_rows)
     x_top = 2 * np.pi * radius_max / lam_lo
     s_max = min(2.0, CHORD_MAX * x_rows[1] / x_rows[0] * (1.0 + 1e-9))
     n_nodes = int(np.clip(math.ceil(s_max * x_top / CHORD_DX) + 1, MIN_NODES, MAX_NODES))
@@ -145,6 +163,105 @@ def _mono_sums(m, X, basis, amplitudes=False):
     return out
 
 
+def _blend_pair(Pa, Pb, xa, xb, x, ds):
+    """The lookup's value between two rows (:func:`_scaled_blend`, Catmull–Rom) at the weight of
+    ``x`` between ``xa`` and ``xb``, on the chord nodes: arrays (n, K), (n,)."""
+    K = Pa.shape[1]
+    s = np.arange(K) * ds
+    t = ((x - xa) / (xb - xa))[:, None]
+    out = 0.0
+    for P, xr, wgt in ((Pa, xa, 1.0 - t), (Pb, xb, t)):
+        c = (xr / x)[:, None]
+        g = s[None, :] / (c * ds)
+        i = np.clip(np.floor(g).astype(np.int64), 0, K - 2)
+        f = np.clip(g - i, 0.0, 1.0)
+        take = lambda k: np.take_along_axis(P, np.clip(k, 0, K - 1), axis=1)
+        p0, p1, p2, p3 = take(i - 1), take(i), take(i + 1), take(i + 2)
+        p0 = np.where(i > 0, p0, p1)
+        p3 = np.where(i + 2 < K, p3, p2)
+        v = p1 + 0.5 * f * (p2 - p0 + f * (2 * p0 - 5 * p1 + 4 * p2 - p3 + f * (3 * (p1 - p2) + p3 - p0)))
+        out = out + wgt * np.where(g <= K - 1, np.maximum(v, 0.0), 0.0) / (c * c)
+    return out
+
+
+def _lobe_error(est, ref, ds):
+    """Energy-weighted RMS of ``est/ref - 1`` per row over the chord nodes up to √2 (weights
+    ``ref · s``, as ``dΩ = s ds dφ``)."""
+    s = np.arange(ref.shape[1]) * ds
+    w = ref * np.where(s <= CHORD_MAX, s, 0.0)[None, :]
+    ok = ref > 0
+    rel = np.where(ok, est / np.where(ok, ref, 1.0) - 1.0, 0.0)
+    return np.sqrt(np.sum(w * rel * rel, axis=1) / np.maximum(np.sum(w, axis=1), 1e-300))
+
+
+def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
+    """Halve the row intervals of a one-size table where the lookup between two rows misses Mie
+    theory at the midpoint by more than ``ROW_TOLERANCE`` (energy-weighted RMS, either lobe),
+    down to ``ROW_DX_MIN``: best first (the largest misses, at any depth), in batches of
+    ``ROW_CHUNK``, up to ``MAX_ROWS`` rows.
+
+    ``rows``: per-row arrays keyed like :func:`_evaluate_rows`, normalised (P per steradian).
+    Returns the same keys with the new rows, in increasing ``x``."""
+    flat = dict(rows)
+
+    def candidates(pairs):
+        """Midpoints of the intervals ``pairs`` (n, 2) of row indices: their rows and errors."""
+        xa, xb = flat["x"][pairs[:, 0]], flat["x"][pairs[:, 1]]
+        keep = (xb - xa) > 2.0 * ROW_DX_MIN * (1 - 1e-9)
+        pairs, xa, xb = pairs[keep], xa[keep], xb[keep]
+        if not pairs.size:
+            return pairs, None, np.zeros(0)
+        xm = 0.5 * (xa + xb)
+        new = _evaluate_rows(sphere, xm, basis)
+        err = np.zeros(xm.size)
+        for key in ("P_f", "P_b"):
+            est = _blend_pair(flat[key][pairs[:, 0]], flat[key][pairs[:, 1]], xa, xb, xm, ds)
+            err = np.maximum(err, _lobe_error(est, new[key], ds))
+        if bar is not None:
+            bar.update(xm.size)
+        bad = err > ROW_TOLERANCE
+        return pairs[bad], {k: v[bad] for k, v in new.items()}, err[bad]
+
+    n0 = flat["x"].size
+    pend_pairs, pend_rows, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1))
+    while pend_err.size and flat["x"].size < MAX_ROWS:
+        take = np.argsort(-pend_err)[:min(ROW_CHUNK, MAX_ROWS - flat["x"].size)]
+        rest = np.setdiff1d(np.arange(pend_err.size), take)
+        base = flat["x"].size
+        for k in flat:
+            flat[k] = np.concatenate([flat[k], pend_rows[k][take]])
+        idx = base + np.arange(take.size)
+        children = np.concatenate([np.stack([pend_pairs[take, 0], idx], -1),
+                                   np.stack([idx, pend_pairs[take, 1]], -1)])
+        c_pairs, c_rows, c_err = candidates(children)
+        pend_pairs = np.concatenate([pend_pairs[rest], c_pairs])
+        pend_err = np.concatenate([pend_err[rest], c_err])
+        pend_rows = {k: np.concatenate([pend_rows[k][rest], c_rows[k]]) if c_rows is not None
+                     else pend_rows[k][rest] for k in pend_rows}
+    order = np.argsort(flat["x"])
+    return {k: v[order] for k, v in flat.items()}
+
+
+def _evaluate_rows(sphere, x, basis) -> dict:
+    """One-size rows at the size parameters ``x`` of the sphere (index at ``λ = 2π r / x``):
+    P_f, P_b per steradian, S(0) and the efficiencies per ``π r²`` (:func:`_mono_sums`)."""
+    lam = 2 * np.pi * sphere.radius / x * 1e3
+    m = np.asarray(sphere.index(lam), dtype=np.complex128) * np.ones(x.size)
+    parts = []
+    for a0 in range(0, x.size, ROW_CHUNK):
+        c = slice(a0, min(a0 + ROW_CHUNK, x.size))
+        parts.append(_mono_sums(m[c], x[c], basis))
+    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    x2 = x * x
+    out["P_f"] = out["P_f"] / (2 * np.pi * x2[:, None])
+    out["P_b"] = out["P_b"] / (2 * np.pi * x2[:, None])
+    out["s0"] = np.stack([2 * out["s0"].real / x2, 2 * out["s0"].imag / x2], -1)
+    out["q_sca"] = out["q_sca"] / x2
+    out["q_ext"] = out["q_ext"] / x2
+    out["x"] = x
+    return out
+
+
 def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
     """The Mie tables of a sphere (optionally a size distribution of it) over wavelength rows.
 
@@ -176,52 +293,47 @@ def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
     # droplets' forward peaks are narrower than the grid and get smoothed
     x_rows, ds, K = _grid(r, r * min(s_hi, 1.0 + 3.0 * spread), spread)
     lam = 2 * np.pi * r / x_rows * 1e3                                    # nm
-    m = np.asarray(sphere.index(lam), dtype=np.complex128) * np.ones(x_rows.size)
     chord = np.arange(K) * ds
     mu = 1.0 - 0.5 * chord * chord                                        # cos Θ of the forward nodes
     J = x_rows.size
     x_top = float(x_rows[-1]) * s_hi
     basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)))
+    if sizes is None:
+        with tqdm(unit="row", leave=False, delay=tables.PROGRESS_DELAY,
+                  desc="corona: building the Mie sphere table") as bar:
+            rows = _evaluate_rows(sphere, x_rows, basis)
+            bar.update(J)
+            rows = _refine_rows(sphere, rows, basis, ds, bar)
+        x_rows = rows["x"]
+        return {"x": x_rows, "wavelength": 2 * np.pi * r / x_rows * 1e3, "ds": np.array(ds),
+                "P_f": rows["P_f"], "P_b": rows["P_b"], "C_f": np.zeros((0, K)), "s0": rows["s0"],
+                "q_sca": rows["q_sca"], "q_ext": rows["q_ext"]}
     out = {k: np.zeros((J, K)) for k in ("P_f", "P_b")}
     out.update({"s0": np.zeros(J, complex), "q_sca": np.zeros(J), "q_ext": np.zeros(J), "x2": np.zeros(J)})
-    if sizes is not None:        # the mean forward amplitudes, rows [Re; Im]
-        out.update({"A1": np.zeros((2 * J, K)), "A2": np.zeros((2 * J, K))})
-    if sizes is None:
-        plan = [(np.arange(J), np.ones(J), m, x_rows, None)]
-    else:
-        plan = _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi)
+    out.update({"A1": np.zeros((2 * J, K)), "A2": np.zeros((2 * J, K))})     # mean forward S, [Re; Im]
+    plan = _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi)
     total = sum(p[3].size for p in plan)
     with tqdm(total=total, unit="size", leave=False, delay=tables.PROGRESS_DELAY,
               desc="corona: building the Mie sphere table") as bar:
         for rows_q, node_w, m_q, X, W in plan:
             for a0 in range(0, X.size, ROW_CHUNK):
                 c = slice(a0, min(a0 + ROW_CHUNK, X.size))
-                mm = m_q[c] if np.ndim(m_q) else np.full(c.stop - c.start, m_q)
-                sums = _mono_sums(mm, X[c], basis, amplitudes=W is not None)
-                if W is None:          # one size: the chunk's rows are the sizes
-                    for k, v in sums.items():
-                        out[k][rows_q[c]] = v
-                    out["x2"][rows_q[c]] = X[c] ** 2
-                else:
-                    G = W[:, c] * node_w[:, None]                  # (rows of this node, chunk)
-                    for k in ("P_f", "P_b"):
-                        out[k][rows_q] += G @ sums[k]
-                    B = c.stop - c.start
-                    for k in ("A1", "A2"):           # [Re; Im] rows
-                        out[k][rows_q] += G @ sums[k][:B]
-                        out[k][J + rows_q] += G @ sums[k][B:]
-                    for k in ("s0", "q_sca", "q_ext"):
-                        out[k][rows_q] += G @ sums[k]
-                    out["x2"][rows_q] += G @ (X[c] ** 2)
+                sums = _mono_sums(np.full(c.stop - c.start, m_q), X[c], basis, amplitudes=True)
+                G = W[:, c] * node_w[:, None]                      # (rows of this node, chunk)
+                for k in ("P_f", "P_b", "s0", "q_sca", "q_ext"):
+                    out[k][rows_q] += G @ sums[k]
+                B = c.stop - c.start
+                for k in ("A1", "A2"):                             # [Re; Im] rows
+                    out[k][rows_q] += G @ sums[k][:B]
+                    out[k][J + rows_q] += G @ sums[k][B:]
+                out["x2"][rows_q] += G @ (X[c] ** 2)
                 bar.update(c.stop - c.start)
     x2 = out["x2"]
     norm = 1.0 / (2 * np.pi * x2[:, None])
     s0 = out["s0"]
     return {"x": x_rows, "wavelength": lam, "ds": np.array(ds),
             "P_f": out["P_f"] * norm, "P_b": out["P_b"] * norm,
-            "C_f": ((out["A1"][:J] ** 2 + out["A1"][J:] ** 2 + out["A2"][:J] ** 2 + out["A2"][J:] ** 2) * norm)
-            if sizes is not None
-            else np.zeros((0, K)),
+            "C_f": (out["A1"][:J] ** 2 + out["A1"][J:] ** 2 + out["A2"][:J] ** 2 + out["A2"][J:] ** 2) * norm,
             "s0": np.stack([2 * s0.real / x2, 2 * s0.imag / x2], -1),
             "q_sca": out["q_sca"] / x2, "q_ext": out["q_ext"] / x2}
 
@@ -397,7 +509,8 @@ class SphereMaterial:
     # tables
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
-        return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(), "row_dx": ROW_DX,
+        return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
+                "rows_x": [ROW_DLNX, ROW_DX_MIN, ROW_TOLERANCE],
                 "chord_dx": CHORD_DX, "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
                 "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM], "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
 
@@ -520,9 +633,8 @@ class SphereMaterial:
         lam = np.clip(np.asarray(wavelength, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
         xr = self.rows["x"]
         x = 2 * np.pi * self.length_scale / (lam * 1e-3)
-        f = (x - xr[0]) / (xr[1] - xr[0])
-        j = np.clip(np.floor(f).astype(np.int64), 0, xr.size - 2)
-        return j, f - j
+        j = np.clip(np.searchsorted(xr, x, side="right") - 1, 0, xr.size - 2)
+        return j, (x - xr[j]) / (xr[j + 1] - xr[j])
 
     def _x(self, wavelength):
         """Size parameter ``2π r / λ`` of the mean sphere at ``wavelength`` [nm] (clipped to the range)."""
