@@ -72,10 +72,11 @@ from .shapes.sphere import Sphere, sphere_parts
 #: Format of the sphere tables in the cache.
 SPHERE_FORMAT = 3
 #: One size: the rows start ``ROW_DLNX`` apart in ln x (x the size parameter; a lobe's sampler
-#: reaches ``√2 x_j+1/x_j`` in the chord, a sliver past 90°); an interval is halved (down to
+#: reaches ``√2 x_j+1/x_j`` in the chord, a sliver past 90°), at most ``ROW_DX_START`` in x; an interval is halved (down to
 #: ``ROW_DX_MIN`` in x) where the lookup between its rows misses Mie theory at its midpoint by more
 #: than ``ROW_TOLERANCE`` (energy-weighted RMS of either lobe), up to ``MAX_ROWS`` rows.
 ROW_DLNX = 0.001
+ROW_DX_START = 0.1
 ROW_DX_MIN = 0.005
 ROW_TOLERANCE = 0.007
 #: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes to the first Airy minimum).
@@ -112,7 +113,8 @@ SIZE_DM = 0.002
 def _grid(radius: float, radius_max: float, spread: float = 0.0):
     """(x rows, chord step ds, number of chord nodes) for spheres of mean radius ``radius`` [µm].
 
-    One size: rows ``ROW_DLNX`` apart in ln x, refined by :func:`_refine_rows`.  A size distribution of
+    One size: rows ``ROW_DLNX`` apart in ln x (at most ``ROW_DX_START`` in x), refined by
+    :func:`_refine_rows`.  A size distribution of
     relative spread σ smears the pattern over ``σ x`` in size parameter: its rows are
     ``min(2, σ x_lo / 4)`` apart (at least ``SIZE_ROW_DX``).  The chord grid runs to
     ``√2 x_1 / x_0`` (a little past Θ = 90°): a row is read at the chord scaled by ``x / x_j``
@@ -120,8 +122,15 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0):
     lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
     x_lo, x_hi = 2 * np.pi * radius / lam_hi, 2 * np.pi * radius / lam_lo
     if spread == 0.0:
-        n_rows = int(np.clip(math.ceil(math.log(x_hi / x_lo) / ROW_DLNX) + 1, MIN_ROWS, MAX_ROWS))
-        x_rows = np.geomspace(x_lo, x_hi, n_rows)
+        # ROW_DLNX apart in ln x up to x_b = ROW_DX_START / ROW_DLNX, ROW_DX_START apart above
+        x_b = min(max(ROW_DX_START / ROW_DLNX, x_lo), x_hi)
+        n_log = max(int(math.ceil(math.log(x_b / x_lo) / ROW_DLNX)) + 1, 2)
+        n_lin = int(math.ceil((x_hi - x_b) / ROW_DX_START)) + 1
+        x_rows = np.geomspace(x_lo, x_b, n_log) if x_b > x_lo else np.array([x_lo])
+        if x_hi > x_b:
+            x_rows = np.concatenate([x_rows, np.linspace(x_b, x_hi, max(n_lin, 2))[1:]])
+        if x_rows.size < MIN_ROWS:
+            x_rows = np.geomspace(x_lo, x_hi, MIN_ROWS)
     else:
         row_dx = max(SIZE_ROW_DX, min(2.0, 0.25 * spread * x_lo))
         n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
@@ -510,7 +519,7 @@ class SphereMaterial:
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
         return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
-                "rows_x": [ROW_DLNX, ROW_DX_MIN, ROW_TOLERANCE],
+                "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_TOLERANCE],
                 "chord_dx": CHORD_DX, "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
                 "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM], "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
 
