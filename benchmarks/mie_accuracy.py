@@ -88,15 +88,17 @@ def main(radii=(0.5, 2.0, 5.0, 8.0, 10.0, 20.0, 25.0), wavelengths=(361.3, 452.7
     for ior in iors:
         for r in radii:
             mat = corona.Material(corona.Sphere(r, ior=ior), corona.Poisson(area_fraction=0.01), use_cache=False)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             _ = mat.rows
             _ = mat._derived
-            build = time.perf_counter() - t0
+            build, build_cpu = time.perf_counter() - t0, time.process_time() - c0
             for lam in wavelengths:
                 e = lobe_errors(mat, lam)
                 if results is not None:
                     results.append({"radius": r, "ior": "water" if ior is None else ior, "wavelength": lam,
-                                    "build_s": build, **e})
+                                    "build_s": build, "build_cpu_s": build_cpu,
+                                    "rows": int(mat.rows["P_f"].shape[0]),
+                                    "chord_nodes": int(mat.rows["P_f"].shape[1]), **e})
                 print(f"| {r:g} | {'water' if ior is None else ior} | {build:.2f} | {lam:g} | "
                       f"{100 * e['f_rms']:.2f} | {100 * e['f_scale']:+.2f} | {100 * e['rings']:.3f} | "
                       f"{100 * e['b_rms']:.2f} | {100 * e['b_scale']:+.2f} |", flush=True)

@@ -145,3 +145,34 @@ def test_bad_input():
         mie.efficiencies(1.33 - 0.1j, 5.0)
     with pytest.raises(CoronaError, match="mu="):
         mie.amplitudes(1.33, 5.0, [1.5])
+
+
+def test_riccati_bessel_upward_recurrence_matches_scipy():
+    # ψ_n = x j_n and x y_n by upward recurrence up to Wiscombe's N, against scipy.special
+    from scipy import special
+    from corona.mie import _riccati_bessel
+    x = np.array([0.3, 2.0, 17.5, 140.0, 436.0])
+    N = int(mie.n_terms(x.max()))
+    psi, chi = _riccati_bessel(x, N)
+    for i, xi in enumerate(x):
+        n = np.arange(int(mie.n_terms(xi)) + 1)
+        jn, yn = special.spherical_jn(n, xi) * xi, special.spherical_yn(n, xi) * xi
+        assert np.max(np.abs(psi[i, n] - jn) / np.abs(jn).max()) < 1e-9
+        assert np.max(np.abs(chi[i, n] - yn) / np.abs(yn)) < 1e-10
+
+
+def test_amplitudes_both_ways_match_amplitudes():
+    # the odd/even real matrix products give S(μ) and S(-μ) as the direct sums do
+    x = np.array([0.5, 12.3, 87.0])
+    m = np.array([1.33, 1.5 + 0.01j, 1.45])
+    mu = np.cos(np.linspace(0.0, 0.5 * np.pi, 101))
+    basis = mie.AngularBasis(mu, int(mie.n_terms(x.max())))
+    S1f, S2f, S1b, S2b = mie.amplitudes_both_ways(m, x, basis)
+    for i in range(x.size):
+        s1, s2 = mie.amplitudes(m[i], x[i], np.concatenate([mu, -mu]))
+        k = mu.size
+        top = np.abs(s1).max()
+        for got, want in ((S1f[i], s1[:k]), (S2f[i], s2[:k]), (S1b[i], s1[k:]), (S2b[i], s2[k:])):
+            assert np.max(np.abs(got - want)) < 1e-10 * top
+    # negative control: the backward sums with the parity signs left out are not S(-μ)
+    assert np.max(np.abs(S1b[2] - S1f[2])) > 1e-3 * np.abs(S1f[2]).max()

@@ -12,7 +12,8 @@ exactly as that numpy reference does, in Dr.Jit:
 
 both lobes may fall on either side of the layer at oblique incidence, so
 each is flagged ``GlossyTransmission | GlossyReflection``.  A lobe is
-tabulated in rows of the size parameter ``x`` and in the chord
+tabulated in rows of the size parameter ``x`` (not evenly spaced: a guide of
+uniform bins in x finds the row) and in the chord
 ``s = |wo + wi|`` (forward) or ``|wo - wi|`` (backward), with ``dΩ = s ds dφ``:
 the two rows j, j+1 around a wavelength (weight t) are read at the chord
 scaled by ``x / x_row`` (rings at a fixed ``x·s`` line up), with Catmull–Rom
@@ -110,10 +111,18 @@ class SphereBSDFMixin:
         self.fa = float(material.area_fraction)
         self.radius = float(material.sphere.radius)
         x = rows["x"]
-        self.x0, self.dx, self.n_rows = float(x[0]), float(x[1] - x[0]), int(x.size)
+        self.x0, self.n_rows = float(x[0]), int(x.size)
+        self.x_rows = _array(mi.Float, x)
+        # rows are not evenly spaced: a guide of bins half the smallest row step wide names the
+        # row at or below each bin's start; one step up at most finds the row below x
+        self.bin_dx = 0.5 * float(np.min(np.diff(x)))
+        n_bins = int(np.ceil((x[-1] - x[0]) / self.bin_dx)) + 2
+        edges = x[0] + np.arange(n_bins) * self.bin_dx
+        self.n_bins = n_bins
+        self.row_guide = _array(mi.UInt32, np.clip(np.searchsorted(x, edges, side="right") - 1, 0, x.size - 2))
         self.ds = float(rows["ds"])
         # the largest chord a lobe's sampler draws: a row's last node scaled by x_j+1 / x_j
-        self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(x[1] / x[0]) * (1 + 1e-6))
+        self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(np.max(x[1:] / x[:-1])) * (1 + 1e-6))
         self.K = int(rows["P_f"].shape[1])
         self.has_C = bool(rows["C_f"].size)
         if self.has_C:
@@ -151,13 +160,17 @@ class SphereBSDFMixin:
     def _row(self, lam_nm):
         lam = dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
         x = (2.0 * dr.pi * self.radius) / lam
-        f = (x - self.x0) / self.dx
-        j = mi.UInt32(dr.clip(dr.floor(f), 0, self.n_rows - 2))
-        return j, f - mi.Float(j), lam, x
+        b = mi.UInt32(dr.clip(dr.floor((x - self.x0) / self.bin_dx), 0, self.n_bins - 1))
+        j = _gather(mi.UInt32, self.row_guide, b)
+        for _ in range(2):        # float32 rounding of the bin: at most one row up, checked twice
+            up = (j + 1 < self.n_rows - 1) & (x >= _gather(mi.Float, self.x_rows, j + 1))
+            j = dr.select(up, j + 1, j)
+        xj, xj1 = _gather(mi.Float, self.x_rows, j), _gather(mi.Float, self.x_rows, j + 1)
+        return j, (x - xj) / (xj1 - xj), lam, x, xj, xj1
 
     def _state(self, lam_nm, mu_i, active, fa=None):
         """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a)."""
-        j, t, lam, x = self._row(lam_nm)
+        j, t, lam, x, xj, xj1 = self._row(lam_nm)
 
         if dr.is_array_v(mi.Float):
             a0 = dr.gather(mi.Vector4f, self.row_data, 2 * j, active)
@@ -176,7 +189,7 @@ class SphereBSDFMixin:
         scattered = fs * (ef + eb) * ENERGY_MARGIN
         w = dr.minimum(1.0, dr.maximum(1.0 - coherent, 0.0) / dr.maximum(scattered, 1e-30))
         Tf0, Tf1, Tb0, Tb1 = b0.x, b1.x, b0.y, b1.y
-        return dict(j=j, t=t, lam=lam, x=x, fs=fs, coherent=coherent, w=w, e_f=fs * w * ef, e_b=fs * w * eb,
+        return dict(j=j, t=t, lam=lam, x=x, xj=xj, xj1=xj1, fs=fs, coherent=coherent, w=w, e_f=fs * w * ef, e_b=fs * w * eb,
                     Tf=dr.lerp(Tf0, Tf1, t), Tb=dr.lerp(Tb0, Tb1, t), Tf1=Tf1, Tb1=Tb1, Tf0=Tf0, Tb0=Tb0)
 
     def _forward(self, st_j, t, mu_i, active):
@@ -227,9 +240,9 @@ class SphereBSDFMixin:
         density up to its total)."""
         cub, lin = mi.Float(0.0), mi.Float(0.0)
         K = self.K
-        for d, wgt in ((0, 1.0 - st["t"]), (1, st["t"])):
+        for d, wgt, x_row in ((0, 1.0 - st["t"], st["xj"]), (1, st["t"], st["xj1"])):
             row = st["j"] + d
-            c = (self.x0 + self.dx * mi.Float(row)) / st["x"]          # x_row / x
+            c = x_row / st["x"]
             g = s / (c * self.ds)
             i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
             f = dr.clip(g - mi.Float(i), 0.0, 1.0)
@@ -381,7 +394,7 @@ class SphereBSDFMixin:
             row = dr.select(rest < p_next, j + 1, j)
             chord = self._sample_chord(sample2.x, row, pick_f, pick_f | pick_b)
             # the row's chord scaled to the lane's x: rings at a fixed x·s
-            chord = dr.minimum(chord * (self.x0 + self.dx * mi.Float(row)) / x, 2.0)
+            chord = dr.minimum(chord * _gather(mi.Float, self.x_rows, row, pick_f | pick_b) / x, 2.0)
             cos_t = 1.0 - 0.5 * chord * chord
             sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
             sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)

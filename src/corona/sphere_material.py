@@ -38,18 +38,24 @@ Model (per unit layer area; ``μ_i = |cos θi|``; λ the wavelength in air)
 Tables (what the renderer evaluates and samples)
 ------------------------------------------------
 
-Rows at size parameters ``x_j`` uniform (step ``ROW_DX``) from ``2π r/830 nm``
-to ``2π r/360 nm``; in each row the forward ``P`` (and ``C``) on a uniform grid
-of the chord ``s = |wo - wt| = 2 sin(Θ/2)`` in ``[0, √2]`` and the backward
-``P`` on the chord ``s' = |wo - wi| = 2 cos(Θ/2)`` from the backscatter
-direction.  Since ``dΩ = s ds dφ`` exactly, each row is a radial table in the
-chord (:class:`corona.tables.RadialTable`: density ``2π s P(s)``, exact CDF
-inversion) with the chord computed accurately in float32 as a vector norm.
-A wavelength between two rows interpolates them linearly in x
-(``(1 - t) P_j + t P_j+1``) and is sampled exactly by picking row j with
-probability ``(1 - t) T_j / ((1 - t) T_j + t T_j+1)`` (``T`` the rows' totals):
-the pdf is the interpolated P over the interpolated total, so sampling is
-proportional to the tabulated ``P``.
+Rows at size parameters ``x_j`` from ``2π r/830 nm`` to ``2π r/360 nm``: for one
+size, rows ``ROW_DLNX`` apart in ``ln x``, halved where the lookup between two rows
+misses Mie theory at the midpoint by more than ``ROW_TOLERANCE`` (so rows crowd
+where the lobes change fastest in x: the resonances), up to ``MAX_ROWS``; for a
+size distribution, rows ``σ x / 4`` apart, each the exact average of one shared
+fine grid of sizes (:func:`build_mie_rows`).  In each row the forward ``P`` (and
+``C``) on a uniform grid of the chord ``s = |wo - wt| = 2 sin(Θ/2)`` in ``[0, √2]``
+(a sliver beyond) and the backward ``P`` on the chord ``s' = |wo - wi| = 2 cos(Θ/2)``
+from the backscatter direction.  Since ``dΩ = s ds dφ`` exactly, each row is a
+radial table in the chord (:class:`corona.tables.RadialTable`: density
+``2π s P(s)``, exact CDF inversion) with the chord computed accurately in float32
+as a vector norm.  A wavelength between two rows j, j+1 (weight t, linear in x)
+reads each row at the chord scaled by ``x / x_row`` (the rings at a fixed ``x·s``
+line up; :func:`_scaled_blend`), with Catmull–Rom cubics in the chord for the
+value, and is sampled exactly by picking row j with probability
+``(1 - t) T_j / ((1 - t) T_j + t T_j+1)`` (``T`` the rows' totals), drawing that
+row's chord and scaling it: the pdf is the interpolated P over the interpolated
+total, so sampling is proportional to the tabulated ``P``.
 """
 from __future__ import annotations
 
@@ -64,13 +70,19 @@ from .processes import Poisson, Process
 from .shapes.sphere import Sphere, sphere_parts
 
 #: Format of the sphere tables in the cache.
-SPHERE_FORMAT = 2
-#: Step of the rows in size parameter x.
-ROW_DX = 0.02
+SPHERE_FORMAT = 3
+#: One size: the rows start ``ROW_DLNX`` apart in ln x (x the size parameter; a lobe's sampler
+#: reaches ``√2 x_j+1/x_j`` in the chord, a sliver past 90°), at most ``ROW_DX_START`` in x; an interval is halved (down to
+#: ``ROW_DX_MIN`` in x) where the lookup between its rows misses Mie theory at its midpoint by more
+#: than ``ROW_TOLERANCE`` (energy-weighted RMS of either lobe), up to ``MAX_ROWS`` rows.
+ROW_DLNX = 0.001
+ROW_DX_START = 0.1
+ROW_DX_MIN = 0.005
+ROW_TOLERANCE = 0.007
 #: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes to the first Airy minimum).
 CHORD_DX = 0.15
 MIN_NODES, MAX_NODES = 512, 8192
-MIN_ROWS, MAX_ROWS = 8, 2048
+MIN_ROWS, MAX_ROWS = 8, 4096
 CHORD_MAX = math.sqrt(2.0)
 #: ``|cos θi|`` nodes (uniform, decreasing) of the forward lobe's energy with S(q).
 INCIDENCE_MU = tuple(np.linspace(1.0, 0.0, 11))
@@ -85,30 +97,189 @@ ENERGY_MARGIN = 1.006
 SPHERE_RADIUS_MAX = 25.0
 #: Rows computed together (memory of the amplitudes: ROW_CHUNK x nodes complex values).
 ROW_CHUNK = 128
-#: Size distributions: at most this many radii per row.
-MAX_SIZE_NODES = 96
+#: Size distributions: step of the fine grid of size parameters the rows average (at most), the
+#: grid's steps per standard deviation of the sizes (at least), its most samples per index node,
+#: the part of the scattered power ``s² p(s)`` left out at each end of the distribution, and the
+#: largest change of the index between the index nodes of a dispersive sphere.
+SIZE_DX = 0.06
+#: Size distributions: rows ``σ x_lo / 4`` apart in x (σ the spread), at least this.
+SIZE_ROW_DX = 0.02
+SIZE_PER_SIGMA = 4.0
+MAX_SIZE_SAMPLES = 8000
+SIZE_TAIL = 1e-6
+SIZE_DM = 0.002
 
 
 def _grid(radius: float, radius_max: float, spread: float = 0.0):
     """(x rows, chord step ds, number of chord nodes) for spheres of mean radius ``radius`` [µm].
 
-    A size distribution of relative spread σ smears the pattern over ``σ x`` in size parameter:
-    its rows are ``min(2, σ x_lo / 4)`` apart (at least ``ROW_DX``).  The chord grid runs to
+    One size: rows ``ROW_DLNX`` apart in ln x (at most ``ROW_DX_START`` in x), refined by
+    :func:`_refine_rows`.  A size distribution of
+    relative spread σ smears the pattern over ``σ x`` in size parameter: its rows are
+    ``min(2, σ x_lo / 4)`` apart (at least ``SIZE_ROW_DX``).  The chord grid runs to
     ``√2 x_1 / x_0`` (a little past Θ = 90°): a row is read at the chord scaled by ``x / x_j``
     (see :func:`_scaled_blend`), up to ``√2 x_j+1 / x_j`` for the wavelengths above it."""
     lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
     x_lo, x_hi = 2 * np.pi * radius / lam_hi, 2 * np.pi * radius / lam_lo
-    row_dx = max(ROW_DX, min(2.0, 0.25 * spread * x_lo))
-    n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
-    x_rows = np.linspace(x_lo, x_hi, n_rows)
+    if spread == 0.0:
+        # ROW_DLNX apart in ln x up to x_b = ROW_DX_START / ROW_DLNX, ROW_DX_START apart above
+        x_b = min(max(ROW_DX_START / ROW_DLNX, x_lo), x_hi)
+        n_log = max(int(math.ceil(math.log(x_b / x_lo) / ROW_DLNX)) + 1, 2)
+        n_lin = int(math.ceil((x_hi - x_b) / ROW_DX_START)) + 1
+        x_rows = np.geomspace(x_lo, x_b, n_log) if x_b > x_lo else np.array([x_lo])
+        if x_hi > x_b:
+            x_rows = np.concatenate([x_rows, np.linspace(x_b, x_hi, max(n_lin, 2))[1:]])
+        if x_rows.size < MIN_ROWS:
+            x_rows = np.geomspace(x_lo, x_hi, MIN_ROWS)
+    else:
+        row_dx = max(SIZE_ROW_DX, min(2.0, 0.25 * spread * x_lo))
+        n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
+        x_rows = np.linspace(x_lo, x_hi, n_rows)
     x_top = 2 * np.pi * radius_max / lam_lo
     s_max = min(2.0, CHORD_MAX * x_rows[1] / x_rows[0] * (1.0 + 1e-9))
     n_nodes = int(np.clip(math.ceil(s_max * x_top / CHORD_DX) + 1, MIN_NODES, MAX_NODES))
     return x_rows, s_max / (n_nodes - 1), n_nodes
 
 
+def _size_quadrature(sizes):
+    """Density of ``y = ln s`` of a size distribution on a fine grid, trimmed to where the
+    scattered power lives: (y grid, density) holding all but ``SIZE_TAIL`` of ``s² p(s)`` at each
+    end, normalised in number."""
+    y = np.linspace(sizes._y_lo, sizes._y_hi, 20001)
+    p = np.exp(sizes._logpdf(y))
+    power = np.cumsum(p * np.exp(2 * y))
+    power /= power[-1]
+    lo = max(int(np.searchsorted(power, SIZE_TAIL)) - 1, 0)
+    hi = min(int(np.searchsorted(power, 1.0 - SIZE_TAIL)) + 1, y.size - 1)
+    return y[lo:hi + 1], p[lo:hi + 1]
+
+
+def _mono_sums(m, X, basis, amplitudes=False):
+    """|S|² forward and backward, S(0) and the efficiencies' sums of the spheres (m, X) (arrays
+    (B,)) on the nodes of ``basis``; with ``amplitudes`` the forward S1, S2 as rows [Re; Im]."""
+    a, b = mie.coefficients(m, X)
+    N = a.shape[-1]
+    n = np.arange(1, N + 1)
+    S1f, S2f, S1b, S2b = mie._both_ways_parts(m, X, basis, (a, b))          # rows [Re; Im]
+    B = X.size
+    sq = lambda v: v[:B] * v[:B] + v[B:] * v[B:]
+    out = {"P_f": sq(S1f) + sq(S2f), "P_b": sq(S1b) + sq(S2b),
+           "s0": 0.5 * np.sum((2 * n + 1) * (a + b), axis=-1),
+           "q_sca": 2 * np.sum((2 * n + 1) * (np.abs(a) ** 2 + np.abs(b) ** 2), axis=-1),
+           "q_ext": 2 * np.sum((2 * n + 1) * (a + b).real, axis=-1)}
+    if amplitudes:
+        out["A1"], out["A2"] = S1f, S2f
+    return out
+
+
+def _blend_pair(Pa, Pb, xa, xb, x, ds):
+    """The lookup's value between two rows (:func:`_scaled_blend`, Catmull–Rom) at the weight of
+    ``x`` between ``xa`` and ``xb``, on the chord nodes: arrays (n, K), (n,)."""
+    K = Pa.shape[1]
+    s = np.arange(K) * ds
+    t = ((x - xa) / (xb - xa))[:, None]
+    out = 0.0
+    for P, xr, wgt in ((Pa, xa, 1.0 - t), (Pb, xb, t)):
+        c = (xr / x)[:, None]
+        g = s[None, :] / (c * ds)
+        i = np.clip(np.floor(g).astype(np.int64), 0, K - 2)
+        f = np.clip(g - i, 0.0, 1.0)
+        take = lambda k: np.take_along_axis(P, np.clip(k, 0, K - 1), axis=1)
+        p0, p1, p2, p3 = take(i - 1), take(i), take(i + 1), take(i + 2)
+        p0 = np.where(i > 0, p0, p1)
+        p3 = np.where(i + 2 < K, p3, p2)
+        v = p1 + 0.5 * f * (p2 - p0 + f * (2 * p0 - 5 * p1 + 4 * p2 - p3 + f * (3 * (p1 - p2) + p3 - p0)))
+        out = out + wgt * np.where(g <= K - 1, np.maximum(v, 0.0), 0.0) / (c * c)
+    return out
+
+
+def _lobe_error(est, ref, ds):
+    """Energy-weighted RMS of ``est/ref - 1`` per row over the chord nodes up to √2 (weights
+    ``ref · s``, as ``dΩ = s ds dφ``)."""
+    s = np.arange(ref.shape[1]) * ds
+    w = ref * np.where(s <= CHORD_MAX, s, 0.0)[None, :]
+    ok = ref > 0
+    rel = np.where(ok, est / np.where(ok, ref, 1.0) - 1.0, 0.0)
+    return np.sqrt(np.sum(w * rel * rel, axis=1) / np.maximum(np.sum(w, axis=1), 1e-300))
+
+
+def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
+    """Halve the row intervals of a one-size table where the lookup between two rows misses Mie
+    theory at the midpoint by more than ``ROW_TOLERANCE`` (energy-weighted RMS, either lobe),
+    down to ``ROW_DX_MIN``: best first (the largest misses, at any depth), in batches of
+    ``ROW_CHUNK``, up to ``MAX_ROWS`` rows.
+
+    ``rows``: per-row arrays keyed like :func:`_evaluate_rows`, normalised (P per steradian).
+    Returns the same keys with the new rows, in increasing ``x``."""
+    flat = dict(rows)
+
+    def candidates(pairs):
+        """Midpoints of the intervals ``pairs`` (n, 2) of row indices: their rows and errors."""
+        xa, xb = flat["x"][pairs[:, 0]], flat["x"][pairs[:, 1]]
+        keep = (xb - xa) > 2.0 * ROW_DX_MIN * (1 - 1e-9)
+        pairs, xa, xb = pairs[keep], xa[keep], xb[keep]
+        if not pairs.size:
+            return pairs, None, np.zeros(0)
+        xm = 0.5 * (xa + xb)
+        new = _evaluate_rows(sphere, xm, basis)
+        err = np.zeros(xm.size)
+        for key in ("P_f", "P_b"):
+            est = _blend_pair(flat[key][pairs[:, 0]], flat[key][pairs[:, 1]], xa, xb, xm, ds)
+            err = np.maximum(err, _lobe_error(est, new[key], ds))
+        if bar is not None:
+            bar.update(xm.size)
+        bad = err > ROW_TOLERANCE
+        return pairs[bad], {k: v[bad] for k, v in new.items()}, err[bad]
+
+    n0 = flat["x"].size
+    pend_pairs, pend_rows, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1))
+    while pend_err.size and flat["x"].size < MAX_ROWS:
+        take = np.argsort(-pend_err)[:min(ROW_CHUNK, MAX_ROWS - flat["x"].size)]
+        rest = np.setdiff1d(np.arange(pend_err.size), take)
+        base = flat["x"].size
+        for k in flat:
+            flat[k] = np.concatenate([flat[k], pend_rows[k][take]])
+        idx = base + np.arange(take.size)
+        children = np.concatenate([np.stack([pend_pairs[take, 0], idx], -1),
+                                   np.stack([idx, pend_pairs[take, 1]], -1)])
+        c_pairs, c_rows, c_err = candidates(children)
+        pend_pairs = np.concatenate([pend_pairs[rest], c_pairs])
+        pend_err = np.concatenate([pend_err[rest], c_err])
+        pend_rows = {k: np.concatenate([pend_rows[k][rest], c_rows[k]]) if c_rows is not None
+                     else pend_rows[k][rest] for k in pend_rows}
+    order = np.argsort(flat["x"])
+    return {k: v[order] for k, v in flat.items()}
+
+
+def _evaluate_rows(sphere, x, basis) -> dict:
+    """One-size rows at the size parameters ``x`` of the sphere (index at ``λ = 2π r / x``):
+    P_f, P_b per steradian, S(0) and the efficiencies per ``π r²`` (:func:`_mono_sums`)."""
+    lam = 2 * np.pi * sphere.radius / x * 1e3
+    m = np.asarray(sphere.index(lam), dtype=np.complex128) * np.ones(x.size)
+    parts = []
+    for a0 in range(0, x.size, ROW_CHUNK):
+        c = slice(a0, min(a0 + ROW_CHUNK, x.size))
+        parts.append(_mono_sums(m[c], x[c], basis))
+    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    x2 = x * x
+    out["P_f"] = out["P_f"] / (2 * np.pi * x2[:, None])
+    out["P_b"] = out["P_b"] / (2 * np.pi * x2[:, None])
+    out["s0"] = np.stack([2 * out["s0"].real / x2, 2 * out["s0"].imag / x2], -1)
+    out["q_sca"] = out["q_sca"] / x2
+    out["q_ext"] = out["q_ext"] / x2
+    out["x"] = x
+    return out
+
+
 def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
     """The Mie tables of a sphere (optionally a size distribution of it) over wavelength rows.
+
+    One sphere: each row is Mie theory at its size parameter.  A size distribution: the rows
+    share the evaluations of one fine grid of size parameters ``X`` (step ``SIZE_DX`` or finer,
+    see :func:`_size_plan`); row j (mean size ``x_j``, index ``m_j``) is the quadrature
+    ``Σ_k W_jk F(X_k)`` with ``W_jk ∝ p_y(ln(X_k/x_j)) ΔX/X_k`` (a convolution in ``ln x``; the
+    trapezoid in X).  A dispersive index is handled by evaluating the grid at index nodes
+    ``m(λ_q)`` at most ``SIZE_DM`` apart and interpolating the rows linearly in λ between them.
 
     Returns
     -------
@@ -118,73 +289,103 @@ def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
         (``C_f`` empty for one size), ``s0`` (J, 2) real and imaginary part of
         ``2⟨S(0)⟩/⟨x²⟩``, ``q_sca``, ``q_ext`` (J,) efficiencies per ``⟨π r²⟩``.
     """
+    from tqdm import tqdm
+
     r = sphere.radius
-    if sizes is None:
-        s_nodes, s_weights = np.ones(1), np.ones(1)
-    else:
-        k_max = 2 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
-        s_nodes, s_weights = sizes._nodes(2.0 * k_max)     # resolves Â(s q) up to q = 2k
-        if s_nodes.size > MAX_SIZE_NODES:                  # thin out, keeping the weights' sum
-            keep = np.unique(np.linspace(0, s_nodes.size - 1, MAX_SIZE_NODES).round().astype(int))
-            cdf = np.concatenate([[0.0], np.cumsum(s_weights)])
-            edges = np.concatenate([[0], (keep[1:] + keep[:-1] + 1) // 2, [s_nodes.size]])
-            s_weights = cdf[edges[1:]] - cdf[edges[:-1]]
-            s_nodes = s_nodes[keep]
     spread = 0.0 if sizes is None else float(sizes.spread)
+    if sizes is not None and spread > 0.0:
+        yq, pq = _size_quadrature(sizes)
+        s_lo, s_hi = math.exp(yq[0]), math.exp(yq[-1])
+    else:
+        sizes, s_lo, s_hi = None, 1.0, 1.0
     # chord resolution for the radii that carry the light (mean + 3 std); the rare larger
     # droplets' forward peaks are narrower than the grid and get smoothed
-    x_rows, ds, K = _grid(r, r * min(float(s_nodes.max()), 1.0 + 3.0 * spread), spread)
+    x_rows, ds, K = _grid(r, r * min(s_hi, 1.0 + 3.0 * spread), spread)
     lam = 2 * np.pi * r / x_rows * 1e3                                    # nm
-    m = sphere.index(lam)
     chord = np.arange(K) * ds
     mu = 1.0 - 0.5 * chord * chord                                        # cos Θ of the forward nodes
     J = x_rows.size
-    x2_mean = x_rows**2 * float(np.sum(s_weights * s_nodes**2))
-    P_f = np.zeros((J, K))
-    P_b = np.zeros((J, K))
-    A1f = np.zeros((J, K), complex)
-    A2f = np.zeros((J, K), complex)
-    s0 = np.zeros(J, complex)
-    q_sca = np.zeros(J)
-    q_ext = np.zeros(J)
-    cache = {}
-    from tqdm import tqdm
-
-    chunks = [slice(a, min(a + ROW_CHUNK, J)) for a in range(0, J, ROW_CHUNK)]
-    with tqdm(total=len(s_nodes) * J, unit="row", leave=False, delay=tables.PROGRESS_DELAY,
+    x_top = float(x_rows[-1]) * s_hi
+    basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)))
+    if sizes is None:
+        with tqdm(unit="row", leave=False, delay=tables.PROGRESS_DELAY,
+                  desc="corona: building the Mie sphere table") as bar:
+            rows = _evaluate_rows(sphere, x_rows, basis)
+            bar.update(J)
+            rows = _refine_rows(sphere, rows, basis, ds, bar)
+        x_rows = rows["x"]
+        return {"x": x_rows, "wavelength": 2 * np.pi * r / x_rows * 1e3, "ds": np.array(ds),
+                "P_f": rows["P_f"], "P_b": rows["P_b"], "C_f": np.zeros((0, K)), "s0": rows["s0"],
+                "q_sca": rows["q_sca"], "q_ext": rows["q_ext"]}
+    out = {k: np.zeros((J, K)) for k in ("P_f", "P_b")}
+    out.update({"s0": np.zeros(J, complex), "q_sca": np.zeros(J), "q_ext": np.zeros(J), "x2": np.zeros(J)})
+    out.update({"A1": np.zeros((2 * J, K)), "A2": np.zeros((2 * J, K))})     # mean forward S, [Re; Im]
+    plan = _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi)
+    total = sum(p[3].size for p in plan)
+    with tqdm(total=total, unit="size", leave=False, delay=tables.PROGRESS_DELAY,
               desc="corona: building the Mie sphere table") as bar:
-        for s, w in zip(s_nodes, s_weights):
-            for c in chunks:
-                a, b = mie.coefficients(m[c], x_rows[c] * s)
-                N = a.shape[-1]
-                if N not in cache:
-                    pi, tau = mie.angular_functions(mu, N)
-                    sign = (-1.0) ** np.arange(1, N + 1)
-                    cache = {N: (pi, tau, sign)}
-                pi, tau, sign = cache[N]
-                n = np.arange(1, N + 1)
-                cn = (2 * n + 1) / (n * (n + 1.0))
-                ca, cb = a * cn, b * cn
-                S1 = ca @ pi + cb @ tau
-                S2 = ca @ tau + cb @ pi
-                # backward: π_n(-μ) = (-1)^(n-1) π_n(μ), τ_n(-μ) = (-1)^n τ_n(μ)
-                S1b = -(ca * sign) @ pi + (cb * sign) @ tau
-                S2b = (ca * sign) @ tau - (cb * sign) @ pi
-                P_f[c] += w * (np.abs(S1) ** 2 + np.abs(S2) ** 2)
-                P_b[c] += w * (np.abs(S1b) ** 2 + np.abs(S2b) ** 2)
-                A1f[c] += w * S1
-                A2f[c] += w * S2
-                s0[c] += w * 0.5 * np.sum((2 * n + 1) * (a + b), axis=-1)
-                q_sca[c] += w * 2 * np.sum((2 * n + 1) * (np.abs(a) ** 2 + np.abs(b) ** 2), axis=-1)
-                q_ext[c] += w * 2 * np.sum((2 * n + 1) * (a + b).real, axis=-1)
+        for rows_q, node_w, m_q, X, W in plan:
+            for a0 in range(0, X.size, ROW_CHUNK):
+                c = slice(a0, min(a0 + ROW_CHUNK, X.size))
+                sums = _mono_sums(np.full(c.stop - c.start, m_q), X[c], basis, amplitudes=True)
+                G = W[:, c] * node_w[:, None]                      # (rows of this node, chunk)
+                for k in ("P_f", "P_b", "s0", "q_sca", "q_ext"):
+                    out[k][rows_q] += G @ sums[k]
+                B = c.stop - c.start
+                for k in ("A1", "A2"):                             # [Re; Im] rows
+                    out[k][rows_q] += G @ sums[k][:B]
+                    out[k][J + rows_q] += G @ sums[k][B:]
+                out["x2"][rows_q] += G @ (X[c] ** 2)
                 bar.update(c.stop - c.start)
-    norm = 1.0 / (2 * np.pi * x2_mean[:, None])
-    out = {"x": x_rows, "wavelength": lam, "ds": np.array(ds),
-           "P_f": P_f * norm, "P_b": P_b * norm,
-           "C_f": ((np.abs(A1f) ** 2 + np.abs(A2f) ** 2) * norm) if sizes is not None else np.zeros((0, K)),
-           "s0": np.stack([2 * s0.real / x2_mean, 2 * s0.imag / x2_mean], -1),
-           "q_sca": q_sca / x2_mean, "q_ext": q_ext / x2_mean}
-    return out
+    x2 = out["x2"]
+    norm = 1.0 / (2 * np.pi * x2[:, None])
+    s0 = out["s0"]
+    return {"x": x_rows, "wavelength": lam, "ds": np.array(ds),
+            "P_f": out["P_f"] * norm, "P_b": out["P_b"] * norm,
+            "C_f": (out["A1"][:J] ** 2 + out["A1"][J:] ** 2 + out["A2"][:J] ** 2 + out["A2"][J:] ** 2) * norm,
+            "s0": np.stack([2 * s0.real / x2, 2 * s0.imag / x2], -1),
+            "q_sca": out["q_sca"] / x2, "q_ext": out["q_ext"] / x2}
+
+
+def _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi):
+    """The evaluations of a size distribution's table: per index node q, (rows, their weights of
+    that node, index, the fine size parameters X, the quadrature weights W (rows, X))."""
+    J = x_rows.size
+    m = np.asarray(sphere.index(lam), dtype=np.complex128) * np.ones(J)
+    # index nodes in λ, at most SIZE_DM apart in m (one node for a constant index)
+    lam_f = np.linspace(lam.min(), lam.max(), 4 * J + 1)
+    m_f = np.asarray(sphere.index(lam_f), dtype=np.complex128) * np.ones(lam_f.size)
+    arc = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(m_f)))])
+    n_q = int(math.ceil(arc[-1] / SIZE_DM)) + 1 if arc[-1] > 0 else 1
+    if n_q == 1:
+        lam_q = np.array([float(np.mean(lam))])
+        node = np.zeros(J, np.int64)
+        frac = np.zeros(J)
+    else:
+        lam_q = np.interp(np.linspace(0.0, arc[-1], n_q), arc, lam_f)
+        g = np.interp(lam, lam_q, np.arange(n_q))
+        node = np.clip(np.floor(g).astype(np.int64), 0, n_q - 2)
+        frac = g - node
+    m_q = np.asarray(sphere.index(lam_q), dtype=np.complex128) * np.ones(lam_q.size)
+    sig_y = float(np.sqrt(np.sum(pq * yq**2) / np.sum(pq) - (np.sum(pq * yq) / np.sum(pq)) ** 2))
+    plan = []
+    for q in range(lam_q.size):
+        wq = np.where(node == q, 1.0 - frac, 0.0) + (np.where(node + 1 == q, frac, 0.0) if n_q > 1 else 0.0)
+        rows_q = np.nonzero(wq > 0)[0]
+        if rows_q.size == 0:
+            continue
+        x_a, x_b = float(x_rows[rows_q].min()) * s_lo, float(x_rows[rows_q].max()) * s_hi
+        dX = min(SIZE_DX, sig_y * float(x_rows[rows_q].min()) * s_lo / SIZE_PER_SIGMA)
+        n = int(math.ceil((x_b - x_a) / dX)) + 1
+        if n > MAX_SIZE_SAMPLES:
+            n = MAX_SIZE_SAMPLES
+        X = np.linspace(x_a, x_b, n)
+        yy = np.log(X[None, :] / x_rows[rows_q, None])
+        W = np.interp(yy, yq, pq, left=0.0, right=0.0) / X[None, :]          # p_y dy = p_y dX / X
+        W[:, [0, -1]] *= 0.5
+        W /= W.sum(axis=1, keepdims=True)
+        plan.append((rows_q, wq[rows_q], m_q[q], X, W))
+    return plan
 
 
 def _lerp_rows(values, j, t, i, f):
@@ -317,9 +518,10 @@ class SphereMaterial:
     # tables
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
-        return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(), "row_dx": ROW_DX,
+        return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
+                "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_TOLERANCE],
                 "chord_dx": CHORD_DX, "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
-                "size_nodes": MAX_SIZE_NODES, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+                "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM], "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
 
     @functools.cached_property
     def rows(self) -> dict:
@@ -440,9 +642,8 @@ class SphereMaterial:
         lam = np.clip(np.asarray(wavelength, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
         xr = self.rows["x"]
         x = 2 * np.pi * self.length_scale / (lam * 1e-3)
-        f = (x - xr[0]) / (xr[1] - xr[0])
-        j = np.clip(np.floor(f).astype(np.int64), 0, xr.size - 2)
-        return j, f - j
+        j = np.clip(np.searchsorted(xr, x, side="right") - 1, 0, xr.size - 2)
+        return j, (x - xr[j]) / (xr[j + 1] - xr[j])
 
     def _x(self, wavelength):
         """Size parameter ``2π r / λ`` of the mean sphere at ``wavelength`` [nm] (clipped to the range)."""
