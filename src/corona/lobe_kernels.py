@@ -116,14 +116,28 @@ class LobeKernel:
             self.g_cell = float(rl.P.cell)
             # coefficients padded by their mirror images (1 before, 2 after each
             # axis): the 4×4 taps of any point inside index the array directly
-            self.g_P = _array(mi.Float, self._padded(rl.P.coef).ravel())
-            self.g_C = None if rl.C is None else _array(mi.Float, self._padded(rl.C.coef).ravel())
+            self.g_P = self._taps(self._padded(rl.P.coef))
+            self.g_C = None if rl.C is None else self._taps(self._padded(rl.C.coef))
         # --- the sampling table (bilinear, in u or in the warped t) -----------------------
         t = material.table
         self.near = dict(n=int(t.n), lo=float(t.lo), cell=float(t.cell), span=float(t.cell * (t.n - 1)),
-                         total=float(t.total), values=_array(mi.Float, t.values.ravel()))
+                         total=float(t.total), values=self.corners(t.values))
         self.warp = float(t.warp)
         self.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(t.values, dtype=np.float32))
+
+    @staticmethod
+    def corners(values):
+        """A bilinear table ``(n, n)`` as one packet per cell, ``(v[y, x], v[y, x + 1], v[y + 1, x],
+        v[y + 1, x + 1])`` for ``x, y < n - 1`` (row-major cells): one packet gather a lookup."""
+        v = np.asarray(values, dtype=np.float32)
+        return _array(mi.Float, np.stack([v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]], -1).ravel())
+
+    @staticmethod
+    def _taps(padded):
+        """A padded coefficient grid ``(m, m)`` as packets of four neighbours along x:
+        ``packet[y, x] = padded[y, x : x + 4]`` (``x < m - 3``), one packet gather a row of 4×4 taps."""
+        m = padded.shape[0]
+        return _array(mi.Float, np.stack([padded[:, a:m - 3 + a] for a in range(4)], -1).ravel())
 
     @staticmethod
     def _padded(coef):
@@ -146,20 +160,17 @@ class LobeKernel:
         y0 = dr.clip(dr.floor(fy), 0, n - 2)
         tx = dr.clip(fx - x0, 0.0, 1.0)
         ty = dr.clip(fy - y0, 0.0, 1.0)
-        k = mi.UInt32(y0) * n + mi.UInt32(x0)
-        vals = tb["values"]
-        v00 = _gather(mi.Float, vals, k, inside)
-        v01 = _gather(mi.Float, vals, k + 1, inside)
-        v10 = _gather(mi.Float, vals, k + n, inside)
-        v11 = _gather(mi.Float, vals, k + n + 1, inside)
-        v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
+        q = gather4(tb["values"], mi.UInt32(y0) * (n - 1) + mi.UInt32(x0), inside)   # the cell's corners
+        v = dr.lerp(dr.lerp(q.x, q.y, tx), dr.lerp(q.z, q.w, tx), ty)
         return dr.select(inside, dr.maximum(v, 0.0), 0.0)
 
     def set_structure_rows(self, s_rows, s_slopes):
         """Rows of ``S - 1`` over the area fraction (``(n_rows, s_n)``, :func:`corona.render_lobe.structure_rows`)
         and their slopes in ``F_a``: :meth:`value` then takes the row and Hermite weights of each lane."""
-        self.s_values = _array(mi.Float, np.asarray(s_rows).ravel())
-        self.s_slopes = _array(mi.Float, np.asarray(s_slopes).ravel())
+        rows, slopes = np.asarray(s_rows, dtype=np.float64), np.asarray(s_slopes, dtype=np.float64)
+        # one packet per row and node i: S(i), S(i + 1), dS(i), dS(i + 1)
+        self.s_rows = _array(mi.Float, np.stack([rows[:, :-1], rows[:, 1:], slopes[:, :-1], slopes[:, 1:]],
+                                                -1).ravel())
 
     def set_structure_centre(self, s1, ds1):
         """One row of ``S - 1`` (``s_n``) at a layer's uniform F_a and its slope in F_a:
@@ -183,12 +194,11 @@ class LobeKernel:
             v1 = _gather(mi.Float, self.s_values, i + 1, inside)
             return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
         j, h00, h10, h01, h11 = srow
-        k = j * self.s_n + i
-
-        def at(arr, kk):
-            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
-        v = (h00 * at(self.s_values, k) + h01 * at(self.s_values, k + self.s_n)
-             + h10 * at(self.s_slopes, k) + h11 * at(self.s_slopes, k + self.s_n))
+        k = j * (self.s_n - 1) + i
+        q0 = gather4(self.s_rows, k, inside)
+        q1 = gather4(self.s_rows, k + (self.s_n - 1), inside)
+        v = (h00 * dr.lerp(q0.x, q0.y, t) + h01 * dr.lerp(q1.x, q1.y, t)
+             + h10 * dr.lerp(q0.z, q0.w, t) + h11 * dr.lerp(q1.z, q1.w, t))
         return dr.select(inside, v, 0.0)
 
     def _cubic(self, grids, ux, uy, active):
@@ -212,17 +222,14 @@ class LobeKernel:
                     t3 * (1.0 / 6.0))
 
         wx, wy = weights(tx), weights(ty)
-        m = n + 3                                   # padded row length
-        base = mi.UInt32(iy) * m + mi.UInt32(ix)    # tap (-1, -1) in the padded array
+        m = n                                       # packets a row of the padded array (n + 3 wide)
+        base = mi.UInt32(iy) * m + mi.UInt32(ix)    # taps (-1 .. 2, -1) in the padded array
         acc = [mi.Float(0.0) for _ in grids]
         for b in range(4):
-            racc = [mi.Float(0.0) for _ in grids]
-            for a in range(4):
-                k = base + (b * m + a)
-                for g, coef in enumerate(grids):
-                    racc[g] = dr.fma(wx[a], _gather(mi.Float, coef, k, inside), racc[g])
-            for g in range(len(grids)):
-                acc[g] = dr.fma(wy[b], racc[g], acc[g])
+            for g, coef in enumerate(grids):
+                q = gather4(coef, base + b * m, inside)      # the row's four taps in one packet
+                racc = dr.fma(wx[0], q.x, dr.fma(wx[1], q.y, dr.fma(wx[2], q.z, wx[3] * q.w)))
+                acc[g] = dr.fma(wy[b], racc, acc[g])
         return [dr.select(inside, x, 0.0) for x in acc]
 
     def _term_amplitude(self, term, qx, qy):
