@@ -11,8 +11,9 @@ instructions), its compile time (codegen + LLVM backend) and its run time;
 its LLVM IR gives the gathers: calls of ``llvm.masked.gather`` (one per
 gathered scalar) and of Dr.Jit's packet gathers ``gather_4xf32`` (a
 ``Vector4f`` read as one 4-wide load per lane, counted as ``packet``).  Counts are per lane (the kernel is
-vectorised, one lane per sample); a method that needs a second kernel (a
-texture's set-up) adds its counts.
+vectorised, one lane per sample) and static: an operation inside a loop (the
+radial sampler's bisection) counts once however often it runs; a method that
+needs a second kernel adds its counts.
 
     python benchmarks/bench_kernels.py [--variant llvm_ad_spectral] [--name kernels]
 
@@ -106,10 +107,15 @@ def profile(dr, mi, fn):
     return {"kernels": len(first),
             "operations": int(sum(k["operation_count"] for k in first)),
             "gathers": gathers,
-            "packet_loads": packets,
+            "packet_gathers": packets,
             "compile_ms": float(sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in first)),
             "cache_hit": bool(any(k.get("cache_hit") for k in first)),
             "run_ms": float(min(run))}
+
+
+def flat(results: dict) -> dict:
+    """``{layer: {method: figures}}`` as ``{"layer / method": figures}`` (one table row each)."""
+    return {f"{layer} / {method}": figures for layer, row in results.items() for method, figures in row.items()}
 
 
 def main():
@@ -151,14 +157,14 @@ def main():
         row["eval_pdf"] = profile(dr, mi, lambda: bsdf.eval_pdf(ctx, si, wo))
         row["sample"] = profile(dr, mi, lambda: bsdf.sample(ctx, si, s1, s2))
         results[name] = row
-        print(f"{name:32s} " + "  ".join(f"{m} {r['operations']:5d} ops {r['gathers']:3d} g {r['packet_loads']:2d} p "
+        print(f"{name:32s} " + "  ".join(f"{m} {r['operations']:5d} ops {r['gathers']:3d} g {r['packet_gathers']:2d} p "
                                          f"{r['compile_ms']:6.0f} ms JIT {r['run_ms']:6.2f} ms"
                                          for m, r in row.items()), flush=True)
         dr.flush_kernel_cache()
         del bsdf
     from common import write
     write(args.name, {"lanes": N, "variant": args.variant, "load_average_1min": os.getloadavg()[0],
-                      "layers": {n: LAYERS[n] for n in args.layers}, "results": results,
+                      "layers": {n: LAYERS[n] for n in args.layers}, "results": flat(results),
                       "note": "per lane: Dr.Jit IR operations, llvm.masked.gather calls and packet "
                               "gathers (gather_4xf32 calls) in the kernel's LLVM IR (one lane = one sample); compile_ms cold "
                               "(kernel caches flushed between layers), run_ms of 2^16 lanes (fastest of 3)"})

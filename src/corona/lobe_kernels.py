@@ -17,8 +17,9 @@ the (few) outlines and polygon edges only, never over lanes.
 * both times ``1 + (S - 1)`` from the radial ``S - 1`` table (linear);
 * ``table``: the bilinear table (lattices).
 
-Sampling: Mitsuba's ``MarginalContinuous2D0`` on the bilinear table of ``v``
-(uniform in u, or in ``t = u / (1 + |u|/c)`` for lobes reaching beyond it);
+Sampling: the bilinear table of ``v`` (uniform in u, or in ``t = u / (1 + |u|/c)``
+for lobes reaching beyond it) sampled exactly, a cell by two guided searches, a
+corner of it and the product of two linear ramps (:meth:`LobeKernel._sample_cell`);
 the pdf is the exact density of that table (divided by the Jacobian ``d²u/d²t``).
 
 References
@@ -34,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .mitsuba_common import array as _array, gather as _gather, gather4
+from .mitsuba_common import array as _array, gather as _gather, gather4, guided_cdfs, guided_search
 from .render_lobe import TAYLOR_ORDER, TAYLOR_U
 
 # Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
@@ -123,7 +124,19 @@ class LobeKernel:
         self.near = dict(n=int(t.n), lo=float(t.lo), cell=float(t.cell), span=float(t.cell * (t.n - 1)),
                          total=float(t.total), values=self.corners(t.values))
         self.warp = float(t.warp)
-        self.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(t.values, dtype=np.float32))
+        self.set_sampling_table(t.values)
+
+    def set_sampling_table(self, values):
+        """Sample the bilinear table ``values`` ``(n, n)`` (:meth:`sample`): the CDF of its rows of
+        cells and, in each row, of its cells (:func:`corona.mitsuba_common.guided_cdfs`), a cell's
+        weight the mean of its corners (its integral)."""
+        v = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
+        cells = 0.25 * (v[:-1, :-1] + v[:-1, 1:] + v[1:, :-1] + v[1:, 1:])        # (n - 1, n - 1)
+        zero = np.zeros((cells.shape[0], 1))
+        self.s_rows_g = guided_cdfs([np.concatenate([[0.0], np.cumsum(cells.sum(axis=1))])])
+        self.s_cols_g = guided_cdfs(list(np.concatenate([zero, np.cumsum(cells, axis=1)], axis=1)))
+        for g in (self.s_rows_g, self.s_cols_g):
+            g["cdf"], g["guide"] = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
 
     @staticmethod
     def corners(values):
@@ -347,10 +360,40 @@ class LobeKernel:
         p = self._bilinear(self.near, ux * rx, uy * ry, active)      # t = u / (1 + |u|/c)
         return p * (1.0 / self.near["total"]) * dr.square(rx * ry)
 
+    def _sample_cell(self, s, active):
+        """``s`` (Point2f in [0, 1)²) -> a point in [0, 1]² of the sampling table with the density of
+        its bilinear interpolant (exactly): the row of cells by ``s.x``, the cell in it by ``s.y``
+        (guided searches), one of the cell's four corners with probability ∝ its value (what is
+        left of ``s.x``), then the product of the two linear ramps that vanish at the opposite
+        edges (``√ξ``; ``ξ``: what is left of each): the mixture of the corners' ramps weighted by
+        their values is the bilinear interpolant of the cell, and the cell's probability its integral."""
+        n1 = self.near["n"] - 1
+        rg, cg = self.s_rows_g, self.s_cols_g
+        y0, a0, a1 = guided_search(rg["cdf"], rg["guide"], rg["G"], rg["n_bins"], rg["steps"], mi.UInt32(0),
+                                   s.x, active)
+        x0, b0, b1 = guided_search(cg["cdf"], cg["guide"], cg["G"], cg["n_bins"], cg["steps"], y0, s.y, active)
+        ry = dr.clip((s.x - a0) / dr.maximum(a1 - a0, 1e-30), 0.0, 0.99999994)
+        rx = dr.clip((s.y - b0) / dr.maximum(b1 - b0, 1e-30), 0.0, 0.99999994)
+        q = gather4(self.near["values"], y0 * n1 + x0, active)      # v00, v01 (x + 1), v10 (y + 1), v11
+        q0, q1, q2, q3 = (dr.maximum(q.x, 0.0), dr.maximum(q.y, 0.0), dr.maximum(q.z, 0.0),
+                          dr.maximum(q.w, 0.0))
+        c1 = q0 + q1
+        c2 = c1 + q2
+        total = dr.maximum(c2 + q3, 1e-30)
+        target = ry * total
+        hi_x = ((target >= q0) & (target < c1)) | (target >= c2)       # corners 01 and 11
+        hi_y = target >= c1                                            # corners 10 and 11
+        start = dr.select(target < q0, 0.0, dr.select(target < c1, q0, dr.select(target < c2, c1, c2)))
+        width = dr.select(target < q0, q0, dr.select(target < c1, q1, dr.select(target < c2, q2, q3)))
+        ry2 = dr.clip((target - start) / dr.maximum(width, 1e-30), 0.0, 1.0)
+        fx = dr.select(hi_x, dr.safe_sqrt(rx), 1.0 - dr.safe_sqrt(1.0 - rx))   # density 2x or 2(1 - x)
+        fy = dr.select(hi_y, dr.safe_sqrt(ry2), 1.0 - dr.safe_sqrt(1.0 - ry2))
+        return mi.Point2f((mi.Float(x0) + fx) * (1.0 / n1), (mi.Float(y0) + fy) * (1.0 / n1))
+
     def sample(self, s, active):
         """``s`` (Point2f in [0, 1)²) -> u (Vector2f) with density :meth:`pdf`."""
         tb = self.near
-        p01, _ = self.distr.sample(s, active=active)
+        p01 = self._sample_cell(s, active)
         tx, ty = tb["lo"] + p01.x * tb["span"], tb["lo"] + p01.y * tb["span"]
         if self.warp == 0.0:
             return mi.Vector2f(tx, ty)

@@ -417,7 +417,7 @@ class CoronaBSDFMixin:
                 and float(table.warp) == self.kernel.warp):
             return                                   # another grid: keep the material's own
         self.kernel.near = dict(tb, total=float(table.total), values=self.kernel.corners(table.values))
-        self.kernel.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(table.values, dtype=np.float32))
+        self.kernel.set_sampling_table(table.values)
 
     def _set_cdf(self, cdfs):
         """Normalised float32 CDFs of the rows and their guide tables (:func:`corona.mitsuba_common.guided_cdfs`)."""
