@@ -17,8 +17,9 @@ the (few) outlines and polygon edges only, never over lanes.
 * both times ``1 + (S - 1)`` from the radial ``S - 1`` table (linear);
 * ``table``: the bilinear table (lattices).
 
-Sampling: Mitsuba's ``MarginalContinuous2D0`` on the bilinear table of ``v``
-(uniform in u, or in ``t = u / (1 + |u|/c)`` for lobes reaching beyond it);
+Sampling: the bilinear table of ``v`` (uniform in u, or in ``t = u / (1 + |u|/c)``
+for lobes reaching beyond it) sampled exactly, a cell by two guided searches, a
+corner of it and the product of two linear ramps (:meth:`LobeKernel._sample_cell`);
 the pdf is the exact density of that table (divided by the Jacobian ``d²u/d²t``).
 
 References
@@ -34,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .mitsuba_common import array as _array, gather as _gather, gather4
+from .mitsuba_common import array as _array, gather as _gather, gather4, guided_cdfs, guided_search
 from .render_lobe import TAYLOR_ORDER, TAYLOR_U
 
 # Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
@@ -116,14 +117,40 @@ class LobeKernel:
             self.g_cell = float(rl.P.cell)
             # coefficients padded by their mirror images (1 before, 2 after each
             # axis): the 4×4 taps of any point inside index the array directly
-            self.g_P = _array(mi.Float, self._padded(rl.P.coef).ravel())
-            self.g_C = None if rl.C is None else _array(mi.Float, self._padded(rl.C.coef).ravel())
+            self.g_P = self._taps(self._padded(rl.P.coef))
+            self.g_C = None if rl.C is None else self._taps(self._padded(rl.C.coef))
         # --- the sampling table (bilinear, in u or in the warped t) -----------------------
         t = material.table
         self.near = dict(n=int(t.n), lo=float(t.lo), cell=float(t.cell), span=float(t.cell * (t.n - 1)),
-                         total=float(t.total), values=_array(mi.Float, t.values.ravel()))
+                         total=float(t.total), values=self.corners(t.values))
         self.warp = float(t.warp)
-        self.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(t.values, dtype=np.float32))
+        self.set_sampling_table(t.values)
+
+    def set_sampling_table(self, values):
+        """Sample the bilinear table ``values`` ``(n, n)`` (:meth:`sample`): the CDF of its rows of
+        cells and, in each row, of its cells (:func:`corona.mitsuba_common.guided_cdfs`), a cell's
+        weight the mean of its corners (its integral)."""
+        v = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
+        cells = 0.25 * (v[:-1, :-1] + v[:-1, 1:] + v[1:, :-1] + v[1:, 1:])        # (n - 1, n - 1)
+        zero = np.zeros((cells.shape[0], 1))
+        self.s_rows_g = guided_cdfs([np.concatenate([[0.0], np.cumsum(cells.sum(axis=1))])])
+        self.s_cols_g = guided_cdfs(list(np.concatenate([zero, np.cumsum(cells, axis=1)], axis=1)))
+        for g in (self.s_rows_g, self.s_cols_g):
+            g["cdf"], g["guide"] = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
+
+    @staticmethod
+    def corners(values):
+        """A bilinear table ``(n, n)`` as one packet per cell, ``(v[y, x], v[y, x + 1], v[y + 1, x],
+        v[y + 1, x + 1])`` for ``x, y < n - 1`` (row-major cells): one packet gather a lookup."""
+        v = np.asarray(values, dtype=np.float32)
+        return _array(mi.Float, np.stack([v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]], -1).ravel())
+
+    @staticmethod
+    def _taps(padded):
+        """A padded coefficient grid ``(m, m)`` as packets of four neighbours along x:
+        ``packet[y, x] = padded[y, x : x + 4]`` (``x < m - 3``), one packet gather a row of 4×4 taps."""
+        m = padded.shape[0]
+        return _array(mi.Float, np.stack([padded[:, a:m - 3 + a] for a in range(4)], -1).ravel())
 
     @staticmethod
     def _padded(coef):
@@ -146,20 +173,17 @@ class LobeKernel:
         y0 = dr.clip(dr.floor(fy), 0, n - 2)
         tx = dr.clip(fx - x0, 0.0, 1.0)
         ty = dr.clip(fy - y0, 0.0, 1.0)
-        k = mi.UInt32(y0) * n + mi.UInt32(x0)
-        vals = tb["values"]
-        v00 = _gather(mi.Float, vals, k, inside)
-        v01 = _gather(mi.Float, vals, k + 1, inside)
-        v10 = _gather(mi.Float, vals, k + n, inside)
-        v11 = _gather(mi.Float, vals, k + n + 1, inside)
-        v = dr.lerp(dr.lerp(v00, v01, tx), dr.lerp(v10, v11, tx), ty)
+        q = gather4(tb["values"], mi.UInt32(y0) * (n - 1) + mi.UInt32(x0), inside)   # the cell's corners
+        v = dr.lerp(dr.lerp(q.x, q.y, tx), dr.lerp(q.z, q.w, tx), ty)
         return dr.select(inside, dr.maximum(v, 0.0), 0.0)
 
     def set_structure_rows(self, s_rows, s_slopes):
         """Rows of ``S - 1`` over the area fraction (``(n_rows, s_n)``, :func:`corona.render_lobe.structure_rows`)
         and their slopes in ``F_a``: :meth:`value` then takes the row and Hermite weights of each lane."""
-        self.s_values = _array(mi.Float, np.asarray(s_rows).ravel())
-        self.s_slopes = _array(mi.Float, np.asarray(s_slopes).ravel())
+        rows, slopes = np.asarray(s_rows, dtype=np.float64), np.asarray(s_slopes, dtype=np.float64)
+        # one packet per row and node i: S(i), S(i + 1), dS(i), dS(i + 1)
+        self.s_rows = _array(mi.Float, np.stack([rows[:, :-1], rows[:, 1:], slopes[:, :-1], slopes[:, 1:]],
+                                                -1).ravel())
 
     def set_structure_centre(self, s1, ds1):
         """One row of ``S - 1`` (``s_n``) at a layer's uniform F_a and its slope in F_a:
@@ -183,12 +207,11 @@ class LobeKernel:
             v1 = _gather(mi.Float, self.s_values, i + 1, inside)
             return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
         j, h00, h10, h01, h11 = srow
-        k = j * self.s_n + i
-
-        def at(arr, kk):
-            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
-        v = (h00 * at(self.s_values, k) + h01 * at(self.s_values, k + self.s_n)
-             + h10 * at(self.s_slopes, k) + h11 * at(self.s_slopes, k + self.s_n))
+        k = j * (self.s_n - 1) + i
+        q0 = gather4(self.s_rows, k, inside)
+        q1 = gather4(self.s_rows, k + (self.s_n - 1), inside)
+        v = (h00 * dr.lerp(q0.x, q0.y, t) + h01 * dr.lerp(q1.x, q1.y, t)
+             + h10 * dr.lerp(q0.z, q0.w, t) + h11 * dr.lerp(q1.z, q1.w, t))
         return dr.select(inside, v, 0.0)
 
     def _cubic(self, grids, ux, uy, active):
@@ -212,17 +235,14 @@ class LobeKernel:
                     t3 * (1.0 / 6.0))
 
         wx, wy = weights(tx), weights(ty)
-        m = n + 3                                   # padded row length
-        base = mi.UInt32(iy) * m + mi.UInt32(ix)    # tap (-1, -1) in the padded array
+        m = n                                       # packets a row of the padded array (n + 3 wide)
+        base = mi.UInt32(iy) * m + mi.UInt32(ix)    # taps (-1 .. 2, -1) in the padded array
         acc = [mi.Float(0.0) for _ in grids]
         for b in range(4):
-            racc = [mi.Float(0.0) for _ in grids]
-            for a in range(4):
-                k = base + (b * m + a)
-                for g, coef in enumerate(grids):
-                    racc[g] = dr.fma(wx[a], _gather(mi.Float, coef, k, inside), racc[g])
-            for g in range(len(grids)):
-                acc[g] = dr.fma(wy[b], racc[g], acc[g])
+            for g, coef in enumerate(grids):
+                q = gather4(coef, base + b * m, inside)      # the row's four taps in one packet
+                racc = dr.fma(wx[0], q.x, dr.fma(wx[1], q.y, dr.fma(wx[2], q.z, wx[3] * q.w)))
+                acc[g] = dr.fma(wy[b], racc, acc[g])
         return [dr.select(inside, x, 0.0) for x in acc]
 
     def _term_amplitude(self, term, qx, qy):
@@ -340,10 +360,40 @@ class LobeKernel:
         p = self._bilinear(self.near, ux * rx, uy * ry, active)      # t = u / (1 + |u|/c)
         return p * (1.0 / self.near["total"]) * dr.square(rx * ry)
 
+    def _sample_cell(self, s, active):
+        """``s`` (Point2f in [0, 1)²) -> a point in [0, 1]² of the sampling table with the density of
+        its bilinear interpolant (exactly): the row of cells by ``s.x``, the cell in it by ``s.y``
+        (guided searches), one of the cell's four corners with probability ∝ its value (what is
+        left of ``s.x``), then the product of the two linear ramps that vanish at the opposite
+        edges (``√ξ``; ``ξ``: what is left of each): the mixture of the corners' ramps weighted by
+        their values is the bilinear interpolant of the cell, and the cell's probability its integral."""
+        n1 = self.near["n"] - 1
+        rg, cg = self.s_rows_g, self.s_cols_g
+        y0, a0, a1 = guided_search(rg["cdf"], rg["guide"], rg["G"], rg["n_bins"], rg["steps"], mi.UInt32(0),
+                                   s.x, active)
+        x0, b0, b1 = guided_search(cg["cdf"], cg["guide"], cg["G"], cg["n_bins"], cg["steps"], y0, s.y, active)
+        ry = dr.clip((s.x - a0) / dr.maximum(a1 - a0, 1e-30), 0.0, 0.99999994)
+        rx = dr.clip((s.y - b0) / dr.maximum(b1 - b0, 1e-30), 0.0, 0.99999994)
+        q = gather4(self.near["values"], y0 * n1 + x0, active)      # v00, v01 (x + 1), v10 (y + 1), v11
+        q0, q1, q2, q3 = (dr.maximum(q.x, 0.0), dr.maximum(q.y, 0.0), dr.maximum(q.z, 0.0),
+                          dr.maximum(q.w, 0.0))
+        c1 = q0 + q1
+        c2 = c1 + q2
+        total = dr.maximum(c2 + q3, 1e-30)
+        target = ry * total
+        hi_x = ((target >= q0) & (target < c1)) | (target >= c2)       # corners 01 and 11
+        hi_y = target >= c1                                            # corners 10 and 11
+        start = dr.select(target < q0, 0.0, dr.select(target < c1, q0, dr.select(target < c2, c1, c2)))
+        width = dr.select(target < q0, q0, dr.select(target < c1, q1, dr.select(target < c2, q2, q3)))
+        ry2 = dr.clip((target - start) / dr.maximum(width, 1e-30), 0.0, 1.0)
+        fx = dr.select(hi_x, dr.safe_sqrt(rx), 1.0 - dr.safe_sqrt(1.0 - rx))   # density 2x or 2(1 - x)
+        fy = dr.select(hi_y, dr.safe_sqrt(ry2), 1.0 - dr.safe_sqrt(1.0 - ry2))
+        return mi.Point2f((mi.Float(x0) + fx) * (1.0 / n1), (mi.Float(y0) + fy) * (1.0 / n1))
+
     def sample(self, s, active):
         """``s`` (Point2f in [0, 1)²) -> u (Vector2f) with density :meth:`pdf`."""
         tb = self.near
-        p01, _ = self.distr.sample(s, active=active)
+        p01 = self._sample_cell(s, active)
         tx, ty = tb["lo"] + p01.x * tb["span"], tb["lo"] + p01.y * tb["span"]
         if self.warp == 0.0:
             return mi.Vector2f(tx, ty)

@@ -101,7 +101,7 @@ import numpy as np
 
 from ._validation import CoronaError, CoronaWarning
 from .mitsuba_common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_curves, channel_response,
-                             fold_spectrum, gather as _gather, guided_cdfs, guided_search,
+                             fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
                              invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
                              pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
                              read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
@@ -124,6 +124,17 @@ __all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range
 def _channel_envelopes(mono: bool):
     """The double pass's fringe tables of the active variant's channels (built once per kind)."""
     return channel_envelopes(*channel_curves(), N_RESPONSE)
+
+
+def _pack_rows(rows, slopes=None):
+    """Radial rows ``(n_rows, n)`` and their slopes in F_a as one float32 array of packets, bin by bin:
+    ``(v(i), v(i + 1), ∂v(i), ∂v(i + 1))`` for ``i < n - 1`` (slopes 0 without ``slopes``), so that one
+    packet gather (:func:`corona.mitsuba_common.gather4`) reads what linear interpolation in ``|u|``
+    and the Hermite in F_a need of a row."""
+    rows = np.asarray(rows, dtype=np.float64)
+    slopes = np.zeros_like(rows) if slopes is None else np.asarray(slopes, dtype=np.float64)
+    packed = np.stack([rows[:, :-1], rows[:, 1:], slopes[:, :-1], slopes[:, 1:]], axis=-1)
+    return _array(mi.Float, packed.ravel())
 
 
 def _hermite(x, rows, at):
@@ -349,9 +360,8 @@ class CoronaBSDFMixin:
             self.du = float(tabs[0].du)
             self.n = int(tabs[0].values.size)
             rows = np.stack([t.values for t in tabs])
-            self.values = _array(mi.Float, rows.ravel())
-            if self.n_rows > 1:
-                self.slopes = _array(mi.Float, row_slopes(fas, rows).ravel())   # ∂v/∂F_a of each row
+            # ∂v/∂F_a of each row (Hermite in F_a between rows)
+            self.packed = _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None)
             self._set_cdf([t.cdf for t in tabs])
         else:
             # the lobe as exact as the model (analytic form factors or cubic form-factor
@@ -392,8 +402,7 @@ class CoronaBSDFMixin:
         lo, step = dv[:-1], dv[1:] - dv[:-1]
         slope_total = float(np.sum(2 * np.pi * du * (u0 * lo + (u0 * step + du * lo) / 2 + du * step / 3)))
         self.du, self.n = du, int(v.size)
-        self.values = _array(mi.Float, v)
-        self.centre_slopes = _array(mi.Float, dv)
+        self.packed = _pack_rows(v[None], dv[None])
         self.totals = _array(mi.Float, [row.total])
         self.total_slopes = _array(mi.Float, [slope_total])
         self._set_cdf([row.cdf])
@@ -413,8 +422,8 @@ class CoronaBSDFMixin:
         if not (table.n == tb["n"] and abs(float(table.lo) - tb["lo"]) <= 1e-9 * abs(tb["lo"])
                 and float(table.warp) == self.kernel.warp):
             return                                   # another grid: keep the material's own
-        self.kernel.near = dict(tb, total=float(table.total), values=_array(mi.Float, table.values.ravel()))
-        self.kernel.distr = mi.MarginalContinuous2D0(np.ascontiguousarray(table.values, dtype=np.float32))
+        self.kernel.near = dict(tb, total=float(table.total), values=self.kernel.corners(table.values))
+        self.kernel.set_sampling_table(table.values)
 
     def _set_cdf(self, cdfs):
         """Normalised float32 CDFs of the rows and their guide tables (:func:`corona.mitsuba_common.guided_cdfs`)."""
@@ -497,20 +506,17 @@ class CoronaBSDFMixin:
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.n - 1)
-        k = row * self.n + i
+        k = row * (self.n - 1) + i       # the packet of bin i: v(i), v(i + 1), ∂v(i), ∂v(i + 1)
+        q = gather4(self.packed, k, inside)
+        v0 = dr.lerp(q.x, q.y, t)
         if t_fa is None:
-            v0 = dr.lerp(_gather(mi.Float, self.values, k, inside), _gather(mi.Float, self.values, k + 1, inside), t)
             return dr.select(inside, dr.maximum(v0, 0.0), 0.0), None, None
         if self.centred:         # t_fa = F_a - the row's F_a: 0 in value, the slope for derivatives
-            v0 = dr.lerp(_gather(mi.Float, self.values, k, inside), _gather(mi.Float, self.values, k + 1, inside), t)
-            m0 = dr.lerp(_gather(mi.Float, self.centre_slopes, k, inside),
-                         _gather(mi.Float, self.centre_slopes, k + 1, inside), t)
-            return dr.select(inside, dr.maximum(dr.fma(t_fa, m0, v0), 0.0), 0.0), None, None
-        def at(arr, kk):
-            return dr.lerp(_gather(mi.Float, arr, kk, inside), _gather(mi.Float, arr, kk + 1, inside), t)
-        v0, v1 = at(self.values, k), at(self.values, k + self.n)
+            return dr.select(inside, dr.maximum(dr.fma(t_fa, dr.lerp(q.z, q.w, t), v0), 0.0), 0.0), None, None
+        q1 = gather4(self.packed, k + (self.n - 1), inside)
+        v1 = dr.lerp(q1.x, q1.y, t)
         h00, h10, h01, h11 = hermite
-        v = h00 * v0 + h01 * v1 + h10 * at(self.slopes, k) + h11 * at(self.slopes, k + self.n)
+        v = h00 * v0 + h01 * v1 + h10 * dr.lerp(q.z, q.w, t) + h11 * dr.lerp(q1.z, q1.w, t)
         return (dr.select(inside, dr.maximum(v0, 0.0), 0.0), dr.select(inside, dr.maximum(v1, 0.0), 0.0),
                 dr.select(inside, dr.maximum(v, 0.0), 0.0))
 
@@ -526,8 +532,9 @@ class CoronaBSDFMixin:
         # radial: density 2π u v_lin(u) in the bin; its CDF a cubic, solved by safeguarded Newton
         du = self.du
         u0 = mi.Float(idx) * du
-        a = _gather(mi.Float, self.values, row * self.n + idx, active)
-        b = _gather(mi.Float, self.values, row * self.n + idx + 1, active) - a
+        q = gather4(self.packed, row * (self.n - 1) + idx, active)    # (bins of the CDF = of the rows)
+        a = q.x
+        b = q.y - a
         t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, self.totals, row, active))
         r = u0 + t * du
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
