@@ -3,7 +3,10 @@
 ``mi.load_dict({'type': 'corona', 'shape': 'sphere', ...})`` builds this BSDF
 (:func:`corona.mitsuba_bsdf.register` dispatches on ``shape``).  It evaluates
 and samples the tables of :class:`corona.sphere_material.SphereMaterial`
-exactly as that numpy reference does, in Dr.Jit:
+exactly as that numpy reference does, in Dr.Jit, with the parts every
+``corona`` BSDF shares (:mod:`corona.mitsuba_common`: the guide-table CDFs and
+their search, the radial Newton inversion, the wavelength mixture and pick,
+the spectrum folding, the pane's weights, the component selection):
 
 * component 0, coherent transmission (``DeltaTransmission``): ``|1 - F_s s₀(λ)|²``
   along ``-wi``, a spectrum (the optical theorem's mean field depends on λ);
@@ -17,18 +20,33 @@ tabulated in rows of the size parameter ``x`` and in the chord
 the two rows j, j+1 around a wavelength (weight t) are read at the chord
 scaled by ``x / x_row`` (rings at a fixed ``x·s`` line up), with Catmull–Rom
 cubics in the chord for the value.  Sampling draws the chord from one row's
-piecewise-linear radial density (guide table, bisection, safeguarded Newton
-on the cubic CDF, as the flat layers' radial tables), row j+1 with
-probability ``t T_j+1 / ((1-t) T_j + t T_j+1)``, scales it by ``x_row / x``
-and draws the azimuth uniformly, so the pdf is the rows' linear, scaled blend
-over the interpolated total (both lobes' densities, since a lobe's sampler
-reaches a sliver past 90°); the lane's wavelengths are mixed as for the flat
-layers (one-sample balance heuristic).
+piecewise-linear radial density (:func:`corona.mitsuba_common.guided_search`,
+:func:`corona.mitsuba_common.invert_radial_bin`), row j+1 with probability
+``t T_j+1 / ((1-t) T_j + t T_j+1)``, scales it by ``x_row / x`` and draws the
+azimuth uniformly, so the pdf is the rows' linear, scaled blend over the
+interpolated total (both lobes' densities, since a lobe's sampler reaches a
+sliver past 90°); the lane's wavelengths are mixed as for the flat layers
+(one-sample balance heuristic).
 
-Uniform parameters, except an ``area_fraction`` texture with Poisson centres
-(the tables do not depend on F_a then: the lane's F_a enters ``F_s``, the
-coherent beam and the cap); the isotropic processes (poisson, hard-disk,
-rsa); nothing is exposed to ``mi.traverse``.
+With ``substrate=glass`` the droplets sit on a thin pane, with the flat
+layer's weights (:mod:`corona.mitsuba_bsdf`'s table, ``R'``, ``T'`` of the
+pane, ``C`` the coherent weight at ``θi``): light meeting the layer first
+sends the lobes' far-side part through the pane (``T'(θo)``), leaves their
+near-side part as it is, and adds 3, the pane's specular reflection
+``C² R'(θi)``, and 4, the lobe in reflection ``C [R'(θi) + R'(θo)] f(wi, wo')``
+(``wo'`` the mirror image of ``wo`` in the layer's plane: scattered to the far
+side and reflected back, or reflected first and scattered back); light
+meeting the glass first has ``T'(θi)`` on the far side, ``T'(θi) T'(θo)`` on
+its own side, specular ``R'(θi)``.  Component 4 is sampled as the lobes
+(forward or backward in their selection ratio), mirrored.
+
+``area_fraction`` takes a texture with Poisson centres (the tables do not
+depend on F_a then: the lane's F_a enters ``F_s``, the coherent beam and the
+cap) and is exposed to ``mi.traverse`` there (``area_fraction.value`` or the
+texture's keys, differentiable); the processes with a hard core (hard-disk,
+rsa) take a uniform value (their ``S(q)`` and the cap's energies are tables
+of F_a).  ``radius`` takes no texture: the Mie rows belong to one radius
+(``x = 2π r/λ`` together with the index at that λ).
 """
 from __future__ import annotations
 
@@ -39,30 +57,22 @@ import numpy as np
 from . import tables
 from ._validation import CoronaError
 from .mitsuba_common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, texture_range
-from .mitsuba_common import variant_class, wavelength_mixture
+from .mitsuba_common import guided_cdfs, guided_search, invert_radial_bin, layer_first, pane_delta_weights
+from .mitsuba_common import pane_reflectance, pane_smooth_factors, positive as _positive, selection
+from .mitsuba_common import uniform as _uniform, variant_class, wavelength_mixture
 from .mitsuba_common import array as _array, channel_response as _channel_response, gather as _gather
 from .mitsuba_common import read_props as _read_props
-from .parameters import SPEC, material_from_parameters
+from .parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from .sphere_material import ENERGY_MARGIN, INCIDENCE_MU
 
+__all__ = ["NEWTON_STEPS", "SphereBSDFMixin", "sphere_bsdf_class"]
 
-def _cdf_rows(values: np.ndarray, ds: float):
-    """Normalised float32 CDFs of the radial densities ``2π s v(s)`` of each row, guide tables,
-    the bisection depth and the guide size (see ``CoronaBSDFMixin._set_cdf``)."""
-    cdfs = [tables.RadialTable(ds, row).cdf for row in values]
-    n_bins = values.shape[1] - 1
-    G = int(min(max(n_bins, 16), 1 << 16))
-    marks = (np.arange(G + 1) / G).astype(np.float32)
-    cdf_all, guide_all, width = [], [], 1
-    for cdf64 in cdfs:
-        total = cdf64[-1] if cdf64[-1] > 0 else 1.0
-        cdf32 = (np.asarray(cdf64) / total).astype(np.float32)
-        guide = np.clip(np.searchsorted(cdf32, marks, side="right") - 1, 0, n_bins - 1)
-        width = max(width, int(np.max(guide[1:] - guide[:-1])) + 1)
-        cdf_all.append(cdf32)
-        guide_all.append(guide)
-    return (np.concatenate(cdf_all), np.concatenate(guide_all),
-            max(1, int(np.ceil(np.log2(width + 1)))), G)
+#: Why a sphere layer takes no radius texture (the one line of its refusal).
+NO_RADIUS_TEXTURE = ("the Mie rows belong to one radius: the pattern is a function of x = 2πr/λ and of the "
+                     "droplets' index at that λ, so another radius needs its own Mie table")
+#: Why a sphere layer with a hard core takes no area_fraction texture.
+NO_FA_TEXTURE = ("with hard-disk or rsa centres S(q) and the lobe weight's energies are tables of F_a; "
+                 "a texture needs process='poisson'")
 
 
 class SphereBSDFMixin:
@@ -71,36 +81,48 @@ class SphereBSDFMixin:
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
         params, textures = _read_props(props)
-        self.fa_tex = None
+        process = params.get("process", SPEC["process"].default)
+        albedo_tex = textures.pop("albedo", None)
+        if albedo_tex is not None:     # means nothing for a sphere: the one unused-parameter warning
+            warn_unused(["albedo"], {**DEFAULTS, **params}, stacklevel=2)
+        radius_tex = textures.pop("radius", None)
+        if radius_tex is not None:
+            if radius_tex.is_spatially_varying():
+                raise CoronaError(f"radius texture is out of range for shape='sphere'; allowed a float "
+                                  f"({NO_RADIUS_TEXTURE})")
+            params["radius"] = SPEC["radius"].check(texture_range(radius_tex)[1])
         fa_tex = textures.pop("area_fraction", None)
+        self.fa_varying = process == "poisson"
+        self.fa_range = (0.0, 1.0)
         if fa_tex is not None and fa_tex.is_spatially_varying():
-            # Poisson centres: the tables do not depend on F_a, only F_s, the coherent beam and the
-            # cap do; the other processes' S(q) (and so the tables) change with F_a
-            if params.get("process", "poisson") != "poisson":
-                textures["area_fraction"] = fa_tex
-            else:
-                lo, hi = texture_range(fa_tex)
-                if lo is None or not (0.0 < lo and hi < 1.0):
-                    raise CoronaError(f"corona BSDF: area_fraction texture values {lo!r} … {hi!r} are out of "
-                                      "range for shape='sphere'; allowed (0, 1)")
-                self.fa_tex, self.fa_range = fa_tex, (lo, hi)
-                params["area_fraction"] = hi
+            if not self.fa_varying:
+                raise CoronaError(f"area_fraction texture is out of range for shape='sphere' with "
+                                  f"process={process!r}; allowed a float ({NO_FA_TEXTURE})")
+            lo, hi = texture_range(fa_tex)
+            if lo is None or not (0.0 < lo and hi < 1.0):
+                raise CoronaError(f"corona BSDF: area_fraction texture values {lo!r} … {hi!r} are out of "
+                                  "range for shape='sphere'; allowed (0, 1)")
+            self.fa_range = (lo, hi)
+            params["area_fraction"] = hi
         elif fa_tex is not None:                  # a uniform texture is a value
             params["area_fraction"] = texture_range(fa_tex)[1]
-        if textures:
-            raise CoronaError(f"corona BSDF: shape='sphere' takes uniform values here; "
-                              f"{', '.join(sorted(textures))} cannot be a texture (an area_fraction texture "
-                              "needs process='poisson': the other processes' tables depend on F_a; a radius "
-                              "texture would need a Mie table per radius)")
+            fa_tex = None
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
         self.params = params
         self._setup()
+        self.fa_textured = fa_tex is not None
+        self.fa_tex = fa_tex if fa_tex is not None else _uniform(self.fa)
         if not mi.is_spectral:
             self.channel_lambdas, self.channel_weights = _channel_response()
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         glossy = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection | sides
         self.m_components = [mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
-        self.m_flags = self.m_components[0] | glossy
+        if self.has_pane:   # 3: the pane's mirror image, 4: the lobe in reflection
+            self.m_components += [mi.BSDFFlags.DeltaReflection | sides, mi.BSDFFlags.GlossyReflection | sides]
+        flags = self.m_components[0]
+        for c in self.m_components[1:]:
+            flags = flags | c
+        self.m_flags = flags
 
     def _setup(self):
         material = material_from_parameters(**self.params)
@@ -135,10 +157,19 @@ class SphereBSDFMixin:
         if self.has_S:
             self.S_du, self.S = float(st[0]), _array(mi.Float, st[1])
             self.S_n = int(st[1].size)
-        self.cdf_f, self.guide_f, self.steps_f, self.G = _cdf_rows(rows["P_f"], self.ds)
-        self.cdf_b, self.guide_b, self.steps_b, _ = _cdf_rows(rows["P_b"], self.ds)
-        self.cdf_f, self.cdf_b = _array(mi.Float, self.cdf_f), _array(mi.Float, self.cdf_b)
-        self.guide_f, self.guide_b = _array(mi.UInt32, self.guide_f), _array(mi.UInt32, self.guide_b)
+        # the radial densities 2π s P(s) of both lobes' rows in one guided table: forward rows 0 .. J-1,
+        # backward rows J .. 2J-1 (corona.mitsuba_common.guided_cdfs)
+        ds = self.ds
+        g = guided_cdfs([tables.RadialTable(ds, row).cdf for row in rows["P_f"]]
+                        + [tables.RadialTable(ds, row).cdf for row in rows["P_b"]])
+        self.cdf, self.guide = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
+        self.G, self.n_bins, self.steps = g["G"], g["n_bins"], g["steps"]
+        # the pane (docs/physics.md#the-layer-on-glass-substrateglass): incoherent glass only
+        pane = material.substrate
+        self.has_pane = pane is not None
+        if self.has_pane:
+            self.eta = float(pane.ior)
+            self.layer_on_front = pane.side == "front"
 
     # ------------------------------------------------------------------
     # per-wavelength state
@@ -155,7 +186,7 @@ class SphereBSDFMixin:
         j = mi.UInt32(dr.clip(dr.floor(f), 0, self.n_rows - 2))
         return j, f - mi.Float(j), lam, x
 
-    def _state(self, lam_nm, mu_i, active, fa=None):
+    def _state(self, lam_nm, mu_i, active, fa):
         """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a)."""
         j, t, lam, x = self._row(lam_nm)
 
@@ -168,7 +199,7 @@ class SphereBSDFMixin:
             row = lambda k: mi.Vector4f(*[float(self.row_data[4 * k + c]) for c in range(4)])
             a0, a1, b0, b1 = row(2 * j), row(2 * j + 2), row(2 * j + 1), row(2 * j + 3)
         a = dr.lerp(a0, a1, t)
-        fs = dr.minimum((self.fa if fa is None else fa) / dr.maximum(mu_i, 1e-12), 1.0)
+        fs = dr.minimum(fa / dr.maximum(mu_i, 1e-12), 1.0)
         re = 1.0 - fs * a.x
         im = fs * a.y
         coherent = dr.minimum(dr.fma(re, re, im * im), 1.0)
@@ -195,24 +226,51 @@ class SphereBSDFMixin:
     def _states(self, si, active):
         lams, m = self._wavelengths(si.wavelengths)
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
-        fa = None
-        if self.fa_tex is not None:
-            fa = dr.clip(self.fa_tex.eval_1(si, active), self.fa_range[0], self.fa_range[1])
+        fa = self.fa_tex.eval_1(si, active)
+        if self.fa_textured:
+            fa = dr.clip(fa, self.fa_range[0], self.fa_range[1])
         states = [self._state(lam, mu_i, active, fa) for lam in lams]
         return states, m
 
-    def _selection(self, ctx, states, m):
-        coh = states[0]["coherent"]
-        ef = states[0]["e_f"]
-        eb = states[0]["e_b"]
-        for s in states[1:]:
-            coh, ef, eb = coh + s["coherent"], ef + s["e_f"], eb + s["e_b"]
-        en = [coh if ctx.is_enabled(mi.BSDFFlags.DeltaTransmission, 0) else mi.Float(0.0),
-              ef if ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1) else mi.Float(0.0),
-              eb if ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2) else mi.Float(0.0)]
-        total = en[0] + en[1] + en[2]
-        inv = dr.select(total > 0, 1.0 / dr.maximum(total, 1e-30), 0.0)
-        return en[0] * inv, en[1] * inv, en[2] * inv
+    # ------------------------------------------------------------------
+    # the pane's weights (corona.mitsuba_common, as the flat layer's)
+    # ------------------------------------------------------------------
+    def _pane(self, cos_i, cos_o=None):
+        """(first, R'(θi), R'(θo)) of the pane: where light meets the layer first, and its reflectances."""
+        first = layer_first(cos_i, self.layer_on_front)
+        r_i = pane_reflectance(cos_i, self.eta)
+        return first, r_i, (None if cos_o is None else pane_reflectance(cos_o, self.eta))
+
+    def _delta_weights(self, st, cos_i):
+        """Per wavelength: (coherent transmission, specular reflection) on the pane, or (C, 0) without."""
+        if not self.has_pane:
+            return st["coherent"], mi.Float(0.0)
+        first, r_i, _ = self._pane(cos_i)
+        return pane_delta_weights(st["coherent"], r_i, first)
+
+    def _selection(self, ctx, states, cos_i):
+        """Per-lane probabilities of (coherent, forward, backward[, specular, lobe in reflection]) ∝ their
+        energies summed over the lane's wavelengths (roughly, on the pane), honouring the context."""
+        flags = [(mi.BSDFFlags.DeltaTransmission, 0), (mi.BSDFFlags.GlossyTransmission, 1),
+                 (mi.BSDFFlags.GlossyReflection, 2)]
+        en = [mi.Float(0.0) for _ in range(5 if self.has_pane else 3)]
+        if self.has_pane:
+            flags += [(mi.BSDFFlags.DeltaReflection, 3), (mi.BSDFFlags.GlossyReflection, 4)]
+            first, r_i, _ = self._pane(cos_i)
+            t_i = 1.0 - r_i
+        for st in states:
+            w_coh, w_spec = self._delta_weights(st, cos_i)
+            en[0] = en[0] + w_coh
+            if self.has_pane:
+                through = dr.select(first, 1.0, t_i)
+                en[1] = en[1] + st["e_f"] * through
+                en[2] = en[2] + st["e_b"] * through
+                en[3] = en[3] + w_spec
+                en[4] = en[4] + dr.select(first, 2.0 * st["coherent"] * r_i * (st["e_f"] + st["e_b"]), 0.0)
+            else:
+                en[1] = en[1] + st["e_f"]
+                en[2] = en[2] + st["e_b"]
+        return selection(en, [ctx.is_enabled(fl, i) for fl, i in flags])
 
     def _spectrum(self, values):
         """Per-wavelength values as a Spectrum (:func:`fold_spectrum`)."""
@@ -255,90 +313,90 @@ class SphereBSDFMixin:
         return dr.select(inside, v, 1.0)
 
     def _sample_chord(self, xi, row, forward, active):
-        """Invert the normalised CDF of a row of the forward or backward table (radial density 2π s P)."""
-        n_bins = self.K - 1
-        G = self.G
-        base_c = row * (n_bins + 1)
-        base_g = row * (G + 1)
-        g = mi.UInt32(dr.minimum(xi * G, G - 1))
-        lo = dr.select(forward, _gather(mi.UInt32, self.guide_f, base_g + g, active),
-                       _gather(mi.UInt32, self.guide_b, base_g + g, active))
-        hi_f = _gather(mi.UInt32, self.guide_f, base_g + g + 1, active)
-        hi_b = _gather(mi.UInt32, self.guide_b, base_g + g + 1, active)
-        hi = dr.minimum(dr.select(forward, hi_f, hi_b) + 1, n_bins)
-        for _ in range(max(self.steps_f, self.steps_b)):
-            mid = (lo + hi) >> 1
-            c = dr.select(forward, _gather(mi.Float, self.cdf_f, base_c + mid, active),
-                          _gather(mi.Float, self.cdf_b, base_c + mid, active))
-            right = c <= xi
-            lo = dr.select(right, mid, lo)
-            hi = dr.select(right, hi, mid)
-        idx = dr.minimum(lo, n_bins - 1)
-        c0 = dr.select(forward, _gather(mi.Float, self.cdf_f, base_c + idx, active),
-                       _gather(mi.Float, self.cdf_b, base_c + idx, active))
-        c1 = dr.select(forward, _gather(mi.Float, self.cdf_f, base_c + idx + 1, active),
-                       _gather(mi.Float, self.cdf_b, base_c + idx + 1, active))
-        ds = self.ds
-        s0 = mi.Float(idx) * ds
+        """Invert the normalised CDF of a row of the forward or backward table (radial density 2π s P):
+        :func:`guided_search` for the bin, :func:`invert_radial_bin` inside it."""
+        table_row = dr.select(forward, row, row + self.n_rows)
+        idx, c0, c1 = guided_search(self.cdf, self.guide, self.G, self.n_bins, self.steps, table_row, xi, active)
         k = row * self.K + idx + dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
         a = _gather(mi.Float, self.P, k, active)
         b = _gather(mi.Float, self.P, k + 1, active) - a
         total = dr.select(forward, _gather(mi.Float, self.Tf, row, active), _gather(mi.Float, self.Tb, row, active))
-        norm = 2.0 * dr.pi * ds / dr.maximum(total, 1e-30)
-        k1 = norm * s0 * a
-        k2 = norm * (s0 * b + ds * a) * 0.5
-        k3 = norm * ds * b * (1.0 / 3.0)
-        rest = xi - c0
-        t = dr.clip(rest / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
-        lo_t, hi_t = mi.Float(0.0), mi.Float(1.0)
-        for _ in range(NEWTON_STEPS):
-            f = dr.fma(dr.fma(k3, t, k2), t, k1) * t - rest
-            lo_t = dr.select(f < 0, t, lo_t)
-            hi_t = dr.select(f >= 0, t, hi_t)
-            df = dr.fma(dr.fma(3.0 * k3, t, 2.0 * k2), t, k1)
-            t_new = t - f / dr.maximum(df, 1e-30)
-            t = dr.select((t_new <= lo_t) | (t_new >= hi_t), 0.5 * (lo_t + hi_t), t_new)
-        return s0 + dr.clip(t, 0.0, 1.0) * ds
+        s0 = mi.Float(idx) * self.ds
+        return s0 + invert_radial_bin(xi - c0, c0, c1, s0, self.ds, a, b, total) * self.ds
 
-    # ------------------------------------------------------------------
-    # BSDF interface
-    # ------------------------------------------------------------------
-    def _eval_pdf(self, ctx, si, wo, active, cached=None):
-        wi = si.wi
-        states, m = cached if cached is not None else self._states(si, active)
-        p_coh, p_f, p_b = self._selection(ctx, states, m)
-        fwd_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
-        bwd_on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
+    def _lobes(self, states, wi, wo, active, on_f, on_b, with_pdf=True):
+        """Per wavelength the lobes' ``Z`` at ``wo`` (the enabled lobe, 0 else) and the sampler's
+        density there for each lobe, ``(dens_f, dens_b)`` per wavelength (solid angle)."""
         s_f = dr.norm(wo + wi)
         s_b = dr.norm(wo - wi)
         forward = s_f <= s_b
         a_f = active & forward
-        a_b = active & _not(forward)
         dxy = dr.sqrt(dr.square(wo.x + wi.x) + dr.square(wo.y + wi.y))
-        values = []
-        pdf = mi.Float(0.0)
         s_any = dr.select(forward, s_f, s_b)
         offset = dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
-        on = dr.select(forward, fwd_on, bwd_on)
+        on = dr.select(forward, on_f, on_b)
         s_other = dr.select(forward, s_b, s_f)
         offset_other = dr.select(forward, mi.UInt32(self.back_offset), mi.UInt32(0))
         near = active & (s_other < self.reach)     # the sliver past 90° that a lobe's sampler reaches
+        values, dens = [], []
         for st in states:
             P, P_lin = self._rows_at(self.P, st, s_any, active, offset)       # P_f or P_b
             Z = P
             if self.has_S:
                 S = self._structure((2.0 * dr.pi * self.radius) * dxy / st["lam"], a_f)
                 C_f = self._rows_at(self.Cf, st, s_f, a_f)[0] if self.has_C else P
+                # the decoupling rule, corona.layer.decoupled_lobe (R = 1: Z per steradian)
                 Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
-            values.append(dr.select(active & on, Z * (st["fs"] * st["w"]), 0.0))
-            if self.sampling == "cosine":
+            values.append(dr.select(active & on, Z, 0.0))
+            if not with_pdf or self.sampling == "cosine":
                 continue
             Q_lin = self._rows_at(self.P, st, s_other, near, offset_other)[1]
-            dens_f = dr.select(forward, P_lin, Q_lin) / dr.maximum(st["Tf"], 1e-30)
-            dens_b = dr.select(forward, Q_lin, P_lin) / dr.maximum(st["Tb"], 1e-30)
-            pdf += m * (p_f * dens_f + p_b * dens_b)
-        if self.sampling == "cosine":   # comparisons only: uniform sphere for both lobes
-            pdf = dr.select(active, (p_f + p_b) * (0.25 * dr.inv_pi), 0.0)
+            dens.append((dr.select(forward, P_lin, Q_lin) / dr.maximum(st["Tf"], 1e-30),
+                         dr.select(forward, Q_lin, P_lin) / dr.maximum(st["Tb"], 1e-30)))
+        return values, dens
+
+    @staticmethod
+    def _mix(dens, m, p_f, p_b):
+        pdf = mi.Float(0.0)
+        for d_f, d_b in dens:
+            pdf += m * (p_f * d_f + p_b * d_b)
+        return pdf
+
+    # ------------------------------------------------------------------
+    # BSDF interface
+    # ------------------------------------------------------------------
+    def _eval_pdf(self, ctx, si, wo, active, cached=None):
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        cos_o = mi.Frame3f.cos_theta(wo)
+        states, m = cached if cached is not None else self._states(si, active)
+        p_coh, p_f, p_b, *p_pane = self._selection(ctx, states, cos_i)
+        on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
+        on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
+        Z, dens = self._lobes(states, wi, wo, active, on_f, on_b)
+        pdf = self._mix(dens, m, p_f, p_b)
+        if self.has_pane:
+            same_side = cos_i * cos_o > 0
+            first, r_i, r_o = self._pane(cos_i, cos_o)
+            wo_m = mi.Vector3f(wo.x, wo.y, -wo.z)          # the mirror image: the far side's lobe
+            mirrored = active & same_side & first
+            on_r = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
+            Z_m, dens_m = self._lobes(states, wi, wo_m, mirrored, True, True)
+            values = []
+            for st, z, zm in zip(states, Z, Z_m):
+                through, reflected, own_side = pane_smooth_factors(st["coherent"], r_i, r_o, first)
+                v = z * dr.select(same_side, own_side, through)
+                if on_r:
+                    v += dr.select(mirrored, zm * reflected, 0.0)
+                values.append(v * (st["fs"] * st["w"]))
+            if self.sampling != "cosine":   # component 4: the lobes' sampler, mirrored
+                pdf += dr.select(mirrored, p_pane[1] * self._mix(dens_m, m, p_f, p_b)
+                                 / _positive(p_f + p_b), 0.0)
+        else:
+            values = [z * (st["fs"] * st["w"]) for st, z in zip(states, Z)]
+        if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes
+            smooth = p_f + p_b + (p_pane[1] if self.has_pane else 0.0)
+            pdf = dr.select(active, smooth * (0.25 * dr.inv_pi), 0.0)
         return self._spectrum(values), dr.select(active, pdf, 0.0)
 
     def eval(self, ctx, si, wo, active=True):
@@ -352,62 +410,108 @@ class SphereBSDFMixin:
 
     def sample(self, ctx, si, sample1, sample2, active=True):
         wi = si.wi
-        active = mi.Bool(active) & (mi.Frame3f.cos_theta(wi) != 0)
+        cos_i = mi.Frame3f.cos_theta(wi)
+        active = mi.Bool(active) & (cos_i != 0)
         states, m = self._states(si, active)
-        p_coh, p_f, p_b = self._selection(ctx, states, m)
+        p_coh, p_f, p_b, *p_pane = self._selection(ctx, states, cos_i)
         pick_coh = active & (sample1 < p_coh)
         pick_f = active & _not(pick_coh) & (sample1 < p_coh + p_f) & (p_f > 0)
-        pick_b = active & _not(pick_coh) & _not(pick_f) & (p_b > 0)
+        pick_b = active & _not(pick_coh) & _not(pick_f) & (sample1 < p_coh + p_f + p_b) & (p_b > 0)
+        # what is left of sample1 inside the picked lobe's share
+        s = dr.select(pick_f, (sample1 - p_coh) / dr.maximum(p_f, 1e-30),
+                      (sample1 - p_coh - p_f) / dr.maximum(p_b, 1e-30))
+        if self.has_pane:   # after the lobes: 3 the pane's mirror image, 4 the lobes mirrored
+            p_spec, p_r = p_pane
+            c3 = p_coh + p_f + p_b
+            c4 = c3 + p_spec
+            pick_r = active & (sample1 >= c4) & (p_r > 0)
+            pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_r <= 0)) & (p_spec > 0)
+            pick_b = pick_b | (active & _not(pick_coh | pick_f | pick_spec | pick_r) & (p_b > 0))
+            # component 4: forward or backward in the ratio p_f : p_b, then as the lobe
+            q_f = p_f / _positive(p_f + p_b)
+            s_r = (sample1 - c4) / dr.maximum(p_r, 1e-30)
+            r_f = pick_r & (s_r < q_f)
+            s = dr.select(pick_r, dr.select(r_f, s_r / dr.maximum(q_f, 1e-30),
+                                            (s_r - q_f) / dr.maximum(1.0 - q_f, 1e-30)), s)
+            lobe_f = pick_f | r_f
+            lobe_any = pick_f | pick_b | pick_r
+        else:
+            pick_b = pick_b | (active & _not(pick_coh | pick_f) & (p_b > 0))
+            lobe_f = pick_f
+            lobe_any = pick_f | pick_b
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
         if self.sampling == "cosine":
-            d = mi.warp.square_to_uniform_sphere(sample2)
-            wo_lobe = d
+            wo_lobe = mi.warp.square_to_uniform_sphere(sample2)
         else:
             # the lobe's share of sample1 picks the hero wavelength, what is left of it the row
-            s = dr.select(pick_f, (sample1 - p_coh) / dr.maximum(p_f, 1e-30),
-                          (sample1 - p_coh - p_f) / dr.maximum(p_b, 1e-30))
             n = len(states)
             pick, _, rest = pick_wavelength(s, [st["x"] for st in states])
             j, p_next, x = states[-1]["j"], mi.Float(0.0), states[-1]["x"]
             for q in range(n - 1, -1, -1):
                 st = states[q]
                 x = dr.select(pick == q, st["x"], x)
-                T0 = dr.select(pick_f, st["Tf0"], st["Tb0"])
-                T1 = dr.select(pick_f, st["Tf1"], st["Tb1"])
+                T0 = dr.select(lobe_f, st["Tf0"], st["Tb0"])
+                T1 = dr.select(lobe_f, st["Tf1"], st["Tb1"])
                 pn = st["t"] * T1 / dr.maximum(dr.lerp(T0, T1, st["t"]), 1e-30)
                 j = dr.select(pick == q, st["j"], j)
                 p_next = dr.select(pick == q, pn, p_next)
             row = dr.select(rest < p_next, j + 1, j)
-            chord = self._sample_chord(sample2.x, row, pick_f, pick_f | pick_b)
+            chord = self._sample_chord(sample2.x, row, lobe_f, lobe_any)
             # the row's chord scaled to the lane's x: rings at a fixed x·s
             chord = dr.minimum(chord * (self.x0 + self.dx * mi.Float(row)) / x, 2.0)
             cos_t = 1.0 - 0.5 * chord * chord
             sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
             sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)
-            axis = dr.select(pick_f, -wi, wi)
+            axis = dr.select(lobe_f, -wi, wi)
             wo_lobe = mi.Frame3f(axis).to_world(mi.Vector3f(sin_t * cp, sin_t * sp, cos_t))
             wo_lobe = dr.normalize(wo_lobe)
         bs.wo = dr.select(pick_coh, -wi, wo_lobe)
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0), dr.select(pick_f, mi.UInt32(1), mi.UInt32(2)))
-        same_side = mi.Frame3f.cos_theta(wi) * mi.Frame3f.cos_theta(bs.wo) > 0
+        same_side = cos_i * mi.Frame3f.cos_theta(bs.wo) > 0
         bs.sampled_type = dr.select(pick_coh, mi.UInt32(+mi.BSDFFlags.DeltaTransmission),
                                     dr.select(same_side, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
                                               mi.UInt32(+mi.BSDFFlags.GlossyTransmission)))
         smooth = pick_f | pick_b
+        pick_delta = pick_coh
+        if self.has_pane:
+            wo_r = mi.Vector3f(wo_lobe.x, wo_lobe.y, -wo_lobe.z)
+            bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z), dr.select(pick_r, wo_r, bs.wo))
+            bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
+                                             dr.select(pick_r, mi.UInt32(4), bs.sampled_component))
+            bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
+                                        dr.select(pick_r, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                                  bs.sampled_type))
+            smooth = smooth | pick_r
+            pick_delta = pick_coh | pick_spec
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, (states, m))
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
-        weight = value / dr.select(pdf > 0, pdf, 1.0)
-        coh = self._spectrum([st["coherent"] for st in states])
+        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)
+        deltas = [self._delta_weights(st, cos_i) for st in states]
+        coh = self._spectrum([d[0] for d in deltas])
         weight = dr.select(pick_coh, coh / dr.maximum(p_coh, 1e-30), weight)
-        ok = pick_coh | (smooth & (bs.pdf > 0))
+        if self.has_pane:
+            spec = self._spectrum([d[1] for d in deltas])
+            bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
+            weight = dr.select(pick_spec, spec / dr.maximum(p_spec, 1e-30), weight)
+        ok = pick_delta | (smooth & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
     def traverse(self, callback):
-        pass
+        # Poisson centres: area_fraction (a uniform texture's "area_fraction.value", or the texture's
+        # own keys), differentiable; the hard-core processes' tables belong to the loaded F_a
+        if self.fa_varying:
+            callback.put("area_fraction", self.fa_tex, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
-        pass
+        if not self.fa_varying:
+            return
+        lo, hi = texture_range(self.fa_tex)
+        if lo is None or not (0.0 < lo and hi < 1.0) or not (np.isfinite(lo) and np.isfinite(hi)):
+            raise CoronaError(f"corona BSDF: area_fraction={lo!r} … {hi!r} is out of range for "
+                              "shape='sphere'; allowed (0, 1)")
+        if self.fa_textured:
+            self.fa_range = (lo, hi)
 
     def to_string(self):
         return f"CoronaSphereBSDF[{self.material!r}]"
