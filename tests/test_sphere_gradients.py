@@ -12,11 +12,13 @@ its own and on a glass pane.  The sample weights are taken with the forward
 lobe alone enabled (the sampled direction then does not depend on F_a: no
 component flips between ``x ± h``).
 
+With hard-disk or rsa centres ``S(q)`` and the cap's energies are cubic
+Hermite interpolations between F_a rows (continuously differentiable): ``x``
+sits 35 % into a row interval and ``h`` keeps ``x ± h`` inside it.
+
 ``radius`` is no parameter of ``mi.traverse`` for spheres (the Mie rows
-belong to one radius), nor is the F_a of hard-disk or rsa centres (their
-``S(q)`` and the cap's energies are tables of it), and ``albedo`` means nothing
-for a sphere: there is nothing to differentiate there, which the last test
-checks.
+belong to one radius), and ``albedo`` means nothing for a sphere: there is
+nothing to differentiate there, which the last test checks.
 """
 import warnings
 
@@ -75,15 +77,18 @@ def _bitmap(first, lo, hi):
             "raw": True, "filter_type": "nearest"}
 
 
-CASES = [(tex, pane) for tex in (False, True) for pane in (False, True)]
+CASES = ([("poisson", tex, pane) for tex in (False, True) for pane in (False, True)]
+         + [("hard-disk", tex, False) for tex in (False, True)] + [("rsa", False, True)])
 
 
-@pytest.mark.parametrize("textured,pane", CASES, ids=lambda v: str(v))
-def test_area_fraction_derivatives_match_central_differences(mi_variant, textured, pane):
+@pytest.mark.parametrize("process,textured,pane", CASES, ids=lambda v: str(v))
+def test_area_fraction_derivatives_match_central_differences(mi_variant, process, textured, pane):
     import mitsuba as mi
-    x, h, lo, hi = 0.2, 0.002, 0.05, 0.35
-    base = {"type": "corona", "shape": "sphere", "radius": 2.0, "process": "poisson",
-            "area_fraction": _bitmap(x, lo, hi) if textured else x}
+    # a hard core: x sits 35 % into an interval of the F_a rows (uniform: 0.2 ± 0.05; the texture:
+    # 0.05 … 0.35), x ± h inside it
+    x, h, lo, hi = (0.2, 0.002, 0.05, 0.35) if process == "poisson" else (0.2175, 0.001, 0.05, 0.35)
+    base = {"type": "corona", "shape": "sphere", "radius": 2.0, "process": process,
+            "area_fraction": _bitmap(x, lo, hi) if textured else (0.2 if process != "poisson" else x)}
     if pane:
         base["substrate"] = "glass"
     with warnings.catch_warnings():
@@ -129,16 +134,16 @@ def test_area_fraction_derivatives_match_central_differences(mi_variant, texture
 
 
 def test_nothing_else_is_exposed(mi_variant):
-    # a hard core's F_a, the radius and the albedo are not parameters of a sphere layer: the
-    # scene's parameters hold none of them (a derivative would be detached, not 0)
+    # the radius and the albedo are not parameters of a sphere layer: the scene's parameters hold
+    # neither (a derivative would be detached, not 0); area_fraction is checked on update
     import mitsuba as mi
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         hd = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 2.0, "process": "hard-disk",
-                           "area_fraction": 0.3})
+                           "area_fraction": 0.3, "albedo": 0.5})
         poisson = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 2.0, "process": "poisson",
                                 "area_fraction": 0.3})
-    assert len(mi.traverse(hd)) == 0
+    assert set(mi.traverse(hd).keys()) == {"area_fraction.value"}
     assert set(mi.traverse(poisson).keys()) == {"area_fraction.value"}
     params = mi.traverse(poisson)
     params["area_fraction.value"] = 1.5

@@ -40,13 +40,18 @@ meeting the glass first has ``T'(θi)`` on the far side, ``T'(θi) T'(θo)`` on
 its own side, specular ``R'(θi)``.  Component 4 is sampled as the lobes
 (forward or backward in their selection ratio), mirrored.
 
-``area_fraction`` takes a texture with Poisson centres (the tables do not
-depend on F_a then: the lane's F_a enters ``F_s``, the coherent beam and the
-cap) and is exposed to ``mi.traverse`` there (``area_fraction.value`` or the
-texture's keys, differentiable); the processes with a hard core (hard-disk,
-rsa) take a uniform value (their ``S(q)`` and the cap's energies are tables
-of F_a).  ``radius`` takes no texture: the Mie rows belong to one radius
-(``x = 2π r/λ`` together with the index at that λ).
+``area_fraction`` takes a float or a texture and is exposed to
+``mi.traverse`` (``area_fraction.value`` or the texture's keys,
+differentiable): the lane's F_a enters ``F_s``, the coherent beam and the cap.
+With Poisson centres nothing else depends on it.  With a hard core (hard-disk,
+rsa) ``S(q)`` and the forward lobe's energies (the cap) are tabulated in rows
+of F_a :data:`FA_ROW_STEP` apart over the texture's range (a uniform value:
+± :data:`FA_ROW_STEP` about it, re-centred when an update leaves them) and
+read as the cubic Hermite interpolation between two rows, slopes from the
+rows (:func:`corona.render_lobe.row_slopes`), so ``∂/∂F_a`` is continuous;
+the sampler draws the Mie ``P`` and does not depend on ``S``.  ``radius``
+takes no texture: the Mie rows belong to one radius (``x = 2π r/λ`` together
+with the index at that λ).
 """
 from __future__ import annotations
 
@@ -63,6 +68,7 @@ from .mitsuba_common import uniform as _uniform, variant_class, wavelength_mixtu
 from .mitsuba_common import array as _array, channel_response as _channel_response, gather as _gather
 from .mitsuba_common import read_props as _read_props
 from .parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
+from .render_lobe import row_slopes
 from .sphere_material import ENERGY_MARGIN, INCIDENCE_MU
 
 __all__ = ["NEWTON_STEPS", "SphereBSDFMixin", "sphere_bsdf_class"]
@@ -70,9 +76,8 @@ __all__ = ["NEWTON_STEPS", "SphereBSDFMixin", "sphere_bsdf_class"]
 #: Why a sphere layer takes no radius texture (the one line of its refusal).
 NO_RADIUS_TEXTURE = ("the Mie rows belong to one radius: the pattern is a function of x = 2πr/λ and of the "
                      "droplets' index at that λ, so another radius needs its own Mie table")
-#: Why a sphere layer with a hard core takes no area_fraction texture.
-NO_FA_TEXTURE = ("with hard-disk or rsa centres S(q) and the lobe weight's energies are tables of F_a; "
-                 "a texture needs process='poisson'")
+#: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa).
+FA_ROW_STEP = 0.05
 
 
 class SphereBSDFMixin:
@@ -92,12 +97,8 @@ class SphereBSDFMixin:
                                   f"({NO_RADIUS_TEXTURE})")
             params["radius"] = SPEC["radius"].check(texture_range(radius_tex)[1])
         fa_tex = textures.pop("area_fraction", None)
-        self.fa_varying = process == "poisson"
         self.fa_range = (0.0, 1.0)
         if fa_tex is not None and fa_tex.is_spatially_varying():
-            if not self.fa_varying:
-                raise CoronaError(f"area_fraction texture is out of range for shape='sphere' with "
-                                  f"process={process!r}; allowed a float ({NO_FA_TEXTURE})")
             lo, hi = texture_range(fa_tex)
             if lo is None or not (0.0 < lo and hi < 1.0):
                 raise CoronaError(f"corona BSDF: area_fraction texture values {lo!r} … {hi!r} are out of "
@@ -109,8 +110,8 @@ class SphereBSDFMixin:
             fa_tex = None
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
         self.params = params
-        self._setup()
         self.fa_textured = fa_tex is not None
+        self._setup(*(self.fa_range if self.fa_textured else (params.get("area_fraction", SPEC["area_fraction"].default),) * 2))
         self.fa_tex = fa_tex if fa_tex is not None else _uniform(self.fa)
         if not mi.is_spectral:
             self.channel_lambdas, self.channel_weights = _channel_response()
@@ -124,7 +125,8 @@ class SphereBSDFMixin:
             flags = flags | c
         self.m_flags = flags
 
-    def _setup(self):
+    def _setup(self, fa_lo, fa_hi):
+        """The tables of the layer, their F_a rows covering [fa_lo, fa_hi] (a hard core)."""
         material = material_from_parameters(**self.params)
         self.material = material
         rows = material.rows
@@ -141,7 +143,7 @@ class SphereBSDFMixin:
         if self.has_C:
             self.Cf = _array(mi.Float, rows["C_f"].ravel())
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
-        self.Ef = _array(mi.Float, der["e_f_mu"].ravel())
+        self._setup_area_fraction_rows(material, fa_lo, fa_hi)
         # per-row scalars packed 8 to a row, gathered as two Vector4f:
         # (Re s0, Im s0, e_f, e_b), (T_f, T_b, 0, 0)
         packed = np.zeros((x.size, 8))
@@ -152,11 +154,6 @@ class SphereBSDFMixin:
         # both lobes in one array: forward rows, then backward rows
         self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
         self.back_offset = int(rows["P_f"].size)
-        st = material.structure_table
-        self.has_S = st is not None
-        if self.has_S:
-            self.S_du, self.S = float(st[0]), _array(mi.Float, st[1])
-            self.S_n = int(st[1].size)
         # the radial densities 2π s P(s) of both lobes' rows in one guided table: forward rows 0 .. J-1,
         # backward rows J .. 2J-1 (corona.mitsuba_common.guided_cdfs)
         ds = self.ds
@@ -170,6 +167,64 @@ class SphereBSDFMixin:
         if self.has_pane:
             self.eta = float(pane.ior)
             self.layer_on_front = pane.side == "front"
+
+    def _setup_area_fraction_rows(self, material, fa_lo, fa_hi):
+        """``S(u)`` and the forward energies ``e_f(x_j, μ)`` in rows of F_a (a hard core) with their
+        slopes in F_a, or the one F_a-independent energy table (Poisson)."""
+        st = material.structure_table
+        self.has_S = st is not None
+        if not self.has_S:
+            self.n_fa = 1
+            self.Ef = _array(mi.Float, material._derived["e_f_mu"].ravel())
+            self.fa_cover = (0.0, 1.0)
+            return
+        top = material.process.area_fraction_limit(material.shape)
+        lo, hi = float(fa_lo), float(fa_hi)
+        if hi - lo < FA_ROW_STEP:                   # a uniform value (or a narrow range): a row at hi, one step either side
+            fas = hi + FA_ROW_STEP * np.array([-1.0, 0.0, 1.0])
+            fas = fas[(fas >= 1e-3) & (fas <= top * (1 + 1e-12))]
+        else:                                       # a texture's range, its ends on rows
+            n = int(np.ceil((hi - lo) / FA_ROW_STEP - 1e-9)) + 1
+            fas = np.linspace(lo, hi, n)
+        S, E = [], []
+        import warnings
+        with warnings.catch_warnings():             # the unused-parameter warning was given once
+            warnings.simplefilter("ignore")
+            for fa in fas:
+                m = material if abs(fa - material.area_fraction) < 1e-12 else \
+                    material_from_parameters(**{**self.params, "area_fraction": float(fa)})
+                S.append(m.structure_table[1])
+                E.append(m._derived["e_f_mu"])
+        S, E = np.array(S), np.array(E)
+        self.S_du, self.S_n = float(st[0]), int(S.shape[1])
+        self.n_fa, self.fa0, self.dfa = n, float(fas[0]), float(fas[1] - fas[0])
+        self.fa_cover = (float(fas[0]), float(fas[-1]))
+        self.fa_rows_np = fas
+        step = self.dfa
+        self.S, self.dS = _array(mi.Float, S.ravel()), _array(mi.Float, (row_slopes(fas, S) * step).ravel())
+        self.Ef, self.dEf = _array(mi.Float, E.ravel()), _array(mi.Float, (row_slopes(fas, E) * step).ravel())
+
+    def _fa_weights(self, fa):
+        """Row k and the cubic Hermite weights (value k, slope k, value k+1, slope k+1) of the lane's F_a
+        between the F_a rows (the slopes stored times the row step)."""
+        if self.n_fa == 1:
+            return None
+        g = dr.clip((fa - self.fa0) / self.dfa, 0.0, self.n_fa - 1.0)
+        k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
+        t = g - mi.Float(k)
+        t2 = t * t
+        t3 = t2 * t
+        return k, (2.0 * t3 - 3.0 * t2 + 1.0, t3 - 2.0 * t2 + t, 3.0 * t2 - 2.0 * t3, t3 - t2)
+
+    def _hermite(self, values, slopes, stride, index, hw, active):
+        """``values[k stride + index]`` interpolated in F_a with the weights ``hw`` (:meth:`_fa_weights`)."""
+        if hw is None:
+            return _gather(mi.Float, values, index, active)
+        k, (a, b, c, d) = hw
+        i0 = k * stride + index
+        i1 = i0 + stride
+        return (a * _gather(mi.Float, values, i0, active) + b * _gather(mi.Float, slopes, i0, active)
+                + c * _gather(mi.Float, values, i1, active) + d * _gather(mi.Float, slopes, i1, active))
 
     # ------------------------------------------------------------------
     # per-wavelength state
@@ -186,8 +241,9 @@ class SphereBSDFMixin:
         j = mi.UInt32(dr.clip(dr.floor(f), 0, self.n_rows - 2))
         return j, f - mi.Float(j), lam, x
 
-    def _state(self, lam_nm, mu_i, active, fa):
-        """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a)."""
+    def _state(self, lam_nm, mu_i, active, fa, hw=None):
+        """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a, ``hw`` its
+        F_a rows' weights)."""
         j, t, lam, x = self._row(lam_nm)
 
         if dr.is_array_v(mi.Float):
@@ -203,24 +259,27 @@ class SphereBSDFMixin:
         re = 1.0 - fs * a.x
         im = fs * a.y
         coherent = dr.minimum(dr.fma(re, re, im * im), 1.0)
-        ef, eb = self._forward(j, t, mu_i, active), a.w
+        ef, eb = self._forward(j, t, mu_i, active, hw), a.w
         scattered = fs * (ef + eb) * ENERGY_MARGIN
         w = dr.minimum(1.0, dr.maximum(1.0 - coherent, 0.0) / dr.maximum(scattered, 1e-30))
         Tf0, Tf1, Tb0, Tb1 = b0.x, b1.x, b0.y, b1.y
-        return dict(j=j, t=t, lam=lam, x=x, fs=fs, coherent=coherent, w=w, e_f=fs * w * ef, e_b=fs * w * eb,
+        return dict(hw=hw, j=j, t=t, lam=lam, x=x, fs=fs, coherent=coherent, w=w, e_f=fs * w * ef, e_b=fs * w * eb,
                     Tf=dr.lerp(Tf0, Tf1, t), Tb=dr.lerp(Tb0, Tb1, t), Tf1=Tf1, Tb1=Tb1, Tf0=Tf0, Tb0=Tb0)
 
-    def _forward(self, st_j, t, mu_i, active):
-        """The forward lobe's energy e_f at the row (j, t) and ``mu_i`` (SphereMaterial._forward)."""
+    def _forward(self, st_j, t, mu_i, active, hw=None):
+        """The forward lobe's energy e_f at the row (j, t), ``mu_i`` (SphereMaterial._forward) and the
+        lane's F_a (``hw``)."""
         n = len(INCIDENCE_MU)
         g = (1.0 - dr.clip(mu_i, 0.0, 1.0)) * (n - 1)
         b = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), n - 2)
         f = dr.clip(g - mi.Float(b), 0.0, 1.0)
         k = st_j * n + b
-        e00 = _gather(mi.Float, self.Ef, k, active)
-        e01 = _gather(mi.Float, self.Ef, k + 1, active)
-        e10 = _gather(mi.Float, self.Ef, k + n, active)
-        e11 = _gather(mi.Float, self.Ef, k + n + 1, active)
+        stride = self.n_rows * n
+        E, dE = self.Ef, getattr(self, "dEf", None)
+        e00 = self._hermite(E, dE, stride, k, hw, active)
+        e01 = self._hermite(E, dE, stride, k + 1, hw, active)
+        e10 = self._hermite(E, dE, stride, k + n, hw, active)
+        e11 = self._hermite(E, dE, stride, k + n + 1, hw, active)
         return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
 
     def _states(self, si, active):
@@ -229,7 +288,8 @@ class SphereBSDFMixin:
         fa = self.fa_tex.eval_1(si, active)
         if self.fa_textured:
             fa = dr.clip(fa, self.fa_range[0], self.fa_range[1])
-        states = [self._state(lam, mu_i, active, fa) for lam in lams]
+        hw = self._fa_weights(fa)
+        states = [self._state(lam, mu_i, active, fa, hw) for lam in lams]
         return states, m
 
     # ------------------------------------------------------------------
@@ -304,12 +364,14 @@ class SphereBSDFMixin:
             lin += dr.select(inside, dr.maximum(dr.lerp(p1, p2, f), 0.0) * scale, 0.0)
         return cub, lin
 
-    def _structure(self, u, active):
+    def _structure(self, u, hw, active):
+        """``S`` at ``u = q r``: linear in u, the cubic Hermite in F_a between its rows; 1 beyond."""
         x = u / self.S_du
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
         f = dr.clip(x - mi.Float(i), 0.0, 1.0)
         inside = active & (x <= self.S_n - 1)
-        v = dr.lerp(_gather(mi.Float, self.S, i, inside), _gather(mi.Float, self.S, i + 1, inside), f)
+        v = dr.lerp(self._hermite(self.S, self.dS, self.S_n, i, hw, inside),
+                    self._hermite(self.S, self.dS, self.S_n, i + 1, hw, inside), f)
         return dr.select(inside, v, 1.0)
 
     def _sample_chord(self, xi, row, forward, active):
@@ -343,7 +405,7 @@ class SphereBSDFMixin:
             P, P_lin = self._rows_at(self.P, st, s_any, active, offset)       # P_f or P_b
             Z = P
             if self.has_S:
-                S = self._structure((2.0 * dr.pi * self.radius) * dxy / st["lam"], a_f)
+                S = self._structure((2.0 * dr.pi * self.radius) * dxy / st["lam"], st["hw"], a_f)
                 C_f = self._rows_at(self.Cf, st, s_f, a_f)[0] if self.has_C else P
                 # the decoupling rule, corona.layer.decoupled_lobe (R = 1: Z per steradian)
                 Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
@@ -498,20 +560,20 @@ class SphereBSDFMixin:
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
     def traverse(self, callback):
-        # Poisson centres: area_fraction (a uniform texture's "area_fraction.value", or the texture's
-        # own keys), differentiable; the hard-core processes' tables belong to the loaded F_a
-        if self.fa_varying:
-            callback.put("area_fraction", self.fa_tex, mi.ParamFlags.Differentiable)
+        # area_fraction (a uniform texture's "area_fraction.value", or the texture's own keys), differentiable
+        callback.put("area_fraction", self.fa_tex, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
-        if not self.fa_varying:
-            return
+        # new values: check them; rebuild the F_a rows only when they leave what the rows cover
         lo, hi = texture_range(self.fa_tex)
         if lo is None or not (0.0 < lo and hi < 1.0) or not (np.isfinite(lo) and np.isfinite(hi)):
             raise CoronaError(f"corona BSDF: area_fraction={lo!r} … {hi!r} is out of range for "
                               "shape='sphere'; allowed (0, 1)")
         if self.fa_textured:
             self.fa_range = (lo, hi)
+        if lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7:
+            self.params["area_fraction"] = hi
+            self._setup(lo, hi)
 
     def to_string(self):
         return f"CoronaSphereBSDF[{self.material!r}]"

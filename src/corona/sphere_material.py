@@ -372,7 +372,13 @@ class SphereMaterial:
         C = r["C_f"] if r["C_f"].size else r["P_f"]
         T_f = np.array([tables.RadialTable(ds, row).total for row in r["P_f"]])
         T_b = np.array([tables.RadialTable(ds, row).total for row in r["P_b"]])
-        e_mu = self._forward_energy(s, C, T_f)
+        if self.structure_table is None:
+            e_mu = np.repeat(T_f[:, None], len(INCIDENCE_MU), axis=1)
+        else:   # seconds for a hard core: kept in the table cache, per process
+            key = {**self.table_params(), "forward_energy": 1, "process": self.process.key(),
+                   "incidence_mu": len(INCIDENCE_MU)}
+            e_mu = np.asarray(tables.cached(key, lambda: {"e_f_mu": self._forward_energy(s, C, T_f)},
+                                            use_cache=self.use_cache)["e_f_mu"])
         return {"T_f": T_f, "T_b": T_b, "e_f": e_mu[:, 0], "e_f_mu": e_mu, "e_b": T_b, "s": s}
 
     def _forward_energy(self, s, C, T_f) -> np.ndarray:
@@ -427,13 +433,15 @@ class SphereMaterial:
                   * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2))
             h = np.linalg.norm((wo - wt)[..., :2], axis=-1) / s_c[:, None]          # (n_c, n_phi)
             Kc = np.mean(self.structure_factor(u_c[None, :, None] * h[:, None, :]), axis=-1) - 1.0
-            Kr = np.empty_like(U)
-            for c in range(n_c - 1):
-                sel = cell == c
-                if not np.any(sel):
-                    continue
-                uu = U[:, sel]
-                Kr[:, sel] = (1 - frac[sel]) * at_u(Kc[c], uu) + frac[sel] * at_u(Kc[c + 1], uu)
+            # ⟨S⟩_φ - 1 at each row's (s, u = x s): linear in s between the coarse cells, in u on u_c
+            g = np.where(U < 40.0, U / 0.125, 320 + np.log(np.maximum(U, 40.0) / 40.0) / ratio)
+            i = np.clip(np.floor(g).astype(np.int64), 0, u_c.size - 2)
+            fr = np.clip((U - u_c[i]) / (u_c[i + 1] - u_c[i]), 0.0, 1.0)
+            lo_c, hi_c = Kc[cell], Kc[cell + 1]                          # (K', n_u)
+            col = np.arange(sk.size)[None, :]
+            at_lo = lo_c[col, i] * (1 - fr) + lo_c[col, i + 1] * fr
+            at_hi = hi_c[col, i] * (1 - fr) + hi_c[col, i + 1] * fr
+            Kr = (1 - frac) * at_lo + frac * at_hi
             out[:, k] = T_f + np.sum(Ck * Kr * w, axis=1)
         return np.maximum(out, 0.0)
 
