@@ -197,7 +197,7 @@ class SphereBSDFMixin:
                 E.append(m._derived["e_f_mu"])
         S, E = np.array(S), np.array(E)
         self.S_du, self.S_n = float(st[0]), int(S.shape[1])
-        self.n_fa, self.fa0, self.dfa = n, float(fas[0]), float(fas[1] - fas[0])
+        self.n_fa, self.fa0, self.dfa = int(fas.size), float(fas[0]), float(fas[1] - fas[0])
         self.fa_cover = (float(fas[0]), float(fas[-1]))
         self.fa_rows_np = fas
         step = self.dfa
