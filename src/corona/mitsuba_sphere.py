@@ -65,7 +65,7 @@ from .mitsuba_common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pi
 from .mitsuba_common import guided_cdfs, guided_search, invert_radial_bin, layer_first, pane_delta_weights
 from .mitsuba_common import pane_reflectance, pane_smooth_factors, positive as _positive, selection
 from .mitsuba_common import uniform as _uniform, variant_class, wavelength_mixture
-from .mitsuba_common import array as _array, channel_response as _channel_response, gather as _gather
+from .mitsuba_common import array as _array, channel_response as _channel_response, gather as _gather, gather4
 from .mitsuba_common import read_props as _read_props
 from .parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from .render_lobe import row_slopes
@@ -200,9 +200,15 @@ class SphereBSDFMixin:
         self.n_fa, self.fa0, self.dfa = int(fas.size), float(fas[0]), float(fas[1] - fas[0])
         self.fa_cover = (float(fas[0]), float(fas[-1]))
         self.fa_rows_np = fas
-        step = self.dfa
-        self.S, self.dS = _array(mi.Float, S.ravel()), _array(mi.Float, (row_slopes(fas, S) * step).ravel())
-        self.Ef, self.dEf = _array(mi.Float, E.ravel()), _array(mi.Float, (row_slopes(fas, E) * step).ravel())
+        self.S = self._packed(fas, S)
+        self.Ef = self._packed(fas, E)
+
+    def _packed(self, fas, rows):
+        """Rows in F_a packed for one Vector4f gather per node: (y_k, Δ y'_k, y_k+1, Δ y'_k+1) of each
+        interval k (Δ the row step, ``y'`` from :func:`corona.render_lobe.row_slopes`)."""
+        y = rows.reshape(rows.shape[0], -1)
+        m = row_slopes(fas, y) * self.dfa
+        return _array(mi.Float, np.stack([y[:-1], m[:-1], y[1:], m[1:]], axis=-1).ravel())
 
     def _fa_weights(self, fa):
         """Row k and the cubic Hermite weights (value k, slope k, value k+1, slope k+1) of the lane's F_a
@@ -216,15 +222,14 @@ class SphereBSDFMixin:
         t3 = t2 * t
         return k, (2.0 * t3 - 3.0 * t2 + 1.0, t3 - 2.0 * t2 + t, 3.0 * t2 - 2.0 * t3, t3 - t2)
 
-    def _hermite(self, values, slopes, stride, index, hw, active):
-        """``values[k stride + index]`` interpolated in F_a with the weights ``hw`` (:meth:`_fa_weights`)."""
+    def _hermite(self, values, stride, index, hw, active):
+        """Node ``index`` of rows ``stride`` long, interpolated in F_a with the weights ``hw``
+        (:meth:`_fa_weights`) from the :meth:`_packed` rows; ``hw`` None: the one row, unpacked."""
         if hw is None:
             return _gather(mi.Float, values, index, active)
         k, (a, b, c, d) = hw
-        i0 = k * stride + index
-        i1 = i0 + stride
-        return (a * _gather(mi.Float, values, i0, active) + b * _gather(mi.Float, slopes, i0, active)
-                + c * _gather(mi.Float, values, i1, active) + d * _gather(mi.Float, slopes, i1, active))
+        v = gather4(values, k * stride + index, active)
+        return a * v.x + b * v.y + c * v.z + d * v.w
 
     # ------------------------------------------------------------------
     # per-wavelength state
@@ -275,11 +280,10 @@ class SphereBSDFMixin:
         f = dr.clip(g - mi.Float(b), 0.0, 1.0)
         k = st_j * n + b
         stride = self.n_rows * n
-        E, dE = self.Ef, getattr(self, "dEf", None)
-        e00 = self._hermite(E, dE, stride, k, hw, active)
-        e01 = self._hermite(E, dE, stride, k + 1, hw, active)
-        e10 = self._hermite(E, dE, stride, k + n, hw, active)
-        e11 = self._hermite(E, dE, stride, k + n + 1, hw, active)
+        e00 = self._hermite(self.Ef, stride, k, hw, active)
+        e01 = self._hermite(self.Ef, stride, k + 1, hw, active)
+        e10 = self._hermite(self.Ef, stride, k + n, hw, active)
+        e11 = self._hermite(self.Ef, stride, k + n + 1, hw, active)
         return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
 
     def _states(self, si, active):
@@ -370,8 +374,8 @@ class SphereBSDFMixin:
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
         f = dr.clip(x - mi.Float(i), 0.0, 1.0)
         inside = active & (x <= self.S_n - 1)
-        v = dr.lerp(self._hermite(self.S, self.dS, self.S_n, i, hw, inside),
-                    self._hermite(self.S, self.dS, self.S_n, i + 1, hw, inside), f)
+        v = dr.lerp(self._hermite(self.S, self.S_n, i, hw, inside),
+                    self._hermite(self.S, self.S_n, i + 1, hw, inside), f)
         return dr.select(inside, v, 1.0)
 
     def _sample_chord(self, xi, row, forward, active):
