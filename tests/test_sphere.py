@@ -55,7 +55,6 @@ def test_parameters():
                      (dict(shape="sphere", ior_imag=0.1), "needs ior"),
                      (dict(shape="sphere", mode="aperture"), "mode='aperture'"),
                      (dict(shape="sphere", process="lattice-hex"), "process='lattice-hex'"),
-                     (dict(shape="sphere", edge_width=0.1), "edge_width"),
                      (dict(shape="sphere", ior=-2.0), "ior=-2")]:
         with pytest.raises(CoronaError, match=msg):
             material_from_parameters(**bad)

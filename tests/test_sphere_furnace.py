@@ -76,9 +76,19 @@ def test_sphere_radius_range_plugin(mi_variant):
         mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1000.0})
 
 
-def test_meaningless_parameters_say_why():
-    from corona import CoronaError
-    for params, words in (({"edge_width": 0.1}, "sharp surface"), ({"orientation": "random"}, "every side")):
-        with pytest.raises(CoronaError, match=words) as err:
-            _material({"shape": "sphere", **params})
-        assert "\n" not in str(err.value)
+def test_meaningless_parameters_warn_once_and_are_ignored():
+    # a sharp surface, the same from every side, no opaque part: the one unused-parameter warning
+    # names the parameter and the shapes it is used with; the layer is the plain one
+    from corona import CoronaWarning
+    plain = _material({"shape": "sphere", "radius": 1.0})
+    for params in ({"edge_width": 0.1}, {"orientation": "random"}, {"albedo": 0.3}, {"angle": 20.0},
+                   {"aspect": 0.5}):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            m = material_from_parameters(shape="sphere", radius=1.0, **params)
+        lines = [str(w.message) for w in caught if issubclass(w.category, CoronaWarning)]
+        assert len(lines) == 1 and "unused parameter" in lines[0] and next(iter(params)) in lines[0], lines
+        assert "(used with shape: " in lines[0] and "sphere" not in lines[0].split("used with")[1]
+        assert repr(m) == repr(plain)
+        e, e0 = m.directional_albedo(0.6, 500.0, n_phi=32), plain.directional_albedo(0.6, 500.0, n_phi=32)
+        assert e == e0

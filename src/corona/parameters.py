@@ -180,6 +180,8 @@ LENGTH_MAX = 2 * RADIUS_MAX
 _SHAPES_WITH_RADIUS = tuple(f"shape={s}" for s in ("circle", "ellipse", "square", "rectangle", "polygon",
                                                    "sphere"))
 _ORIENTED = tuple(f"shape={s}" for s in ("ellipse", "square", "rectangle", "polygon", "mixture"))
+#: Every flat (Fraunhofer) scatterer: all but the Mie sphere.
+_FLAT = tuple(f"shape={s}" for s in SHAPES if s != "sphere")
 _ANISOTROPIC = tuple(f"shape={s}" for s in ("ellipse", "square", "rectangle", "polygon", "mask", "mixture"))
 
 #: Every parameter of a corona layer, in the order of the tables.
@@ -207,7 +209,7 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("pixel_size", "float", "µm", None, "mask: size of one image pixel",
               low=RADIUS_MIN, high=RADIUS_MAX, applies=("shape=mask",)),
     Parameter("edge_width", "float", "µm", 0.0, "soft edge: std of a Gaussian apodisation "
-              "(at most the scatterer's circumradius)", low=0.0, high=RADIUS_MAX),
+              "(at most the scatterer's circumradius)", low=0.0, high=RADIUS_MAX, applies=_FLAT),
     Parameter("orientation", "choice", "", "fixed", "fixed, or random (rotational average: radial lobe; "
               f"scatterers up to {ROTATION_RADIUS_MAX:g} µm including the largest of a size spread)",
               ORIENTATIONS, applies=_ANISOTROPIC),
@@ -226,7 +228,8 @@ PARAMETERS: tuple[Parameter, ...] = (
               applies=("process=lattice-square", "process=lattice-hex")),
     Parameter("mode", "choice", "", "aperture", "aperture: scatterers transmit in an opaque screen; "
               "particle: they block light in a clear layer", MODES),
-    Parameter("albedo", "float", "", 0.0, "diffuse reflectance of the opaque part", low=0.0, high=1.0),
+    Parameter("albedo", "float", "", 0.0, "diffuse reflectance of the opaque part", low=0.0, high=1.0,
+              applies=_FLAT),
     Parameter("mixture", "string", "", None, "shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (radius µm, "
               "number weights; decoupling approximation)", applies=("shape=mixture",)),
     Parameter("substrate", "choice", "", "none", "none; glass: the layer sits on a thin non-absorbing pane "
@@ -426,11 +429,10 @@ def _make_shape(p: dict):
         if p.get("ior") is None and p.get("ior_imag"):
             raise CoronaError(f"ior_imag={p['ior_imag']!r} needs ior=<real part> (the default, water, "
                               "does not absorb)")
-        for name, off, why in (("edge_width", 0.0, "a Mie sphere has a sharp surface, not a soft edge"),
-                               ("orientation", "fixed", "a sphere looks the same from every side")):
-            if p[name] != off:
-                raise CoronaError(f"{name}={p[name]!r} is out of range for shape='sphere'; allowed {off!r} "
-                                  f"({why})")
+        # edge_width, orientation, angle, aspect and albedo mean nothing for a Mie sphere (a sharp
+        # surface, the same from every side, reflecting by Mie theory): their "applies" leave it out,
+        # so a given value gets the one unused-parameter warning and is ignored here
+        p = {**p, "edge_width": 0.0, "orientation": "fixed"}
         ior = None if p.get("ior") is None else complex(p["ior"], p.get("ior_imag") or 0.0)
         from .sphere_material import SPHERE_RADIUS_MAX
         if p["radius"] > SPHERE_RADIUS_MAX:   # the Mie tables' range (their build time)
@@ -540,12 +542,11 @@ def material_from_parameters(**params):
     shape = make_shape(p)
     process = make_process(p, shape)
     if p["shape"] == "sphere":   # droplets in air: particles; the mode given must say so
-        from .sphere_material import SphereMaterial
+        from .sphere_material import SPHERE_NO_LATTICE, SphereMaterial
         if p["process"] not in ("poisson", "hard-disk", "rsa"):
             raise CoronaError(f"process={p['process']!r} is out of range for shape='sphere'; allowed "
-                              "poisson, hard-disk, rsa")
-        material = SphereMaterial(shape, process, mode=params.get("mode") or "particle", albedo=p["albedo"],
-                                  substrate=substrate)
+                              f"poisson, hard-disk, rsa ({SPHERE_NO_LATTICE})")
+        material = SphereMaterial(shape, process, mode=params.get("mode") or "particle", substrate=substrate)
     else:
         material = Material(shape, process, mode=p["mode"], albedo=p["albedo"], substrate=substrate)
     warn_unused(given, p)

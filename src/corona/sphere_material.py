@@ -66,8 +66,10 @@ import numpy as np
 
 from . import mie, tables
 from ._validation import CoronaError, check_choice, check_finite_array, check_range
+from .layer import decoupled_lobe
 from .processes import Poisson, Process
 from .shapes.sphere import Sphere, sphere_parts
+from .substrate import GlassPane, Mirror
 
 #: Format of the sphere tables in the cache.
 SPHERE_FORMAT = 3
@@ -108,6 +110,10 @@ SIZE_PER_SIGMA = 4.0
 MAX_SIZE_SAMPLES = 8000
 SIZE_TAIL = 1e-6
 SIZE_DM = 0.002
+#: Why spheres take no lattice (the one line of the refusal).
+SPHERE_NO_LATTICE = ("a lattice's S(q) is a grating of Bragg peaks at its reciprocal vectors, anisotropic "
+                     "discrete orders in the plane of the layer, while the Mie lobes are tabulated and "
+                     "sampled by scattering angle alone")
 
 
 def _grid(radius: float, radius_max: float, spread: float = 0.0):
@@ -450,6 +456,9 @@ class SphereMaterial:
         Spheres reflect by Mie theory (the backward lobe), not diffusely.
     use_cache : bool
         Keep the tables in the on-disk cache.
+    substrate : corona.GlassPane, optional
+        The droplets sit on a thin pane (incoherent: no thickness), with the
+        flat layer's weights (:meth:`eval`; docs/physics.md#the-layer-on-glass-substrateglass).
 
     Examples
     --------
@@ -469,7 +478,6 @@ class SphereMaterial:
 
     mode = "particle"
     albedo = 0.0
-    substrate = None
     isotropic = True
 
     def __init__(self, shape, process: Process | None = None, mode: str = "particle",
@@ -483,16 +491,20 @@ class SphereMaterial:
         if not isinstance(process, Process):
             raise CoronaError(f"process={process!r} is not a corona point process (e.g. corona.Poisson())")
         if not process.isotropic:
-            raise CoronaError(f"process={process!r} is not isotropic; shape='sphere' takes poisson, "
-                              "hard-disk or rsa")
+            raise CoronaError(f"process={process!r} is out of range for shape='sphere'; allowed poisson, "
+                              f"hard-disk or rsa ({SPHERE_NO_LATTICE})")
         if check_choice("mode", mode, ("aperture", "particle")) != "particle":
             raise CoronaError("mode='aperture' is out of range for shape='sphere'; allowed: particle "
                               "(droplets in clear air)")
         if check_range("albedo", albedo, 0.0, 1.0) != 0.0:
             raise CoronaError(f"albedo={albedo!r} is out of range for shape='sphere'; allowed 0 (a sphere "
                               "reflects by Mie theory: the backward lobe)")
-        if substrate is not None:
-            raise CoronaError("substrate is out of range for shape='sphere'; allowed: none")
+        if substrate is not None and (not isinstance(substrate, GlassPane) or isinstance(substrate, Mirror)
+                                      or substrate.coherent):
+            raise CoronaError(f"substrate={substrate!r} is out of range for shape='sphere'; allowed none or "
+                              "an incoherent glass pane (corona.GlassPane without a thickness: the double "
+                              "pass's fringes are built for the flat layer)")
+        self.substrate = substrate
         self.shape = shape
         self.process = process
         self.use_cache = bool(use_cache)
@@ -508,7 +520,8 @@ class SphereMaterial:
                               "whose Fraunhofer corona theirs approaches)")
 
     def __repr__(self):
-        return f"SphereMaterial({self.shape!r}, {self.process!r})"
+        pane = "" if self.substrate is None else f", substrate={self.substrate!r}"
+        return f"SphereMaterial({self.shape!r}, {self.process!r}{pane})"
 
     @property
     def length_scale(self) -> float:
@@ -561,7 +574,13 @@ class SphereMaterial:
         C = r["C_f"] if r["C_f"].size else r["P_f"]
         T_f = np.array([tables.RadialTable(ds, row).total for row in r["P_f"]])
         T_b = np.array([tables.RadialTable(ds, row).total for row in r["P_b"]])
-        e_mu = self._forward_energy(s, C, T_f)
+        if self.structure_table is None:
+            e_mu = np.repeat(T_f[:, None], len(INCIDENCE_MU), axis=1)
+        else:   # seconds for a hard core: kept in the table cache, per process
+            key = {**self.table_params(), "forward_energy": 1, "process": self.process.key(),
+                   "incidence_mu": len(INCIDENCE_MU)}
+            e_mu = np.asarray(tables.cached(key, lambda: {"e_f_mu": self._forward_energy(s, C, T_f)},
+                                            use_cache=self.use_cache)["e_f_mu"])
         return {"T_f": T_f, "T_b": T_b, "e_f": e_mu[:, 0], "e_f_mu": e_mu, "e_b": T_b, "s": s}
 
     def _forward_energy(self, s, C, T_f) -> np.ndarray:
@@ -616,13 +635,15 @@ class SphereMaterial:
                   * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2))
             h = np.linalg.norm((wo - wt)[..., :2], axis=-1) / s_c[:, None]          # (n_c, n_phi)
             Kc = np.mean(self.structure_factor(u_c[None, :, None] * h[:, None, :]), axis=-1) - 1.0
-            Kr = np.empty_like(U)
-            for c in range(n_c - 1):
-                sel = cell == c
-                if not np.any(sel):
-                    continue
-                uu = U[:, sel]
-                Kr[:, sel] = (1 - frac[sel]) * at_u(Kc[c], uu) + frac[sel] * at_u(Kc[c + 1], uu)
+            # ⟨S⟩_φ - 1 at each row's (s, u = x s): linear in s between the coarse cells, in u on u_c
+            g = np.where(U < 40.0, U / 0.125, 320 + np.log(np.maximum(U, 40.0) / 40.0) / ratio)
+            i = np.clip(np.floor(g).astype(np.int64), 0, u_c.size - 2)
+            fr = np.clip((U - u_c[i]) / (u_c[i + 1] - u_c[i]), 0.0, 1.0)
+            lo_c, hi_c = Kc[cell], Kc[cell + 1]                          # (K', n_u)
+            col = np.arange(sk.size)[None, :]
+            at_lo = lo_c[col, i] * (1 - fr) + lo_c[col, i + 1] * fr
+            at_hi = hi_c[col, i] * (1 - fr) + hi_c[col, i + 1] * fr
+            Kr = (1 - frac) * at_lo + frac * at_hi
             out[:, k] = T_f + np.sum(Ck * Kr * w, axis=1)
         return np.maximum(out, 0.0)
 
@@ -684,14 +705,36 @@ class SphereMaterial:
         return {"coherent": coherent, "weight": w, "forward": fs * w * e_f, "backward": fs * w * e_b,
                 "slant": fs}
 
+    # ------------------------------------------------------------------
+    # the pane (docs/physics.md#the-layer-on-glass-substrateglass), as corona.Material's
+    # ------------------------------------------------------------------
+    def _pane(self, cos_theta):
+        """(R', T') of the pane at |cos θ|: (0, 1) without one."""
+        c = np.asarray(cos_theta, dtype=np.float64)
+        if self.substrate is None:
+            return np.zeros_like(c), np.ones_like(c)
+        return self.substrate.reflectance(c), self.substrate.transmittance(c)
+
+    def _layer_first(self, cos_theta_i):
+        c = np.asarray(cos_theta_i, dtype=np.float64)
+        return np.ones(c.shape, bool) if self.substrate is None else self.substrate.layer_first(c)
+
     def coherent_transmission(self, cos_theta_i, wavelength=550.0):
-        """Weight of the delta transmission along ``-wi``: ``|1 - F_s s₀(λ)|²``."""
-        return self.energies(cos_theta_i, wavelength)["coherent"]
+        """Weight of the delta transmission along ``-wi``: ``C T'(θi)``, ``C = |1 - F_s s₀(λ)|²``
+        (a spectrum: the mean field depends on λ), ``T'`` the pane's (1 without one)."""
+        return self.energies(cos_theta_i, wavelength)["coherent"] * self._pane(cos_theta_i)[1]
+
+    def specular_reflection(self, cos_theta_i, wavelength=550.0):
+        """Weight of the delta reflection (the mirror direction of ``wi``): 0 without a pane; ``C² R'(θi)``
+        when light meets the layer first, ``R'(θi)`` when it meets the glass first."""
+        r = self._pane(cos_theta_i)[0]
+        c = self.energies(cos_theta_i, wavelength)["coherent"]
+        return np.where(self._layer_first(cos_theta_i), c * c * r, r)
 
     @property
     def coherent_transmittance(self) -> float:
-        """The coherent weight at normal incidence and 550 nm (it depends on both)."""
-        return float(self.coherent_transmission(1.0, 550.0))
+        """The layer's coherent weight ``C`` at normal incidence and 550 nm (it depends on both)."""
+        return float(self.energies(1.0, 550.0)["coherent"])
 
     # ------------------------------------------------------------------
     # the BSDF
@@ -719,7 +762,7 @@ class SphereMaterial:
             P_f = self._blend("P_f", j, t, x, s_f)
             C_f = self._blend("C_f", j, t, x, s_f) if self.rows["C_f"].size else P_f
             P_b = self._blend("P_b", j, t, x, s_b)
-        Z_f = np.maximum(P_f + C_f * (S - 1.0), 0.0)
+        Z_f = decoupled_lobe(P_f, C_f, S)        # per steradian: R = 1
         return Z_f, P_b, forward
 
     def _exact(self, s_f, s_b, lam):
@@ -750,17 +793,51 @@ class SphereMaterial:
         out[2] = np.where(s_b <= CHORD_MAX, out[2], 0.0)
         return out
 
+    def _layer_eval(self, wi, wo, wavelength, exact=False):
+        """The layer alone: ``F_s w Z`` (forward or backward lobe) and the coherent weight ``C``."""
+        Z_f, Z_b, forward = self._lobes(wi, wo, wavelength, exact)
+        wi = np.asarray(wi, dtype=np.float64)
+        e = self.energies(np.broadcast_to(wi[..., 2], Z_f.shape), wavelength)
+        return e["slant"] * e["weight"] * np.where(forward, Z_f, Z_b), e["coherent"]
+
+    def _pane_factors(self, ci, co, coherent):
+        """(far side, own side, mirrored) factors of the lobes on the pane (1, 1, 0 without one)."""
+        first = self._layer_first(ci)
+        ri, ti = self._pane(ci)
+        ro, to = self._pane(co)
+        through = np.where(first, to, ti)
+        own = np.where(first, 1.0, ti * to)
+        mirrored = np.where(first, coherent * (ri + ro), 0.0)
+        return through, own, mirrored
+
     def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
-        """The smooth BSDF times the cosine, ``f |cos θo| = F_s w Z`` (forward or backward lobe).
+        """The smooth BSDF times the cosine, ``f |cos θo|``: ``F_s w Z`` (forward or backward lobe).
 
         ``wi``, ``wo`` (..., 3) unit vectors (Mitsuba's convention), ``wavelength`` [nm].
         ``exact=True`` evaluates Mie theory at each direction instead of the tables
         (the weight ``w`` still comes from the tables' energies).
+
+        On a pane (``C`` the coherent weight at ``θi``, ``R'``, ``T'`` the pane's, ``wo'`` the
+        mirror image of ``wo`` in the layer's plane), as :meth:`corona.Material.eval`:
+
+        =====================  ==================================  ======================
+        lobes' part            light meets the layer first         meets the glass first
+        =====================  ==================================  ======================
+        on the far side        ``f T'(θo)``                        ``T'(θi) f``
+        on the side of ``wi``  ``f + C [R'(θi) + R'(θo)] f(wo')``  ``T'(θi) f T'(θo)``
+        =====================  ==================================  ======================
         """
-        Z_f, Z_b, forward = self._lobes(wi, wo, wavelength, exact)
+        val, coherent = self._layer_eval(wi, wo, wavelength, exact)
+        if self.substrate is None:
+            return val
         wi = np.asarray(wi, dtype=np.float64)
-        e = self.energies(np.broadcast_to(wi[..., 2], Z_f.shape), wavelength)
-        return e["slant"] * e["weight"] * np.where(forward, Z_f, Z_b)
+        wo = np.asarray(wo, dtype=np.float64)
+        ci, co = np.broadcast_arrays(wi[..., 2], wo[..., 2])
+        through, own, mirrored = self._pane_factors(ci, co, coherent)
+        same = ci * co > 0
+        wo_m = wo * np.array([1.0, 1.0, -1.0])
+        val_m = self._layer_eval(wi, wo_m, wavelength, exact)[0]
+        return np.where(same, val * own + mirrored * val_m, val * through)
 
     def lobe(self, d, wavelength) -> np.ndarray:
         """The transmitted lobe at normal incidence per unit ``d²d`` (docs/physics.md's ``lobe(d)``).
@@ -773,7 +850,7 @@ class SphereMaterial:
         r2 = np.sum(d * d, axis=-1)
         cz = np.sqrt(np.maximum(1.0 - r2, 0.0))
         wo = np.concatenate([d, -cz[..., None]], axis=-1)
-        val = self.eval(np.array([0.0, 0.0, 1.0]), wo, wavelength)
+        val = self._layer_eval(np.array([0.0, 0.0, 1.0]), wo, wavelength)[0]      # the layer alone
         return np.where(r2 < 1.0, val / np.maximum(cz, 1e-300), 0.0)
 
     # ------------------------------------------------------------------
@@ -822,17 +899,33 @@ class SphereMaterial:
     # ------------------------------------------------------------------
     # energy checks
     # ------------------------------------------------------------------
-    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, n_phi: int = 256) -> dict:
+    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0,
+                           n_phi: int = 256, pane: bool = True) -> dict:
         """Energy of each component for light from ``cos_theta_i`` (the white furnace).
 
         The tabulated lobes are integrated over the sphere of directions on
         their own chord grids (``dΩ = s ds dφ``, trapezoid in s at twice the
-        table's resolution, midpoint in φ).
+        table's resolution, midpoint in φ, ``n_phi`` azimuths); on a pane the
+        lobes' far-side part also enters the lobe in reflection (:meth:`eval`).
+
+        Parameters
+        ----------
+        cos_theta_i : float in [-1, 1], not 0
+            Signed cosine of ``wi``.
+        wavelength : float
+            Wavelength [nm].
+        phi_i : float
+            Azimuth of ``wi`` (the layer is isotropic: the result does not depend on it).
+        n_phi : int
+            Azimuths of the quadrature.
+        pane : bool
+            False: the layer alone (without its substrate).
 
         Returns
         -------
-        dict: ``coherent``, ``forward``, ``backward`` (by lobe), ``transmission``,
-        ``reflection`` (by side of the layer, lobes only) and ``total`` (<= 1).
+        dict: :class:`corona.Material`'s keys ``coherent``, ``specular``, ``lobe_transmission``,
+        ``lobe_reflection``, ``diffuse`` (0: no opaque part) and ``total`` (<= 1), plus the
+        layer's own lobes ``forward`` and ``backward`` (without the pane's factors).
         """
         ci = check_range("cos_theta_i", cos_theta_i, -1.0, 1.0)
         if ci == 0.0:
@@ -843,38 +936,51 @@ class SphereMaterial:
         ws = np.full(s.size, s[1] - s[0])
         ws[0] = ws[-1] = 0.5 * ws[0]
         phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
-        out = {"coherent": float(self.coherent_transmission(ci, wavelength)), "forward": 0.0, "backward": 0.0,
-               "transmission": 0.0, "reflection": 0.0}
+        on_pane = pane and self.substrate is not None
+        coherent = float(self.energies(ci, wavelength)["coherent"])
+        r_i, t_i = (float(v) for v in self._pane(ci)) if on_pane else (0.0, 1.0)
+        first = bool(self._layer_first(ci)) if on_pane else True
+        out = {"coherent": coherent * t_i,
+               "specular": (coherent * coherent * r_i if first else r_i) if on_pane else 0.0,
+               "lobe_transmission": 0.0, "lobe_reflection": 0.0, "diffuse": 0.0,
+               "forward": 0.0, "backward": 0.0}
         for which, axis in (("forward", -wi), ("backward", wi)):
             e1, e2 = _frame(axis)
             cos_t = 1 - 0.5 * s * s
             sin_t = s * np.sqrt(1 - 0.25 * s * s)
             wo = (cos_t[:, None, None] * axis + sin_t[:, None, None]
                   * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2))
-            val = self.eval(wi, wo, wavelength)
+            val = self._layer_eval(wi, wo, wavelength)[0]
             dw = (ws * s)[:, None] * (2 * np.pi / n_phi)
             # the chord s = √2 is shared by both lobes: eval assigns it to one, the other's
             # trapezoid end weight there is 0.5 of a thin ring, negligible
-            out[which] = float(np.sum(val * dw))
-            side = np.sign(wo[..., 2]) == np.sign(ci)
-            out["reflection"] += float(np.sum(np.where(side, val, 0.0) * dw))
-            out["transmission"] += float(np.sum(np.where(side, 0.0, val) * dw))
-        out["total"] = out["coherent"] + out["forward"] + out["backward"]
+            e = val * dw
+            out[which] = float(np.sum(e))
+            same = np.sign(wo[..., 2]) == np.sign(ci)
+            if on_pane:   # each direction's energy as eval splits it (the mirrored part: wo' on the far side)
+                through, own, mirrored = self._pane_factors(np.full(wo.shape[:-1], ci), wo[..., 2], coherent)
+                out["lobe_reflection"] += float(np.sum(np.where(same, e * own, e * mirrored)))
+                out["lobe_transmission"] += float(np.sum(np.where(same, 0.0, e * through)))
+            else:
+                out["lobe_reflection"] += float(np.sum(np.where(same, e, 0.0)))
+                out["lobe_transmission"] += float(np.sum(np.where(same, 0.0, e)))
+        out["total"] = sum(out[k] for k in ("coherent", "specular", "lobe_transmission", "lobe_reflection",
+                                             "diffuse"))
         return out
 
-    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=1.0, phi_i=0.0):
-        """The lobes' energy leaving through the far side for light from ``cos_theta_i``
-        (the forward lobe at normal incidence; the keys of :class:`corona.Material`).
+    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=None, phi_i=0.0):
+        """The lobes' energy leaving through the far side (``lobe_transmission`` of
+        :meth:`directional_albedo`) for light from ``cos_theta_i`` (None: normal incidence).
         ``phi_i`` is accepted for the shared signature (the layer is isotropic)."""
         ci = 1.0 if cos_theta_i is None else float(cos_theta_i)
         # at normal incidence the lobes are symmetric about the axis: a few azimuths suffice
-        return self.directional_albedo(ci, wavelength, n_phi=4 if abs(ci) == 1.0 else 256)["transmission"]
+        return self.directional_albedo(ci, wavelength, n_phi=4 if abs(ci) == 1.0 else 256)["lobe_transmission"]
 
     @property
     def reflectance(self) -> float:
-        """The lobes' energy back to the incident side at normal incidence and 550 nm (the
-        backward lobe: glory, fogbow); the spheres absorb what ``ior_imag`` takes, nothing else."""
-        return self.directional_albedo(1.0, 550.0, n_phi=4)["reflection"]
+        """The layer's lobes' energy back to the incident side at normal incidence and 550 nm (the
+        backward lobe: glory, fogbow; the layer alone); the spheres absorb what ``ior_imag`` takes."""
+        return self.directional_albedo(1.0, 550.0, n_phi=4, pane=False)["lobe_reflection"]
 
     @property
     def lobe_weight(self) -> float:
