@@ -142,7 +142,7 @@ class SphereBSDFMixin:
         self.bin_dx = 0.5 * float(np.min(np.diff(x)))
         n_bins = int(np.ceil((x[-1] - x[0]) / self.bin_dx)) + 2
         edges = x[0] + np.arange(n_bins) * self.bin_dx
-        self.n_bins = n_bins
+        self.x_bins = n_bins
         self.row_guide = _array(mi.UInt32, np.clip(np.searchsorted(x, edges, side="right") - 1, 0, x.size - 2))
         self.ds = float(rows["ds"])
         # the largest chord a lobe's sampler draws: a row's last node scaled by x_j+1 / x_j
@@ -251,7 +251,7 @@ class SphereBSDFMixin:
     def _row(self, lam_nm):
         lam = dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
         x = (2.0 * dr.pi * self.radius) / lam
-        b = mi.UInt32(dr.clip(dr.floor((x - self.x0) / self.bin_dx), 0, self.n_bins - 1))
+        b = mi.UInt32(dr.clip(dr.floor((x - self.x0) / self.bin_dx), 0, self.x_bins - 1))
         j = _gather(mi.UInt32, self.row_guide, b)
         for _ in range(2):        # float32 rounding of the bin: at most one row up, checked twice
             up = (j + 1 < self.n_rows - 1) & (x >= _gather(mi.Float, self.x_rows, j + 1))
