@@ -725,11 +725,16 @@ class SphereMaterial:
         return self.energies(cos_theta_i, wavelength)["coherent"] * self._pane(cos_theta_i)[1]
 
     def specular_reflection(self, cos_theta_i, wavelength=550.0):
-        """Weight of the delta reflection (the mirror direction of ``wi``): 0 without a pane; ``C² R'(θi)``
-        when light meets the layer first, ``R'(θi)`` when it meets the glass first."""
+        """Weight of the delta reflection (the mirror direction of ``wi``): 0 without a pane;
+        ``C R + C² (R' - R)`` when light meets the layer first (the front face's ``R`` crosses the
+        layer once: :meth:`corona.GlassPane.specular_through_layer`), ``R'(θi)`` when it meets the
+        glass first."""
         r = self._pane(cos_theta_i)[0]
+        if self.substrate is None:
+            return r
         c = self.energies(cos_theta_i, wavelength)["coherent"]
-        return np.where(self._layer_first(cos_theta_i), c * c * r, r)
+        through = self.substrate.specular_through_layer(cos_theta_i, wavelength, c)
+        return np.where(self._layer_first(cos_theta_i), through, r)
 
     @property
     def coherent_transmittance(self) -> float:
@@ -807,7 +812,11 @@ class SphereMaterial:
         ro, to = self._pane(co)
         through = np.where(first, to, ti)
         own = np.where(first, 1.0, ti * to)
-        mirrored = np.where(first, coherent * (ri + ro), 0.0)
+        if self.substrate is None:
+            return through, own, np.zeros_like(through)
+        # the front face reflects the lobe once, the round trips cross the layer again
+        # (corona.GlassPane.reflected_lobe_factor; an incoherent pane: no wavelength dependence)
+        mirrored = np.where(first, self.substrate.reflected_lobe_factor(ci, co, 550.0, coherent), 0.0)
         return through, own, mirrored
 
     def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
@@ -824,8 +833,11 @@ class SphereMaterial:
         lobes' part            light meets the layer first         meets the glass first
         =====================  ==================================  ======================
         on the far side        ``f T'(θo)``                        ``T'(θi) f``
-        on the side of ``wi``  ``f + C [R'(θi) + R'(θo)] f(wo')``  ``T'(θi) f T'(θo)``
+        on the side of ``wi``  ``f + F f(wo')``                    ``T'(θi) f T'(θo)``
         =====================  ==================================  ======================
+
+        with ``F = min(R(θi), R(θo)) + C [P(θi) + P(θo)]``, ``R`` the front face's Fresnel
+        reflectance and ``P = R' - R`` the round trips (:meth:`corona.GlassPane.reflected_lobe_factor`).
         """
         val, coherent = self._layer_eval(wi, wo, wavelength, exact)
         if self.substrate is None:
@@ -941,7 +953,8 @@ class SphereMaterial:
         r_i, t_i = (float(v) for v in self._pane(ci)) if on_pane else (0.0, 1.0)
         first = bool(self._layer_first(ci)) if on_pane else True
         out = {"coherent": coherent * t_i,
-               "specular": (coherent * coherent * r_i if first else r_i) if on_pane else 0.0,
+               "specular": (float(self.substrate.specular_through_layer(ci, wavelength, coherent)) if first else r_i)
+                        if on_pane else 0.0,
                "lobe_transmission": 0.0, "lobe_reflection": 0.0, "diffuse": 0.0,
                "forward": 0.0, "backward": 0.0}
         for which, axis in (("forward", -wi), ("backward", wi)):
