@@ -68,6 +68,7 @@ from . import mie, tables
 from ._validation import CoronaError, check_choice, check_finite_array, check_range
 from .layer import decoupled_lobe
 from .processes import Poisson, Process
+from .shapes.modifiers import SizeDistribution
 from .shapes.sphere import Sphere, sphere_parts
 from .substrate import GlassPane, Mirror
 
@@ -97,6 +98,9 @@ ENERGY_MARGIN = 1.006
 #: up to 436) takes about a minute once (then it is cached); larger droplets' corona is the
 #: Fraunhofer pattern of a disk of the same radius (shape=circle).
 SPHERE_RADIUS_MAX = 25.0
+#: The largest droplet a size distribution's tables hold [µm] (their build time: the size
+#: grid's Mie series grow with the largest size parameter; docs/mie.md).
+SPHERE_SIZES_MAX = 50.0
 #: Rows computed together (memory of the amplitudes: ROW_CHUNK x nodes complex values).
 ROW_CHUNK = 128
 #: Size distributions: step of the fine grid of size parameters the rows average (at most), the
@@ -158,6 +162,33 @@ def _size_quadrature(sizes):
     lo = max(int(np.searchsorted(power, SIZE_TAIL)) - 1, 0)
     hi = min(int(np.searchsorted(power, 1.0 - SIZE_TAIL)) + 1, y.size - 1)
     return y[lo:hi + 1], p[lo:hi + 1]
+
+
+def largest_sphere(radius: float, spread: float, distribution: str = "lognormal") -> float:
+    """The largest radius [µm] a size distribution's tables hold: the top of the sizes holding all
+    but ``SIZE_TAIL`` of the scattered power ``s² p(s)`` (:func:`_size_quadrature`).
+
+    >>> round(largest_sphere(20.0, 0.1), 1) < SPHERE_SIZES_MAX < round(largest_sphere(25.0, 0.5))
+    True
+    """
+    if spread <= 0:
+        return float(radius)
+    sizes = SizeDistribution(Sphere(radius), spread, distribution=distribution)
+    return float(radius * math.exp(_size_quadrature(sizes)[0][-1]))
+
+
+def largest_spread(radius: float, distribution: str = "lognormal") -> float:
+    """The largest size spread whose droplets stay within ``SPHERE_SIZES_MAX`` at mean radius
+    ``radius`` [µm] (bisection on :func:`largest_sphere`; 0 when ``radius`` itself is too big)."""
+    if largest_sphere(radius, 1e-3, distribution) > SPHERE_SIZES_MAX:
+        return 0.0
+    lo, hi = 1e-3, 0.5
+    if largest_sphere(radius, hi, distribution) <= SPHERE_SIZES_MAX:
+        return hi
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if largest_sphere(radius, mid, distribution) <= SPHERE_SIZES_MAX else (lo, mid)
+    return lo
 
 
 def _mono_sums(m, X, basis, amplitudes=False):
@@ -518,6 +549,15 @@ class SphereMaterial:
             raise CoronaError(f"radius={self.sphere.radius:g} is out of range for shape='sphere'; allowed "
                               f"(0, {SPHERE_RADIUS_MAX:g}] µm (larger droplets: use shape='circle', "
                               "whose Fraunhofer corona theirs approaches)")
+        if self.sizes is not None and self.sizes.spread > 0:
+            top = largest_sphere(self.sphere.radius, self.sizes.spread, self.sizes.distribution)
+            if top > SPHERE_SIZES_MAX:
+                allowed = largest_spread(self.sphere.radius, self.sizes.distribution)
+                raise CoronaError(
+                    f"size_spread={self.sizes.spread:g} is out of range for shape='sphere' with radius="
+                    f"{self.sphere.radius:g} µm: its largest droplets ({top:.3g} µm; {SIZE_TAIL:g} of the "
+                    f"scattered power beyond) pass {SPHERE_SIZES_MAX:g} µm, the Mie tables' range; allowed "
+                    f"size_spread <= {allowed:.3g} ({self.sizes.distribution}) at this radius")
 
     def __repr__(self):
         pane = "" if self.substrate is None else f", substrate={self.substrate!r}"
