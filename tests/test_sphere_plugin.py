@@ -4,7 +4,7 @@ import warnings
 import numpy as np
 import pytest
 
-from bsdf_checks import chi2_bsdf, interaction
+from bsdf_checks import assert_eval_matches, chi2_bsdf, furnace, interaction
 
 WAVELENGTHS = (450.0, 520.0, 600.0, 700.0)
 
@@ -42,18 +42,13 @@ def _directions(wi, rng, n=3000):
 
 @pytest.mark.parametrize("name", ["hd", "sd", "poisson"])
 def test_eval_matches_numpy_reference(layers, name):
-    import mitsuba as mi
     bsdf = layers[name]
     m = bsdf.material
     rng = np.random.default_rng(2)
     for deg in (0, 30, 60, 80):
         wi = np.array([np.sin(np.radians(deg)), 0.0, np.cos(np.radians(deg))])
         wo = _directions(wi, rng)
-        val, pdf = bsdf.eval_pdf(mi.BSDFContext(), interaction(len(wo), wi),
-                                 mi.Vector3f(wo.T.astype(np.float32)))
-        val = np.asarray(val)
-        ref = np.stack([m.eval(wi, wo, lam) for lam in WAVELENGTHS])
-        assert np.max(np.abs(val - ref)) < 1e-4 * ref.max(), deg
+        _, _, pdf = assert_eval_matches(bsdf, m.eval, wi, wo, WAVELENGTHS, rtol=0.0, atol=1e-4, peak="all")
         # the pdf: lobe selection probabilities x the rows' interpolated density, mixed over the lane
         e = [m.energies(wi[2], lam) for lam in WAVELENGTHS]
         p = np.array([sum(x[k] for x in e) for k in ("coherent", "forward", "backward")])
@@ -88,16 +83,11 @@ def test_chi2_size_distribution_both_lobes(layers):
 @pytest.mark.parametrize("name", ["hd", "poisson"])
 def test_white_furnace_by_sampling(layers, name):
     # E[weight] of sample() is the directional albedo: <= 1, and the numpy reference's integral
-    import mitsuba as mi
     bsdf = layers[name]
-    n = 400_000
-    rng = np.random.default_rng(5)
     for deg in (0, 60):
-        wi = (np.sin(np.radians(deg)), 0.0, np.cos(np.radians(deg)))
-        bs, w = bsdf.sample(mi.BSDFContext(), interaction(n, wi), mi.Float(rng.random(n).astype(np.float32)),
-                            mi.Point2f(rng.random((2, n)).astype(np.float32)))
-        mean = np.array([np.mean(np.asarray(w)[k]) for k in range(4)])
-        ref = np.array([bsdf.material.directional_albedo(wi[2], lam, n_phi=128)["total"] for lam in WAVELENGTHS])
+        mean, _ = furnace(bsdf, deg, WAVELENGTHS, n=400_000, seed=5)
+        ref = np.array([bsdf.material.directional_albedo(np.cos(np.radians(deg)), lam, n_phi=128)["total"]
+                        for lam in WAVELENGTHS])
         assert np.all(mean <= 1.0 + 3e-3), (deg, mean)
         assert mean == pytest.approx(ref, abs=5e-3), (deg, mean, ref)
 

@@ -13,7 +13,7 @@ from corona.parameters import material_from_parameters
 from corona.reference.stack import CLASSES, random_walk
 from corona.substrate import GlassPane, fresnel_dielectric
 
-from bsdf_checks import chi2_test, interaction, smooth_context
+from bsdf_checks import assert_eval_matches, chi2_test, furnace, interaction, smooth_context
 
 # a wide lobe (small droplets) with an opaque part that reflects: every component matters
 LAYER = {"process": "poisson", "radius": 0.3, "area_fraction": 0.5, "mode": "particle", "albedo": 1.0}
@@ -157,14 +157,9 @@ def test_eval_matches_reference(mi_variant, side, theta):
     m = material_from_parameters(**params)
     th = np.radians(theta)
     wo = _directions(3000, 5)
-    lams = (450.0, 520.0, 600.0, 700.0)
     for sign in (1, -1):
         wi = np.array([np.sin(th), 0.0, sign * np.cos(th)])
-        si = interaction(len(wo), wi, lams)
-        val = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wo.T)))
-        for k, lam in enumerate(lams):
-            ref = m.eval(wi, wo, lam)
-            np.testing.assert_allclose(val[k], ref, rtol=2e-4, atol=2e-4 * ref.max())
+        assert_eval_matches(bsdf, m.eval, wi, wo, rtol=2e-4, atol=2e-4)
 
 
 @pytest.mark.parametrize("cos_i", COS_I)
@@ -172,22 +167,14 @@ def test_white_furnace_per_incidence(mi_variant, pane_material, cos_i):
     """Sampled energy (all components) <= 1 and equal to the reference's directional albedo."""
     import mitsuba as mi
     bsdf = mi.load_dict({"type": "corona", **PANE})
-    n = 200_000
-    rng = np.random.default_rng(11)
-    s = np.sqrt(1 - cos_i * cos_i)
     for lam in (400.0, 650.0):
-        si = interaction(n, (s, 0.0, cos_i), (lam,) * 4)
-        bs, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(rng.random(n)),
-                            mi.Point2f(rng.random(n), rng.random(n)))
-        w = np.array(w)[0]
-        assert np.all(np.isfinite(w)) and np.all(w >= 0)
+        mean, err, shares = furnace(bsdf, np.degrees(np.arccos(cos_i)), (lam,) * 4, seed=11, components=(0, 3))
         expected = pane_material.directional_albedo(cos_i, lam)
-        assert w.mean() <= 1.0 + 3 * w.std() / np.sqrt(n)
-        assert w.mean() == pytest.approx(expected["total"], abs=4 * w.std() / np.sqrt(n) + 1e-3)
+        assert mean[0] <= 1.0 + 3 * err[0]
+        assert mean[0] == pytest.approx(expected["total"], abs=4 * err[0] + 1e-3)
         # the delta components carry exactly their weights
-        comp = np.array(bs.sampled_component)
-        for c, key in ((0, "coherent"), (3, "specular")):
-            assert np.mean(w * (comp == c)) == pytest.approx(expected[key], abs=5e-3)
+        for share, key in zip(shares[:, 0], ("coherent", "specular")):
+            assert share == pytest.approx(expected[key], abs=5e-3)
 
 
 def test_delta_weights_match_reference(mi_variant, pane_material):

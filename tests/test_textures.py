@@ -11,7 +11,8 @@ import pytest
 from corona import CoronaError
 from corona.parameters import material_from_parameters
 
-from bsdf_checks import bitmap_texture as _bitmap, chi2_bsdf, smooth_context
+from bsdf_checks import assert_eval_matches, bitmap_texture as _bitmap, chi2_bsdf, furnace, smooth_context
+from bsdf_checks import transmitted_lobe
 from bsdf_checks import uv_interaction as _si
 
 FA_MAP = np.array([[0.05, 0.2], [0.37, 0.61]], dtype=np.float32)   # hard-disk rows and values between
@@ -53,32 +54,19 @@ def test_textured_layer_exposes_its_texture(textured):
 
 @pytest.mark.parametrize("theta", [0, 40])
 def test_eval_is_the_material_at_the_local_area_fraction(textured, theta):
-    import mitsuba as mi
     wi, wo = _transmitted(1500, 3, theta)
-    for (u, v), fa in zip(UV, FA_MAP.ravel()):
-        val = np.array(textured.eval(mi.BSDFContext(), _si(len(wo), wi, (u, v)), mi.Vector3f(wo.T)))
+    for uv, fa in zip(UV, FA_MAP.ravel()):
         m = material_from_parameters(radius=3.0, process="hard-disk", area_fraction=float(fa))
-        d = wo[:, :2] + wi[:2]
-        for k, lam in enumerate(LAMS):
-            ref = m.lobe(d, lam) * np.abs(wo[:, 2])
-            # rows every 0.1 % of the lobe; the radial table's own linear interpolation in u
-            # (step 0.01) and float32 add up to 1e-4 of the peak on the flanks of dark rings
-            err = np.abs(val[k] - ref) - (1e-3 * ref + 1e-4 * ref.max())
-            assert err.max() <= 0, (fa, lam, err.max())
+        # rows every 0.1 % of the lobe; the radial table's own linear interpolation in u
+        # (step 0.01) and float32 add up to 1e-4 of the peak on the flanks of dark rings
+        assert_eval_matches(textured, transmitted_lobe(m), wi, wo, LAMS, rtol=1e-3, atol=1e-4, uv=uv)
 
 
 def test_energies_follow_the_local_area_fraction(textured):
     """Sample weights average to the local albedo: F_a² + lobe + ρ(1 - F_a) (white furnace per texel)."""
-    import mitsuba as mi
-    n = 200_000
-    rng = np.random.default_rng(5)
-    for (u, v), fa in zip(UV, FA_MAP.ravel()):
+    for uv, fa in zip(UV, FA_MAP.ravel()):
         m = material_from_parameters(radius=3.0, process="hard-disk", area_fraction=float(fa), albedo=0.5)
-        wi = (0.0, 0.0, 1.0)
-        si = _si(n, wi, (u, v), (550.0,) * 4)
-        bs, w = textured.sample(mi.BSDFContext(), si, mi.Float(rng.random(n)),
-                                mi.Point2f(rng.random(n), rng.random(n)))
-        total = float(np.mean(np.array(w)[0]))
+        total = furnace(textured, 0.0, uv=uv, seed=5)[0][0]
         expect = m.coherent_transmittance + m.diffuse_transmittance(550.0, 1.0) + m.reflectance
         assert abs(total - expect) < 0.01 * expect + 2e-3, (fa, total, expect)
         assert total <= 1.0 + 3e-3
@@ -106,11 +94,9 @@ def test_radius_scales_the_layer(mi_variant):
     bsdf = mi.load_dict({"type": "corona", "process": "hard-disk", "area_fraction": 0.3,
                          "edge_width": 0.1, "radius": _bitmap([[1.0, 2.0]])})
     wi, wo = _transmitted(1000, 4, 20)
-    val = np.array(bsdf.eval(mi.BSDFContext(), _si(len(wo), wi, (0.25, 0.5)), mi.Vector3f(wo.T)))
     # at r = 1 the edge width (given for the largest radius, 2) is halved with it
     m = material_from_parameters(process="hard-disk", area_fraction=0.3, radius=1.0, edge_width=0.05)
-    ref = m.lobe(wo[:, :2] + wi[:2], LAMS[1]) * np.abs(wo[:, 2])
-    np.testing.assert_allclose(val[1], ref, rtol=2e-3, atol=1e-4 * ref.max())
+    assert_eval_matches(bsdf, transmitted_lobe(m), wi, wo, LAMS, rtol=2e-3, atol=1e-4, uv=(0.25, 0.5))
 
 
 def _eval_sum(bsdf, params, key, value, wi, wo, uv=(0.5, 0.5)):
@@ -208,10 +194,8 @@ def test_update_outside_the_rows_rebuilds_and_stays_exact(mi_variant):
     params["area_fraction.value"] = 0.6                          # beyond 0.2 ± 0.1
     params.update()
     wi, wo = _transmitted(500, 8, 0)
-    val = np.array(bsdf.eval(mi.BSDFContext(), _si(len(wo), wi, (0.5, 0.5)), mi.Vector3f(wo.T)))
     m = material_from_parameters(radius=3.0, area_fraction=0.6)
-    ref = m.lobe(wo[:, :2] + wi[:2], LAMS[0]) * np.abs(wo[:, 2])
-    np.testing.assert_allclose(val[0], ref, rtol=1e-3, atol=1e-4 * ref.max())
+    assert_eval_matches(bsdf, transmitted_lobe(m), wi, wo, LAMS, rtol=1e-3, atol=1e-4, uv=(0.5, 0.5))
     with pytest.raises(CoronaError, match="area_fraction"):
         params["area_fraction.value"] = 0.9
         params.update()
