@@ -300,7 +300,7 @@ def test_plugin_accepts_mask_with_points(mi_variant, files):
 # --------------------------------------------------------------------------
 # CLI
 # --------------------------------------------------------------------------
-# (tests/test_cli.py covers: --radius -2, unknown options and commands, a
+# (tests/apps/test_cli.py covers: --radius -2, unknown options and commands, a
 # missing scene file, bad -D values and plugin parameters inside a scene)
 CLI_CASES = {
     "radius-nan": (["lobe", "--radius", "nan"], ["radius=nan", "[0.001, 1000] µm"]),

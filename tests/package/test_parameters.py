@@ -9,7 +9,7 @@ from corona import CoronaError
 from corona.cli import lobe
 from corona.parameters import DEFAULTS, PARAMETERS, SPEC, markdown_table, material_from_parameters
 
-ROOT = os.path.join(os.path.dirname(__file__), os.pardir)
+ROOT = os.path.join(os.path.dirname(__file__), os.pardir, os.pardir)
 
 
 def test_readme_table_is_the_specification():

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from corona.cli import main
 
-ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
 TEASER = os.path.join(ROOT, "scenes", "teaser.xml")
 
 

@@ -27,7 +27,7 @@ from corona.reference import hard_disk_metropolis as hm
 #: the rows issue 18 names, run with enough chains for error bars below 0.003
 #: (scripts/make_hard_disk_table.py EXTRA_CHAINS; the others have 2–8 chains)
 REGENERATED = (0.3, 0.5, 0.65)
-DATA = os.path.join(os.path.dirname(__file__), "data", "hard_disk_metropolis.json")
+DATA = os.path.join(os.path.dirname(__file__), os.pardir, "data", "hard_disk_metropolis.json")
 
 
 def test_rows_store_their_error_bars():

@@ -39,7 +39,7 @@ from corona.parameters import DEFAULTS, RADIUS_MAX, SPEC, _outline, make_shape, 
 
 from bsdf_checks import furnace, interaction, plugin_eval
 
-#: a deeper search: CORONA_PROPERTY_SCALE=10 pytest tests/test_properties.py (10× the examples);
+#: a deeper search: CORONA_PROPERTY_SCALE=10 pytest tests/plugin/test_properties.py (10× the examples);
 #: CORONA_PROPERTY_RANDOM=1 draws new examples each run (the default sequence is fixed, so
 #: that `make test` is reproducible)
 SCALE = float(os.environ.get("CORONA_PROPERTY_SCALE", "1"))

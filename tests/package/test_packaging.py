@@ -16,7 +16,7 @@ import pytest
 
 import corona
 
-ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
 
 
 @pytest.fixture(scope="module")

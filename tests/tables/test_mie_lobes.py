@@ -1,7 +1,7 @@
 """The renderer's sphere lobes against Mie theory at radii and wavelengths between the table rows.
 
 The reference is ``corona.mie.differential_cross_section`` evaluated at each direction (checked
-against miepython in test_mie.py), not the table builder: a dilute Poisson layer at normal
+against miepython in model/test_mie.py), not the table builder: a dilute Poisson layer at normal
 incidence, where ``eval / (F_s w) = P = n dσ/dΩ / F_a``.  Per lobe: the energy-weighted RMS of
 ``P_table / P_mie - 1``, the overall scale, and (forward) the positions of the first three
 minima and maxima of the lobe.

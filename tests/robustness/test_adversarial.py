@@ -22,7 +22,7 @@ from corona.parameters import RADIUS_MAX, SPEC, material_from_parameters
 
 from bsdf_checks import layer_scene, one_line_error as one_line
 
-ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
 TEASER = os.path.join(ROOT, "scenes", "teaser.xml")
 
 #: a tiny scene: a corona layer (R = 5 µm, F_a = 0.3) filling the view, a white sky behind

@@ -12,7 +12,7 @@ import pathlib
 
 import pytest
 
-SRC = pathlib.Path(__file__).resolve().parents[1] / "src"
+SRC = pathlib.Path(__file__).resolve().parents[2] / "src"
 PACKAGE = "corona"
 
 #: Cycles that another change removes; each entry is one pair whose mutual edges are ignored.

@@ -22,7 +22,7 @@ from corona.sweep import Executor, parse_defines, point_name, run_sweep, sweep_p
 
 from bsdf_checks import one_line_error as _one_line_error
 
-ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
 SCENE = os.path.join(ROOT, "scenes", "sweep_radius.xml")
 TINY = {"res": ["16"], "spp": ["4"]}
 
