@@ -56,7 +56,7 @@ def test_wavelength_scaling():
 def test_diffuse_transmittance_poisson_integrates_to_fa():
     """∫T_a = 1 over the plane, so a Poisson layer's lobe carries F_a; the tables
     (|u| <= U) hold Rayleigh's encircled energy of it, the evanescent Airy tail
-    J0(U)² + J1(U)² is added analytically (issue 18)."""
+    J0(U)² + J1(U)² is added analytically."""
     m = Material(corona.Circle(5.0), corona.Poisson(0.25))
     U = m.table.u_max
     encircled = 1 - special.j0(U) ** 2 - special.j1(U) ** 2  # Rayleigh's encircled energy
@@ -67,7 +67,7 @@ def test_diffuse_transmittance_poisson_integrates_to_fa():
 @pytest.mark.parametrize("radius, fa", [(2.0, 0.3), (0.5, 0.5), (5.0, 0.1)])
 def test_diffuse_transmittance_meets_the_sum_rule_for_hard_disks(radius, fa):
     """Hard circles: ∫T_a T_s = 1 - F_a over the plane, so the lobe carries
-    F_a (1 - F_a) (issue 18: 0.2073 instead of 0.21 for Circle(2) + HardDisk(0.3)
+    F_a (1 - F_a) (it was 0.2073 instead of 0.21 for Circle(2) + HardDisk(0.3)
     before the evanescent tail was added).  The table's own sum-rule error is
     <= 0.1 % (benchmarks/results/hard_disk.json)."""
     m = Material(corona.Circle(radius), corona.HardDisk(fa))

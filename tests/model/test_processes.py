@@ -430,7 +430,7 @@ def test_pointset_file_errors(tmp_path):
     bad.write_text("1,2\n3,4\n5,abc\n")
     with pytest.raises(CoronaError, match=r"line 3: cannot read two numbers") as info:
         PointSet.from_file(bad)
-    assert "abc" not in str(info.value)      # the file's content is not echoed (issue 15)
+    assert "abc" not in str(info.value)      # the file's content is not echoed
     one = tmp_path / "one.csv"
     one.write_text("1 2 3\n4\n")
     with pytest.raises(CoronaError, match="line 2"):

@@ -1,5 +1,5 @@
 """The light runtime: importing corona, registering the plugin and loading every kind of
-material imports none of the reference tier's heavy dependencies (issue 11)."""
+material imports none of the reference tier's heavy dependencies."""
 import subprocess
 import sys
 

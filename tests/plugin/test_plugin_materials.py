@@ -88,7 +88,7 @@ def test_eval_matches_reference_table_and_model(mi_variant, data_files, name):
     err = np.abs(val - exact)[sel] / exact[sel]
     rms = float(np.sqrt(np.mean(err**2)))
     # radial tables: du = 0.01 in u; 2D lobes: closed forms or cubic form-factor
-    # grids × the radial S table (issue 18: <= 0.5 % RMS, <= 2 % max)
+    # grids × the radial S table (the goal: <= 0.5 % RMS, <= 2 % max)
     limit = (1e-4, 1e-3) if m.isotropic else (5e-3, 2e-2)
     if name == "points":
         limit = (5e-3, 2e-2)  # the measured S is itself interpolated from a q grid with kinks

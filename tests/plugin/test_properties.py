@@ -1,6 +1,6 @@
-"""Property tests (hypothesis) over random valid materials (issue 8).
+"""Property tests (hypothesis) over random valid materials.
 
-Over the whole accepted range of every parameter (issue 15; the ranges come
+Over the whole accepted range of every parameter (the ranges come
 from ``corona.parameters.SPEC``, ends included): every shape (circle, square,
 rectangle, ellipse, polygons of 3–50 sides), radius from the smallest to the
 largest allowed circumradius (log-uniform), aspect, angle, soft edges up to the

@@ -1,4 +1,4 @@
-"""What an adversarial user broke (issue 15): one test per item, each failing on
+"""What an adversarial user broke: one test per item, each failing on
 the code before the fix.  Errors are one line naming the parameter, the value
 and the allowed range (CLI: exit code 2); nothing turns NaN silently."""
 from __future__ import annotations

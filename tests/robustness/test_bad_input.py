@@ -1,4 +1,4 @@
-"""Every public entry point rejects bad input with one clear line (issue 8).
+"""Every public entry point rejects bad input with one clear line.
 
 Each row names the bad input and the fragments its message must contain:
 the parameter, the bad value and the allowed range (or, for files, the file

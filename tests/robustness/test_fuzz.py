@@ -1,4 +1,4 @@
-"""Fuzz test over XML scenes and CLI arguments (issue 15).
+"""Fuzz test over XML scenes and CLI arguments.
 
 A fixed, derandomized set of cases (``random.Random(15)``): corona BSDF
 properties of random types and values in a tiny scene (sometimes without its

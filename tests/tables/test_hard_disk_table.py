@@ -1,5 +1,5 @@
 """The hard-disk S(qσ) table: its own error bars, unbiased smoothing, and a
-second, independent sampler (issue 18).
+second, independent sampler.
 
 * every row stores its standard error (``S_err``: parametric bootstrap of the
   smoothing); the rows the issue names (η = 0.3, 0.5, 0.65) are below 0.003
@@ -24,7 +24,7 @@ from corona.processes.hard_disk import load_table
 from corona.reference import hard_disk as hd
 from corona.reference import hard_disk_metropolis as hm
 
-#: the rows issue 18 names, run with enough chains for error bars below 0.003
+#: the rows checked (η = 0.3, 0.5, 0.65), run with enough chains for error bars below 0.003
 #: (scripts/make_hard_disk_table.py EXTRA_CHAINS; the others have 2–8 chains)
 REGENERATED = (0.3, 0.5, 0.65)
 DATA = os.path.join(os.path.dirname(__file__), os.pardir, "data", "hard_disk_metropolis.json")

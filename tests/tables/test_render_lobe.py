@@ -1,4 +1,4 @@
-"""The renderer's lobe against the model, per shape family (issue 18).
+"""The renderer's lobe against the model, per shape family.
 
 The plugin's Dr.Jit kernel (and its numpy twin) must match ``Material.lobe``
 to <= 0.5 % RMS and <= 2 % max wherever the model's lobe is above 1e-3 of its
@@ -80,7 +80,7 @@ def test_kernel_matches_model(mi_variant, mask_file, name):
 
 
 def test_old_bilinear_table_fails_the_bound(mask_file):
-    """The check itself: the 512² bilinear table of v (the renderer before issue 18)
+    """The check itself: the 512² bilinear table of v (the renderer before the warped tables)
     is far outside the bound for a square (the issue's example, 3.507 vs 3.340)."""
     m = material_from_parameters(shape="square", radius=1.5, process="hard-disk", area_fraction=0.3)
     u, v = render_lobe.region_points(m, n=6000, scan=161, seed=1)
