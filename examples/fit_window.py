@@ -41,7 +41,7 @@ initial guess is set, and the optimiser's values are clipped to those bounds.
 
     python examples/fit_window.py [--quick] [--json out.json]
 
-``--quick`` (the test, tests/test_fit_window.py) runs smaller images and
+``--quick`` (the test, tests/plugin/test_gradients.py) runs smaller images and
 fewer iterations.  Each problem prints the iterations, the time and the
 final errors.
 """

@@ -3,7 +3,7 @@
     python examples/tutorial.py [OUT_FOLDER]          (about a minute on 2 CPU cores)
 
 The script the documentation's tutorial page walks through (docs/tutorial.md);
-the tests run it (tests/test_docs.py).  Lengths are in µm, wavelengths in nm,
+the tests run it (tests/package/test_docs.py).  Lengths are in µm, wavelengths in nm,
 angles in degrees unless a name says otherwise.
 """
 import os

@@ -6,7 +6,7 @@ local moves, disks grown from random points, N = 2000) at η = 0.3, 0.5 and
 0.65 and stores, per ``|k|σ`` window around the peaks and troughs of S, the
 mean S over the window's box wave vectors with its standard error, and those
 wave vectors' ``|k|σ``, in ``tests/data/hard_disk_metropolis.json``.
-``tests/test_hard_disk_table.py`` compares the table, averaged over the same
+``tests/tables/test_hard_disk_table.py`` compares the table, averaged over the same
 wave vectors, within the combined error bars (issue 18).
 
     nice -n 19 python scripts/check_hard_disk_table.py [--eta 0.3 ...]

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Make sure Debian's headless Chromium and its matching chromedriver are
-# installed, for the browser test of `corona designer` (tests/test_designer_browser.py).
+# installed, for the browser test of `corona designer` (tests/apps/test_designer_browser.py).
 # Idempotent: does nothing when both are present. Never downloads a browser build
 # of its own: only the distribution's packages.
 set -u

@@ -22,7 +22,7 @@ DOCS = os.path.join(HERE, os.pardir, "docs")
 def series(taus=(0.05, 0.3, 1.0, 3.0), radius=5.0, size=128, spp=256, fov=24.0):
     """A slab of 5 µm droplets (gamma, v_eff 0.01) in front of a distant light at each optical
     depth: the panels side by side, each scaled to its own 99.5th percentile; returns the
-    ring contrasts (green channel, tests/test_volume.py's measure)."""
+    ring contrasts (green channel, tests/plugin/test_volume.py's measure)."""
     import imageio.v3 as iio
 
     from corona import volume

@@ -157,21 +157,105 @@ def png_claiming(width: int, height: int) -> bytes:
 
 
 def furnace(bsdf, theta_deg: float, wavelengths=(550.0,) * 4, n: int = 200_000, seed: int = 3,
-            ctx=None):
+            ctx=None, uv=None, phi_deg: float = 0.0, components=None):
     """White furnace by sampling: the mean of ``sample``'s weights per wavelength lane (the
     directional albedo: what the layer returns of what it receives, all components) and the
-    standard error of each mean, at incidence ``theta_deg`` (negative: from the back side).
+    standard error of each mean.
 
-    Returns (mean, stderr), each (lanes,).  A layer that keeps energy has mean <= 1 per lane."""
-    th = np.radians(theta_deg)
-    wi = (np.sin(abs(th)), 0.0, np.cos(th))
+    Parameters
+    ----------
+    bsdf : mitsuba.BSDF
+        A loaded BSDF.
+    theta_deg, phi_deg : float
+        Incidence [degrees]: ``wi = (sin|θ| cos φ, sin|θ| sin φ, cos θ)``; a negative ``θ`` or one
+        above 90° comes from the back side.
+    wavelengths : 4 floats
+        The interaction's wavelengths [nm] (spectral variants).
+    n, seed : int
+        Samples, and the seed of their random numbers.
+    ctx : mitsuba.BSDFContext, optional
+        Default: every component.
+    uv : 2 floats, optional
+        The shading point's texture coordinates (a textured layer's texel).
+    components : sequence of int, optional
+        Also return, per component index ``c``, the mean of the weights of the samples that chose
+        it (``E[w · 1{component = c}]``: that component's share of the energy).
+
+    Returns
+    -------
+    mean, stderr : arrays (lanes,)
+        A layer that keeps energy has ``mean <= 1`` per lane.
+    shares : array (len(components), lanes)
+        Only with ``components``.
+
+    Every weight is checked finite and non-negative.
+    """
+    th, ph = np.radians(theta_deg), np.radians(phi_deg)
+    wi = (np.sin(abs(th)) * np.cos(ph), np.sin(abs(th)) * np.sin(ph), np.cos(th))
     rng = np.random.default_rng(seed)
-    si = interaction(n, wi, wavelengths)
-    _, w = bsdf.sample(ctx or mi.BSDFContext(), si, mi.Float(rng.random(n).astype(np.float32)),
-                       mi.Point2f(rng.random((2, n)).astype(np.float32)))
+    si = interaction(n, wi, wavelengths) if uv is None else uv_interaction(n, wi, uv, wavelengths)
+    bs, w = bsdf.sample(ctx or mi.BSDFContext(), si, mi.Float(rng.random(n).astype(np.float32)),
+                        mi.Point2f(rng.random((2, n)).astype(np.float32)))
     w = np.asarray(w, dtype=np.float64).reshape(-1, n)
     assert np.all(np.isfinite(w)), "sample() returned a non-finite weight"
-    return w.mean(axis=1), w.std(axis=1) / np.sqrt(n)
+    assert np.all(w >= 0), "sample() returned a negative weight"
+    out = (w.mean(axis=1), w.std(axis=1) / np.sqrt(n))
+    if components is None:
+        return out
+    comp = np.asarray(bs.sampled_component).reshape(n)
+    return out + (np.stack([np.mean(w * (comp == c), axis=1) for c in components]),)
+
+
+def plugin_eval(bsdf, wi, wo, wavelengths=(450.0, 520.0, 600.0, 700.0), uv=None, ctx=None):
+    """``eval_pdf`` of a loaded BSDF for many directions in one Dr.Jit call.
+
+    ``wi``: one direction (3,) or one per ``wo`` (n, 3); ``wo``: (n, 3); ``uv``: the shading
+    point's texture coordinates.  Returns ``eval`` (lanes, n) and ``pdf`` (n,) as numpy arrays.
+    """
+    wo = np.asarray(wo, dtype=np.float64)
+    wi = np.asarray(wi, dtype=np.float64)
+    n = len(wo)
+    si = interaction(n, (0.0, 0.0, 1.0), wavelengths)
+    si.wi = mi.Vector3f(np.ascontiguousarray(np.broadcast_to(wi, (n, 3)).T, dtype=np.float32))
+    if uv is not None:
+        si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
+    e, pdf = bsdf.eval_pdf(ctx or mi.BSDFContext(), si, mi.Vector3f(np.ascontiguousarray(wo.T, dtype=np.float32)))
+    return np.asarray(e, dtype=np.float64).reshape(-1, n), np.asarray(pdf, dtype=np.float64).reshape(n)
+
+
+def transmitted_lobe(material, tabulated: bool = False):
+    """The reference ``(wi, wo, λ) -> f(d) |cos θo|`` of a numpy material's lobe alone
+    (``d = (wi + wo).xy``): the plugin's ``eval`` on the transmitted side of a bare layer.
+    ``tabulated``: the lobe as the material's tables hold it (``lobe_tabulated``), else the
+    exact model (``lobe``)."""
+    lobe = material.lobe_tabulated if tabulated else material.lobe
+
+    def reference(wi, wo, lam):
+        return lobe(wo[:, :2] + np.asarray(wi)[..., :2], lam) * np.abs(wo[:, 2])
+    return reference
+
+
+def assert_eval_matches(bsdf, reference, wi, wo, wavelengths=(450.0, 520.0, 600.0, 700.0), *,
+                        rtol: float, atol: float, peak: str = "lane", uv=None, ctx=None):
+    """The plugin's ``eval`` against the numpy reference, lane by lane.
+
+    ``reference(wi, wo, λ)`` gives the expected ``eval`` (n,) at one wavelength [nm]: a numpy
+    material's ``eval`` (``f_s |cos θo|``, every smooth component) or :func:`transmitted_lobe`.
+    Asserts, per lane ``k``, ``|eval_k - ref_k| <= rtol |ref_k| + atol · peak`` with ``peak`` the
+    largest reference value of that lane (``peak="lane"``) or of all lanes (``"all"``).
+
+    Returns ``eval`` (lanes, n), the reference (lanes, n) and ``pdf`` (n,).
+    """
+    val, pdf = plugin_eval(bsdf, wi, wo, wavelengths, uv=uv, ctx=ctx)
+    ref = np.stack([np.asarray(reference(np.asarray(wi, dtype=np.float64), np.asarray(wo, dtype=np.float64),
+                                         lam), dtype=np.float64) for lam in wavelengths])
+    assert np.all(np.isfinite(val)), "eval() returned a non-finite value"
+    peaks = ref.max(axis=1, keepdims=True) if peak == "lane" else np.full((len(ref), 1), ref.max())
+    excess = np.abs(val - ref) - (rtol * np.abs(ref) + atol * peaks)
+    worst = np.unravel_index(np.argmax(excess), excess.shape)
+    assert excess[worst] <= 0, (f"eval at {wavelengths[worst[0]]} nm, wo = {np.asarray(wo)[worst[1]]}: "
+                                f"{val[worst]:.6g}, reference {ref[worst]:.6g} (peak {peaks[worst[0], 0]:.3g})")
+    return val, ref, pdf
 
 
 def assert_finite_at_a_zero_interaction(bsdf):

@@ -37,13 +37,19 @@ REFERENCE_MODULES = ("corona.reference", "miepython")
 SLOW_NAMES = {"subprocess", "Executor", "LocalCluster", "running"}
 #: fixtures that cost seconds to set up (a cluster, rendered photographs, built layers)
 SLOW_FIXTURES = {"cluster", "photographs", "fits", "layers", "driver", "browser",
-                 "hd03", "short_run", "reverse", "forward"}
+                 "hd03", "short_run", "reverse", "forward", "dist"}
 #: tests measured above 3 s warm on two shared cores that the rules above miss (a fit, lobe
 #: pictures, brute-force lattices, a lattice table, processes building one cache file)
 SLOW_TESTS = {"test_fit_window_recovers_radius_area_fraction_and_bitmap", "test_lobe_picture",
               "test_lobe_picture_anisotropic", "test_lattice_table_keeps_each_bragg_peak_weight",
               "test_warped_table_covers_every_evaluated_direction", "test_many_processes_build_one_valid_file",
-              "test_extinction_paradox", "test_lattice_matches_brute_force_jittered_lattice"}
+              "test_extinction_paradox", "test_lattice_matches_brute_force_jittered_lattice",
+              # the sphere furnace's numpy sweep (252 incidences each), Percus-Yevick against a
+              # simulation, a small `corona validate`, Mie tables between rows, large droplets,
+              # RSA to jamming
+              "test_furnace_sweep_numpy", "test_percus_yevick_against_simulation", "test_cli_validate",
+              "test_table_between_nodes_and_rows_matches_mie", "test_large_droplets_coherent_is_one_minus_fa_squared",
+              "test_rsa_saturates_at_jamming_limit"}
 BROWSER_FILES = {"test_designer_browser.py"}
 #: a CLI test (CliRunner.invoke, subprocess.run) of one of these commands renders
 CLI_RENDERS = {"str:render", "str:sweep"}

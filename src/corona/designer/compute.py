@@ -262,7 +262,7 @@ def _uses_table_weight(m) -> bool:
     For hard-core processes (hard-disk, rsa, lattices) the lobe's plane
     integral ``F_a (1 - F_a)`` stays below ``1 - coherent_transmittance``
     for both modes, so :attr:`corona.Material.lobe_weight` is ``F_a``
-    (tests/test_designer.py checks it); Poisson layers and measured point
+    (tests/apps/test_designer.py checks it); Poisson layers and measured point
     sets may overlap and need the table's integral.
     """
     from ..processes import PointSet, Poisson

@@ -181,7 +181,7 @@ class HardDisk(Process):
     compressibility sum rule, Percus–Yevick and an independent Metropolis
     sampler, with the figures of the shipped table, is in
     ``docs/tables.md#the-hard-disk-table`` (checked by
-    ``tests/test_hard_disk.py``, ``tests/test_hard_disk_table.py`` and
+    ``tests/model/test_hard_disk.py``, ``tests/tables/test_hard_disk_table.py`` and
     ``benchmarks/bench_hard_disk.py``).
 
     Parameters

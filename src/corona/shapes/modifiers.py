@@ -266,7 +266,7 @@ class SizeDistribution(Modifier):
     table) are computed at 16 points per σ_y of a log grid in ``|q|`` and
     interpolated by cubic splines: in ``ln|q|`` the size average is a blur of
     width σ_y, so it is smooth on that scale (``_average_radial``; agreement
-    with the quadrature at every point to 1e-6, tests/test_robustness.py).
+    with the quadrature at every point to 1e-6, tests/robustness/test_adversarial.py).
 
     Parameters
     ----------

@@ -1,0 +1,649 @@
+"""`corona designer`: its HTTP API (Starlette's TestClient) and the physics of its
+pictures, checked against independent computations: corona.pictures'
+far-field corona, the table's CDF (energy within a disk), the Airy maxima,
+the material's own energies, and Mitsuba loading the exported XML / dict; with
+shape=sphere, Mie theory (corona.mie) and the sphere layer's white-furnace energies."""
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import warnings
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+pytest.importorskip("starlette")
+
+from click.testing import CliRunner  # noqa: E402
+from PIL import Image  # noqa: E402
+from starlette.testclient import TestClient  # noqa: E402
+
+from corona import mie  # noqa: E402
+from corona.color import blackbody, spectrum_to_linear_srgb  # noqa: E402
+from corona.designer import app as app_module  # noqa: E402
+from corona.designer import compute  # noqa: E402
+from corona.parameters import PARAMETERS, material_from_parameters  # noqa: E402
+from corona.pictures import far_field_corona  # noqa: E402
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+@pytest.fixture(scope="module")
+def client():
+    from corona.designer import create_app
+    with TestClient(create_app(), base_url="http://127.0.0.1") as c:
+        yield c
+
+
+def png(res) -> np.ndarray:
+    assert res.status_code == 200, res.text
+    assert res.headers["content-type"] == "image/png"
+    return np.asarray(Image.open(io.BytesIO(res.content)))
+
+
+def one_line_400(res, *words, status=400):
+    assert res.status_code == status, (res.status_code, res.text)
+    msg = res.json()["error"]
+    assert "\n" not in msg and "Traceback" not in msg
+    for w in words:
+        assert w in msg, msg
+    return msg
+
+
+# ----------------------------------------------------------------------
+# the package boundary
+# ----------------------------------------------------------------------
+def test_import_corona_does_not_import_the_web_libraries():
+    code = ("import sys, corona; bad = [m for m in ('starlette', 'uvicorn', 'corona.designer', 'PIL') "
+            "if m in sys.modules]; print(','.join(bad))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == ""
+
+
+def test_parameters_come_from_the_one_specification(client):
+    spec = client.get("/api/parameters").json()
+    served = {p["name"]: p for p in spec["parameters"] if p["group"] == "material"}
+    expected = [p for p in PARAMETERS if not p.plugin_only]
+    assert list(served) == [p.name for p in expected]
+    for p in expected:
+        s = served[p.name]
+        assert (s["kind"], s["unit"], s["default"], s["meaning"]) == (p.kind, p.unit, p.default, p.meaning)
+        if p.kind == "choice":
+            assert s["choices"] == list(p.choices)
+    assert {"temperature", "light_size", "exposure"} <= {p["name"] for p in spec["parameters"]}
+    assert {"fogged window", "lycopodium 10×", "voile fabric"} <= set(spec["presets"])
+    for pr in spec["presets"].values():       # every preset is a valid material
+        compute.parse({**pr["material"], **pr["view"]})
+
+
+def test_page_and_its_files_are_served(client):
+    page = client.get("/")
+    assert page.status_code == 200 and "corona designer" in page.text
+    for path in ("/static/designer.js", "/static/designer.css", "/favicon.ico"):
+        assert client.get(path).status_code == 200, path
+    # no external resource: the page works offline
+    for f in ("index.html", "designer.js", "designer.css"):
+        with open(os.path.join(app_module.STATIC, f), encoding="utf-8") as fh:
+            text = fh.read()
+        assert "http://" not in text and "https://" not in text and "//cdn" not in text, f
+
+
+# ----------------------------------------------------------------------
+# pictures
+# ----------------------------------------------------------------------
+def test_corona_png(client):
+    res = client.get("/api/corona.png", params={"radius": 5, "area_fraction": 0.4, "mode": "particle", "size": 64})
+    img = png(res)
+    assert img.shape == (64, 64, 3) and img.dtype == np.uint8
+    assert float(res.headers["X-Corona-Exposure"]) > 0            # the lobe is far fainter than the light
+    # rings: the picture is not flat, and it is symmetric about the light
+    assert img.std() > 10
+    assert np.abs(img.astype(int) - img[:, ::-1].astype(int)).max() <= 1
+    # a bigger radius draws a different picture; a fixed exposure is kept
+    other = client.get("/api/corona.png", params={"radius": 8, "area_fraction": 0.4, "mode": "particle",
+                                                  "size": 64, "exposure": 3})
+    assert float(other.headers["X-Corona-Exposure"]) == 3.0
+    assert not np.array_equal(png(other), img)
+
+
+@pytest.mark.parametrize("params", [
+    dict(radius=5.0, area_fraction=0.4, mode="particle"),
+    dict(radius=6.0, size_spread=0.05, area_fraction=0.35, process="rsa"),
+    dict(radius=3.0, area_fraction=0.3, process="poisson"),
+])
+def test_fast_radial_picture_matches_far_field_corona(params):
+    """The designer's radial path (exact lobe on one radial profile) against
+    corona.pictures.far_field_corona (the renderer's table at every pixel)."""
+    m = compute.material(params)
+    field, n = compute.auto_field(m), 64
+    ref = far_field_corona(m, field, n, 3000.0, compute.N_WAVELENGTHS)
+    d, _ = compute._pixel_offsets(field, n)
+    lams = compute.WAVELENGTHS
+    spd = blackbody(lams, 3000.0)
+    mine = compute.lobe_rgb(m, d, spd / spd.max(), lams)
+    assert np.abs(mine - ref).max() <= 2e-3 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("params", [
+    dict(shape="square", radius=20.0, area_fraction=0.25, process="lattice-square", jitter=4.0,
+         mode="aperture"),                                                       # the bilinear table
+    dict(shape="polygon", sides=6, radius=1.5, area_fraction=0.3, process="lattice-hex", jitter=0.2,
+         angle=10.0),
+    dict(shape="ellipse", radius=2.0, aspect=2.0, angle=25.0, area_fraction=0.2, process="poisson"),
+    dict(shape="rectangle", radius=1.5, aspect=0.5, angle=-30.0, area_fraction=0.3, process="hard-disk"),
+])
+def test_anisotropic_picture_matches_far_field_corona(params):
+    """The designer's 2-D path (every wavelength in one pass over the table, one matrix to
+    sRGB, the lower half of a centred grid mirrored) against corona.pictures.far_field_corona
+    (the renderer's lobe at every pixel and wavelength); off-centre offsets (no mirror) against
+    the lobe itself."""
+    m = compute.material(params)
+    field, n = compute.auto_field(m), 48
+    lams = np.linspace(compute.WAVELENGTHS[0], compute.WAVELENGTHS[-1], compute.N_WAVELENGTHS_2D)
+    d, _ = compute._pixel_offsets(field, n)
+    spd = blackbody(lams, 3000.0)
+    mine = compute.lobe_rgb(m, d, spd / spd.max(), lams)     # first: before the table is built
+    assert ("_arrays" in m.__dict__) == (m.render_kind == "table" or params["process"] == "poisson")
+    ref = far_field_corona(m, field, n, 3000.0, lams.size)
+    np.testing.assert_allclose(mine, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    shifted = d[:, :-5] + [0.3 * d[0, 0, 1], 0.0]           # not symmetric about its centre
+    direct = np.stack([m.lobe_tabulated(shifted, lam) * s for lam, s in zip(lams, spd)], -1)
+    np.testing.assert_allclose(compute.lobe_rgb(m, shifted, spd, lams),
+                               spectrum_to_linear_srgb(direct, lams), rtol=1e-9,
+                               atol=1e-12 * np.abs(direct).max())
+
+
+def test_grid_table_eval_scaled_is_eval_at_each_scale():
+    """GridTable.eval_scaled (one pass, flat gathers) is GridTable.eval at d * s for each s,
+    inside, on the edges and outside the vertex square (0), warped or not."""
+    from corona.tables import GridTable
+    rng = np.random.default_rng(3)
+    for warp in (0.0, 40.0):
+        t = GridTable(8.0, rng.random((33, 33)), warp)
+        d = np.concatenate([rng.uniform(-1.2, 1.2, (501, 2)), [[0.0, 0.0], [t.lo, t.lo], [-t.lo, t.lo]]])
+        scales = np.array([1.0, 3.7, 9.0, 25.0])
+        got = t.eval_scaled(d.reshape(-1, 3, 2), scales)
+        ref = np.stack([t.eval(d * s) for s in scales], -1).reshape(-1, 3, scales.size)
+        assert got.shape == ref.shape and np.any(ref == 0) and np.any(ref > 0)
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14)
+
+
+def test_preview_of_a_2d_picture_is_half_size_and_the_exact_one_is_not(client):
+    """While a slider moves the page asks for preview=1: a 2-D picture at half the pixels per
+    axis (the header says so); radial pictures, and every picture without preview, are exact."""
+    def get(**q):
+        res = client.get("/api/corona.png", params={"size": 96, "exposure": 0, **q})
+        assert res.status_code == 200, res.text
+        return res.headers["X-Corona-Preview"], Image.open(io.BytesIO(res.content)).size
+    lattice = dict(shape="square", radius=4.0, area_fraction=0.25, process="lattice-square", jitter=0.5)
+    assert get(**lattice, preview=1) == ("1", (48, 48))
+    assert get(**lattice) == ("0", (96, 96)) == get(**lattice, preview=0)
+    assert get(radius=5.0, area_fraction=0.4, preview=1) == ("0", (96, 96))
+    assert "preview" not in {p["name"] for p in client.get("/api/parameters").json()["parameters"]}
+    bad = client.get("/api/corona.png", params={"preview": 2})
+    assert bad.status_code == 400 and "preview" in bad.json()["error"]
+
+
+def test_fft_convolution_is_scipys_direct_convolution():
+    from scipy import ndimage
+    rng = np.random.default_rng(1)
+    img = rng.random((40, 40, 3))
+    for n in (3, 9, 61):                    # kernels smaller and larger than the image
+        k = rng.random((n, n))
+        k[0] += 3.0                         # not symmetric: the orientation matters
+        ref = np.stack([ndimage.convolve(img[..., c], k, mode="constant") for c in range(3)], -1)
+        np.testing.assert_allclose(compute._fft_convolve_same(img, k), ref, rtol=1e-10, atol=1e-10)
+
+
+def test_light_disk_and_coherent_light_at_the_centre():
+    """At the centre of a light of radius 2°, the radiance relative to the light's is
+    T_c + the lobe's energy within 2° (from the table's CDF), luminance-weighted."""
+    params = dict(radius=5.0, area_fraction=0.2, process="poisson")
+    m = material_from_parameters(**params)
+    img, used = compute.corona_linear(compute.material(params),
+                                      {"field": 6.0, "size": 129, "light_size": 4.0, "temperature": 4000.0})
+    lams = compute.WAVELENGTHS
+    t = m.table
+    u_nodes = np.arange(t.values.size) * t.du
+    u_edge = 2 * np.pi * m.length_scale * math.sin(math.radians(2.0)) / (lams * 1e-3)
+    energy = m.lobe_weight * np.interp(u_edge, u_nodes, t.cdf) / (4 * np.pi**2)     # per λ
+    s = blackbody(lams, 4000.0)
+    expected = m.coherent_transmittance + (spectrum_to_linear_srgb(energy * s, lams) @ LUMA) / (
+        spectrum_to_linear_srgb(s, lams) @ LUMA)
+    got = img[64, 64] @ LUMA
+    assert got == pytest.approx(expected, rel=0.01)
+    assert m.coherent_transmittance < energy.min() < 0.9 * m.diffuse_transmittance()  # the lobe matters here
+    # far outside the light, only the lobe: much fainter
+    assert img[0, 64] @ LUMA < 0.1 * got
+
+
+def test_kernel_holds_the_energy_within_its_field(client):
+    """Sum of the kernel within 9° = T_c + the lobe's energy within 9°, per channel
+    (equal-energy normalisation), from the table's CDF; and the EXR holds the same numbers."""
+    params = dict(radius=5.0, area_fraction=0.3, process="hard-disk")
+    m = material_from_parameters(**params)
+    k = compute.kernel(params, {"pixel_scale": 0.05, "kernel_size": 401})
+    assert k.shape == (401, 401, 3) and k.dtype == np.float32 and np.all(np.isfinite(k))
+    i = np.arange(-200, 201) * math.radians(0.05)
+    tx, ty = np.meshgrid(i, i, indexing="xy")
+    cos_theta = 1 / np.sqrt(1 + np.tan(tx) ** 2 + np.tan(ty) ** 2)
+    inside = cos_theta >= math.cos(math.radians(9.0))
+    got = k[inside].sum(axis=0)
+    lams = compute.WAVELENGTHS
+    t = m.table
+    u_edge = 2 * np.pi * m.length_scale * math.sin(math.radians(9.0)) / (lams * 1e-3)
+    energy = m.lobe_weight * np.interp(u_edge, np.arange(t.values.size) * t.du, t.cdf) / (4 * np.pi**2)
+    w = spectrum_to_linear_srgb(np.eye(lams.size), lams)               # (nλ, 3) channel weights
+    expected = m.coherent_transmittance + (w * energy[:, None]).sum(0) / w.sum(0)
+    np.testing.assert_allclose(got, expected, rtol=0.01)
+    assert k[200, 200].min() > m.coherent_transmittance                 # the coherent light on the centre pixel
+
+    q = {**params, "pixel_scale": 0.05, "kernel_size": 33}
+    exr = client.get("/api/kernel.exr", params=q)
+    assert exr.status_code == 200 and exr.content[:4] == b"\x76\x2f\x31\x01"    # OpenEXR magic
+    import mitsuba as mi
+    path = os.path.join(app_module.designer_dir("tmp"), "check.exr")
+    with open(path, "wb") as f:
+        f.write(exr.content)
+    back = np.array(mi.Bitmap(path))
+    os.unlink(path)
+    np.testing.assert_allclose(back, compute.kernel(params, {"pixel_scale": 0.05, "kernel_size": 33}), rtol=1e-6)
+    assert png(client.get("/api/kernel.png", params=q)).shape == (33, 33, 3)
+
+
+# ----------------------------------------------------------------------
+# profiles, rings, energy, exports
+# ----------------------------------------------------------------------
+def test_profiles_and_rings_of_isolated_circles(client):
+    """Poisson circles: T_s = 1, T_a(0) = |A|/λ² = πR²/λ², the lobe is F_a T_a, and
+    the bright rings sit at the Airy maxima u = 5.13562, 8.41724, 11.61984."""
+    R, fa = 4.0, 0.2
+    res = client.get("/api/profiles", params={"radius": R, "area_fraction": fa, "process": "poisson"})
+    assert res.status_code == 200, res.text
+    p = res.json()
+    lam = 0.55
+    assert p["T_a"][0] == pytest.approx(math.pi * R**2 / lam**2, rel=1e-9)
+    np.testing.assert_allclose(p["T_s"], 1.0)
+    m = material_from_parameters(radius=R, area_fraction=fa, process="poisson")
+    theta = np.radians(p["angle"])
+    d = np.stack([np.sin(theta), 0 * theta], -1)
+    top = max(p["lobe"])
+    np.testing.assert_allclose(p["lobe"], m.lobe(d, 550.0), rtol=0, atol=1e-4 * top)
+    np.testing.assert_allclose(p["lobe"], fa * np.asarray(p["T_a"]), rtol=0, atol=1e-4 * top)
+    for lam_nm, radii in p["rings"].items():
+        airy = [5.13562, 8.41724, 11.61984]   # maxima of (2 J1(u)/u)²
+        expected = np.degrees(np.arcsin(np.asarray(airy) * float(lam_nm) * 1e-3 / (2 * math.pi * R)))
+        np.testing.assert_allclose(radii[:3], expected, rtol=2e-4)
+
+
+def test_energy_split_is_the_materials(client):
+    params = dict(radius=5.0, area_fraction=0.35, process="rsa", mode="particle", albedo=0.5)
+    res = client.get("/api/material", params=params)
+    assert res.status_code == 200, res.text
+    got = res.json()
+    m = material_from_parameters(**params)
+    assert got["coherent_transmittance"] == pytest.approx((1 - 0.35) ** 2)
+    assert got["coherent_transmittance"] == pytest.approx(m.coherent_transmittance)
+    assert got["diffuse_transmittance"] == pytest.approx(m.diffuse_transmittance(), rel=1e-12)
+    assert got["reflectance"] == pytest.approx(m.reflectance, rel=1e-12)
+    assert got["reflectance"] == pytest.approx(0.5 * 0.35)
+    total = got["coherent_transmittance"] + got["diffuse_transmittance"] + got["reflectance"] + got["absorbed"]
+    assert total == pytest.approx(1.0)
+    assert got["diffuse_transmittance"] == pytest.approx(0.35 * 0.65, rel=0.02)   # sum rule F_a (1 - F_a)
+
+
+@pytest.mark.parametrize("params", [
+    dict(radius=3.0, area_fraction=0.3),
+    dict(radius=2.0, area_fraction=0.5, process="rsa", mode="particle"),
+    dict(radius=2.0, area_fraction=0.4, size_spread=0.1),
+    dict(shape="square", radius=2.0, area_fraction=0.25, process="lattice-square", jitter=0.2),
+])
+def test_hard_core_lobe_weight_is_the_area_fraction(params):
+    """The designer skips the table for the lobe weight of hard-core processes."""
+    m = material_from_parameters(**params)
+    assert compute.lobe_weight(compute.material(params)) == m.area_fraction
+    assert m.lobe_weight == pytest.approx(m.area_fraction, rel=1e-12)
+
+
+def test_exports_load_in_mitsuba_and_rebuild_the_material(client, mi_variant):
+    import mitsuba as mi
+
+    import corona
+    mi.set_variant(mi_variant)
+    corona.register()
+    params = dict(radius=6.0, area_fraction=0.35, process="rsa", mode="particle", albedo=0.25,
+                  size_spread=0.02)
+    got = client.get("/api/material", params=params).json()
+    root = ET.fromstring(got["xml"])
+    assert root.tag == "bsdf" and root.get("type") == "corona"
+    from_xml = {e.get("name"): e.get("value") for e in root}
+    assert set(from_xml) == set(params)
+    m = material_from_parameters(**{k: (float(v) if k not in ("process", "mode") else v)
+                                    for k, v in from_xml.items()})
+    assert repr(m) == repr(material_from_parameters(**params))
+    assert got["load_dict"] == {"type": "corona", **params}
+    mi.load_dict(got["load_dict"])
+    mi.load_string(got["xml"].replace('<bsdf type="corona">', '<bsdf version="3.0.0" type="corona">', 1))
+    assert got["command"].startswith("corona lobe ") and "--size-spread 0.02" in got["command"]
+    assert got["load_dict_python"].startswith("mi.load_dict({'type': 'corona'")
+
+
+# ----------------------------------------------------------------------
+# bad input: HTTP 400 with one line naming the parameter; bounded work
+# ----------------------------------------------------------------------
+@pytest.mark.parametrize("query, words", [
+    ({"radius": -1}, ["radius=-1", "allowed [0.001, 1000]"]),
+    ({"radius": "abc"}, ["radius", "not a number"]),
+    ({"radius": "nan"}, ["radius=nan"]),
+    ({"shape": "hexagon"}, ["shape='hexagon'", "circle"]),
+    ({"area_fraction": 1.5}, ["area_fraction=1.5", "(0, 1)"]),
+    ({"colour": "red"}, ["unknown parameter(s) colour"]),
+    ({"radius": 5000}, ["radius=5000", "1000"]),
+    ({"shape": "polygon", "sides": 1000000}, ["sides=1000000"]),
+    ({"size": 100000}, ["size=100000"]),
+    ({"light_size": 0}, ["light_size=0"]),
+    ({"temperature": 10}, ["temperature=10", "K"]),
+    ({"mixture": "circle:1:1," * 100, "shape": "mixture"}, ["mixture", "at most"]),
+    ({"shape": "mask", "filename": "/etc/passwd", "pixel_size": 1}, ["filename='/etc/passwd'", "upload"]),
+    ({"shape": "mask", "filename": "../" * 3 + "x.png", "pixel_size": 1}, ["filename=", "upload"]),
+    ({"shape": "mask", "filename": "0" * 32 + ".png", "pixel_size": 1}, ["no such upload"]),
+])
+def test_bad_parameters_are_one_line_400(client, query, words):
+    for path in ("/api/corona.png", "/api/material", "/api/profiles"):
+        one_line_400(client.get(path, params=query), *words)
+
+
+def test_bad_kernel_and_request_shapes(client):
+    one_line_400(client.get("/api/kernel.png", params={"kernel_size": 10}), "kernel_size=10", "odd")
+    one_line_400(client.get("/api/kernel.exr", params={"pixel_scale": 5}), "pixel_scale=5")
+    one_line_400(client.get("/api/kernel.exr", params={"pixel_scale": 0.5, "kernel_size": 1001}),
+                 "pixel_scale=0.5", "±250°", "±60°")
+    one_line_400(client.get("/api/corona.png?radius=1&radius=2"), "radius", "twice")
+    one_line_400(client.get("/api/corona.png?mixture=" + "x" * 5000), "query", "4096")
+    assert client.get("/api/kernel.tif").status_code == 404
+    assert client.post("/api/corona.png").status_code == 405
+    res = client.get("/api/parameters", headers={"Host": "corona.example.com"})
+    assert res.status_code == 400                                  # not a loopback name
+    for host in ("localhost:8765", "[::1]:8765"):
+        assert client.get("/api/parameters", headers={"Host": host}).status_code == 200
+
+
+def test_compute_timeout_is_503(monkeypatch):
+    import time
+    from corona.designer import create_app
+
+    def slow(*args):
+        time.sleep(2.0)
+    monkeypatch.setattr(compute, "corona_png", slow)
+    with TestClient(create_app(timeout=0.1), base_url="http://127.0.0.1") as c:
+        one_line_400(c.get("/api/corona.png"), "longer than 0.1 s", status=503)
+
+
+def _slow_corona(monkeypatch, seconds):
+    """compute.corona_png replaced by a computation of ``seconds`` that counts how many run at once."""
+    import threading
+    import time
+    state = {"running": 0, "peak": 0, "done": 0}
+    lock = threading.Lock()
+
+    def slow(*args):
+        with lock:
+            state["running"] += 1
+            state["peak"] = max(state["peak"], state["running"])
+        try:
+            time.sleep(seconds)
+        finally:
+            with lock:
+                state["running"] -= 1
+                state["done"] += 1
+    monkeypatch.setattr(compute, "corona_png", slow)
+    return state
+
+
+def test_timed_out_computations_keep_their_slot(monkeypatch):
+    """A request past the time limit is answered 503 at once, but its computation holds its
+    slot until it ends: requests that time out one after another never run more than
+    MAX_CONCURRENT computations (before: a timed-out request released its slot while its
+    thread went on, and four such requests left four computations running)."""
+    import time
+    from corona.designer import create_app
+    state = _slow_corona(monkeypatch, 1.5)
+    app = create_app(timeout=0.2)
+    with TestClient(app, base_url="http://127.0.0.1") as c:
+        t0 = time.monotonic()
+        msgs = [one_line_400(c.get("/api/corona.png"), status=503) for _ in range(2 * app_module.MAX_CONCURRENT)]
+        assert time.monotonic() - t0 < 1.4          # each answered after its 0.2 s, not after 1.5 s
+        assert all("longer than 0.2 s" in m for m in msgs[:app_module.MAX_CONCURRENT]), msgs
+        assert all("busy" in m for m in msgs[app_module.MAX_CONCURRENT:]), msgs
+        assert state["peak"] <= app_module.MAX_CONCURRENT, state
+        assert app.state.slots.peak <= app_module.MAX_CONCURRENT
+        # once they have ended the slots are free again
+        t_end = time.monotonic() + 10
+        while app.state.slots.running and time.monotonic() < t_end:
+            time.sleep(0.05)
+        assert app.state.slots.running == 0 and state["running"] == 0
+
+
+def test_concurrent_requests_never_run_more_than_the_limit(monkeypatch):
+    """Eight clients at once, each timing out: at most MAX_CONCURRENT computations at any time,
+    every request answered (503) within about its time limit."""
+    import threading
+    import time
+    from corona.designer import create_app
+    state = _slow_corona(monkeypatch, 1.0)
+    app = create_app(timeout=0.3)
+    codes, times = [], []
+    with TestClient(app, base_url="http://127.0.0.1") as c:
+        def one():
+            t = time.monotonic()
+            res = c.get("/api/corona.png")
+            codes.append(res.status_code)
+            times.append(time.monotonic() - t)
+            one_line_400(res, status=503)
+        threads = [threading.Thread(target=one) for _ in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(30)
+        assert codes == [503] * 8, codes
+        assert max(times) < 2.0, times
+        assert state["peak"] <= app_module.MAX_CONCURRENT, state
+        assert app.state.slots.peak <= app_module.MAX_CONCURRENT
+
+
+# ----------------------------------------------------------------------
+# uploads and the fit button
+# ----------------------------------------------------------------------
+def _png_bytes(a: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def test_mask_upload_is_stored_in_the_cache_and_usable(client):
+    yy, xx = np.mgrid[-16:16, -16:16]
+    disk = ((xx + 0.5) ** 2 + (yy + 0.5) ** 2 <= 10**2).astype(np.uint8) * 255
+    res = client.post("/api/upload?kind=mask&name=disk.png", content=_png_bytes(disk))
+    assert res.status_code == 200, res.text
+    up = res.json()
+    assert up["width"] == 32 and compute.UPLOAD_ID.match(up["id"])
+    stored = os.path.join(app_module.designer_dir("uploads"), up["id"])
+    assert os.path.isfile(stored)
+    from corona.tables import cache_dir
+    assert os.path.commonpath([stored, cache_dir()]) == cache_dir()
+    q = {"shape": "mask", "filename": up["id"], "pixel_size": 0.5, "orientation": "random",
+         "area_fraction": 0.3, "size": 48}
+    assert png(client.get("/api/corona.png", params=q)).shape == (48, 48, 3)
+    # the mask's disk of radius 10 px × 0.5 µm = 5 µm: the coherent weight is F_a²
+    got = client.get("/api/material", params=q).json()
+    assert got["coherent_transmittance"] == pytest.approx(0.09)
+    assert got["load_dict"]["filename"] == stored
+
+
+def test_bad_uploads(client, monkeypatch):
+    one_line_400(client.post("/api/upload?kind=mask", content=b"not an image"), "not a PNG or JPEG")
+    one_line_400(client.post("/api/upload?kind=photo", content=b""), "empty")
+    one_line_400(client.post("/api/upload?kind=script", content=b"x"), "kind='script'")
+    monkeypatch.setattr(app_module, "MAX_UPLOAD", 1000)
+    big = _png_bytes((np.random.default_rng(0).random((64, 64)) * 255).astype(np.uint8))
+    one_line_400(client.post("/api/upload?kind=photo", content=big), "allowed at most 1000", status=413)
+    monkeypatch.setattr(app_module, "MAX_POINTS", 10)
+    pts = "\n".join(f"{i} {i * 2}" for i in range(20)).encode()
+    one_line_400(client.post("/api/upload?kind=points", content=pts), "20 points", "at most 10")
+
+
+def test_fit_button_moves_the_knobs(client):
+    """The designer's own corona of 8 µm droplets, uploaded as a photograph, fits back to 8 µm
+    (corona.fit; the picture spans ±5° in 256 pixels, so its field of view is 10°)."""
+    q = {"radius": 8.0, "process": "hard-disk", "area_fraction": 0.3, "temperature": 3000,
+         "field": 5.0, "size": 256, "light_size": 0.1}
+    photo = client.post("/api/upload?kind=photo", content=client.get("/api/corona.png", params=q).content).json()
+    res = client.post("/api/fit", json={"photo": photo["id"], "fov": 10.0})
+    assert res.status_code == 200, res.text
+    knobs = res.json()["parameters"]
+    assert knobs["radius"] == pytest.approx(8.0, rel=0.02)
+    assert knobs["size_spread"] < 0.05
+    assert set(knobs) <= set(compute.DEFAULTS)
+    one_line_400(client.post("/api/fit", json={"photo": photo["id"], "fov": 200}), "fov=200")
+    one_line_400(client.post("/api/fit", content=b"{"), "not JSON")
+
+
+# ----------------------------------------------------------------------
+# the command
+# ----------------------------------------------------------------------
+def test_designer_command_on_a_taken_port_is_one_line_error():
+    from corona.cli import main
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        res = CliRunner().invoke(main, ["designer", "--port", str(port)], catch_exceptions=False)
+    assert res.exit_code == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "cannot listen on 127.0.0.1:" in lines[0]
+    assert "designer" in CliRunner().invoke(main, ["--help"]).stdout
+
+
+def test_served_over_http_on_loopback():
+    """A real uvicorn server on 127.0.0.1 (what `corona designer` runs)."""
+    import urllib.request
+
+    from corona.designer import running
+    with running() as url:
+        assert url.startswith("http://127.0.0.1:")
+        with urllib.request.urlopen(url + "api/parameters", timeout=10) as r:
+            assert json.load(r)["parameters"]
+
+
+# ----------------------------------------------------------------------
+# hostile requests: one 400 each, no server path in the answer
+# ----------------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["photo", "mask"])
+@pytest.mark.parametrize("size", [30000, 12000])
+def test_a_decompression_bomb_upload_is_400(client, kind, size):
+    """A PNG whose header claims 30000×30000 pixels gave 500 (Pillow's DecompressionBombError)."""
+    from bsdf_checks import png_claiming
+    limit = app_module.MAX_MASK_PIXELS if kind == "mask" else app_module.MAX_PHOTO_PIXELS
+    one_line_400(client.post(f"/api/upload?kind={kind}&name=bomb.png", content=png_claiming(size, size)),
+                 "bomb.png" if size == 30000 else f"{size}×{size}", str(limit))
+
+
+def test_deeply_nested_json_to_fit_is_400(client):
+    """Nested JSON within the size limit gave 500 (RecursionError)."""
+    for body in (b"[" * 60000, b'{"a":' * 10000 + b"1" + b"}" * 10000):
+        assert len(body) <= 65536
+        one_line_400(client.post("/api/fit", content=body), "not JSON")
+
+
+def test_errors_do_not_show_the_servers_cache_path(client):
+    """A fit of an uploaded photograph without a light named the file by its absolute path in the
+    table cache; the message names the upload by its id."""
+    from corona.tables import cache_dir
+    rng = np.random.default_rng(0)
+    fog = _png_bytes(rng.integers(90, 110, (64, 64, 3)).astype(np.uint8))
+    up = client.post("/api/upload?kind=photo&name=fog.png", content=fog).json()
+    msg = one_line_400(client.post("/api/fit", json={"photo": up["id"], "fov": 30.0}), "no bright light source")
+    assert up["id"] in msg
+    for root in {cache_dir(), os.path.realpath(cache_dir())}:
+        assert root not in msg, msg
+    assert os.sep + "designer" + os.sep not in msg, msg
+
+
+# ----------------------------------------------------------------------
+# shape=sphere: every endpoint answers, with the sphere layer's own physics (Mie theory from
+# corona.mie, the layer's white-furnace energies)
+# ----------------------------------------------------------------------
+SPHERES = [
+    {"shape": "sphere", "radius": 2.0, "area_fraction": 0.2},
+    {"shape": "sphere", "radius": 0.8, "area_fraction": 0.3, "process": "hard-disk", "size_spread": 0.05},
+    {"shape": "sphere", "radius": 3.0, "area_fraction": 0.05, "process": "poisson", "ior": 1.5},
+]
+
+
+@pytest.fixture(scope="module")
+def sphere_client():
+    from corona.designer import create_app
+    # a cold Mie table of a size distribution takes seconds, more on a loaded machine; the test
+    # is about the answers (timings are benchmarks' business)
+    with TestClient(create_app(timeout=600.0), base_url="http://127.0.0.1") as c:
+        yield c
+
+
+def _sphere_material(params):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return material_from_parameters(**params)
+
+
+@pytest.mark.parametrize("params", SPHERES, ids=["water", "hard-disk-spread", "glass"])
+def test_every_endpoint_answers_for_spheres(sphere_client, params):
+    res = sphere_client.get("/api/corona.png", params={**params, "size": 48})
+    assert res.status_code == 200, res.text
+    img = np.asarray(Image.open(io.BytesIO(res.content)))
+    assert img.shape == (48, 48, 3) and img.std() > 1
+    for fmt in ("png", "exr"):
+        res = sphere_client.get(f"/api/kernel.{fmt}", params={**params, "kernel_size": 33, "pixel_scale": 0.2})
+        assert res.status_code == 200, res.text
+    for ep in ("/api/profiles", "/api/material"):
+        res = sphere_client.get(ep, params=params)
+        assert res.status_code == 200, res.text
+
+
+def test_sphere_energy_split_is_the_white_furnace(sphere_client):
+    params = SPHERES[1]
+    got = sphere_client.get("/api/material", params=params).json()
+    m = _sphere_material(params)
+    e = m.directional_albedo(1.0, 550.0)          # integral of eval over the sphere of directions
+    assert got["coherent_transmittance"] == pytest.approx(e["coherent"], rel=1e-9)
+    assert got["diffuse_transmittance"] == pytest.approx(e["lobe_transmission"], rel=5e-3)
+    assert got["reflectance"] == pytest.approx(e["lobe_reflection"], rel=5e-3)
+    total = got["coherent_transmittance"] + got["diffuse_transmittance"] + got["reflectance"] + got["absorbed"]
+    assert total == pytest.approx(1.0)
+    assert got["absorbed"] >= 0
+
+
+def test_profiles_are_mie(sphere_client):
+    # a dilute Poisson layer: T_a is one sphere's dσ/dΩ / (π r²) and the lobe F_a T_a (S = 1, the
+    # cap inactive up to O(F_a²)); the rings at 550 nm are the maxima of Mie's pattern
+    params = SPHERES[2]
+    p = sphere_client.get("/api/profiles", params=params).json()
+    theta = np.radians(p["angle"])
+    r = 3.0
+    ref = mie.differential_cross_section(1.5, r, 0.55, np.cos(theta)) / (math.pi * r * r)
+    np.testing.assert_allclose(p["T_a"], ref, rtol=1e-6)
+    m = _sphere_material(params)
+    w = float(m.energies(1.0, 550.0)["weight"])
+    top = max(p["lobe"])
+    np.testing.assert_allclose(p["lobe"], 0.05 * w * ref, rtol=0, atol=2e-3 * top)
+    th = np.radians(np.linspace(0.05, 25.0, 200001))
+    v = mie.differential_cross_section(1.5, r, 0.55, np.cos(th))
+    i = np.nonzero((v[1:-1] > v[:-2]) & (v[1:-1] >= v[2:]))[0] + 1
+    expected = np.degrees(th[i][:3])
+    np.testing.assert_allclose(p["rings"]["550"][:3], expected, rtol=2e-3)
