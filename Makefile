@@ -50,14 +50,14 @@ test-fast: venv
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
 # (make gallery VARIANT=llvm_ad_rgb: another Mitsuba variant; default the fastest spectral one)
-# (the panels render as the points of one sweep on a local Dask cluster: corona.sweep)
+# (the panels render as the points of one sweep on a local Dask cluster: corona.apps.sweep)
 gallery: venv
 	$(PY) scripts/gallery.py $(if $(VARIANT),--variant $(VARIANT))
 	$(PY) scripts/demo.py out/demo --update-docs $(if $(VARIANT),--variant $(VARIANT))
 
 # the look-development page on http://127.0.0.1:8765/
 designer: venv
-	$(PY) -m corona.cli designer
+	$(PY) -m corona.apps.cli designer
 
 bench: venv
 	$(PY) benchmarks/run_all.py $(BENCH_ARGS)
@@ -92,7 +92,7 @@ docs-check: $(DOCS_STAMP)
 	$(PY) scripts/check_docs.py
 
 clean-cache: venv
-	$(PY) -m corona.cli tables clear
+	$(PY) -m corona.apps.cli tables clear
 
 clean:
 	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache .pytest-tables docs/_build

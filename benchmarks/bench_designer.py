@@ -55,7 +55,7 @@ def main():
     args = ap.parse_args()
     from starlette.testclient import TestClient
 
-    from corona.designer import compute, create_app
+    from corona.apps.designer import compute, create_app
     client = TestClient(create_app(timeout=120.0), base_url="http://127.0.0.1")
     load_start = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     # warm: imports, shipped tables, the first JIT of nothing (numpy only)

@@ -3,7 +3,7 @@
 A 1024² corona (droplets of 8 µm radius, 6 % size spread, F_a 0.35, hard
 disks; a 3200 K lamp 0.2° across, off-centre, 40° field of view) is rendered
 with the plugin, given noise and a saturated core, and saved as an 8-bit sRGB
-PNG; :func:`corona.fit.fit_photograph` then reads it and fits it, timed in
+PNG; :func:`corona.apps.fit.fit_photograph` then reads it and fits it, timed in
 the process (imports done) and as the command ``corona fit --json`` (a fresh
 process, imports included).  Writes benchmarks/results/fit.json.  Goal (issue
 13): a one-megapixel image fits in <= 5 s on 2 cores.
@@ -36,7 +36,7 @@ def render_photograph(path: str, res: int, spp: int = 4) -> float:
     import numpy as np
 
     from corona.color import tonemap_srgb
-    from corona.scenes import lamp_photograph_scene
+    from corona.apps.scenes import lamp_photograph_scene
     mi.set_variant(corona.default_variant(prefer_gpu=False))
     corona.register()
     bsdf = {"type": "corona", "radius": TRUTH["radius"], "size_spread": TRUTH["size_spread"],
@@ -58,7 +58,7 @@ def main():
     ap.add_argument("--res", type=int, default=1024)
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
-    from corona.fit import fit_photograph
+    from corona.apps.fit import fit_photograph
     tmp = tempfile.mkdtemp(prefix="corona-bench-fit-")
     os.environ.setdefault("CORONA_CACHE_DIR", os.path.join(tmp, "cache"))
     png = os.path.join(tmp, "corona.png")
@@ -72,7 +72,7 @@ def main():
 
     def cli(*extra):
         t0 = time.perf_counter()
-        out = subprocess.run([sys.executable, "-m", "corona.cli", "fit", png, "--fov", str(FOV),
+        out = subprocess.run([sys.executable, "-m", "corona.apps.cli", "fit", png, "--fov", str(FOV),
                               "--source-diameter", str(LAMP_DIAMETER), "--json", "--out",
                               os.path.join(tmp, "out"), *extra], check=True, capture_output=True, text=True)
         return time.perf_counter() - t0, json.loads(out.stdout)

@@ -38,8 +38,8 @@ def child(args) -> dict:
     import corona  # noqa: F401  (sets up libLLVM first)
     import drjit as dr
     import mitsuba as mi
-    from corona.render import setup_variant
-    from corona.scenes import street_light_scene
+    from corona.apps.render import setup_variant
+    from corona.apps.scenes import street_light_scene
     setup_variant(MODES[args.mode])
     bsdf, key = BSDFS[args.child]
     scene_dict = street_light_scene(resolution=args.res, bsdf=bsdf)

@@ -44,9 +44,9 @@ from scipy import special
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "src"))
 
-from corona.processes import HardDisk  # noqa: E402
+from corona.model.processes import HardDisk  # noqa: E402
 from corona.reference import hard_disk as hd  # noqa: E402
-from corona.shapes import Circle  # noqa: E402
+from corona.model.shapes import Circle  # noqa: E402
 
 
 def _script():
@@ -79,7 +79,7 @@ def sum_rule(fa, radius=1.0):
 
 def bench_lookup():
     hd.load_table.cache_clear()
-    from corona.processes import hard_disk as lookup
+    from corona.model.processes import hard_disk as lookup
     lookup.load_table.cache_clear()
     lookup._lookup_arrays.cache_clear()
     lookup._row.cache_clear()
@@ -97,8 +97,8 @@ def bench_lookup():
     assert np.all(np.isfinite(S))
     # the same in a fresh interpreter (nothing cached; imports not counted)
     import subprocess
-    code = ("import time, numpy as np; from corona.processes import HardDisk; "
-            "from corona.shapes import Circle; q = np.linspace(0.0, 2000.0, 2**18); "
+    code = ("import time, numpy as np; from corona.model.processes import HardDisk; "
+            "from corona.model.shapes import Circle; q = np.linspace(0.0, 2000.0, 2**18); "
             "t0 = time.perf_counter(); HardDisk(0.437).structure_factor_radial(q, Circle(0.5)); "
             "print(time.perf_counter() - t0)")
     fresh = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -3,12 +3,12 @@
 For each material: the relative error of the lobe against ``Material.lobe``
 (RMS and largest ``|v / v_model - 1|``) over uniform points of the reachable u
 disk where the model's lobe is above 1e-3 of its peak
-(:func:`corona.render_lobe.region_points`),
+(:func:`corona.tables.lobe.region_points`),
 
 * ``before``: the bilinear 512² table of ``v`` (cells of 0.25 in u, range
   ``min(u_max, 64)``, zero beyond) that the renderer evaluated until issue 18;
-* ``after``: :class:`corona.render_lobe.RenderLobe` (numpy, float64);
-* ``kernel``: the plugin's Dr.Jit kernel (:class:`corona.lobe_kernels.LobeKernel`,
+* ``after``: :class:`corona.tables.lobe.RenderLobe` (numpy, float64);
+* ``kernel``: the plugin's Dr.Jit kernel (:class:`corona.mitsuba.kernels.LobeKernel`,
   float32, llvm_ad_spectral) at the same points,
 
 the renderer's kind, the bytes of the arrays the plugin holds for the lobe
@@ -119,7 +119,7 @@ def main():
     ap.add_argument("--no-kernel", action="store_true", help="skip the Dr.Jit kernel")
     args = ap.parse_args()
     os.environ["CORONA_CACHE_DIR"] = tempfile.mkdtemp(prefix="corona-bench-")
-    from corona import render_lobe
+    from corona.tables import lobe as render_lobe
     from corona.parameters import material_from_parameters
     folder = tempfile.mkdtemp(prefix="corona-bench-files-")
     mask, points = _files(folder)
@@ -127,7 +127,7 @@ def main():
         import drjit as dr
         import mitsuba as mi
         mi.set_variant("llvm_ad_spectral")
-        from corona.lobe_kernels import LobeKernel
+        from corona.mitsuba.kernels import LobeKernel
         rng = np.random.default_rng(0)
         global LANES, _time
         LANES = (mi.Float(rng.uniform(-30, 30, 1 << 19)), mi.Float(rng.uniform(-30, 30, 1 << 19)))

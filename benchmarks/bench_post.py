@@ -16,7 +16,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "src"))
 import corona  # noqa: E402,F401
-import corona.post as post  # noqa: E402
+import corona.apps.post as post  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(__file__))
 from common import machine  # noqa: E402

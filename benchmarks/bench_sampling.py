@@ -100,8 +100,8 @@ def main():
     import corona  # noqa: F401  (sets up libLLVM first)
     import mitsuba as mi
     from common import write
-    from corona.render import setup_variant
-    from corona.scenes import street_light_scene
+    from corona.apps.render import setup_variant
+    from corona.apps.scenes import street_light_scene
     setup_variant(args.variant)
 
     def render(scene, spp, seed):
@@ -115,7 +115,7 @@ def main():
             path = os.path.join(SCENE_DIR, file)
             scenes = {how: mi.load_file(path, res=str(args.res), sampling=how, **defines)
                       for how in ("lobe", "cosine")}
-        else:   # corona.scenes.street_light_scene with these keyword arguments
+        else:   # corona.apps.scenes.street_light_scene with these keyword arguments
             scenes = {how: mi.load_dict(street_light_scene(
                 resolution=args.res, bsdf={"type": "corona", "sampling": how, **layer}, **defines))
                 for how in ("lobe", "cosine")}

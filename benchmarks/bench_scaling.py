@@ -27,7 +27,7 @@ def tiled_scene(n_materials: int, resolution: int) -> dict:
     """The street-light scene with its pane cut into ``n_materials`` vertical strips."""
     import mitsuba as mi
 
-    from corona.scenes import street_light_scene
+    from corona.apps.scenes import street_light_scene
     scene = street_light_scene(resolution=resolution, light_radius=0.5)
     pane = scene.pop("pane")
     T = mi.ScalarTransform4f
@@ -53,8 +53,8 @@ def main():
     import drjit as dr
     import mitsuba as mi
     from common import write
-    from corona.render import setup_variant
-    from corona.scenes import street_light_scene
+    from corona.apps.render import setup_variant
+    from corona.apps.scenes import street_light_scene
     setup_variant(args.variant)
 
     def timed(scene, spp):

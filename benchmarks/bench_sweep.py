@@ -40,7 +40,7 @@ RADII = "1.5,2,3,4,5,6,8,12"
 
 
 def sweep_command(out: str, workers: int, res: int, spp: int) -> dict:
-    cmd = [sys.executable, "-m", "corona.cli", "sweep", SCENE, "-D", f"radius={RADII}",
+    cmd = [sys.executable, "-m", "corona.apps.cli", "sweep", SCENE, "-D", f"radius={RADII}",
            "-D", f"res={res}", "-D", f"spp={spp}", "--out", out, "--workers", str(workers),
            "--no-progress"]
     t0 = time.perf_counter()
@@ -58,7 +58,7 @@ def sweep_command(out: str, workers: int, res: int, spp: int) -> dict:
 
 def noop_overhead(n: int) -> dict:
     """Seconds per empty task through Executor.map, on 2 local workers and in this process."""
-    from corona.sweep import Executor
+    from corona.apps.sweep import Executor
     out = {}
     for name, workers in (("cluster_2_workers", 2), ("in_process", 0)):
         with Executor(workers=workers) as ex:
@@ -83,7 +83,7 @@ def main():
     args = ap.parse_args()
     from common import write
 
-    from corona.render import setup_variant
+    from corona.apps.render import setup_variant
     setup_variant()            # the variant the workers pick too (recorded with the machine)
     with tempfile.TemporaryDirectory() as tmp:
         sweep_command(os.path.join(tmp, "warm"), 0, args.res, 4)      # the kernel cache

@@ -85,8 +85,14 @@ def one_scene(path: str) -> dict:
     import scipy.interpolate
     import scipy.ndimage
     import scipy.special  # noqa: F401
-    from corona import (material, mitsuba_bsdf, mitsuba_phase, mitsuba_sphere, processes,  # noqa: F401
-                        render_lobe, sphere_material, volume)
+    from corona.model import material
+    from corona.mitsuba import bsdf as mitsuba_bsdf
+    from corona.mitsuba import phase as mitsuba_phase
+    from corona.mitsuba import sphere as mitsuba_sphere
+    from corona.model import processes
+    from corona.tables import lobe as render_lobe
+    from corona.model.mie import layer as sphere_material
+    from corona.mitsuba import volume
     sphere_material.build_mie_rows = timed("mie", sphere_material.build_mie_rows)
     volume.MieVolume._build = timed("mie", volume.MieVolume._build)
     mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "diffuse"}}})

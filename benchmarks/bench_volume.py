@@ -1,7 +1,7 @@
 """Volume render cost: the corona_mie phase function against Mitsuba's hg (same σ_t, g matched).
 
 A slab of optical depth 1 (5 µm water droplets, gamma, v_eff 0.01, albedo 1) seen against a
-distant light (corona.volume.slab_scene), volpath with up to 32 bounces.  Per variant the
+distant light (corona.mitsuba.volume.slab_scene), volpath with up to 32 bounces.  Per variant the
 three scenes (isotropic, hg, corona_mie) are loaded and rendered once to compile the kernels,
 then rendered in turn ``--repeat`` times (interleaved, new seeds), so every round's ratio
 corona_mie / hg is measured under the same load; the median and the spread of the per-round
@@ -30,7 +30,7 @@ def run(variant: str, size: int, spp: int, repeat: int) -> dict:
     import drjit as dr
     import mitsuba as mi
 
-    from corona import volume
+    from corona.mitsuba import volume
     mi.set_variant(variant)
     corona.register()
     kw = dict(distribution="gamma", variance=0.01)

@@ -40,9 +40,10 @@ sys.path.insert(0, os.path.join(os.path.dirname(HERE), "src"))
 
 from common import write  # noqa: E402
 
-from corona import CoronaWarning, Material, shapes  # noqa: E402
+from corona import CoronaWarning, Material  # noqa: E402
+from corona.model import shapes
 from corona.reference import wave  # noqa: E402
-from corona.processes import HardDisk  # noqa: E402
+from corona.model.processes import HardDisk  # noqa: E402
 from corona.reference.validate import U_COMPARE, compare  # noqa: E402
 
 R = 2.5
@@ -93,7 +94,7 @@ def bench_model(bf):
     iy = np.abs(bf.qy) * R_ <= U_COMPARE
     QX, QY = np.meshgrid(bf.qx[ix], bf.qy[iy], indexing="xy")
     d = np.stack([QX, QY], -1) * (LAM * 1e-3 / (2 * np.pi))
-    from corona.processes import hard_disk
+    from corona.model.processes import hard_disk
     hard_disk._row.cache_clear()
     cold, warm = cold_and_warm(_material, lambda m: m.lobe(d, LAM))
     tab_cold, tab_warm = cold_and_warm(lambda: Material(shapes.Circle(R), HardDisk(0.3), use_cache=False),

@@ -2,7 +2,7 @@
 
 For a dilute Poisson layer at normal incidence, the tabulated forward and backward lobes
 (``SphereMaterial._lobes``, which the plugin evaluates identically) are compared with
-``corona.mie.amplitudes`` evaluated directly (independent of the table builder), on a fine
+``corona.model.mie.theory.amplitudes`` evaluated directly (independent of the table builder), on a fine
 grid of the scattering angle:
 
 * energy-weighted RMS: ``sqrt(Σ w (P_tab/P_mie - 1)²)``, weights ``w ∝ P_mie dΩ``;
@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 import corona
-from corona import mie
+from corona.model.mie import theory as mie
 
 
 def _extrema(theta, p, n=3):

@@ -322,7 +322,7 @@ def main(argv=None) -> int:
     ap.add_argument("--variant", default=None, help="Mitsuba variant (default: corona's)")
     ap.add_argument("--json", default=None, help="write the results here")
     a = ap.parse_args(argv)
-    from corona.render import setup_variant
+    from corona.apps.render import setup_variant
     setup_variant(a.variant)
     results = quick() if a.quick else {"uniform": fit_uniform(), "bitmap": fit_bitmap()}
     if a.json:

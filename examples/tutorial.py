@@ -44,11 +44,11 @@ for lam in (450.0, 550.0, 650.0):
 
 # --- 3. a render ---------------------------------------------------------------------------
 # A distant 3000 K lamp seen through the layer right in front of a pinhole camera
-# (corona.scenes.lamp_photograph_scene), in the default spectral variant.
+# (corona.apps.scenes.lamp_photograph_scene), in the default spectral variant.
 import mitsuba as mi                                           # noqa: E402
 corona.set_default_variant()                                   # cuda > llvm > scalar, spectral
 corona.register()
-from corona.scenes import lamp_photograph_scene                # noqa: E402
+from corona.apps.scenes import lamp_photograph_scene                # noqa: E402
 
 FOV, RES, SPP = 20.0, 96, 64
 layer = {"type": "corona", "radius": 4.0, "area_fraction": 0.35, "process": "hard-disk", "mode": "particle"}
@@ -86,15 +86,15 @@ print(f"5. d loss / d radius at 4.4 µm = {gradient:.3e} per µm ({'shrink' if g
       "the droplets)")
 
 # --- and the same layer as a pass over any image ---------------------------------------------------
-# corona.post puts the layer in front of the camera of an image that was rendered
+# corona.apps.post puts the layer in front of the camera of an image that was rendered
 # (or photographed) without it: the render of the bare lamp, passed through the
 # layer, against the render through the pane above.
 bare = lamp_photograph_scene(RES, layer, fov=FOV, source_radius_deg=0.1)
 del bare["pane"]
 plain = np.array(mi.render(mi.load_dict(bare), spp=4 * SPP, seed=3))
-import corona.post                                                # noqa: E402
-through = corona.post.apply(plain, FOV, radius=4.0, area_fraction=0.35, mode="particle", progress=False)
+import corona.apps.post                                                # noqa: E402
+through = corona.apps.post.apply(plain, FOV, radius=4.0, area_fraction=0.35, mode="particle", progress=False)
 off = plain.sum(-1) == 0
 ratio = through[off].sum() / image[off].sum()
-print(f"+. corona.post of the bare lamp: the corona's energy is {ratio:.3f} x the render's")
+print(f"+. corona.apps.post of the bare lamp: the corona's energy is {ratio:.3f} x the render's")
 print(f"done in {time.perf_counter() - t_start:.0f} s")

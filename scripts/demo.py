@@ -32,7 +32,7 @@ def _repo_file(*parts: str) -> str | None:
 def main(out_dir: str = "out/demo", update_docs: bool = False, variant: str | None = None) -> int:
     import corona
     from corona.parameters import material_from_parameters
-    from corona.pictures import lobe_figure
+    from corona.apps.pictures import lobe_figure
 
     os.makedirs(out_dir, exist_ok=True)
     params = dict(shape="circle", radius=5.0, area_fraction=0.4, process="hard-disk", mode="particle")
@@ -56,7 +56,7 @@ def main(out_dir: str = "out/demo", update_docs: bool = False, variant: str | No
     fig = lobe_figure(material, os.path.join(out_dir, "lobe.png"))
     print(f"\n  lobe tables and far-field corona: {fig}")
 
-    from corona.render import load_scene, render_to_files, scene_spp, setup_variant
+    from corona.apps.render import load_scene, render_to_files, scene_spp, setup_variant
     variant = setup_variant(variant)
     import mitsuba as mi
     teaser = _repo_file("scenes", "teaser.xml")
@@ -67,7 +67,7 @@ def main(out_dir: str = "out/demo", update_docs: bool = False, variant: str | No
         spp = scene_spp(scene)
         what = teaser
     else:  # an installed package without the repository's scenes/
-        from corona.scenes import street_light_scene
+        from corona.apps.scenes import street_light_scene
         scene = mi.load_dict(street_light_scene(resolution=256 if fast else 96, bsdf={"type": "corona", **params}))
         spp, what = (64 if fast else 8), "the built-in street-light scene"
     print(f"\n  rendering {what} with {variant} ({spp} spp)...")

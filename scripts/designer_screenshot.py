@@ -51,7 +51,7 @@ def main():
     args = ap.parse_args()
     from PIL import Image
 
-    from corona.designer import running
+    from corona.apps.designer import running
     with running() as url:
         driver = chrome(1480, 1120)
         try:

@@ -9,7 +9,7 @@ with every picture and the exact ``corona`` command behind each panel.
     python scripts/gallery.py [--only NAME ...] [--variant V] [--workers N | --scheduler ADDRESS]
                                                                     (make gallery)
 
-The panels are the points of one sweep (:mod:`corona.sweep`): they render on
+The panels are the points of one sweep (:mod:`corona.apps.sweep`): they render on
 a local Dask cluster sized to the machine (``--workers 0``: in this process,
 ``--scheduler``: on an existing cluster), and the strips are assembled here.
 """
@@ -281,15 +281,15 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
     """Render the strips (all, or the names in ``only``) and rewrite the gallery page.
 
     Every panel of every strip is one point of a sweep: they all go to
-    ``executor`` (a :class:`corona.sweep.Executor`: a local Dask cluster, an
+    ``executor`` (a :class:`corona.apps.sweep.Executor`: a local Dask cluster, an
     existing one, or this process) at once; then each strip is exposed,
     annotated and tiled here.  Returns ``{"seconds": total, "strips": {name:
     seconds}, "failed": {name: message}}`` (a strip's seconds: the render time
     of its panels plus its tiling).
     """
     from corona.color import tonemap_srgb
-    from corona.render import setup_variant, write_images
-    from corona.sweep import Executor, RenderJob, render_jobs
+    from corona.apps.render import setup_variant, write_images
+    from corona.apps.sweep import Executor, RenderJob, render_jobs
     root = repo_root()
     scenes_dir = os.path.join(root, "scenes")
     if not os.path.isdir(scenes_dir):
@@ -332,7 +332,7 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
         png = os.path.join(out_dir, f"{strip.name}.png")
         try:
             if strip.scene is None:
-                from corona.cli import main as cli_main
+                from corona.apps.cli import main as cli_main
                 args = ["lobe", *strip.lobe_args, "--out", png]
                 try:
                     cli_main.main(args=args, prog_name="corona", standalone_mode=False)
@@ -424,7 +424,7 @@ def main(argv=None) -> int:
                     help="local Dask cluster size (default: sized to the machine); 0: in this process")
     ap.add_argument("--scheduler", default=None, help="an existing Dask scheduler (tcp://host:8786)")
     a = ap.parse_args(argv)
-    from corona.sweep import Executor
+    from corona.apps.sweep import Executor
     try:
         with Executor(a.workers, a.scheduler, log=print) as ex:
             res = build(only=a.only, variant=a.variant, executor=ex)

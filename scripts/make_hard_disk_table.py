@@ -175,11 +175,11 @@ def save_row(work_dir: str, raw: dict, first_chain: int = 0) -> None:
 def simulate_rows(etas, work_dir: str, executor=None, jobs: int = 1, progress: bool = True,
                   settings=row_settings) -> list:
     """Every row of ``etas``, one task per row of ``executor`` (a
-    :class:`corona.sweep.Executor`; default: here, one after the other).
+    :class:`corona.apps.sweep.Executor`; default: here, one after the other).
     Each row is stored in ``work_dir`` as it arrives; a failed row is
     reported and the others finish.  Returns the raw rows (None where failed).
     """
-    from corona.sweep import Executor
+    from corona.apps.sweep import Executor
     executor = executor or Executor(workers=0)
     here = executor.in_process
     tasks = [(float(e), settings(float(e)), jobs if here else 1, progress and here) for e in etas]
@@ -350,7 +350,7 @@ def main(argv=None):
         else:
             etas = [float(e) for e in ETA_GRID if e > 0]
         from corona._validation import CoronaError
-        from corona.sweep import Executor
+        from corona.apps.sweep import Executor
         t0 = time.perf_counter()
         if a.top_up:     # only the chains each row still lacks (same seed sequence), here
             rows = []

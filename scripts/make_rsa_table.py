@@ -5,7 +5,7 @@ factor ``S(qσ, η)`` of random sequential adsorption (RSA) of disks.
 Method
 ------
 * Exact RSA of unit disks (σ = 1) in a periodic square box of side ``--box``
-  run to saturation (``corona.processes.rsa._rsa_fill``: plain attempts to
+  run to saturation (``corona.model.processes.rsa._rsa_fill``: plain attempts to
   coverage 0.40, then the voxel method that samples only where space may be
   left).  RSA never removes a disk, so the first ``N_t`` centres of one run are
   a configuration at coverage ``η_t = N_t π/4 / L²``: one run gives every row
@@ -62,12 +62,12 @@ def simulate(args, executor=None, progress: bool = True) -> dict:
     """The raw accumulators of ``args.runs`` runs (seeds ``args.seed + run``).
 
     The runs go in chunks of ``args.chunk`` (one task of ``executor``, a
-    :class:`corona.sweep.Executor`; default: here, one after the other); the
+    :class:`corona.apps.sweep.Executor`; default: here, one after the other); the
     chunk sums are added in chunk order, so the result is the same bits
     wherever the chunks ran (it depends on ``--chunk`` only through the order
     of floating-point additions).
     """
-    from corona.sweep import Executor
+    from corona.apps.sweep import Executor
     L = args.box
     geo = R.table_geometry(L, args.kcut)
     seeds = [int(args.seed + run) for run in range(args.runs)]
@@ -182,7 +182,7 @@ def main(argv=None):
         raw = dict(np.load(args.raw))
     else:
         from corona._validation import CoronaError
-        from corona.sweep import Executor
+        from corona.apps.sweep import Executor
         if args.runs < 1 or args.chunk < 1:
             raise SystemExit(f"make_rsa_table: --runs {args.runs} / --chunk {args.chunk}: expected >= 1")
         try:

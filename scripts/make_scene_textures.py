@@ -47,7 +47,7 @@ def main() -> None:
     import imageio.v3 as iio
     import mitsuba as mi
     import corona  # noqa: F401  (libLLVM before drjit)
-    from corona.render import setup_variant
+    from corona.apps.render import setup_variant
     setup_variant("scalar_rgb")
     os.makedirs(HERE, exist_ok=True)
     iio.imwrite(os.path.join(HERE, "wiped_fog.png"), np.round(wiped_fog() * 255).astype(np.uint8))

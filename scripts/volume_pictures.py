@@ -25,8 +25,8 @@ def series(taus=(0.05, 0.3, 1.0, 3.0), radius=5.0, size=128, spp=256, fov=24.0):
     ring contrasts (green channel, tests/plugin/test_volume.py's measure)."""
     import imageio.v3 as iio
 
-    from corona import volume
-    from corona.mitsuba_phase import channel_response
+    from corona.mitsuba import volume
+    from corona.mitsuba.phase import channel_response
     mi.set_variant("llvm_ad_rgb")
     corona.register()
     kw = dict(distribution="gamma", variance=0.01)
@@ -63,11 +63,11 @@ def series(taus=(0.05, 0.3, 1.0, 3.0), radius=5.0, size=128, spp=256, fov=24.0):
 
 def glory_scene(truncation=5.0, radius=10.0, variance=0.01, sigma_t=0.05, res=128, spp=512,
                 max_depth=64, variant="llvm_ad_rgb"):
-    """scenes/glory_cloud_deck.xml as a dict, its medium from corona.volume.homogeneous_medium
+    """scenes/glory_cloud_deck.xml as a dict, its medium from corona.mitsuba.volume.homogeneous_medium
     (σ_t = ``sigma_t`` /m at 550 nm, albedo 1) with the forward peak truncated at
     ``truncation`` degrees (0: none): the camera 300 m above a 200 m deck of 10 µm droplets,
     the sun behind it, multiple scattering on."""
-    from corona import volume
+    from corona.mitsuba import volume
     mi.set_variant(variant)
     corona.register()
     v = volume.MieVolume(radius, "gamma", variance)

@@ -74,7 +74,7 @@ myst_dmath_double_inline = True
 # -- autodoc / napoleon --------------------------------------------------------
 autodoc_default_options = {
     "members": True,
-    # packages (corona.shapes, corona.processes, ...) re-export what their
+    # packages (corona.model.shapes, corona.model.processes, ...) re-export what their
     # submodules define; _only_own_members below keeps numpy & co. out
     "imported-members": True,
     "show-inheritance": True,
@@ -107,8 +107,8 @@ def _note_module(app, what, name, obj, options, signature, return_annotation):
 
 def _only_own_members(app, what, name, obj, skip, options):
     """Of a module's classes and functions keep those defined in that module
-    or below it (``corona.shapes`` keeps ``corona.shapes.analytic.Circle``,
-    ``corona.material`` drops the ``Poisson`` it imports, every module drops
+    or below it (``corona.model.shapes`` keeps ``corona.model.shapes.analytic.Circle``,
+    ``corona.model.material`` drops the ``Poisson`` it imports, every module drops
     numpy's and functools' helpers)."""
     if what != "module" or not (inspect.isclass(obj) or inspect.isroutine(obj)):
         return None
@@ -186,8 +186,8 @@ def _redirect_root(app, exception):
 
 def _allow_reexports() -> None:
     """A class re-exported by two pages (``corona.Circle`` on the top-level
-    page, ``corona.shapes.Circle`` on its package's page) is documented twice
-    with the same ``:canonical:`` name (``corona.shapes.analytic.Circle``);
+    page, ``corona.model.shapes.Circle`` on its package's page) is documented twice
+    with the same ``:canonical:`` name (``corona.model.shapes.analytic.Circle``);
     Sphinx then warns "duplicate object description" for two *aliases*.
     Keep the first alias quietly; real duplicates still warn."""
     from sphinx.domains.python import PythonDomain

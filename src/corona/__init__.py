@@ -4,24 +4,26 @@ The model (docs/physics.md#the-model): the diffraction lobe of a layer is
 ``F_a · T_a(d) · T_s(d)`` with ``T_a`` the normalised form factor of one
 scatterer and ``T_s`` the structure factor of their positions.
 
-Data flows one way: :mod:`corona.shapes` + :mod:`corona.processes` →
+Data flows one way: :mod:`corona.model.shapes` + :mod:`corona.model.processes` →
 :class:`corona.Material` → :mod:`corona.tables` → the Mitsuba plugin
-(:mod:`corona.mitsuba_bsdf`) → the CLI (:mod:`corona.cli`).  The reference
+(:mod:`corona.mitsuba.bsdf`) → the CLI (:mod:`corona.apps.cli`).  The reference
 tier (:mod:`corona.reference`: simulations, brute force, validation) needs
 the ``reference`` extra and is never imported from here.
 """
 # _environment must come first: when DRJIT_LIBLLVM_PATH is unset it points it at
 # a libLLVM >= 16 before Dr.Jit loads (a user's own setting is left alone)
-from . import _environment  # noqa: F401
-from ._environment import default_variant, set_default_variant
-from ._validation import CoronaError, CoronaWarning
-from .fit import fit_photograph
-from .material import Material
-from .micrograph import from_micrograph
-from .processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
-from .shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
+from corona import _environment  # noqa: F401
+from corona import _moved
+_moved.install()   # the previous release's module names (corona.mitsuba_bsdf, corona.cli, ...)
+from corona._environment import default_variant, set_default_variant
+from corona._validation import CoronaError, CoronaWarning
+from corona.apps.fit import fit_photograph
+from corona.model.material import Material
+from corona.apps.micrograph import from_micrograph
+from corona.model.processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
+from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
                      RegularPolygon, Shape, SizeDistribution, SoftEdge, Sphere, Square)
-from .substrate import GlassPane, Mirror
+from corona.model.substrate import GlassPane, Mirror
 
 __version__ = "0.1.0"
 
@@ -58,7 +60,7 @@ def register() -> None:
     >>> round(float(value[0] / (f * cos_o)), 3)
     1.0
     """
-    from .mitsuba_bsdf import register as _register
+    from corona.mitsuba.bsdf import register as _register
     _register()
-    from .mitsuba_phase import register as _register_phase   # the corona_mie phase function
+    from corona.mitsuba.phase import register as _register_phase   # the corona_mie phase function
     _register_phase()

@@ -16,7 +16,7 @@ import math
 import warnings
 from dataclasses import dataclass
 
-from ._validation import CoronaError, check_choice, check_positive, check_range
+from corona._validation import CoronaError, check_choice, check_positive, check_range
 
 
 @dataclass(frozen=True)
@@ -293,7 +293,7 @@ MIXTURE_SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon")
 
 def _outline(kind: str, r: float, p: dict):
     """The bare shape ``kind`` of size ``r`` [µm] (aspect, sides, angle from ``p``)."""
-    from . import shapes
+    from corona.model import shapes
     # the Python classes take the plugin's parameters as they are (radius, aspect, angle [degree])
     angle = SPEC["angle"].check(p["angle"])
     if kind == "circle":
@@ -343,7 +343,7 @@ def _modified(base, p: dict):
     independent), and needs far fewer evaluations (the rotation average resolves
     the shape at its own size, not at the largest size of the distribution).
     """
-    from . import shapes
+    from corona.model import shapes
     w = SPEC["edge_width"].check(p["edge_width"])
     if w > base.length_scale * (1 + 1e-12):
         raise CoronaError(f"edge_width={p['edge_width']!r} µm is out of range for {base!r}; allowed "
@@ -382,7 +382,8 @@ def _check_size(shape, p: dict):
 
 def _size_average_work(shape) -> float:
     """Terms of the size averages over a 2D table (see :data:`SIZE_AVERAGE_WORK_MAX`)."""
-    from . import shapes, tables
+    from corona import tables
+    from corona.model import shapes
     if isinstance(shape, shapes.Mixture):
         return sum(_size_average_work(sh) for sh, _ in shape.components)
     if shape.isotropic:
@@ -410,7 +411,7 @@ def make_shape(p: dict):
 
 
 def _make_shape(p: dict):
-    from . import shapes
+    from corona.model import shapes
     kind = check_choice("shape", p["shape"], SHAPES)
     SPEC["angle"].check(p["angle"])
     if kind == "mixture":
@@ -434,7 +435,7 @@ def _make_shape(p: dict):
         # so a given value gets the one unused-parameter warning and is ignored here
         p = {**p, "edge_width": 0.0, "orientation": "fixed"}
         ior = None if p.get("ior") is None else complex(p["ior"], p.get("ior_imag") or 0.0)
-        from .sphere_material import SPHERE_RADIUS_MAX
+        from corona.model.mie.layer import SPHERE_RADIUS_MAX
         if p["radius"] > SPHERE_RADIUS_MAX:   # the Mie tables' range (their build time)
             raise CoronaError(f"radius={p['radius']!r} is out of range for shape='sphere'; allowed "
                               f"(0, {SPHERE_RADIUS_MAX:g}] µm (larger droplets: use shape='circle', "
@@ -452,7 +453,7 @@ def _make_shape(p: dict):
 
 
 def make_process(p: dict, shape):
-    from . import processes
+    from corona.model import processes
     kind = check_choice("process", p["process"], PROCESSES)
     if kind == "points":
         return processes.PointSet.from_file(points_file(p))
@@ -504,7 +505,7 @@ def warn_unused(given, p: dict, stacklevel: int = 3) -> None:
     unused properties."""
     unused = unused_parameters(given, p)
     if unused:
-        from ._validation import CoronaWarning
+        from corona._validation import CoronaWarning
         why = "; ".join(f"{k} (used with {SPEC[k].used_with})" for k in unused)
         warnings.warn(f"unused parameter(s) with shape={p['shape']!r}, process={p['process']!r}: {why}; "
                       "ignored", CoronaWarning, stacklevel=stacklevel)
@@ -530,19 +531,19 @@ def material_from_parameters(**params):
 
     Unknown names raise a :class:`corona.CoronaError` listing the known ones.
     """
-    from .material import Material
+    from corona.model.material import Material
     unknown = sorted(set(params) - set(DEFAULTS))
     if unknown:
         raise CoronaError(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
     given = {k: v for k, v in params.items() if v is not None}
     p = {**DEFAULTS, **{k: _check_given(k, v) for k, v in given.items()}}
-    from .substrate import make_substrate
+    from corona.model.substrate import make_substrate
     substrate = make_substrate(p["substrate"], p["substrate_ior"], p["substrate_side"],
                                p["substrate_thickness"], p["mirror_reflectance"])
     shape = make_shape(p)
     process = make_process(p, shape)
     if p["shape"] == "sphere":   # droplets in air: particles; the mode given must say so
-        from .sphere_material import SPHERE_NO_LATTICE, SphereMaterial
+        from corona.model.mie.layer import SPHERE_NO_LATTICE, SphereMaterial
         if p["process"] not in ("poisson", "hard-disk", "rsa"):
             raise CoronaError(f"process={p['process']!r} is out of range for shape='sphere'; allowed "
                               f"poisson, hard-disk, rsa ({SPHERE_NO_LATTICE})")

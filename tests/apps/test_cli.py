@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from corona.cli import main
+from corona.apps.cli import main
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
 TEASER = os.path.join(ROOT, "scenes", "teaser.xml")
@@ -53,7 +53,7 @@ def test_render_missing_file(tmp_path):
 
 def test_render_missing_file_from_the_console_script(tmp_path):
     """The real entry point (a separate process), not only click's test runner."""
-    p = subprocess.run([sys.executable, "-m", "corona.cli", "render", str(tmp_path / "nope.xml")],
+    p = subprocess.run([sys.executable, "-m", "corona.apps.cli", "render", str(tmp_path / "nope.xml")],
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2
     assert p.stderr.strip().count("\n") == 0 and "does not exist" in p.stderr
@@ -245,7 +245,7 @@ def test_lobe_maps_match_the_physics():
     """The pictured lobe map is v(u) = (2 J1(u)/u)² S(2u) (circles on hard disks, v in units
     of P(0)/R² = π), checked against the independent evaluation on the 2-D grid."""
     import corona
-    from corona.pictures import lobe_maps
+    from corona.apps.pictures import lobe_maps
     fa = 0.35
     m = corona.Material(corona.Circle(radius=3.0), corona.HardDisk(area_fraction=fa))
     maps = lobe_maps(m, 20.0, n=41)

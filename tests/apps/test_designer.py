@@ -1,8 +1,8 @@
 """`corona designer`: its HTTP API (Starlette's TestClient) and the physics of its
-pictures, checked against independent computations: corona.pictures'
+pictures, checked against independent computations: corona.apps.pictures'
 far-field corona, the table's CDF (energy within a disk), the Airy maxima,
 the material's own energies, and Mitsuba loading the exported XML / dict; with
-shape=sphere, Mie theory (corona.mie) and the sphere layer's white-furnace energies."""
+shape=sphere, Mie theory (corona.model.mie.theory) and the sphere layer's white-furnace energies."""
 from __future__ import annotations
 
 import io
@@ -24,19 +24,19 @@ from click.testing import CliRunner  # noqa: E402
 from PIL import Image  # noqa: E402
 from starlette.testclient import TestClient  # noqa: E402
 
-from corona import mie  # noqa: E402
+from corona.model.mie import theory as mie  # noqa: E402
 from corona.color import blackbody, spectrum_to_linear_srgb  # noqa: E402
-from corona.designer import app as app_module  # noqa: E402
-from corona.designer import compute  # noqa: E402
+from corona.apps.designer import app as app_module  # noqa: E402
+from corona.apps.designer import compute  # noqa: E402
 from corona.parameters import PARAMETERS, material_from_parameters  # noqa: E402
-from corona.pictures import far_field_corona  # noqa: E402
+from corona.apps.pictures import far_field_corona  # noqa: E402
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
 @pytest.fixture(scope="module")
 def client():
-    from corona.designer import create_app
+    from corona.apps.designer import create_app
     with TestClient(create_app(), base_url="http://127.0.0.1") as c:
         yield c
 
@@ -60,7 +60,7 @@ def one_line_400(res, *words, status=400):
 # the package boundary
 # ----------------------------------------------------------------------
 def test_import_corona_does_not_import_the_web_libraries():
-    code = ("import sys, corona; bad = [m for m in ('starlette', 'uvicorn', 'corona.designer', 'PIL') "
+    code = ("import sys, corona; bad = [m for m in ('starlette', 'uvicorn', 'corona.apps.designer', 'PIL') "
             "if m in sys.modules]; print(','.join(bad))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
@@ -120,7 +120,7 @@ def test_corona_png(client):
 ])
 def test_fast_radial_picture_matches_far_field_corona(params):
     """The designer's radial path (exact lobe on one radial profile) against
-    corona.pictures.far_field_corona (the renderer's table at every pixel)."""
+    corona.apps.pictures.far_field_corona (the renderer's table at every pixel)."""
     m = compute.material(params)
     field, n = compute.auto_field(m), 64
     ref = far_field_corona(m, field, n, 3000.0, compute.N_WAVELENGTHS)
@@ -141,7 +141,7 @@ def test_fast_radial_picture_matches_far_field_corona(params):
 ])
 def test_anisotropic_picture_matches_far_field_corona(params):
     """The designer's 2-D path (every wavelength in one pass over the table, one matrix to
-    sRGB, the lower half of a centred grid mirrored) against corona.pictures.far_field_corona
+    sRGB, the lower half of a centred grid mirrored) against corona.apps.pictures.far_field_corona
     (the renderer's lobe at every pixel and wavelength); off-centre offsets (no mirror) against
     the lobe itself."""
     m = compute.material(params)
@@ -377,7 +377,7 @@ def test_bad_kernel_and_request_shapes(client):
 
 def test_compute_timeout_is_503(monkeypatch):
     import time
-    from corona.designer import create_app
+    from corona.apps.designer import create_app
 
     def slow(*args):
         time.sleep(2.0)
@@ -413,7 +413,7 @@ def test_timed_out_computations_keep_their_slot(monkeypatch):
     MAX_CONCURRENT computations (before: a timed-out request released its slot while its
     thread went on, and four such requests left four computations running)."""
     import time
-    from corona.designer import create_app
+    from corona.apps.designer import create_app
     state = _slow_corona(monkeypatch, 1.5)
     app = create_app(timeout=0.2)
     with TestClient(app, base_url="http://127.0.0.1") as c:
@@ -436,7 +436,7 @@ def test_concurrent_requests_never_run_more_than_the_limit(monkeypatch):
     every request answered (503) within about its time limit."""
     import threading
     import time
-    from corona.designer import create_app
+    from corona.apps.designer import create_app
     state = _slow_corona(monkeypatch, 1.0)
     app = create_app(timeout=0.3)
     codes, times = [], []
@@ -501,7 +501,7 @@ def test_bad_uploads(client, monkeypatch):
 
 def test_fit_button_moves_the_knobs(client):
     """The designer's own corona of 8 µm droplets, uploaded as a photograph, fits back to 8 µm
-    (corona.fit; the picture spans ±5° in 256 pixels, so its field of view is 10°)."""
+    (corona.apps.fit; the picture spans ±5° in 256 pixels, so its field of view is 10°)."""
     q = {"radius": 8.0, "process": "hard-disk", "area_fraction": 0.3, "temperature": 3000,
          "field": 5.0, "size": 256, "light_size": 0.1}
     photo = client.post("/api/upload?kind=photo", content=client.get("/api/corona.png", params=q).content).json()
@@ -519,7 +519,7 @@ def test_fit_button_moves_the_knobs(client):
 # the command
 # ----------------------------------------------------------------------
 def test_designer_command_on_a_taken_port_is_one_line_error():
-    from corona.cli import main
+    from corona.apps.cli import main
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen(1)
@@ -535,7 +535,7 @@ def test_served_over_http_on_loopback():
     """A real uvicorn server on 127.0.0.1 (what `corona designer` runs)."""
     import urllib.request
 
-    from corona.designer import running
+    from corona.apps.designer import running
     with running() as url:
         assert url.startswith("http://127.0.0.1:")
         with urllib.request.urlopen(url + "api/parameters", timeout=10) as r:
@@ -578,7 +578,7 @@ def test_errors_do_not_show_the_servers_cache_path(client):
 
 # ----------------------------------------------------------------------
 # shape=sphere: every endpoint answers, with the sphere layer's own physics (Mie theory from
-# corona.mie, the layer's white-furnace energies)
+# corona.model.mie.theory, the layer's white-furnace energies)
 # ----------------------------------------------------------------------
 SPHERES = [
     {"shape": "sphere", "radius": 2.0, "area_fraction": 0.2},
@@ -589,7 +589,7 @@ SPHERES = [
 
 @pytest.fixture(scope="module")
 def sphere_client():
-    from corona.designer import create_app
+    from corona.apps.designer import create_app
     # a cold Mie table of a size distribution takes seconds, more on a loaded machine; the test
     # is about the answers (timings are benchmarks' business)
     with TestClient(create_app(timeout=600.0), base_url="http://127.0.0.1") as c:

@@ -27,7 +27,7 @@ def test_moving_a_slider_changes_the_corona_without_console_errors():
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
 
-    from corona.designer import running
+    from corona.apps.designer import running
     with running() as url:
         driver = chrome(1400, 900)
         try:

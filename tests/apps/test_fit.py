@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from corona import CoronaError
-from corona.fit import (CircleLayer, MOON_DIAMETER_DEG, PinholeCamera, fit_photograph,
+from corona.apps.fit import (CircleLayer, MOON_DIAMETER_DEG, PinholeCamera, fit_photograph,
                         locate_source, read_photograph)
 
 from bsdf_checks import one_line_error as _one_line_error
@@ -57,7 +57,7 @@ def photographs(mi_variant, tmp_path_factory):
 
     import corona
     from corona.color import tonemap_srgb
-    from corona.scenes import lamp_photograph_scene
+    from corona.apps.scenes import lamp_photograph_scene
     mi.set_variant(mi_variant)
     corona.register()
     out = tmp_path_factory.mktemp("fit")
@@ -131,7 +131,7 @@ def test_linear_exr_without_clipping(photographs, tmp_path):
     import mitsuba as mi
     from click.testing import CliRunner
 
-    from corona.cli import main
+    from corona.apps.cli import main
     c, fov, lamp, _, linear = photographs[0]
     path = tmp_path / "corona.exr"
     mi.Bitmap(linear.astype(np.float32), pixel_format=mi.Bitmap.PixelFormat.RGB).write(str(path))
@@ -183,7 +183,7 @@ def test_diagnostic_png(fits, tmp_path, monkeypatch):
 
     import imageio.v3 as iio
 
-    from corona.fit import write_diagnostic
+    from corona.apps.fit import write_diagnostic
     path, note = write_diagnostic(fits[-1], str(tmp_path / "d.png"))
     img = iio.imread(path)
     assert img.ndim == 3 and img.shape[1] > 2 * img.shape[0] > 400 and note is None
@@ -272,7 +272,7 @@ def test_source_centroid_is_sub_pixel():
 def _cli(*args):
     from click.testing import CliRunner
 
-    from corona.cli import main
+    from corona.apps.cli import main
     return CliRunner().invoke(main, ["fit", *map(str, args)])
 
 
@@ -341,7 +341,7 @@ def test_a_photograph_above_the_pixel_limit_is_one_line(tmp_path):
     header (no pixel decoded), one line naming the size and the limit, from a file and an array."""
     from bsdf_checks import png_claiming
 
-    from corona.fit import MAX_PIXELS
+    from corona.apps.fit import MAX_PIXELS
     p = tmp_path / "huge.png"
     p.write_bytes(png_claiming(12000, 12000))
     _one_line_error(_cli(p, "--fov", 30), "huge.png", "12000x12000", str(MAX_PIXELS))

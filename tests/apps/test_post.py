@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import corona
-import corona.post as post
+import corona.apps.post as post
 
 LAYER = dict(radius=3.0, area_fraction=0.3, mode="particle", process="hard-disk")
 
@@ -183,7 +183,7 @@ def test_bad_input_one_line(bad, match):
 def test_render_through_the_pane_equals_post_of_the_render_without_it():
     """Mitsuba (RGB variant, box filter): a small bright light seen through the corona pane
     right in front of the camera, against the same scene without the pane passed through
-    corona.post (with the plugin's spectral quadrature): equal within the renders' noise.
+    corona.apps.post (with the plugin's spectral quadrature): equal within the renders' noise.
 
     Measured (64x64, 30° field, 256 spp through the pane, 4096 spp without): mean squared
     difference 1.06x the pane render's own variance over the image, 1.6x off the light's
@@ -239,7 +239,7 @@ def test_render_through_the_pane_equals_post_of_the_render_without_it():
 # the command line
 # ----------------------------------------------------------------------
 def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "corona.cli", *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "corona.apps.cli", *args], capture_output=True, text=True)
 
 
 @pytest.fixture(scope="module")

@@ -32,7 +32,7 @@ def _defaults(path: str) -> dict:
 
 def _render(path: str, defines: dict):
     import mitsuba as mi
-    from corona.render import load_scene, render_linear
+    from corona.apps.render import load_scene, render_linear
     scene = load_scene(path, {**defines, "res": RES})
     rgb, _ = render_linear(scene, SPP, progress=False, desc=os.path.basename(path))
     return np.asarray(rgb), mi
@@ -142,7 +142,7 @@ RGB_VARIANTS = [("llvm_ad_rgb", 16, 2), ("scalar_rgb", 8, 1)]   # scalar: Python
 def test_scene_renders_in_rgb_variants(path, name, res, spp, mi_variant):
     """Emitters are given in a form RGB variants understand; pixels finite and >= 0."""
     import mitsuba as mi
-    from corona.render import load_scene, render_linear, setup_variant
+    from corona.apps.render import load_scene, render_linear, setup_variant
     try:
         setup_variant(name)
         scene = load_scene(path, {"res": res, "spp": spp})
@@ -157,8 +157,8 @@ def test_scene_renders_in_rgb_variants(path, name, res, spp, mi_variant):
 
 def test_street_light_scene_renders_in_rgb(mi_variant):
     import mitsuba as mi
-    from corona.render import setup_variant
-    from corona.scenes import street_light_scene
+    from corona.apps.render import setup_variant
+    from corona.apps.scenes import street_light_scene
     try:
         setup_variant("llvm_ad_rgb")
         img = np.array(mi.render(mi.load_dict(street_light_scene(resolution=16)), spp=2))
@@ -175,7 +175,7 @@ def test_scene_lamps_are_plancks_law(mi_variant):
     Mitsuba's spectral-only `blackbody` gives (times the stated scale)."""
     import drjit as dr
     import mitsuba as mi
-    from corona.scenes import blackbody_radiance
+    from corona.apps.scenes import blackbody_radiance
     lam = np.arange(360.0, 831.0, 10.0)
     si = dr.zeros(mi.SurfaceInteraction3f, lam.size)
     si.wavelengths = mi.Spectrum(*[mi.Float(lam)] * 4)

@@ -1,4 +1,4 @@
-"""corona sweep and the Dask executor (corona.sweep): the -D grammar, bad input,
+"""corona sweep and the Dask executor (corona.apps.sweep): the -D grammar, bad input,
 a 2-worker local cluster against a serial run (renders, `corona validate`
 cases, hard-disk table rows, RSA table chunks), skipping and --force.
 
@@ -17,8 +17,8 @@ import pytest
 from click.testing import CliRunner
 
 from corona._validation import CoronaError
-from corona.cli import main
-from corona.sweep import Executor, parse_defines, point_name, run_sweep, sweep_points
+from corona.apps.cli import main
+from corona.apps.sweep import Executor, parse_defines, point_name, run_sweep, sweep_points
 
 from bsdf_checks import one_line_error as _one_line_error
 
@@ -75,7 +75,7 @@ def test_malformed_defines(bad, match):
 
 
 def test_import_corona_does_not_import_dask():
-    code = ("import sys, corona, corona.sweep, corona.cli, corona.render; "
+    code = ("import sys, corona, corona.apps.sweep, corona.apps.cli, corona.apps.render; "
             "print(any(m.split('.')[0] in ('distributed', 'dask') for m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
@@ -314,7 +314,7 @@ def test_many_local_workers_are_capped_at_the_points_and_cores(tmp_path, monkeyp
     cluster gets at most one worker per point and WORKERS_PER_CORE per core, said in one line."""
     import distributed
 
-    from corona import sweep
+    from corona.apps import sweep
     asked = {}
 
     class Recorder:

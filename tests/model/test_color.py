@@ -50,7 +50,7 @@ def test_write_images_uses_mitsuba_bitmaps(tmp_path, mi_variant):
     import imageio.v3 as iio
     import mitsuba as mi
 
-    from corona.render import write_images
+    from corona.apps.render import write_images
     rgb = np.random.default_rng(2).random((6, 5, 3)).astype(np.float32) * 2
     files = write_images(rgb, str(tmp_path), "x", exposure=0.7)
     exr = mi.Bitmap(files["exr"])

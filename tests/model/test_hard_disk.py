@@ -7,9 +7,9 @@ import pytest
 from scipy import special
 
 from corona import CoronaError
-from corona.processes import HardDisk
+from corona.model.processes import HardDisk
 from corona.reference import hard_disk as hd
-from corona.shapes import Circle
+from corona.model.shapes import Circle
 
 
 # --------------------------------------------------------------------------
@@ -26,7 +26,7 @@ def _gl_panels(a, b, width, order=16):
 
 def sum_rule(process, radius=1.0):
     """``∫ T_a T_s d²d`` for a circle: ``(2π)⁻¹ ∫ P(q) S(q) q dq`` with the
-    form factor ``P`` of corona.shapes.Circle; integrated in ``u = qR`` up to
+    form factor ``P`` of corona.model.shapes.Circle; integrated in ``u = qR`` up to
     the end of the table (qσ = 40, u = 20), then the exact tail of ``∫ T_a``
     (``J0(U)² + J1(U)²``) plus the small ``(S - 1)`` tail by quadrature."""
     shape = Circle(radius)
@@ -55,7 +55,7 @@ def pair_distances_ok(pos, L):
 # the shipped table
 # --------------------------------------------------------------------------
 def test_table_file_and_metadata():
-    from corona.processes.hard_disk import _table_path
+    from corona.model.processes.hard_disk import _table_path
     path = _table_path()
     assert os.path.getsize(path) < 2e6
     t = hd.load_table()
@@ -151,7 +151,7 @@ def test_sum_rule_circles(fa):
 
 def test_sum_rule_quadrature_itself():
     # with S = 1 the same quadrature must give ∫ T_a = 1
-    from corona.processes import Poisson
+    from corona.model.processes import Poisson
     assert abs(sum_rule(Poisson(0.3)) - 1) < 1e-6
 
 

@@ -5,7 +5,7 @@ from scipy import special, stats
 
 import corona
 from corona import tables
-from corona.material import Material
+from corona.model.material import Material
 
 
 def airy_lobe(d, lam_nm, radius, fa):
@@ -189,7 +189,8 @@ def test_lattice_table_keeps_each_bragg_peak_weight():
     table with its exact weight C(G) W_G (a form factor taken at the cell
     centre instead of at the peak overestimated this by 3.7 % for R = 2.5 µm).
     """
-    from corona import processes, shapes
+    from corona.model import processes
+    from corona.model import shapes
     R, fa = 1.5, 0.3
     a = np.sqrt(np.pi * R**2 / fa)
     m = Material(shapes.Circle(R), processes.Lattice("square", a, jitter=0.1 * a))
@@ -207,7 +208,8 @@ def test_lattice_table_keeps_each_bragg_peak_weight():
 def test_anisotropic_shape_on_a_powder_lattice_builds_its_table():
     """A square on a randomly oriented lattice: a 2-D table with the powder's radial S
     (the Bragg cell means are for fixed lattices only; this used to raise)."""
-    from corona import processes, shapes
+    from corona.model import processes
+    from corona.model import shapes
     m = Material(shapes.Square(2.0), processes.Lattice("square", 8.0, jitter=0.2, orientation="random"),
                  use_cache=False)
     assert not m.isotropic and m.process.isotropic

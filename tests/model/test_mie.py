@@ -1,9 +1,10 @@
-"""Mie amplitudes and efficiencies (corona.mie) against miepython, published values and limits."""
+"""Mie amplitudes and efficiencies (corona.model.mie.theory) against miepython, published values and limits."""
 import numpy as np
 import pytest
 from scipy import special
 
-from corona import CoronaError, mie
+from corona import CoronaError
+from corona.model.mie import theory as mie
 
 miepython = pytest.importorskip("miepython")  # the test extra installs it
 
@@ -150,7 +151,7 @@ def test_bad_input():
 def test_riccati_bessel_upward_recurrence_matches_scipy():
     # ψ_n = x j_n and x y_n by upward recurrence up to Wiscombe's N, against scipy.special
     from scipy import special
-    from corona.mie import _riccati_bessel
+    from corona.model.mie.theory import _riccati_bessel
     x = np.array([0.3, 2.0, 17.5, 140.0, 436.0])
     N = int(mie.n_terms(x.max()))
     psi, chi = _riccati_bessel(x, N)

@@ -13,7 +13,7 @@ from scipy.optimize import brentq
 import corona
 from corona.parameters import material_from_parameters
 from corona.reference.quetelet import double_pass
-from corona.substrate import GlassPane, Mirror, channel_average_cos, channel_envelopes, fresnel_dielectric
+from corona.model.substrate import GlassPane, Mirror, channel_average_cos, channel_envelopes, fresnel_dielectric
 
 from bsdf_checks import assert_eval_matches, chi2_test, interaction
 
@@ -392,7 +392,7 @@ def test_rgb_channels_average_the_fringes():
         import corona, numpy as np, mitsuba as mi, json
         mi.set_variant("scalar_rgb"); corona.register()
         from corona.color import XYZ_TO_SRGB, cie1931_xyz
-        from corona.mitsuba_common import channel_response as _channel_response
+        from corona.mitsuba.common import channel_response as _channel_response
         from corona.parameters import material_from_parameters
         P = dict(process="hard-disk", radius=5.0, area_fraction=0.1, mode="particle")
         layers = [dict(P, substrate="mirror", substrate_thickness=4000.0), dict(P, substrate="glass")]

@@ -7,11 +7,11 @@ import pytest
 from scipy.spatial import cKDTree
 
 from corona import CoronaError
-from corona import processes as P
-from corona.processes import Lattice, PointSet, SequentialAdsorption, rsa_structure_factor
-from corona.processes.rsa import _RSA_TABLE_PATH
+from corona.model import processes as P
+from corona.model.processes import Lattice, PointSet, SequentialAdsorption, rsa_structure_factor
+from corona.model.processes.rsa import _RSA_TABLE_PATH
 from corona.reference.rsa import rsa_configuration
-from corona.shapes import Circle
+from corona.model.shapes import Circle
 
 
 # ---------------------------------------------------------------------------
@@ -509,7 +509,7 @@ def _match(found_xy, centres_rc, H, px):
 
 
 def test_micrograph_recovers_disks():
-    from corona.micrograph import from_micrograph
+    from corona.apps.micrograph import from_micrograph
     rng = np.random.default_rng(7)
     img, centres, radii = _synthetic_micrograph(rng)
     px = 0.25
@@ -535,7 +535,7 @@ def test_micrograph_recovers_disks():
 
 def test_micrograph_file_rgb_and_material(tmp_path):
     import imageio.v3 as iio
-    from corona.micrograph import from_micrograph
+    from corona.apps.micrograph import from_micrograph
     rng = np.random.default_rng(8)
     img, centres, _ = _synthetic_micrograph(rng, n=12)
     rgb = (np.clip(img, 0, 1)[..., None] * [255, 255, 255]).astype(np.uint8)
@@ -548,8 +548,8 @@ def test_micrograph_file_rgb_and_material(tmp_path):
 
 
 def test_micrograph_size_distribution():
-    from corona import shapes
-    from corona.micrograph import from_micrograph
+    from corona.model import shapes
+    from corona.apps.micrograph import from_micrograph
     rng = np.random.default_rng(9)
     img, centres, radii = _synthetic_micrograph(rng, H=400, W=400, n=40, radius=9.0, spread=0.2)
     res = from_micrograph(img, 1.0)
@@ -562,7 +562,7 @@ def test_micrograph_size_distribution():
 
 
 def test_micrograph_errors(tmp_path):
-    from corona.micrograph import from_micrograph
+    from corona.apps.micrograph import from_micrograph
     with pytest.raises(CoronaError, match="no scatterers"):
         from_micrograph(np.zeros((50, 50)), 1.0)
     with pytest.raises(CoronaError, match="no scatterers"):
@@ -583,7 +583,7 @@ def test_sparse_lattice_cell_mean_keeps_the_peaks_weight(monkeypatch):
     Summing every peak (slow for sparse lattices: minutes for F_a ~ 1e-6) and
     the envelope e^{-q²δ²} must give the same integral over a patch of cells.
     """
-    from corona import processes
+    from corona.model import processes
     lat = processes.Lattice("square", 40.0, jitter=4.0)          # 1/40 rad/µm reciprocal spacing
     cell = 0.2                                                     # 64 peaks per cell
     c = (np.arange(-20, 20) + 0.5) * cell

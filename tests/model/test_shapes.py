@@ -1,6 +1,6 @@
 """Physics checks of the single-scatterer form factors (docs/physics.md).
 
-Every reference value here is computed independently of ``corona.shapes``:
+Every reference value here is computed independently of ``corona.model.shapes``:
 analytic transforms written out in the test, brute-force angle / size
 averages, real-space rasterisation, Parseval, or the shift theorem.
 """
@@ -15,7 +15,7 @@ import pytest
 from scipy import integrate, ndimage, optimize, special, stats
 
 from corona._validation import CoronaError
-from corona.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation,
+from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation,
                            Rectangle, RegularPolygon, Shape, SizeDistribution, SoftEdge,
                            Square)
 

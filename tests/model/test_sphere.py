@@ -6,7 +6,8 @@ import pytest
 from scipy import signal, special, stats
 
 import corona
-from corona import CoronaError, mie
+from corona import CoronaError
+from corona.model.mie import theory as mie
 from corona.parameters import material_from_parameters
 
 
@@ -29,7 +30,7 @@ def _dirs(rng, n, hemisphere=None):
 
 
 def test_material_dispatch_and_inputs(poisson):
-    from corona.sphere_material import SphereMaterial
+    from corona.model.mie.layer import SphereMaterial
     assert isinstance(poisson, SphereMaterial)
     assert poisson.mode == "particle"
     with pytest.raises(CoronaError, match="mode='aperture'"):
@@ -62,7 +63,7 @@ def test_parameters():
 
 def test_normalisation_is_n_dsigma_domega(poisson):
     # at normal incidence, eval = f |cos θo| = n dσ/dΩ with n = F_a / (π r²) and
-    # dσ/dΩ = (|S1|² + |S2|²) / (2k²), independently from corona.mie (cap inactive: w = 1)
+    # dσ/dΩ = (|S1|² + |S2|²) / (2k²), independently from corona.model.mie.theory (cap inactive: w = 1)
     lam = 550.0
     theta = np.radians([0.5, 2.0, 10.0, 60.0, 120.0, 170.0, 179.5])
     wi = np.array([0.0, 0.0, 1.0])
@@ -79,7 +80,7 @@ def test_tables_match_mie(poisson):
     # (a) at a row's wavelength the tabulated lobe (linear in the chord) is Mie at each direction
     # to 1 % (median where the lobe exceeds 1e-3 of its peak), forward (Θ < 10°) and backward
     # (Θ > 160°, the glory), at oblique incidence
-    from corona.sphere_material import _frame
+    from corona.model.mie.layer import _frame
     rng = np.random.default_rng(1)
     wi = np.array([0.3, 0.1, np.sqrt(1 - 0.1)])
     lam = float(poisson.rows["wavelength"][40])
@@ -176,7 +177,7 @@ def test_sampling_matches_pdf(hard_disk):
     wi = np.array([np.sin(0.5), 0.0, np.cos(0.5)])
     r = hard_disk.rows
     lam = 0.3 * r["wavelength"][10] + 0.7 * r["wavelength"][11]
-    from corona.sphere_material import _frame
+    from corona.model.mie.layer import _frame
     for which, axis in (("f", -wi), ("b", wi)):
         wo = hard_disk.sample_lobe(which, wi, rng.random((4000, 3)), lam)
         assert np.allclose(np.linalg.norm(wo, axis=1), 1.0)
@@ -213,7 +214,7 @@ def test_size_distribution_smooths_the_glory():
 # --- the size range a sphere layer's tables hold --------------------------------------------------
 @pytest.mark.parametrize("radius", [5.0, 20.0, 25.0])
 def test_size_spread_is_limited_by_the_largest_droplets(radius):
-    from corona.sphere_material import SPHERE_SIZES_MAX, largest_sphere, largest_spread
+    from corona.model.mie.layer import SPHERE_SIZES_MAX, largest_sphere, largest_spread
     allowed = largest_spread(radius)
     assert 0.0 < allowed < 0.5
     # the bisection's answer: at the allowed spread the largest droplets are at the limit
@@ -230,7 +231,7 @@ def test_size_spread_is_limited_by_the_largest_droplets(radius):
 def test_largest_sphere_holds_the_scattered_power_of_the_distribution():
     # independent check of the tail: the lognormal's scattered power s² p(s) beyond the top is ~1e-6
     from scipy import stats
-    from corona.sphere_material import SIZE_TAIL, largest_sphere
+    from corona.model.mie.layer import SIZE_TAIL, largest_sphere
     radius, spread = 10.0, 0.2
     top = largest_sphere(radius, spread) / radius
     sigma = np.sqrt(np.log1p(spread ** 2))

@@ -52,7 +52,7 @@ def test_sphere_radius_range_is_the_tables():
     # a 1000 µm droplet (size parameter ~17 000) would tabulate for hours: refused with one line
     import corona
     from corona import CoronaError
-    from corona.sphere_material import SPHERE_RADIUS_MAX
+    from corona.model.mie.layer import SPHERE_RADIUS_MAX
     for bad in (1000.0, SPHERE_RADIUS_MAX * 1.01):
         with pytest.raises(CoronaError, match=r"radius=.* is out of range for shape='sphere'; allowed "
                                               r"\(0, 25\] µm"):

@@ -11,7 +11,7 @@ import pytest
 import corona
 from corona.parameters import material_from_parameters
 from corona.reference.stack import CLASSES, random_walk
-from corona.substrate import GlassPane, fresnel_dielectric
+from corona.model.substrate import GlassPane, fresnel_dielectric
 
 from bsdf_checks import assert_eval_matches, chi2_test, furnace, interaction, smooth_context
 

@@ -53,8 +53,8 @@ def test_bars_in_docstrings_are_escaped_outside_literals():
 
 
 def test_docs_pages_are_listed():
-    """Every page of the site is built: the tutorial and the corona.post API page."""
+    """Every page of the site is built: the tutorial and the corona.apps.post API page."""
     index = open(os.path.join(ROOT, "docs", "api", "index.md"), encoding="utf-8").read()
-    assert "/tutorial" in index and "corona.post" in index
+    assert "/tutorial" in index and "corona.apps.post" in index
     conf = open(os.path.join(ROOT, "docs", "api", "conf.py"), encoding="utf-8").read()
     assert '"tutorial.md"' in conf and 'mathjax_path = "mathjax/tex-chtml.js"' in conf

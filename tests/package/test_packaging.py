@@ -42,7 +42,7 @@ def test_wheel_holds_every_module_table_and_static_file(dist):
     names = set(zipfile.ZipFile(wheel).namelist())
     shipped = [p[len("src/"):] for p in _tracked("src/corona")]
     assert any(p.startswith("corona/data/") and p.endswith(".npz") for p in shipped)
-    assert any(p.startswith("corona/designer/static/") for p in shipped)
+    assert any(p.startswith("corona/apps/designer/static/") for p in shipped)
     missing = [p for p in shipped if p not in names]
     assert not missing, f"not in the wheel: {missing}"
     assert not [n for n in names if n.startswith(("tests/", "scripts/", "benchmarks/"))]
@@ -58,7 +58,7 @@ def test_metadata_name_version_and_entry_point(dist):
     assert meta["Requires-Python"] == ">=3.11"
     assert any(r.startswith("mitsuba") for r in meta.get_all("Requires-Dist"))
     entry = z.read(meta_name.replace("METADATA", "entry_points.txt")).decode()
-    assert "corona = corona.cli:main" in entry
+    assert "corona = corona.apps.cli:main" in entry
     assert os.path.basename(wheel).startswith(f"corona_bsdf-{corona.__version__}-py3-none-any")
     with tarfile.open(sdist) as t:
         members = t.getnames()
@@ -74,7 +74,7 @@ def test_twine_check(dist):
 
 def test_version_has_one_home():
     """`corona --version` and the docs read corona.__version__ (no distribution named corona)."""
-    r = subprocess.run([sys.executable, "-m", "corona.cli", "--version"], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "corona.apps.cli", "--version"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == f"corona, version {corona.__version__}"
     pyproject = open(os.path.join(ROOT, "pyproject.toml"), encoding="utf-8").read()

@@ -6,7 +6,7 @@ import click
 import pytest
 
 from corona import CoronaError
-from corona.cli import lobe
+from corona.apps.cli import lobe
 from corona.parameters import DEFAULTS, PARAMETERS, SPEC, markdown_table, material_from_parameters
 
 ROOT = os.path.join(os.path.dirname(__file__), os.pardir, os.pardir)
@@ -36,7 +36,7 @@ def test_corona_lobe_has_every_material_parameter_with_the_spec_default():
 def test_plugin_docstring_and_properties_follow_the_spec(mi_variant):
     import mitsuba as mi
 
-    from corona import mitsuba_bsdf
+    from corona.mitsuba import bsdf as mitsuba_bsdf
     for p in PARAMETERS:
         assert f"``{p.name}``" in mitsuba_bsdf.__doc__
     with pytest.raises(Exception, match="unknown parameter 'radius_um'"):

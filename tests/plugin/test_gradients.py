@@ -423,7 +423,7 @@ def forward(mi_variant):
     import mitsuba as mi
 
     import corona
-    from corona.render import setup_variant
+    from corona.apps.render import setup_variant
     setup_variant("llvm_ad_rgb")
     corona.register()
     try:

@@ -240,7 +240,7 @@ def test_bad_parameters_fail_at_load(mi_variant, params, word):
 
 def test_render_has_no_nan(mi_variant):
     import mitsuba as mi
-    from corona.scenes import street_light_scene
+    from corona.apps.scenes import street_light_scene
     scene = mi.load_dict(street_light_scene(resolution=32, bsdf={"type": "corona", **CIRCLE_POISSON}))
     img = np.array(mi.render(scene, spp=4))
     assert np.all(np.isfinite(img)) and img.max() > 0
@@ -270,7 +270,7 @@ def test_other_variants_agree_with_reference(mi_variant, variant):
     """RGB / mono channels are the lobe averaged over the channel's response (Mitsuba's
     CIE 1931 colorimetry); scalar_spectral = llvm at the same wavelengths."""
     import mitsuba as mi
-    from corona.mitsuba_bsdf import N_RESPONSE
+    from corona.mitsuba.bsdf import N_RESPONSE
     params = {"process": "poisson", "radius": 0.5, "area_fraction": 0.3}
     m = material_from_parameters(**params)
     wo_np = np.array([0.15, -0.1, -np.sqrt(1 - 0.15**2 - 0.01)])

@@ -27,7 +27,7 @@ def layers(mi_variant):
 
 def _directions(wi, rng, n=3000):
     """Random directions plus many near the forward (-wi) and backward (wi) peaks."""
-    from corona.sphere_material import _frame
+    from corona.model.mie.layer import _frame
     v = rng.normal(size=(n, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     out = [v]

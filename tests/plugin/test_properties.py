@@ -33,8 +33,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import corona
-from corona import processes
-from corona.processes import hard_disk
+from corona.model import processes
+from corona.model.processes import hard_disk
 from corona.parameters import DEFAULTS, RADIUS_MAX, SPEC, _outline, make_shape, material_from_parameters
 
 from bsdf_checks import furnace, interaction, plugin_eval

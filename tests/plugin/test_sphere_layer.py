@@ -27,7 +27,7 @@ def panes(mi_variant):
 
 def _directions(wi, rng, n=2000):
     """Random directions plus many near the forward, backward and mirrored-forward peaks."""
-    from corona.sphere_material import _frame
+    from corona.model.mie.layer import _frame
     v = rng.normal(size=(n, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     out = [v]
@@ -180,9 +180,9 @@ def test_sphere_material_satisfies_the_material_protocol():
 
 
 def test_forward_lobe_is_the_decoupling_rule():
-    # the sphere's forward lobe is corona.layer.decoupled_lobe of its P, C and S (a size spread:
+    # the sphere's forward lobe is corona.model.layer.decoupled_lobe of its P, C and S (a size spread:
     # C < P), and S - 1 matters (negative control: S = 1 gives another lobe)
-    from corona.layer import decoupled_lobe
+    from corona.model.layer import decoupled_lobe
     from corona.parameters import material_from_parameters
     m = material_from_parameters(shape="sphere", radius=1.5, area_fraction=0.4, process="hard-disk",
                                  size_spread=0.2)

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import corona
-from corona import volume
-from corona.processes import percus_yevick_3d
-from corona.volume import MieVolume, size_nodes
+from corona.mitsuba import volume
+from corona.model.processes import percus_yevick_3d
+from corona.mitsuba.volume import MieVolume, size_nodes
 
 miepython = pytest.importorskip("miepython")
 
@@ -108,7 +108,7 @@ def test_exact_phase_matches_miepython(radius):
     v = MieVolume(radius)
     mu = np.cos(np.radians([0.05, 1.0, 7.0, 40.0, 138.0, 179.5]))
     for lam in (437.1, 612.9):
-        ref = _miepython_phase(complex(corona.mie.water_ior(lam)), radius, lam, mu)
+        ref = _miepython_phase(complex(corona.model.mie.theory.water_ior(lam)), radius, lam, mu)
         assert np.allclose(v.exact_phase(mu, lam), ref, rtol=1e-6)
 
 
@@ -154,17 +154,17 @@ def test_table_normalised_and_asymmetry(radius):
     v = MieVolume(radius)
     lam = v.table["wavelength"][7]
     assert v.integral(lam) == pytest.approx(1.0, abs=1e-9)
-    m = complex(corona.mie.water_ior(lam))
-    g = corona.mie.efficiencies(m, 2 * np.pi * radius / (lam * 1e-3))["g"]
+    m = complex(corona.model.mie.theory.water_ior(lam))
+    g = corona.model.mie.theory.efficiencies(m, 2 * np.pi * radius / (lam * 1e-3))["g"]
     assert v.table["g"][7] == pytest.approx(g, abs=2e-3)
-    e = corona.mie.efficiencies(m, 2 * np.pi * radius / (lam * 1e-3))
+    e = corona.model.mie.theory.efficiencies(m, 2 * np.pi * radius / (lam * 1e-3))
     assert v.table["c_ext"][7] == pytest.approx(e["q_ext"] * np.pi * radius**2, rel=1e-9)
 
 
 def test_absorbing_droplets_lower_albedo():
     v = MieVolume(3.0, ior=1.5, ior_imag=0.01)
     cs = v.cross_sections(550.0)
-    e = corona.mie.efficiencies(1.5 + 0.01j, 2 * np.pi * 3.0 / 0.55)
+    e = corona.model.mie.theory.efficiencies(1.5 + 0.01j, 2 * np.pi * 3.0 / 0.55)
     assert cs["albedo"] == pytest.approx(e["q_sca"] / e["q_ext"], rel=1e-3)
     assert cs["albedo"] < 0.8
 
@@ -186,11 +186,11 @@ def test_host_medium_matches_miepython(radius, ior, kappa, host):
     v = MieVolume(radius, ior=ior, ior_imag=kappa, host_ior=host)
     mu = np.cos(np.radians([0.5, 5.0, 30.0, 90.0, 150.0, 179.0]))
     for lam in (437.1, 612.9):
-        n = complex(corona.mie.water_ior(lam)) if ior == "water" else ior
+        n = complex(corona.model.mie.theory.water_ior(lam)) if ior == "water" else ior
         m_abs = n + 1j * kappa
         qext, qsca, _, g = miepython.efficiencies(np.conj(m_abs), 2 * radius, lam * 1e-3, n_env=host)
         cs = v.cross_sections(lam)
-        e = corona.mie.efficiencies(m_abs / host, 2 * np.pi * radius * host / (lam * 1e-3))
+        e = corona.model.mie.theory.efficiencies(m_abs / host, 2 * np.pi * radius * host / (lam * 1e-3))
         assert e["q_ext"] == pytest.approx(qext, rel=1e-6) and e["q_sca"] == pytest.approx(qsca, rel=1e-6)
         ref = _miepython_phase(m_abs / host, radius * host, lam, mu)      # x = 2π r n_host / λ
         assert np.allclose(v.exact_phase(mu, lam), ref, rtol=1e-6)
@@ -319,7 +319,7 @@ def test_plugin_eval_equals_table(variant):
 
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "scalar_rgb", "llvm_ad_mono"], indirect=True)
 def test_plugin_rgb_channels_are_response_averages(variant):
-    from corona.mitsuba_phase import channel_response
+    from corona.mitsuba.phase import channel_response
     v = MieVolume(5.0)
     lam, w = channel_response()
     rows = v.rgb_table(lam, w)
@@ -592,7 +592,7 @@ def ring_contrast(image, fov, rows, theta, lo_deg=2.5, hi_deg=11.5):
 
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb"], indirect=True)
 def test_ring_contrast_falls_with_optical_depth(variant):
-    from corona.mitsuba_phase import channel_response
+    from corona.mitsuba.phase import channel_response
     r, h, fov = 5.0, 0.01, 24.0
     kw = dict(distribution="gamma", variance=0.01)
     rows = MieVolume(r, **kw).rgb_table(*channel_response())

@@ -19,10 +19,11 @@ import pytest
 from click.testing import CliRunner
 from scipy import fft as sp_fft
 
-from corona import CoronaError, CoronaWarning, Material, shapes
-from corona.cli import main
-from corona.processes import HardDisk
-from corona.processes import Lattice, Poisson, Process
+from corona import CoronaError, CoronaWarning, Material
+from corona.model import shapes
+from corona.apps.cli import main
+from corona.model.processes import HardDisk
+from corona.model.processes import Lattice, Poisson, Process
 from corona.reference import wave
 from corona.reference.validate import blob_mask_image, compare, select_cases, all_cases
 

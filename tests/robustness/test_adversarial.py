@@ -17,7 +17,7 @@ from scipy import special
 
 import corona
 from corona import parameters, tables
-from corona.cli import main as cli_main
+from corona.apps.cli import main as cli_main
 from corona.parameters import RADIUS_MAX, SPEC, material_from_parameters
 
 from bsdf_checks import layer_scene, one_line_error as one_line
@@ -152,7 +152,7 @@ def test_render_in_a_scalar_variant(tmp_path, scalar):
     import mitsuba as mi
     scene = tmp_path / "layer.xml"
     scene.write_text(SCENE)
-    p = subprocess.run([sys.executable, "-m", "corona.cli", "render", str(scene), "--variant", scalar,
+    p = subprocess.run([sys.executable, "-m", "corona.apps.cli", "render", str(scene), "--variant", scalar,
                         "--spp", "16", "--out", str(tmp_path), "--name", "s"],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
@@ -224,7 +224,7 @@ def test_slow_combinations_are_bounded(params, words):
 
 
 def test_long_table_builds_show_a_progress_bar(monkeypatch, capfd, tmp_path):
-    from corona import material
+    from corona.model import material
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(material, "PROGRESS_DELAY", 0.0)
     material_from_parameters(radius=2.0).table
@@ -421,7 +421,7 @@ def test_tables_clear_deletes_only_the_cache_files(tmp_path, monkeypatch):
 # 18. Ctrl-C: exit 130 during a render and during the scene load
 # --------------------------------------------------------------------------
 def test_ctrl_c_during_the_render_exits_130(tmp_path, monkeypatch, variant):
-    from corona import render
+    from corona.apps import render
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
@@ -434,7 +434,7 @@ def test_ctrl_c_during_the_render_exits_130(tmp_path, monkeypatch, variant):
 
 def test_ctrl_c_during_the_scene_load_exits_130(tmp_path, monkeypatch, variant):
     """The interrupt lands inside the plugin's constructor: Mitsuba wraps it in a RuntimeError."""
-    from corona import mitsuba_bsdf
+    from corona.mitsuba import bsdf as mitsuba_bsdf
 
     def interrupted(**k):
         raise KeyboardInterrupt

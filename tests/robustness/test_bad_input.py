@@ -18,8 +18,8 @@ import pytest
 from click.testing import CliRunner
 
 import corona
-from corona import material as material_module
-from corona.cli import main as cli_main
+from corona.model import material as material_module
+from corona.apps.cli import main as cli_main
 from corona.parameters import material_from_parameters
 
 
@@ -346,7 +346,7 @@ def test_cli_rejects(files, name):
 ])
 def test_cli_render_bad_scene_one_line(files, scene, fragments):
     """The real console entry point (a separate process): Mitsuba's errors come out as one line."""
-    proc = subprocess.run([sys.executable, "-m", "corona.cli", "render", files[scene], "--spp", "1",
+    proc = subprocess.run([sys.executable, "-m", "corona.apps.cli", "render", files[scene], "--spp", "1",
                            "--out", os.path.join(files["dir"], "out")],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stderr

@@ -31,7 +31,7 @@ import pytest
 from click.testing import CliRunner
 
 import corona
-from corona.cli import main as cli_main
+from corona.apps.cli import main as cli_main
 from corona.parameters import PARAMETERS
 
 from bsdf_checks import layer_scene
@@ -275,7 +275,7 @@ def designer():
     pytest.importorskip("starlette")
     from starlette.testclient import TestClient
 
-    from corona.designer import create_app
+    from corona.apps.designer import create_app
     app = create_app(timeout=3.0)
     with TestClient(app, base_url="http://127.0.0.1", raise_server_exceptions=False) as c:
         yield c, app
@@ -288,7 +288,7 @@ def test_fuzz_designer(case, designer, inputs):
     500; never more than MAX_CONCURRENT computations at once."""
     from bsdf_checks import png_claiming
 
-    from corona.designer import app as app_module
+    from corona.apps.designer import app as app_module
     from corona.tables import cache_dir
     c, app = designer
     endpoint, q, variant = DESIGNER_CASES[case]
@@ -424,7 +424,7 @@ FIT_CASES = _fit_images()
 def test_fuzz_fit(case, tmp_path):
     """A hostile photograph or option: a fit with finite numbers, or one CoronaError line."""
     from corona import CoronaError
-    from corona.fit import fit_photograph
+    from corona.apps.fit import fit_photograph
     name, image, opts = FIT_CASES[case]
     if isinstance(image, bytes):
         path = tmp_path / f"{name}.png"

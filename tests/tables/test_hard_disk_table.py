@@ -20,7 +20,7 @@ import os
 import numpy as np
 import pytest
 
-from corona.processes.hard_disk import load_table
+from corona.model.processes.hard_disk import load_table
 from corona.reference import hard_disk as hd
 from corona.reference import hard_disk_metropolis as hm
 

@@ -1,6 +1,6 @@
 """The renderer's sphere lobes against Mie theory at radii and wavelengths between the table rows.
 
-The reference is ``corona.mie.differential_cross_section`` evaluated at each direction (checked
+The reference is ``corona.model.mie.theory.differential_cross_section`` evaluated at each direction (checked
 against miepython in model/test_mie.py), not the table builder: a dilute Poisson layer at normal
 incidence, where ``eval / (F_s w) = P = n dσ/dΩ / F_a``.  Per lobe: the energy-weighted RMS of
 ``P_table / P_mie - 1``, the overall scale, and (forward) the positions of the first three
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import corona
-from corona import mie
+from corona.model.mie import theory as mie
 
 
 def _lobe(material, theta, lam, exact):
@@ -23,7 +23,7 @@ def _lobe(material, theta, lam, exact):
 
 
 def _mie_P(sphere, theta, lam):
-    """P = dσ/dΩ / (π r²) from corona.mie directly."""
+    """P = dσ/dΩ / (π r²) from corona.model.mie.theory directly."""
     m = complex(sphere.index(lam))
     return mie.differential_cross_section(m, sphere.radius, lam * 1e-3, np.cos(theta)) / (np.pi * sphere.radius**2)
 
@@ -86,7 +86,7 @@ def test_negative_control_detects_a_shifted_lobe():
 
 
 def _spread_reference(radius, spread, lam, theta, distribution, dX=0.04):
-    """⟨|S1|² + |S2|²⟩ / (2π ⟨x²⟩) of a size distribution by brute force: corona.mie.amplitudes on a
+    """⟨|S1|² + |S2|²⟩ / (2π ⟨x²⟩) of a size distribution by brute force: corona.model.mie.theory.amplitudes on a
     grid of size parameters 1.5x finer than the table builder's, weighted by scipy.stats' density."""
     from scipy import stats
     x0 = 2 * np.pi * radius / (lam * 1e-3)

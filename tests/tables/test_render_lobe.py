@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import corona
-from corona import render_lobe
+from corona.tables import lobe as render_lobe
 from corona.parameters import material_from_parameters
 
 from bsdf_checks import chi2_test, smooth_context
@@ -62,7 +62,7 @@ def _material(name, mask_file):
 @pytest.mark.parametrize("name", list(FAMILIES))
 def test_kernel_matches_model(mi_variant, mask_file, name):
     import mitsuba as mi
-    from corona.lobe_kernels import LobeKernel
+    from corona.mitsuba.kernels import LobeKernel
     m = _material(name, mask_file)
     assert m.render_kind == ("grid" if name in ("size-spread", "many-sided", "mask") else "analytic")
     u, v = render_lobe.region_points(m, n=80000, scan=161, seed=1)

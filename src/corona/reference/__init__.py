@@ -7,7 +7,7 @@ plugin, the CLI's ``render`` and ``lobe``) never imports it.
 * :mod:`corona.reference.hard_disk` — event-chain Monte Carlo of hard disks,
   Percus–Yevick, the smoothing that makes the shipped S(q) table;
 * :mod:`corona.reference.rsa` — runs of the random-sequential-adsorption generator
-  (:func:`corona.processes.rsa.rsa_configuration`) turned into the shipped S(q) table;
+  (:func:`corona.model.processes.rsa.rsa_configuration`) turned into the shipped S(q) table;
 * :mod:`corona.reference.wave` — the brute-force wave-optics reference
   (random screens, FFT);
 * :mod:`corona.reference.validate` — ``corona validate``: model vs brute force,

@@ -20,7 +20,7 @@ Three layers (lengths in units of the disk diameter σ unless stated):
   2D Ornstein–Zernike equation, solved numerically: the fast analytic route
   for checks.
 
-:class:`HardDisk` is the point process (:class:`corona.processes.Process`)
+:class:`HardDisk` is the point process (:class:`corona.model.processes.Process`)
 built on the table.  Henderson's equation of state
 (:func:`henderson_compressibility_factor`) gives the reference values of the
 checks.
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from ..processes.hard_disk import (ETA_MAX, TABLE_FORMAT_VERSION, TAIL_JOIN_DECAY,  # noqa: F401
+from corona.model.processes.hard_disk import (ETA_MAX, TABLE_FORMAT_VERSION, TAIL_JOIN_DECAY,  # noqa: F401
                                   load_table, structure_factor_table, tail_basis)
 
 # ==========================================================================
@@ -713,7 +713,7 @@ def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, 
     -------
     HardDiskSimulation
     """
-    from .._validation import check_range
+    from corona._validation import check_range
     eta = check_range("packing_fraction", packing_fraction, 0.0, 0.8, lo_open=True)
     n_disks = int(n_disks)
     if n_disks < 64:
@@ -799,7 +799,7 @@ def table_row(eta: float, settings: dict, jobs: int = 1, progress: bool = False)
     """One row of the shipped table: a :func:`simulate_hard_disks` run and its raw data.
 
     The unit of work of ``scripts/make_hard_disk_table.py`` (one task of a
-    :class:`corona.sweep.Executor` per row).  ``settings`` are the keyword
+    :class:`corona.apps.sweep.Executor` per row).  ``settings`` are the keyword
     arguments of :func:`simulate_hard_disks` (``n_disks``, ``n_sweeps``,
     ``seed``, ..., ``q_sigma_max``, ``bin_width``); the seed fixes the row bit
     for bit, whichever process runs it.  ``S``, ``S_err`` and ``n_vectors``
@@ -997,7 +997,7 @@ def structure_factor_percus_yevick(q_sigma, eta):
     eta : float
         Packing fraction in [0, 0.8].
     """
-    from .._validation import check_range
+    from corona._validation import check_range
     eta = check_range("eta", eta, 0.0, 0.8)
     q = np.asarray(q_sigma, dtype=np.float64)
     if eta == 0.0:
@@ -1012,7 +1012,7 @@ structure_factor_py = structure_factor_percus_yevick
 
 def contact_value_percus_yevick(eta) -> float:
     """``g(σ⁺)`` of the Percus–Yevick solution."""
-    from .._validation import check_range
+    from corona._validation import check_range
     eta = check_range("eta", eta, 0.0, 0.8, lo_open=True)
     return _py().contact_value(eta)
 

@@ -263,7 +263,7 @@ def compare_with_table(run: dict) -> list[dict]:
     over the run's own wave vectors, the table's error bar there (the largest
     stored ``S_err`` of the row in the window, interpolated in η), the
     difference and its z-score against the combined error."""
-    from ..processes.hard_disk import load_table, structure_factor_table
+    from corona.model.processes.hard_disk import load_table, structure_factor_table
     t = load_table()
     eta = float(run["eta"])
     out = []

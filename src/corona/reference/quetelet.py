@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import check_range
+from corona._validation import check_range
 
 
 def _fresnel_r(kz1, kz2, n1, n2, polarisation):

@@ -1,12 +1,12 @@
 """Random sequential adsorption (RSA) of disks: the Monte Carlo generator.
 
-The generator itself (:func:`corona.processes.rsa.rsa_configuration`,
+The generator itself (:func:`corona.model.processes.rsa.rsa_configuration`,
 re-exported here) belongs to the runtime, which samples realisations of the
 process with it; this module adds the numba kernels (the ``reference``
 extra) that turn runs of it into the shipped table
 ``corona/data/rsa_structure_factor.npz`` (see ``scripts/make_rsa_table.py``)
 and the RSA screens of the brute-force reference.  The runtime reads the
-table with :func:`corona.processes.rsa.rsa_structure_factor`.
+table with :func:`corona.model.processes.rsa.rsa_structure_factor`.
 """
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from ..processes import rsa as _runtime
+from corona.model.processes import rsa as _runtime
 # the generator lives with the process (the runtime samples it too); re-exported here
-from ..processes.rsa import RSA_JAMMING_LIMIT, _rsa_fill, _wrap, rsa_configuration  # noqa: F401
+from corona.model.processes.rsa import RSA_JAMMING_LIMIT, _rsa_fill, _wrap, rsa_configuration  # noqa: F401
 
 # =====================================================================
 # numba kernels of the table (compiled lazily on first use, cached on disk)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import CoronaError
+from corona._validation import CoronaError
 
 #: The model's components and the paths they stand for.
 CLASSES = ("coherent", "specular", "lobe_transmission", "lobe_reflection", "diffuse", "dropped")

@@ -58,7 +58,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import CoronaError, CoronaWarning, check_range
+from corona._validation import CoronaError, CoronaWarning, check_range
 
 WAVELENGTHS = (400.0, 550.0, 700.0)
 RADIUS = 2.5                      # circumradius of the matrix shapes [µm]
@@ -92,7 +92,7 @@ def blob_mask_image(n: int = 40, r0: float = 14.0) -> np.ndarray:
 
 def make_shape(name: str, radius: float = RADIUS):
     """Matrix shapes of circumradius ``radius`` [µm]."""
-    from .. import shapes
+    from corona.model import shapes
     if name == "circle":
         return shapes.Circle(radius)
     if name == "square":
@@ -123,7 +123,7 @@ class Case:
 
 def _hd(shape_name, fa):
     def build():
-        from ..processes import HardDisk
+        from corona.model.processes import HardDisk
         return make_shape(shape_name), HardDisk(fa)
     return build
 
@@ -136,9 +136,9 @@ def matrix_cases(quick: bool = False) -> list[Case]:
 
 
 def extra_cases(quick: bool = False) -> list[Case]:
-    from .. import shapes
-    from ..processes import HardDisk, Lattice, PointSet, Poisson, SequentialAdsorption
-    from .wave import hard_disk_configurations, lattice_box
+    from corona.model import shapes
+    from corona.model.processes import HardDisk, Lattice, PointSet, Poisson, SequentialAdsorption
+    from corona.reference.wave import hard_disk_configurations, lattice_box
     R = RADIUS
 
     def poisson(fa):
@@ -309,7 +309,7 @@ def compare(material, bf, wavelengths=WAVELENGTHS, particle=None, u_compare=U_CO
     Returns a dict with per-wavelength metrics, the binned profiles and the
     2D maps for the pictures (see the module notes for the definitions).
     """
-    from ..processes import Lattice
+    from corona.model.processes import Lattice
     R = bf.length_scale
     qx, qy = bf.qx, bf.qy
     ix = np.nonzero(np.abs(qx) * R <= u_compare)[0]
@@ -541,13 +541,13 @@ def run(out_dir: str = "out/validate", *, quick: bool = False, cases=None,
         Scatterers per screen (default 2000).
     seed : int
         Seed of every ensemble.
-    executor : corona.sweep.Executor, optional
+    executor : corona.apps.sweep.Executor, optional
         Where the cases run, one case per task (:func:`run_case`); default: in
         this process, one after the other.  Every case depends only on its
         name and these arguments, so the report is the same either way
         (timings apart).
     """
-    from ..sweep import Executor
+    from corona.apps.sweep import Executor
     chosen = select_cases(all_cases(quick), cases)
     M_default = QUICK_REALISATIONS if quick else REALISATIONS
     if realisations is not None:
@@ -603,8 +603,8 @@ def run_case(name: str, quick: bool, realisations: int, n_scatterers: int | None
     skipped case.  Depends only on its arguments (the brute force is seeded
     by ``seed``), so any worker gives the same numbers.
     """
-    from . import wave
-    from ..material import Material
+    from corona.reference import wave
+    from corona.model.material import Material
     case = _case_named(all_cases(quick), name)
     t0 = time.perf_counter()
     entry = {"name": case.name, "label": case.label, "kind": case.kind, "note": case.note,
@@ -670,7 +670,7 @@ def _json_default(o):
 
 def _is_hard(process) -> bool:
     """Processes whose scatterers never overlap (sum rule F_a(1 - F_a))."""
-    from ..processes import HardDisk, Lattice, SequentialAdsorption
+    from corona.model.processes import HardDisk, Lattice, SequentialAdsorption
     return isinstance(process, (HardDisk, SequentialAdsorption, Lattice))
 
 

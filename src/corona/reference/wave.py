@@ -9,16 +9,16 @@ assumptions (no form-factor × structure-factor split, no tables):
    (:func:`positions_source`): hard-disk configurations from the event-chain
    simulation (:func:`corona.reference.hard_disk.simulate_hard_disks`, the same
    ``N = 2000`` disks the shipped table was made with), random sequential
-   adsorption (:func:`corona.processes.rsa.rsa_configuration`), jittered
+   adsorption (:func:`corona.model.processes.rsa.rsa_configuration`), jittered
    lattices (box commensurate with the lattice), Poisson (``N`` uniform
    centres) and measured point sets (:class:`corona.PointSet`, treated as
    periodic).  Every realisation is translated by a uniform random offset, so
    the ensemble is translation invariant and the mean amplitude ``⟨T̂(q)⟩``
    vanishes for every ``q ≠ 0``.
 2. **Scatterers** — every scatterer gets its own draw of the random shape
-   parameters (:class:`~corona.shapes.Mixture` component, size factor of
-   :class:`~corona.shapes.SizeDistribution`, angle of
-   :class:`~corona.shapes.RandomOrientation`); the resulting profile is
+   parameters (:class:`~corona.model.shapes.Mixture` component, size factor of
+   :class:`~corona.model.shapes.SizeDistribution`, angle of
+   :class:`~corona.model.shapes.RandomOrientation`); the resulting profile is
    rasterised into a small *stamp* around its centre and combined into the
    screen (:func:`rasterise`).
 3. **FFT** — ``T̂(q) ≈ h_x h_y · FFT[t]`` (:mod:`scipy.fft`, worker threads),
@@ -46,7 +46,7 @@ Rasterisation (the grid rule)
   ``1 - q²h²/24``), and the ensemble spectrum is divided by ``H(q)²``
   (``pixel_transfer = "ramp-deconvolved"``).  Without it the lobe would be
   ~1–2 % low at ``u = qR ≈ 8`` with 16 samples per radius.
-* **Masks** (:class:`~corona.shapes.Mask`) are defined by the model as the
+* **Masks** (:class:`~corona.model.shapes.Mask`) are defined by the model as the
   band-limited profile through the pixel values.  At fixed orientation and
   size they are rasterised *exactly*: the grid pitch is the mask's own pixel
   size, the stamp is the image itself, and centres are snapped to the grid
@@ -56,7 +56,7 @@ Rasterisation (the grid rule)
   band-limited Â (no aliasing, no filter; ``pixel_transfer = "none"``).
   Rotated or scaled masks are resampled with cubic interpolating B-splines
   (an approximation of the band-limited profile near the band limit).
-* **Soft edges** (:class:`~corona.shapes.SoftEdge`): the sharp stamp is
+* **Soft edges** (:class:`~corona.model.shapes.SoftEdge`): the sharp stamp is
   multiplied in Fourier space by the Gaussian's transfer
   ``exp(-|q|² w²/2)`` (stamps padded by 5 w).
 * Stamps are combined as ``t = min(1, Σ_j A_j)`` (``overlaps="clip"``,
@@ -104,10 +104,10 @@ import numpy as np
 from scipy import fft as sp_fft
 from scipy import ndimage
 
-from .._validation import CoronaError, check_choice, check_range
-from ..processes import Lattice, PointSet, Poisson, Process, SequentialAdsorption
-from ..processes.rsa import rsa_configuration
-from ..shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle, Shape,
+from corona._validation import CoronaError, check_choice, check_range
+from corona.model.processes import Lattice, PointSet, Poisson, Process, SequentialAdsorption
+from corona.model.processes.rsa import rsa_configuration
+from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle, Shape,
                      SizeDistribution, SoftEdge)
 
 #: default samples per circumradius of the smallest base shape
@@ -382,7 +382,7 @@ def hard_disk_configurations(packing_fraction: float, count: int, n_disks: int =
     L : float
         Box side in units of σ.
     """
-    from .hard_disk import simulate_hard_disks
+    from corona.reference.hard_disk import simulate_hard_disks
     eta = check_range("packing_fraction", packing_fraction, 0.0, 0.8, lo_open=True)
     count = int(check_range("count", count, 1, 1e6))
     key = (round(eta, 12), int(n_disks), int(seed))
@@ -450,7 +450,7 @@ def positions_source(process: Process, shape: Shape, *, n_scatterers: int = N_SC
     The box holds about ``n_scatterers`` centres at the process's density
     ``n = F_a / ⟨|A|⟩``; hard disks and RSA keep their exclusion diameter σ.
     """
-    from ..processes import HardDisk
+    from corona.model.processes import HardDisk
     process.validate(shape)
     fa = float(process.area_fraction(shape))
     area = float(shape.area)
@@ -883,7 +883,7 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
     -------
     BruteForce
     """
-    from ..material import Material
+    from corona.model.material import Material
     if not isinstance(material, Material):
         raise CoronaError(f"material={material!r} is not a corona.Material")
     M = int(check_range("realisations", realisations, 1, 1e7))

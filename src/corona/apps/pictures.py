@@ -1,0 +1,132 @@
+"""Pictures of a material's lobe: tables and the far-field corona.
+
+The figures need matplotlib (the ``reference`` extra); they are drawn on a
+bare ``matplotlib.figure.Figure``, so no pyplot backend is selected.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from corona._validation import CoronaError
+from corona.color import blackbody, spectrum_to_linear_srgb, tonemap_srgb
+
+
+def far_field_corona(material, half_angle_deg: float = 10.0, size: int = 256,
+                     temperature: float = 3000.0, n_wavelengths: int = 48) -> np.ndarray:
+    """The corona around a point light seen through the layer at normal incidence.
+
+    Returns linear sRGB (size, size, 3): the lobe ``F_a T_a T_s`` at each
+    direction ``wo`` (d = wo.xy), times a black-body spectrum, integrated
+    against the CIE 1931 colour matching functions.
+    """
+    from corona import tables
+    t = np.radians(np.linspace(-half_angle_deg, half_angle_deg, size))
+    tx, ty = np.meshgrid(t, t[::-1], indexing="xy")
+    d = np.stack([np.sin(tx) * np.cos(ty), np.sin(ty)], -1)
+    lams = np.linspace(max(380.0, tables.WAVELENGTH_MIN), 780.0, n_wavelengths)
+    spd = blackbody(lams, temperature)
+    spd = spd / spd.max()
+    spectra = np.stack([material.lobe_tabulated(d, lam) * s for lam, s in zip(lams, spd)], -1)
+    return spectrum_to_linear_srgb(spectra, lams)
+
+
+def _u_extent(material, u_cap: float = 40.0) -> float:
+    """Largest |u| to plot: the table's reach, at most ``u_cap``."""
+    t = material.table
+    reach = t.u_max if hasattr(t, "u_max") else t.reach
+    return float(min(reach, u_cap))
+
+
+def lobe_maps(material, u_extent: float, n: int = 201) -> dict:
+    """The dimensionless tables on an n×n grid of ``u = (u_x, u_y)`` in [-u_extent, u_extent]².
+
+    Returns ``u`` (n,) and maps (n, n), index [iy, ix]: ``form_factor`` =
+    ``P(u/R)/R²`` (T_a = (R/λ)² × this), ``structure_factor`` = S (for fixed
+    lattices the mean over each grid cell, so that Bragg peaks narrower than a
+    cell keep their weight, as in the renderer's tables), and ``lobe`` =
+    ``v(u) = [P + C (S - 1)]/R²`` (:meth:`corona.Material.lobe_terms`; = T_a T_s
+    for identical scatterers; F_a (R/λ)² × this is the BSDF's lobe).
+    """
+    R = material.length_scale
+    u = np.linspace(-u_extent, u_extent, n)
+    ux, uy = np.meshgrid(u, u[::-1], indexing="xy")
+    if material.isotropic:
+        terms = material.lobe_terms(np.hypot(ux, uy), radial=True)
+    else:
+        terms = material.lobe_terms(np.stack([ux, uy], -1), cell=u[1] - u[0])
+    return {"u": u, "form_factor": terms["P"] / R**2, "structure_factor": terms["S"], "lobe": terms["v"]}
+
+
+def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: float | None = None):
+    """Save the material's pictures: the single-scatterer (form factor) table, the
+    structure-factor table, their product (the lobe), and the far-field corona.
+
+    Top row: 2-D maps over ``u = 2πR d/λ`` (log scale for the form factor and
+    the lobe); bottom row: cuts along u_x (and u_y for anisotropic
+    materials), and the corona as a person would see it around a 3000 K point
+    light (spectrally integrated to sRGB).
+    """
+    try:
+        from matplotlib.colors import LogNorm
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise CoronaError("lobe pictures need matplotlib: pip install 'corona-bsdf[reference]' "
+                          "(or use `corona lobe --json` for the numbers)") from None
+
+    R = material.length_scale
+    U = _u_extent(material)
+    maps = lobe_maps(material, U)
+    u = maps["u"]
+    mid = u.size // 2
+    if half_angle_deg is None:
+        # show the first few rings: u ≈ 14 at 550 nm
+        half_angle_deg = float(np.degrees(np.arcsin(min(1.0, 14 * 0.55 / (2 * np.pi * R)))))
+    img = far_field_corona(material, half_angle_deg)
+
+    # a bare Figure (no pyplot): no backend is selected, no global state changes
+    fig = Figure(figsize=(18, 8.6))
+    ax = fig.subplots(2, 4, gridspec_kw={"height_ratios": [1.15, 1]})
+    ext = [-U, U, -U, U]
+    names = [("form_factor", f"single scatterer: T_a table ({type(material.shape).__name__})", True),
+             ("structure_factor", f"structure factor: T_s table ({type(material.process).__name__})", False),
+             ("lobe", "product: lobe T_a·T_s", True)]
+    for k, (key, title, log) in enumerate(names):
+        m = maps[key]
+        if log:
+            top = float(np.max(m)) if np.max(m) > 0 else 1.0
+            im = ax[0, k].imshow(np.maximum(m, top * 1e-8), extent=ext, cmap="magma",
+                                 norm=LogNorm(vmin=top * 1e-6, vmax=top))
+        else:
+            hi = max(1.5, float(np.percentile(m, 99.9)))
+            im = ax[0, k].imshow(m, extent=ext, cmap="viridis", vmin=0.0, vmax=hi)
+        ax[0, k].set(title=title, xlabel="u_x = 2πR d_x/λ", ylabel="u_y")
+        fig.colorbar(im, ax=ax[0, k], fraction=0.046, pad=0.03)
+        # cuts through the centre (row mid is u_y = 0, column mid is u_x = 0)
+        ax[1, k].plot(u[mid:], m[mid, mid:], label="along u_x")
+        if not material.isotropic:
+            ax[1, k].plot(u[mid:], m[mid::-1, mid], "--", label="along u_y")
+            ax[1, k].legend(fontsize=8)
+        if log:
+            ax[1, k].set_yscale("log")
+            ax[1, k].set_ylim(max(np.max(m) * 1e-8, 1e-300), None)
+        else:
+            ax[1, k].axhline(1, color="0.7", lw=0.8)
+        ax[1, k].set(xlabel="u", ylabel="dimensionless table" if k != 1 else "S")
+    ax[0, 3].imshow(tonemap_srgb(img, percentile=99.0), extent=[-half_angle_deg, half_angle_deg] * 2)
+    ax[0, 3].set(title="far-field corona (3000 K point light, sRGB)", xlabel="degree", ylabel="degree")
+    lines = [f"area fraction F_a = {material.area_fraction:.3g}",
+             f"length scale R = {R:.3g} µm",
+             f"coherent transmittance = {material.coherent_transmittance:.4f}",
+             f"diffuse (lobe) transmittance = {material.diffuse_transmittance():.4f}",
+             f"reflectance = {material.reflectance:.4f}",
+             "",
+             f"at {wavelength:g} nm: u = 2πR|d|/λ, |d| = sin θ",
+             f"u = 10  ↔  θ = {np.degrees(np.arcsin(min(1.0, 10 * wavelength * 1e-3 / (2 * np.pi * R)))):.3g}°",
+             "lobe f = F_a (R/λ)² × table  (no cosine)"]
+    ax[1, 3].axis("off")
+    ax[1, 3].text(0.02, 0.95, "\n".join(lines), va="top", family="monospace", fontsize=10,
+                  transform=ax[1, 3].transAxes)
+    fig.suptitle(repr(material), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    return path

@@ -1,0 +1,664 @@
+"""Sweeps: many independent jobs (renders, validation cases, table rows) on Dask.
+
+A *sweep* renders a scene at every point of the Cartesian product of ``-D``
+value lists (``corona sweep scenes/sweep_radius.xml -D radius=2.5,5,10``),
+one EXR (linear sRGB) + PNG (tonemapped sRGB) per point, named by its
+parameters, plus a contact sheet and a JSON index.  The jobs run through one
+:class:`Executor`, which is also what ``corona validate`` (one case per task),
+the table generators of the reference tier (one row or one chunk of runs per
+task) and ``make gallery`` use:
+
+* ``workers=0``: in this process, one job after the other (no Dask needed);
+* no ``scheduler``: a ``distributed.LocalCluster`` on this machine, one worker
+  process per job slot, each running one job at a time (one thread per
+  worker) with Dr.Jit's thread pool set to ``cores // workers_on_the_host``
+  so that the workers together use the cores once, not ``workers`` times;
+* ``scheduler="tcp://host:8786"``: an existing Dask cluster (``dask
+  scheduler`` + ``dask worker`` on several machines; README "Sweeps on
+  several machines").  The same thread rule applies per host.
+
+Workers compute and send results back; only this process writes files, so
+the workers need the corona installation and the *inputs* (scene files at
+the same path, e.g. a shared directory), not write access to ``--out``.
+Every worker process sets the Mitsuba variant and registers the plugin
+itself before its first render (Mitsuba's variant is per process).
+
+Dask's ``distributed`` is the ``sweep`` extra (``pip install
+'corona-bsdf[sweep]'``); ``import corona`` never imports it.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import itertools
+import json
+import logging
+import math
+import os
+import re
+import socket
+import tempfile
+import threading
+import time
+
+import numpy as np
+
+from corona._validation import CoronaError
+
+#: Default seconds to wait for a scheduler (connection) and its first worker.
+TIMEOUT = 10.0
+#: Longest accepted wait for a scheduler and its first worker [s] (a day; 1e308 overflowed the clock).
+TIMEOUT_MAX = 86400.0
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+# ==========================================================================
+# the sweep's points
+# ==========================================================================
+def parse_defines(defines) -> dict:
+    """``["radius=2.5,5", "fov=16"]`` → ``{"radius": ["2.5", "5"], "fov": ["16"]}``.
+
+    Each item is ``NAME=V1,V2,...``: ``NAME`` a scene parameter (``$NAME`` /
+    ``<default name="NAME">`` of the XML), the values non-empty and distinct.
+    Raises :class:`CoronaError` naming the offending item.
+    """
+    grid = {}
+    for item in defines or []:
+        if "=" not in item:
+            raise CoronaError(f"-D {item!r}: expected NAME=V1,V2,... (e.g. -D radius=2.5,5,10)")
+        name, values = (s.strip() for s in item.split("=", 1))
+        if not _NAME.match(name):
+            raise CoronaError(f"-D {item!r}: parameter name {name!r} must be a letter or _ followed by "
+                              "letters, digits or _")
+        if name in grid:
+            raise CoronaError(f"-D {item!r}: parameter {name!r} is given twice; list all its values "
+                              f"in one -D {name}=V1,V2,...")
+        vals = [v.strip() for v in values.split(",")]
+        if any(not v for v in vals):
+            raise CoronaError(f"-D {item!r}: empty value in the list; expected {name}=V1,V2,... "
+                              "with no empty entries")
+        dup = sorted({v for v in vals if vals.count(v) > 1})
+        if dup:
+            raise CoronaError(f"-D {item!r}: value {dup[0]!r} appears twice")
+        grid[name] = vals
+    return grid
+
+
+def sweep_points(grid: dict) -> list:
+    """The Cartesian product of ``grid`` (``{name: [values]}``) as a list of
+    ``{name: value}`` dicts, the last parameter varying fastest."""
+    names = list(grid)
+    return [dict(zip(names, combo)) for combo in itertools.product(*(grid[n] for n in names))]
+
+
+def _safe(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9.+\-]", "_", str(text))
+
+
+def point_name(stem: str, point: dict) -> str:
+    """File stem of one point: ``stem_radius=2.5_fov=16`` (characters other than
+    letters, digits, ``.``, ``+``, ``-`` replaced by ``_``)."""
+    return "_".join([stem] + [f"{_safe(k)}={_safe(v)}" for k, v in point.items()])
+
+
+def point_label(point: dict) -> str:
+    """``radius=2.5, fov=16`` (how a point is named in messages and on the contact sheet)."""
+    return ", ".join(f"{k}={v}" for k, v in point.items()) or "(scene defaults)"
+
+
+def scene_parameters(path: str) -> set:
+    """Names a scene file takes: its ``<default name=...>`` and every ``$NAME`` it uses."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        text = f.read()
+    text = re.sub(r"<!--.*?-->", "", text, flags=re.S)     # comments mention $names too
+    return set(re.findall(r"\$([A-Za-z_]\w*)", text)) | set(
+        re.findall(r"<default\s+name\s*=\s*[\"']([^\"']+)[\"']", text))
+
+
+def check_out_dir(out_dir: str) -> str:
+    """Create ``out_dir`` if needed and check that a file can be written there."""
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out_dir, prefix=".corona-write-test-"):
+            pass
+    except OSError as err:
+        raise CoronaError(f"--out {out_dir!r} is not a writable folder ({err.strerror or err})") from None
+    return out_dir
+
+
+# ==========================================================================
+# the executor
+# ==========================================================================
+@dataclasses.dataclass
+class Outcome:
+    """The result of one task: ``value``, or ``error`` (a one-line message)."""
+    index: int
+    label: str
+    value: object = None
+    error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):   # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def _memory_bytes() -> int | None:
+    try:
+        import psutil   # a dependency of distributed
+        return int(psutil.virtual_memory().total)
+    except Exception:  # noqa: BLE001  pragma: no cover
+        return None
+
+
+def default_workers(n_tasks: int | None = None) -> int:
+    """Local cluster size: one worker per core, at most one per task and one per
+    GiB of memory (a render holds a scene and its wavefronts)."""
+    n = _cpus()
+    mem = _memory_bytes()
+    if mem:
+        n = min(n, max(1, mem // 2**30))
+    if n_tasks:
+        n = min(n, n_tasks)
+    return max(1, int(n))
+
+
+#: per worker process: the Dr.Jit thread count it was given and the variant it set
+_WORKER: dict = {}
+_JOB_LOCK = threading.Lock()      # one job at a time per process, whatever the worker's nthreads
+
+
+def _configure_worker(workers_on_host: dict, dask_worker=None) -> int:
+    """Run on every worker once: its Dr.Jit thread count, cores // workers on its host
+    (applied before its first render, :func:`_prepare_renderer`)."""
+    n = int(workers_on_host.get(getattr(dask_worker, "address", None), 1))
+    _WORKER["threads"] = max(1, _cpus() // max(1, n))
+    return _WORKER["threads"]
+
+
+#: The address schemes of a Dask scheduler (``distributed.comm``) that a sweep connects to.
+DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+#: Most local workers per core (``--workers N`` beyond it, or beyond the number of points, is capped).
+WORKERS_PER_CORE = 2
+
+
+def _within(seconds: float, fn, what: str):
+    """``fn()`` in a daemon thread, abandoned after ``seconds`` (CoronaError ``what``): Dask's Client
+    waits without end for a peer that accepts the connection and never answers its handshake."""
+    box = {}
+
+    def go():
+        try:
+            box["value"] = fn()
+        except BaseException as err:  # noqa: BLE001 - handed to the caller
+            box["error"] = err
+    t = threading.Thread(target=go, name="corona-sweep-connect", daemon=True)
+    t.start()
+    t.join(seconds)
+    if t.is_alive():
+        raise CoronaError(what)
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
+def _probe(address: str, timeout: float) -> str:
+    """Check that something listens at a ``tcp://`` scheduler address (fast, one line on failure)."""
+    from distributed.comm.addressing import parse_address, parse_host_port, unparse_address
+    try:
+        scheme, loc = parse_address(address)
+        if scheme not in DASK_SCHEMES:
+            raise CoronaError(f"--scheduler {address!r} is not a Dask scheduler address (scheme "
+                              f"{scheme}://); expected {' or '.join(s + '://' for s in DASK_SCHEMES)}HOST:PORT, "
+                              "e.g. tcp://127.0.0.1:8786")
+        if scheme != "tcp":
+            return address        # tls://, ...: let Dask connect
+        host, port = parse_host_port(loc, 8786)
+    except CoronaError:
+        raise
+    except ValueError as err:
+        raise CoronaError(f"--scheduler {address!r} is not a scheduler address ({err}); expected "
+                          "tcp://HOST:PORT, e.g. tcp://127.0.0.1:8786") from None
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            pass
+    except OSError as err:
+        why = "no answer" if isinstance(err, TimeoutError) else (err.strerror or str(err))
+        raise CoronaError(f"--scheduler {address!r}: no Dask scheduler reachable at {host}:{port} "
+                          f"within {timeout:g} s ({why}); start one with `dask scheduler` "
+                          "or leave out --scheduler for a local cluster") from None
+    return unparse_address("tcp", f"{host}:{port}")
+
+
+class Executor:
+    """Runs independent tasks in this process or on a Dask cluster.
+
+    Parameters
+    ----------
+    workers : int, optional
+        ``0``: in this process, no Dask.  ``N > 0``: a local cluster of ``N``
+        worker processes.  ``None`` (default): a local cluster sized by
+        :func:`default_workers` — unless ``scheduler`` is given.
+    scheduler : str, optional
+        Address of an existing Dask scheduler (``tcp://host:8786``).
+    timeout : float
+        Seconds to wait for the scheduler and for its first worker.
+
+    The cluster starts at the first :meth:`map` (so bad input found before
+    it costs no start-up) and stops at :meth:`close` / the end of a ``with``.
+    """
+
+    def __init__(self, workers: int | None = None, scheduler: str | None = None, *,
+                 timeout: float = TIMEOUT, log=None):
+        if workers is not None and scheduler is not None:
+            raise CoronaError("--workers and --scheduler exclude each other: --workers N starts a local "
+                              "cluster, --scheduler ADDRESS uses an existing one")
+        if workers is not None and (int(workers) != workers or workers < 0):
+            raise CoronaError(f"workers={workers!r} is out of range; expected an integer >= 0 "
+                              "(0: in this process)")
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (0 < timeout <= TIMEOUT_MAX):
+            raise CoronaError(f"timeout={timeout!r} is out of range; allowed a finite number of seconds "
+                              f"in (0, {TIMEOUT_MAX:g}]")
+        if scheduler is not None and "://" in str(scheduler):
+            scheme = str(scheduler).split("://", 1)[0].lower()
+            if scheme not in DASK_SCHEMES:       # before anything is imported or started
+                raise CoronaError(f"--scheduler {scheduler!r} is not a Dask scheduler address (scheme "
+                                  f"{scheme}://); expected {' or '.join(s + '://' for s in DASK_SCHEMES)}"
+                                  "HOST:PORT, e.g. tcp://127.0.0.1:8786")
+        self.workers = None if workers is None else int(workers)
+        self.scheduler = scheduler
+        self.timeout = float(timeout)
+        self.log = log or (lambda s: None)
+        self.client = None
+        self.cluster = None
+        self.threads = {}          # worker address -> Dr.Jit threads
+        self.startup_seconds = 0.0
+
+    # -- life cycle ---------------------------------------------------------
+    @property
+    def in_process(self) -> bool:
+        return self.workers == 0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def start(self, n_tasks: int | None = None) -> "Executor":
+        """Start (or connect to) the cluster; nothing when in process or already started."""
+        if self.in_process or self.client is not None:
+            return self
+        try:
+            import distributed
+        except ImportError:
+            raise CoronaError("running on a Dask cluster needs the 'sweep' extra: pip install "
+                              "'corona-bsdf[sweep]' (or --workers 0: one job after the other in this "
+                              "process)") from None
+        t0 = time.perf_counter()
+        if self.scheduler is not None:
+            address = _probe(self.scheduler, self.timeout)
+            try:
+                self.client = _within(
+                    self.timeout,
+                    lambda: distributed.Client(address, timeout=self.timeout, set_as_default=False),
+                    f"--scheduler {self.scheduler!r} accepted the connection but did not answer as a Dask "
+                    f"scheduler within {self.timeout:g} s; is it one (`dask scheduler`)?")
+            except CoronaError:
+                raise
+            except (OSError, TimeoutError, ValueError) as err:
+                raise CoronaError(f"--scheduler {self.scheduler!r}: could not connect within "
+                                  f"{self.timeout:g} s ({' '.join(str(err).split())})") from None
+            try:
+                self.client.wait_for_workers(1, timeout=self.timeout)
+            except (TimeoutError, OSError):
+                self.close()
+                raise CoronaError(f"--scheduler {self.scheduler!r} has no workers (waited "
+                                  f"{self.timeout:g} s); start some with `dask worker "
+                                  f"{self.scheduler}`") from None
+        else:
+            n = self.workers or default_workers(n_tasks)
+            cap = max(1, min(n_tasks or n, WORKERS_PER_CORE * _cpus()))
+            if n > cap:
+                self.log(f"corona: --workers {n} capped to {cap} ({n_tasks} job(s), {_cpus()} core(s), "
+                         f"at most {WORKERS_PER_CORE} workers per core)")
+                n = cap
+            self.cluster = distributed.LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=None, silence_logs=logging.CRITICAL)
+            self.client = distributed.Client(self.cluster, set_as_default=False)
+        workers = self.client.scheduler_info(n_workers=-1)["workers"]
+        per_host = collections.Counter(w["host"] for w in workers.values())
+        plan = {addr: per_host[w["host"]] for addr, w in workers.items()}
+        self.threads = self.client.run(_configure_worker, plan)
+        self.startup_seconds = time.perf_counter() - t0
+        self.log(f"corona: {self.describe()} (started in {self.startup_seconds:.1f} s)")
+        return self
+
+    def describe(self) -> str:
+        if self.in_process:
+            return "in this process"
+        if self.client is None:
+            return "cluster not started"
+        n = len(self.threads)
+        th = sorted(set(self.threads.values()))
+        where = f"scheduler {self.scheduler}" if self.scheduler else "local cluster"
+        return (f"{where}: {n} worker(s), one job at a time each, "
+                f"{'/'.join(map(str, th))} Dr.Jit thread(s) per worker")
+
+    def close(self) -> None:
+        for obj in (self.client, self.cluster):
+            if obj is not None:
+                try:
+                    obj.close()
+                except Exception:  # noqa: BLE001  (shutting down: nothing left to report)
+                    pass
+        self.client = self.cluster = None
+
+    # -- running ------------------------------------------------------------
+    def map(self, fn, tasks, labels=None, *, desc: str = "tasks", progress: bool = True,
+            on_result=None) -> list:
+        """Run ``fn(*args)`` for every ``args`` of ``tasks``; a list of :class:`Outcome` in task order.
+
+        A failing task gives an ``Outcome`` with ``error`` (one line) and the
+        others still run.  ``on_result(outcome)`` is called in this process as
+        each task finishes (in completion order), e.g. to write its files.
+        ``fn`` must be importable on the workers (a module-level function of
+        an installed package).
+        """
+        from tqdm import tqdm
+
+        from corona.apps.render import one_line_error
+        tasks = [tuple(t) for t in tasks]
+        labels = list(labels) if labels is not None else [str(i) for i in range(len(tasks))]
+        out = [None] * len(tasks)
+        if not tasks:
+            return out
+        self.start(len(tasks))
+        bar = tqdm(total=len(tasks), desc=desc, unit="job", disable=not progress, dynamic_ncols=True)
+
+        def finish(o: Outcome):
+            out[o.index] = o
+            if on_result is not None:
+                on_result(o)
+            if not o.ok:
+                bar.write(f"corona: {desc} {o.label}: FAILED: {o.error}")
+            bar.update(1)
+
+        try:
+            if self.in_process:
+                for i, args in enumerate(tasks):
+                    ok, value = _run_job(fn, args)
+                    finish(Outcome(i, labels[i], value=value) if ok else Outcome(i, labels[i], error=value))
+            else:
+                import distributed
+                futures = {}
+                for i, args in enumerate(tasks):
+                    fut = self.client.submit(_run_job, fn, args, pure=False, retries=0)
+                    futures[fut] = i
+                for fut in distributed.as_completed(list(futures), loop=self.client.loop):
+                    i = futures[fut]
+                    try:
+                        ok, value = fut.result()
+                        o = Outcome(i, labels[i], value=value) if ok else Outcome(i, labels[i], error=value)
+                    except Exception as err:  # noqa: BLE001  (a worker died, a task was lost)
+                        o = Outcome(i, labels[i], error=one_line_error(err))
+                    fut.release()
+                    finish(o)
+        finally:
+            bar.close()
+        return out
+
+
+def _run_job(fn, args):
+    """One task on a worker (or here), one job at a time per process:
+    ``(True, value)`` or ``(False, one-line error)`` (the worker logs nothing)."""
+    from corona.apps.render import one_line_error
+    with _JOB_LOCK:
+        try:
+            return True, fn(*args)
+        except Exception as err:  # noqa: BLE001  (reported with the task's label)
+            return False, one_line_error(err)
+
+
+# ==========================================================================
+# rendering one point (runs on a worker)
+# ==========================================================================
+def _prepare_renderer(variant: str | None) -> str:
+    """Set Dr.Jit's thread count (on a worker), the variant, and register the plugin
+    in this process (once per variant)."""
+    if "threads" in _WORKER and not _WORKER.get("threads_set"):
+        from corona import _environment  # noqa: F401  (libLLVM before drjit)
+        import drjit as dr
+        dr.set_thread_count(_WORKER["threads"])
+        _WORKER["threads_set"] = True
+    key = variant or "<default>"
+    if _WORKER.get("variant_key") != key:
+        from corona.apps.render import setup_variant
+        _WORKER["variant"] = setup_variant(variant)
+        _WORKER["variant_key"] = key
+    else:
+        import mitsuba as mi
+        if mi.variant() != _WORKER["variant"]:   # someone switched it since
+            from corona.apps.render import setup_variant
+            setup_variant(_WORKER["variant"])
+    return _WORKER["variant"]
+
+
+def render_point(scene: str, defines: dict, spp: int | None, seed: int, variant: str | None,
+                 label: str = "render") -> dict:
+    """Load ``scene`` with ``defines`` and render it; the linear sRGB image and facts.
+
+    Runs on a worker: returns ``{"rgb", "seconds", "spp", "variant", "host",
+    "threads"}`` and writes nothing.
+    """
+    import drjit as dr
+
+    from corona.apps.render import load_scene, render_linear, scene_spp
+    if not os.path.isfile(scene):
+        raise CoronaError(f"scene file {scene!r} does not exist on worker {socket.gethostname()} "
+                          "(workers need the scene files at the same path, e.g. a shared folder)")
+    v = _prepare_renderer(variant)
+    loaded = load_scene(scene, defines)
+    spp = int(spp or scene_spp(loaded))
+    rgb, seconds = render_linear(loaded, spp, seed=seed, progress=False, desc=label)
+    del loaded
+    return {"rgb": rgb, "seconds": seconds, "spp": spp, "variant": v, "host": socket.gethostname(),
+            "threads": dr.thread_count()}
+
+
+@dataclasses.dataclass
+class RenderJob:
+    """One render: the scene file, its ``-D`` parameters, and how."""
+    scene: str
+    defines: dict
+    label: str
+    spp: int | None = None
+    seed: int = 0
+    variant: str | None = None
+
+    def args(self) -> tuple:
+        return (os.path.abspath(self.scene), dict(self.defines), self.spp, self.seed, self.variant,
+                self.label)
+
+
+def render_jobs(jobs, executor: Executor, *, desc: str = "render", progress: bool = True,
+                on_result=None) -> list:
+    """Render every :class:`RenderJob` through ``executor``; a list of :class:`Outcome`
+    whose values are :func:`render_point`'s dicts."""
+    jobs = list(jobs)
+    return executor.map(render_point, [j.args() for j in jobs], [j.label for j in jobs], desc=desc,
+                        progress=progress, on_result=on_result)
+
+
+# ==========================================================================
+# contact sheet
+# ==========================================================================
+def label_font(size: int):
+    """DejaVu Sans (shipped with matplotlib: has µ, ×, °), else Pillow's default."""
+    from PIL import ImageFont
+    try:
+        from matplotlib import font_manager
+        return ImageFont.truetype(font_manager.findfont("DejaVu Sans"), size)
+    except Exception:  # noqa: BLE001
+        try:
+            return ImageFont.load_default(size=size)
+        except TypeError:  # Pillow < 10.1
+            return ImageFont.load_default()
+
+
+def contact_sheet(images, labels, columns: int | None = None, gap: int = 4, band: int = 26,
+                  font_size: int = 15):
+    """8-bit RGB images in a grid (``columns`` per row), each with its label under it.
+
+    Cells are as large as the largest image; a ``None`` image is a grey cell
+    (a failed point).  Returns a PIL image.
+    """
+    from PIL import Image, ImageDraw
+    images, labels = list(images), [str(t) for t in labels]
+    font = label_font(font_size)
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    text_w = max([probe.textlength(t, font=font) for t in labels] + [0])
+    shapes = [im.shape[:2] for im in images if im is not None] or [(64, 64)]
+    ch = max(s[0] for s in shapes)
+    cw = max(max(s[1] for s in shapes), int(np.ceil(text_w)) + 8)
+    n = len(images)
+    cols = max(1, min(columns or int(np.ceil(np.sqrt(n))), n))
+    rows = int(np.ceil(n / cols))
+    canvas = Image.new("RGB", (cols * cw + gap * (cols - 1), rows * (ch + band) + gap * (rows - 1)),
+                       (255, 255, 255))
+    draw = ImageDraw.Draw(canvas)
+    for k, (im, label) in enumerate(zip(images, labels)):
+        x, y = (k % cols) * (cw + gap), (k // cols) * (ch + band + gap)
+        if im is None:
+            draw.rectangle([x, y, x + cw - 1, y + ch - 1], fill=(160, 160, 160))
+        else:
+            canvas.paste(Image.fromarray(np.ascontiguousarray(im[..., :3])), (x + (cw - im.shape[1]) // 2, y))
+        tw = draw.textlength(label, font=font)
+        draw.text((x + (cw - tw) / 2, y + ch + 4), label, fill=(0, 0, 0), font=font)
+    return canvas
+
+
+def _sheet_columns(grid: dict) -> int | None:
+    """One row per value of the other parameters: the last swept parameter runs along a row."""
+    swept = [len(v) for v in grid.values() if len(v) > 1]
+    if not swept:
+        return None
+    return swept[-1] if swept[-1] <= 8 else None
+
+
+# ==========================================================================
+# the sweep
+# ==========================================================================
+def _thumbnail(img8: np.ndarray, size: int = 256) -> np.ndarray:
+    h, w = img8.shape[:2]
+    if max(h, w) <= size:
+        return img8
+    from PIL import Image
+    s = size / max(h, w)
+    return np.asarray(Image.fromarray(img8).resize((max(1, round(w * s)), max(1, round(h * s))),
+                                                   Image.Resampling.LANCZOS))
+
+
+def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: int | None = None,
+              seed: int = 0, variant: str | None = None, exposure: float | None = None,
+              force: bool = False, progress: bool = True, log=None) -> dict:
+    """Render ``scene`` at every point of ``grid`` into ``out_dir``; returns the index.
+
+    For each point ``NAME.exr`` (linear sRGB) and ``NAME.png`` (tonemapped
+    sRGB, ``exposure`` or the 99.5th luminance percentile to white), ``NAME``
+    from :func:`point_name`; then ``STEM_sheet.png`` (every point, labelled)
+    and ``STEM_index.json`` (every point: parameters, files, status
+    ``rendered`` / ``existing`` / ``failed`` with the error, seconds, spp,
+    variant, host).  Points whose EXR and PNG exist are skipped unless
+    ``force``.  All input is checked before any render starts.
+    """
+    from corona.color import tonemap_srgb
+    from corona.apps.render import write_images
+    log = log or (lambda s: None)
+    if not os.path.isfile(scene):
+        raise CoronaError(f"scene file {scene!r} does not exist")
+    if os.path.getsize(scene) == 0:
+        raise CoronaError(f"scene file {scene!r} is empty")
+    known = scene_parameters(scene)
+    for name in grid:
+        if name not in known:
+            raise CoronaError(f"-D {name}=...: {scene} has no parameter {name!r} (it takes "
+                              f"{', '.join(sorted(known)) or 'none'})")
+    points = sweep_points(grid)
+    stem = os.path.splitext(os.path.basename(scene))[0]
+    names = [point_name(stem, p) for p in points]
+    clash = [n for n, c in collections.Counter(names).items() if c > 1]
+    if clash:
+        raise CoronaError(f"two points would share the file name {clash[0]!r} (values that differ only "
+                          "in characters other than letters, digits, '.', '+', '-')")
+    check_out_dir(out_dir)
+    files = [{"exr": os.path.join(out_dir, n + ".exr"), "png": os.path.join(out_dir, n + ".png")}
+             for n in names]
+    entries = [{"name": n, "parameters": p, "exr": os.path.basename(f["exr"]),
+                "png": os.path.basename(f["png"]), "status": "existing"}
+               for n, p, f in zip(names, points, files)]
+    todo = [i for i, f in enumerate(files)
+            if force or not (os.path.isfile(f["exr"]) and os.path.isfile(f["png"]))]
+    if len(todo) < len(points):
+        log(f"corona: {len(points) - len(todo)} of {len(points)} point(s) already rendered in {out_dir} "
+            "(skipped; --force renders them again)")
+    thumbs = {}
+    t0 = time.perf_counter()
+
+    def store(o: Outcome):
+        i = todo[o.index]
+        e = entries[i]
+        if not o.ok:
+            e.update(status="failed", error=o.error)
+            return
+        r = o.value
+        try:
+            write_images(r["rgb"], out_dir, names[i], exposure)
+        except OSError as err:
+            e.update(status="failed", error=f"could not write {files[i]['exr']}: {err.strerror or err}")
+            return
+        thumbs[i] = _thumbnail(tonemap_srgb(r["rgb"], exposure))
+        e.update(status="rendered", seconds=round(r["seconds"], 3), spp=r["spp"], variant=r["variant"],
+                 host=r["host"], drjit_threads=r["threads"])
+
+    jobs = [RenderJob(scene, points[i], point_label(points[i]), spp, seed, variant) for i in todo]
+    render_jobs(jobs, executor, desc=f"sweep {stem}", progress=progress, on_result=store)
+    wall = time.perf_counter() - t0
+    # contact sheet: every point whose PNG exists (rendered now or before)
+    import imageio.v3 as iio
+    images = []
+    for i, e in enumerate(entries):
+        if e["status"] == "failed":
+            images.append(None)
+        elif i in thumbs:
+            images.append(thumbs[i])
+        else:
+            try:
+                images.append(_thumbnail(np.asarray(iio.imread(files[i]["png"]))[..., :3]))
+            except Exception:  # noqa: BLE001  (an unreadable old file: a grey cell)
+                images.append(None)
+    swept = [k for k, v in grid.items() if len(v) > 1] or list(grid)   # fixed ones: in the index
+    labels = [point_label({k: p[k] for k in swept}) + (" (failed)" if e["status"] == "failed" else "")
+              for p, e in zip(points, entries)]
+    sheet = os.path.join(out_dir, f"{stem}_sheet.png")
+    contact_sheet(images, labels, columns=_sheet_columns(grid)).save(sheet, optimize=True)
+    index = {
+        "scene": os.path.abspath(scene), "grid": grid, "spp": spp, "seed": seed, "variant": variant,
+        "exposure": exposure, "executor": executor.describe(),
+        "executor_startup_seconds": round(executor.startup_seconds, 3),
+        "wall_seconds": round(wall, 3),      # from the first job to the last (includes the start-up)
+        "contact_sheet": os.path.basename(sheet), "points": entries,
+    }
+    path = os.path.join(out_dir, f"{stem}_index.json")
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump(index, f, indent=1, ensure_ascii=False)
+    index["index"] = path
+    index["sheet"] = sheet
+    return index

@@ -1,0 +1,967 @@
+"""The ``corona`` BSDF plugin for Mitsuba 3 (Dr.Jit only inside eval/sample/pdf).
+
+A thin layer of scatterers (pores, droplets, grains) that transmits a
+coherent (delta) beam, a diffraction lobe ``F_a T_a T_s`` and optionally
+reflects diffusely from its opaque part (docs/physics.md#the-model).  Register it with
+:func:`corona.register` after ``mi.set_variant(...)``; then
+``<bsdf type="corona">`` and ``mi.load_dict({'type': 'corona', ...})`` work.
+
+Parameters (all optional; the one specification is :data:`corona.parameters.PARAMETERS`):
+
+{table}
+
+Components: 0 = coherent transmission (``DeltaTransmission``), 1 = diffraction
+lobe (``GlossyTransmission``), 2 = diffuse reflection (``DiffuseReflection``,
+weight 0 when ``albedo`` is 0).  Without a substrate the layer is two-sided
+and symmetric.
+
+With ``substrate=glass`` the layer sits on a thin non-absorbing pane (index
+``substrate_ior``, default 1.52) on its ``substrate_side`` face, and two
+components are added: 3 = the pane's specular reflection
+(``DeltaReflection``) and 4 = the lobe seen in reflection
+(``GlossyReflection``: light that crosses the layer once coherently and once
+scattered, with a reflection off the pane in between).  The pane reflects
+``R' = 2R/(1 + R)`` of what reaches it (``R`` the polarisation-averaged
+Fresnel reflectance of one face, the internal bounces summed, as Mitsuba's
+``thindielectric``) and transmits ``T' = 1 - R'`` undeviated.  With ``C`` the
+coherent weight, ``f`` the lobe, ``ρ`` the opaque part's reflectance, ``P = R' - R`` the
+round trips through the glass (the face under the layer returns its ``R`` through the layer
+once, ``docs/physics.md#the-front-face``):
+
+=====================  =================================  =========================
+component              light meets the layer first        light meets the glass first
+=====================  =================================  =========================
+coherent transmission  ``C T'(θi)``                       ``T'(θi) C``
+lobe                   ``f T'(θo)``                       ``T'(θi) f``
+diffuse reflection     ``ρ/π``                            ``T'(θi) ρ/π T'(θo)``
+specular reflection    ``C R(θi) + C² P(θi)``             ``R'(θi)``
+lobe in reflection     ``f [R_min + C (P_i + P_o)]``      0
+=====================  =================================  =========================
+
+With ``substrate=mirror`` the pane is silvered behind (``mirror_reflectance``, default 0.97,
+or a spectrum: a metal's name, ``'nm:value, ...'`` or a ``<spectrum>``, taken per wavelength):
+it reflects ``R' = R + T² R_m / (1 - R R_m)``, transmits nothing, and its back is black.
+With a ``substrate_thickness`` [µm] (a mirror's default 4000) the two single-scattering
+paths of the lobe in reflection interfere: ``f [R_min + C (P_i + P_o + 2 V Q)]``, Quetelet
+rings (``docs/physics.md#the-coherent-double-pass-quetelet-rings``); RGB and mono variants
+average the fringes over each response wavelength's bin (:func:`corona.model.substrate.channel_envelopes`).
+
+Paths that meet the layer a second time after a reflection off the pane are
+dropped unless they are one of the above (the scattered-twice paths, and
+light the pane returns onto the layer's opaque part), so the layer on glass
+reflects plus transmits at most what the layer alone would: the white
+furnace stays <= 1.  ``docs/physics.md#the-layer-on-glass-substrateglass`` lists the approximations.
+
+Textures: ``area_fraction``, ``radius`` and ``albedo`` take a float or any
+Mitsuba texture, evaluated at the shading point.  ``mi.traverse`` exposes
+``area_fraction.value``, ``radius.value`` and ``albedo.value`` of a uniform
+layer (a texture: its own keys), all differentiable; ``params.update()``
+re-renders without recompiling.  ``radius`` scales the whole layer (the
+scatterer, the exclusion diameter, edge width and jitter together, σ/R
+fixed: lengths given in µm belong to the largest radius at load), so the
+dimensionless table is unchanged and the lobe stays exact; for a mixture a
+``radius`` texture is the radius of its largest component, every size scaling
+with it.  The lobe is tabulated in rows of ``F_a`` (the texture's range; a
+uniform value ± 0.1) close enough that interpolating linearly between two rows
+changes it by at most 0.1 % (:meth:`corona.Material.area_fraction_rows`;
+anisotropic lobes: rows of the radial ``S - 1``,
+:func:`corona.tables.lobe.structure_rows`), evaluated as the cubic Hermite
+interpolation between the two rows (slopes from the rows:
+:func:`corona.tables.lobe.row_slopes`; so ``∂/∂F_a`` is continuous) and sampled
+as the mixture of the two rows with the linear weights, which is also the pdf.
+A uniform ``F_a`` is evaluated on one row at the value itself instead (that
+Hermite interpolation and its slope in ``F_a``, re-centred by each
+``params.update()``; a radial lobe is sampled exactly from that row, so
+``pdf ∝ eval``; an anisotropic one from its table at the loaded value): one
+row's cost, and derivatives in ``F_a`` through the slope.
+``lattice-*`` and ``points`` (whose geometry F_a sets) take no F_a texture;
+``mask`` and ``points`` (absolute sizes) no radius texture.
+
+Spectral variants evaluate each of the lane's wavelengths.  Sampling picks
+one of the lane's wavelengths at random (each with probability 1/n, reusing
+the component-selection random number), draws ``d`` for it, and returns the
+pdf averaged over all the lane's wavelengths (a one-sample balance-heuristic
+mixture, hence unbiased).  RGB and mono variants evaluate each channel as the lobe averaged
+over that channel's spectral response (CIE 1931 → linear sRGB, negative lobes
+clipped; luminance ȳ for mono), using ``N_RESPONSE`` wavelengths per channel.
+
+Wavelengths are clamped to [360, 830] nm (the range the tables cover); a zero
+wavelength (as in a zero-initialised interaction) is clamped too, so no NaN.
+The lobe outside the propagating disk is evanescent and dropped, so the
+layer never transmits plus reflects more than it receives.
+"""
+from __future__ import annotations
+
+import functools
+import warnings
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from corona._validation import CoronaError, CoronaWarning
+from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_curves, channel_response,
+                             fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
+                             invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
+                             pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
+                             read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
+                             wavelength_mixture)
+from corona.parameters import SPEC, material_from_parameters, parse_mixture, rst_table
+from corona.tables.lobe import row_slopes
+from corona.model.substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
+
+#: Wavelengths [nm] of the plugin's table of a silvering spectrum (1 nm apart).
+SILVER_GRID = np.arange(360.0, 831.0, 1.0)
+
+__doc__ = __doc__.replace("{table}", rst_table())
+
+#: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
+FA_WINDOW = 0.1
+__all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
+
+
+@functools.lru_cache(maxsize=2)
+def _channel_envelopes(mono: bool):
+    """The double pass's fringe tables of the active variant's channels (built once per kind)."""
+    return channel_envelopes(*channel_curves(), N_RESPONSE)
+
+
+def _pack_rows(rows, slopes=None):
+    """Radial rows ``(n_rows, n)`` and their slopes in F_a as one float32 array of packets, bin by bin:
+    ``(v(i), v(i + 1), ∂v(i), ∂v(i + 1))`` for ``i < n - 1`` (slopes 0 without ``slopes``), so that one
+    packet gather (:func:`corona.mitsuba.common.gather4`) reads what linear interpolation in ``|u|``
+    and the Hermite in F_a need of a row."""
+    rows = np.asarray(rows, dtype=np.float64)
+    slopes = np.zeros_like(rows) if slopes is None else np.asarray(slopes, dtype=np.float64)
+    packed = np.stack([rows[:, :-1], rows[:, 1:], slopes[:, :-1], slopes[:, 1:]], axis=-1)
+    return _array(mi.Float, packed.ravel())
+
+
+def _hermite(x, rows, at):
+    """Cubic Hermite interpolation of ``rows`` (n, ...) over ``x`` (n,) at ``at``, with the slopes of
+    :func:`corona.tables.lobe.row_slopes`: (value, derivative in x), float64."""
+    j = int(np.clip(np.searchsorted(x, at, side="right") - 1, 0, x.size - 2))
+    h = x[j + 1] - x[j]
+    t = (at - x[j]) / h
+    m = row_slopes(x, rows)
+    a, b, ma, mb = rows[j], rows[j + 1], m[j], m[j + 1]
+    t2, t3 = t * t, t * t * t
+    v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * h * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * h * mb
+    dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * h * ma + (6 * t - 6 * t2) * b
+          + (3 * t2 - 2 * t) * h * mb) / h
+    return v, dv
+
+
+class CoronaBSDFMixin:
+    """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring).
+
+    The methods live in this plain class; :func:`bsdf_class` copies them into a
+    subclass of the active variant's ``mi.BSDF`` (each variant has its own
+    base class, and nanobind types take a single base).
+    """
+
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)  # the active variant's base class
+        params, textures = _read_props(props)
+        self.sampling = params.pop("sampling", SPEC["sampling"].default)
+        self.params = params
+        # textured parameters: a float is a uniform texture (traverse: "<name>.value")
+        for name in TEXTURED:
+            if name not in textures:
+                value = params.get(name, SPEC[name].default)
+                textures[name] = _uniform(SPEC[name].default if value is None else value)
+        self.fa_tex = textures["area_fraction"]
+        self.radius_tex = textures["radius"]
+        self.albedo_tex = textures["albedo"]
+        self._textured = {k for k in textures if textures[k].is_spatially_varying()}
+        # a mixture's radius texture is the radius of its largest component: every size scales with it
+        self.mixture_scaled = params.get("shape") == "mixture" and "radius" in self._textured
+        if self.mixture_scaled:
+            self.mixture_items = parse_mixture(params["mixture"])
+            self.mixture_largest = max(r for _, r, w in self.mixture_items if w > 0)
+        # sizes that do not follow `radius`: a mask's pixels, a point file's positions, a mixture's
+        # radii (unless the radius is a texture)
+        self.fixed_radius = ((params.get("shape") == "mask" or params.get("process") == "points"
+                              or params.get("shape") == "mixture") and not self.mixture_scaled)
+        if self.fixed_radius and "radius" in self._textured:
+            raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or "
+                              "process='points' (their sizes and positions are absolute); give a float")
+        ranges = self._ranges()
+        # absolute lengths (edge_width, exclusion_diameter, jitter) belong to the largest radius at
+        # load; `radius` scales the whole layer with them (σ/R fixed), so the table in u is unchanged
+        self.radius_ref = ranges[1][1]
+        self._setup(*ranges)
+
+        # --- the pane under the layer (docs/physics.md#the-layer-on-glass-substrateglass) ----------------------
+        pane = self.material.substrate
+        self.has_pane = pane is not None
+        if self.has_pane:
+            self.eta = float(pane.ior)
+            self.layer_on_front = pane.side == "front"
+            self._setup_double_pass(pane)
+
+        # --- wavelengths of RGB / mono channels -------------------------------
+        if not mi.is_spectral:
+            lam, w = channel_response()
+            self.channel_lambdas = lam           # (channels, N) nm
+            self.channel_weights = w
+
+        # --- components and flags ----------------------------------------------
+        sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+        comps = [mi.BSDFFlags.DeltaTransmission | sides,
+                 mi.BSDFFlags.GlossyTransmission | sides,
+                 mi.BSDFFlags.DiffuseReflection | sides]   # weight 0 where albedo = 0
+        if self.has_pane:
+            comps.append(mi.BSDFFlags.DeltaReflection | sides)   # 3: the pane's mirror image
+            comps.append(mi.BSDFFlags.GlossyReflection | sides)  # 4: the lobe seen in reflection
+        if not self.isotropic:
+            comps[1] = comps[1] | mi.BSDFFlags.Anisotropic
+            if self.has_pane:
+                comps[4] = comps[4] | mi.BSDFFlags.Anisotropic
+        if self._textured:
+            comps = [c | mi.BSDFFlags.SpatiallyVarying for c in comps]
+        self.m_components = comps
+        flags = mi.BSDFFlags.Empty
+        for c in comps:
+            flags = flags | c
+        self.m_flags = flags
+
+    # ------------------------------------------------------------------
+    # textures -> tables
+    # ------------------------------------------------------------------
+    def _ranges(self):
+        """Checked (lo, hi) of the area fraction, radius and albedo textures."""
+        out = []
+        for name, tex in (("area_fraction", self.fa_tex), ("radius", self.radius_tex),
+                          ("albedo", self.albedo_tex)):
+            lo, hi = texture_range(tex)
+            given = self.params.get(name)
+            if given is not None and not tex.is_spatially_varying() and np.float32(given) == np.float32(hi):
+                lo = hi = given                  # the float64 value given, not its float32 copy
+            spec = SPEC[name]
+            what = "texture" if tex.is_spatially_varying() else "value"
+            # a texture may reach F_a = 0 (clear glass) but nothing below
+            low_ok = (lo is None) or (lo > 0 if name == "radius" else lo >= 0)
+            if not low_ok or not np.isfinite(hi) or hi > spec.high or (name == "area_fraction" and hi >= 1):
+                raise CoronaError(f"corona BSDF: {name} {what} spans [{lo if lo is not None else '?'}, {hi:g}]; "
+                                  f"allowed {spec.allowed}" + (" (0 allowed in a texture)"
+                                                               if name == "area_fraction" else ""))
+            out.append((0.0 if lo is None else lo, hi))
+        return out
+
+    def _setup(self, fa_range, radius_range, albedo_range):
+        """Build the material at the largest radius and its area-fraction rows, as Dr.Jit arrays."""
+        fa_lo, fa_hi = fa_range
+        params = dict(self.params)
+        # tables in u = 2π L |d| / λ cover the largest radius (uniform: 25 % headroom, so that
+        # an optimiser can grow it without a rebuild); a smaller one scales L down
+        cover = radius_range[1] * (1.0 if "radius" in self._textured else 1.25)
+        if params.get("process") != "points":       # (a point file sets its own area fraction)
+            params["area_fraction"] = min(max(fa_hi, 1e-6), 1.0 - 1e-6)
+        params["albedo"] = albedo_range[1]
+        lengths = ("edge_width", "exclusion_diameter", "jitter")
+
+        def at(radius):      # the parameters with the layer scaled to `radius` (σ/R fixed)
+            if self.fixed_radius:
+                return params
+            scaled = {k: params[k] * radius / self.radius_ref for k in lengths if params.get(k) is not None}
+            if self.mixture_scaled:      # every component's radius, the largest one at `radius`
+                return {**params, **scaled, "mixture": self._mixture_at(radius)}
+            return {**params, "radius": radius, **scaled}
+        try:
+            # checked at the values given (their messages name those), built at the table's cover
+            material = material_from_parameters(**at(radius_range[1]))
+            if not self.fixed_radius and cover != radius_range[1]:
+                try:
+                    with warnings.catch_warnings():      # (the check above warned already)
+                        warnings.simplefilter("ignore", CoronaWarning)
+                        material = material_from_parameters(**at(cover))
+                except CoronaError:      # the headroom would pass the largest size: none
+                    cover = radius_range[1]
+            params = at(cover)
+        except CoronaError as err:
+            if "area_fraction" in str(err) and fa_hi > 0 and self.fa_tex.is_spatially_varying():
+                raise CoronaError(f"corona BSDF: the area_fraction texture reaches {fa_hi:g}: {err}") from None
+            raise
+        process = material.process
+        if not process.varying_area_fraction and (fa_lo != fa_hi or "area_fraction" in self._textured):
+            raise CoronaError(f"corona BSDF: area_fraction cannot be a texture with process="
+                              f"{self.params.get('process', SPEC['process'].default)!r} (the area fraction "
+                              "sets its geometry); use poisson, hard-disk or rsa")
+        self.material = material
+        self.isotropic = material.isotropic
+        self.radius_cover = (cover if self.mixture_scaled
+                             else float(params.get("radius", SPEC["radius"].default)))
+        self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
+        self.mode_aperture = material.mode == "aperture"
+        include = ()
+        if process.varying_area_fraction and not self.fa_tex.is_spatially_varying():
+            # a uniform value gets rows ± FA_WINDOW around it (exact at the value itself), so that an
+            # optimiser's steps need no rebuild (leaving the rows rebuilds them: parameters_changed)
+            include, fa_lo, fa_hi = (fa_hi,), fa_lo - FA_WINDOW, fa_hi + FA_WINDOW
+        fa_lo, fa_hi = max(fa_lo, 0.0), max(fa_hi, 0.0)
+        s_rows = None
+        if process.varying_area_fraction and material.isotropic:
+            # rows of the radial table over the texture's range
+            fas, tabs, self.row_error = material.area_fraction_rows(fa_lo, fa_hi, include=include)
+            totals = np.array([t.total for t in tabs])
+        elif process.varying_area_fraction and material.render_lobe.s_minus_one is not None:
+            # anisotropic lobes: F_a only moves S, so rows of the radial S - 1 (Hermite in F_a), and
+            # the energy of each row (the material's table's, changed by ∫ C ΔS)
+            from corona.tables.lobe import row_energy_changes, structure_rows
+            fas, s_rows, s_du, self.row_error = structure_rows(material, fa_lo, fa_hi, include=include)
+            totals = material.table.total + row_energy_changes(material, s_rows, s_du)
+            tabs = [material.table]
+        elif process.varying_area_fraction:
+            # S = 1 (poisson): the lobe does not change with F_a, one row over the whole range
+            limit = float(process.area_fraction_limit(material.shape))
+            fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
+            totals = np.array([material.table.total])
+            self.fa_cover = (min(fa_lo, limit), min(fa_hi, limit))
+        else:
+            fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
+            totals = np.array([material.table.total])
+        # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
+        # re-centred by parameters_changed), plus its slope in F_a (module docstring)
+        self.centred = (process.varying_area_fraction and len(fas) > 1
+                        and not self.fa_tex.is_spatially_varying())
+        if self.centred:
+            if material.isotropic:
+                self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
+            else:
+                from corona.mitsuba.kernels import LobeKernel
+                self.kernel = LobeKernel(material)
+                self._window = (fas, s_rows, np.asarray(totals, dtype=np.float64))
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
+            self.fa_rows_np = fas
+            self.n_rows = 1
+            self._centre(float(np.float32(material.area_fraction)))
+            self.tail = float(material._plane_integral - material.table.total)
+            return
+        self.fa_rows_np = fas
+        self.n_rows = len(fas)
+        self.fa_rows = _array(mi.Float, fas)
+        if self.n_rows > 1:
+            # a uniform grid over the rows, its cells (at most 4096) narrower than the closest two
+            # rows where possible: a cell's first row and `row_steps` (usually 1) comparisons find
+            # F_a's row (a bisection's dependent gathers cost a sixth of the sample + eval)
+            span = float(fas[-1] - fas[0])
+            cells = int(min(np.ceil(span / np.min(np.diff(fas))) + 1, 4096))
+            edges = fas[0] + span * np.arange(cells + 1) / cells
+            guide = np.clip(np.searchsorted(fas, edges, side="right") - 1, 0, self.n_rows - 2)
+            self.row_guide = _array(mi.UInt32, guide[:-1])
+            self.row_cells, self.row_cell_scale = cells, cells / span
+            self.row_steps = max(1, int(np.max(guide[1:] - guide[:-1])))   # rows inside one cell
+        # the rows' energies and their slopes in F_a (cubic Hermite between rows: the lobe and its
+        # derivative in F_a continuous, the derivative second-order accurate in the rows' spacing)
+        self.totals = _array(mi.Float, totals)
+        self.total_slopes = _array(mi.Float, row_slopes(fas, totals))
+        if self.isotropic:
+            self.du = float(tabs[0].du)
+            self.n = int(tabs[0].values.size)
+            rows = np.stack([t.values for t in tabs])
+            # ∂v/∂F_a of each row (Hermite in F_a between rows)
+            self.packed = _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None)
+            self._set_cdf([t.cdf for t in tabs])
+        else:
+            # the lobe as exact as the model (analytic form factors or cubic form-factor
+            # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
+            # table: corona.mitsuba.kernels
+            from corona.mitsuba.kernels import LobeKernel
+            self.kernel = LobeKernel(material)
+            if s_rows is not None and self.n_rows > 1:
+                self.kernel.set_structure_rows(s_rows, row_slopes(fas, s_rows))
+                if self.fa_tex.is_spatially_varying() and fas[0] < material.area_fraction:
+                    # sampled from the table at the lowest F_a (its S closest to 1), so that
+                    # eval / pdf ~ S(F_a) / S(lowest) stays bounded over the texture
+                    self._sample_table_at(at(cover), fas[0])
+        if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
+        # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
+        self.tail = float(material._plane_integral - material.table.total)
+
+    def _centre(self, fa):
+        """Put the uniform layer's one row at area fraction ``fa``: the cubic Hermite of the rows
+        around it, its slope in F_a, their energies, and the sampling CDF of that row."""
+        from corona.tables import RadialTable
+        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
+        if not self.isotropic:    # rows of S - 1 and of the energy
+            fas, s_rows, totals = self._window
+            s1, ds1 = _hermite(fas, s_rows, fa)
+            tot, dtot = _hermite(fas, totals[:, None], fa)
+            self.kernel.set_structure_centre(s1, ds1)
+            self.totals = _array(mi.Float, tot)
+            self.total_slopes = _array(mi.Float, dtot)
+            return
+        fas, rows, du = self._window
+        v, dv = _hermite(fas, rows, fa)
+        v = np.maximum(v, 0.0)
+        row = RadialTable(du, v)
+        # ∫ dv/dF_a d²u of the linear-in-u slope (RadialTable clamps its values at 0: not for a slope)
+        u0 = np.arange(dv.size - 1) * du
+        lo, step = dv[:-1], dv[1:] - dv[:-1]
+        slope_total = float(np.sum(2 * np.pi * du * (u0 * lo + (u0 * step + du * lo) / 2 + du * step / 3)))
+        self.du, self.n = du, int(v.size)
+        self.packed = _pack_rows(v[None], dv[None])
+        self.totals = _array(mi.Float, [row.total])
+        self.total_slopes = _array(mi.Float, [slope_total])
+        self._set_cdf([row.cdf])
+
+    def _mixture_at(self, radius):
+        """The ``mixture`` string with every radius scaled so that the largest is ``radius`` [µm]."""
+        k = radius / self.mixture_largest
+        return ", ".join(f"{kind}:{r * k!r}:{w!r}" for kind, r, w in self.mixture_items)
+
+    def _sample_table_at(self, params, fa):
+        """Sample the anisotropic lobe from the material's table at area fraction ``fa`` instead."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CoronaWarning)
+            low = material_from_parameters(**{**params, "area_fraction": max(float(fa), 1e-6)})
+        table = low.table
+        tb = self.kernel.near
+        if not (table.n == tb["n"] and abs(float(table.lo) - tb["lo"]) <= 1e-9 * abs(tb["lo"])
+                and float(table.warp) == self.kernel.warp):
+            return                                   # another grid: keep the material's own
+        self.kernel.near = dict(tb, total=float(table.total), values=self.kernel.corners(table.values))
+        self.kernel.set_sampling_table(table.values)
+
+    def _set_cdf(self, cdfs):
+        """Normalised float32 CDFs of the rows and their guide tables (:func:`corona.mitsuba.common.guided_cdfs`)."""
+        g = guided_cdfs(cdfs)
+        self.guide_size = g["G"]
+        self.search_steps = g["steps"]
+        self.n_bins = g["n_bins"]
+        self.cdf = _array(mi.Float, g["cdf"])
+        self.guide = _array(mi.UInt32, g["guide"])
+
+    # ------------------------------------------------------------------
+    # helpers (traced Dr.Jit code)
+    # ------------------------------------------------------------------
+    def _layer(self, si, active):
+        """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
+        and the energies of the coherent beam, the lobe and the reflection."""
+        fa = dr.clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
+        if self.n_rows == 1:
+            j, t = mi.UInt32(0), mi.Float(0.0)
+            total = _gather(mi.Float, self.totals, j, active)
+            total_next = total
+            hermite = None
+            energy = total
+            if self.centred:     # = total in value; its derivative in F_a is the row's slope's energy
+                energy = dr.fma(fa - self.fa_centre, _gather(mi.Float, self.total_slopes, j, active), total)
+        else:
+            # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
+            # first row, or the next one where that lies inside the cell below fa (float32
+            # rounding at a cell's edge may leave fa an ulp below fa_rows[j]: t ~ -1e-6, harmless)
+            cell = dr.clip(dr.floor((fa - self.fa_cover[0]) * self.row_cell_scale), 0, self.row_cells - 1)
+            j = _gather(mi.UInt32, self.row_guide, mi.UInt32(cell), active)
+            for _ in range(self.row_steps - 1):
+                up = (_gather(mi.Float, self.fa_rows, j + 1, active) <= fa) & (j < self.n_rows - 2)
+                j = dr.select(up, j + 1, j)
+            # the last step reads the three rows at once (no gather waits for another)
+            f0 = _gather(mi.Float, self.fa_rows, j, active)
+            f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
+            f2 = _gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
+            up = (f1 <= fa) & (j < self.n_rows - 2)
+            j = dr.select(up, j + 1, j)
+            f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
+            # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
+            # the derivative at a row is the next interval's slope, not zero
+            h = dr.maximum(f1 - f0, 1e-12)
+            t = (fa - f0) / h
+            total = _gather(mi.Float, self.totals, j, active)
+            total_next = _gather(mi.Float, self.totals, j + 1, active)
+            # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
+            t2 = dr.square(t)
+            t3 = t2 * t
+            hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
+            energy = (hermite[0] * total + hermite[2] * total_next
+                      + hermite[1] * _gather(mi.Float, self.total_slopes, j, active)
+                      + hermite[3] * _gather(mi.Float, self.total_slopes, j + 1, active))
+        held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
+        plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
+        coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
+        budget = dr.maximum(1.0 - coherent, 0.0)
+        # lobe weight F_a, lowered where coherent + lobe would exceed 1 (Poisson, see Material.lobe_weight)
+        scale = dr.select(plane > budget, budget / dr.maximum(plane, 1e-30), 1.0)
+        weight = fa * scale
+        lobe = held * scale                  # the energy the tables hold: chooses the component
+        opaque = (1.0 - fa) if self.mode_aperture else fa
+        albedo = dr.clip(self.albedo_tex.eval_1(si, active), 0.0, 1.0)
+        reflect = dr.minimum(albedo * opaque, dr.maximum(1.0 - coherent - plane * scale, 0.0))
+        if self.fixed_radius:
+            L = mi.Float(self.L_per_radius * self.radius_cover)
+        else:
+            L = self.radius_tex.eval_1(si, active) * self.L_per_radius
+        return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
+                    coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite, energy=energy,
+                    plane=plane)
+
+    def _radial_rows(self, ux, uy, row, active, t_fa=None, hermite=None):
+        """v(u) of radial row ``row`` (linear in |u|): (v_row, None, None).  With ``t_fa`` (the
+        layer's position between rows) and ``hermite`` (its Hermite weights) also row ``row + 1`` and
+        the cubic Hermite between them: (v_row, v_row+1, v(F_a)); a centred layer's one row takes
+        ``t_fa = F_a - its F_a`` and adds that times the row's slope: (v(F_a), None, None)."""
+        x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
+        t = x - mi.Float(i)
+        inside = active & (x <= self.n - 1)
+        k = row * (self.n - 1) + i       # the packet of bin i: v(i), v(i + 1), ∂v(i), ∂v(i + 1)
+        q = gather4(self.packed, k, inside)
+        v0 = dr.lerp(q.x, q.y, t)
+        if t_fa is None:
+            return dr.select(inside, dr.maximum(v0, 0.0), 0.0), None, None
+        if self.centred:         # t_fa = F_a - the row's F_a: 0 in value, the slope for derivatives
+            return dr.select(inside, dr.maximum(dr.fma(t_fa, dr.lerp(q.z, q.w, t), v0), 0.0), 0.0), None, None
+        q1 = gather4(self.packed, k + (self.n - 1), inside)
+        v1 = dr.lerp(q1.x, q1.y, t)
+        h00, h10, h01, h11 = hermite
+        v = h00 * v0 + h01 * v1 + h10 * dr.lerp(q.z, q.w, t) + h11 * dr.lerp(q1.z, q1.w, t)
+        return (dr.select(inside, dr.maximum(v0, 0.0), 0.0), dr.select(inside, dr.maximum(v1, 0.0), 0.0),
+                dr.select(inside, dr.maximum(v, 0.0), 0.0))
+
+    def _sample_u(self, s, row, fa, active):
+        """Invert the CDF of table row ``row``: s (Vector2f) -> u (Vector2f).
+
+        (2D tables: Mitsuba's distribution samples the F_a-interpolated mixture itself.)"""
+        if not self.isotropic:
+            return self.kernel.sample(s, active)
+        target = s.x
+        idx, c0, c1 = guided_search(self.cdf, self.guide, self.guide_size, self.n_bins,
+                                    self.search_steps, row, target, active)
+        # radial: density 2π u v_lin(u) in the bin; its CDF a cubic, solved by safeguarded Newton
+        du = self.du
+        u0 = mi.Float(idx) * du
+        q = gather4(self.packed, row * (self.n - 1) + idx, active)    # (bins of the CDF = of the rows)
+        a = q.x
+        b = q.y - a
+        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, self.totals, row, active))
+        r = u0 + t * du
+        sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
+        return mi.Vector2f(r * cos_phi, r * sin_phi)
+
+    def _lobe_and_pdf(self, layer, wi, wo, wavelengths, active, modulation=None):
+        """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths;
+        with ``modulation(q, λ)`` also the lobe with each wavelength's value times that factor."""
+        dx = wo.x + wi.x
+        dy = wo.y + wi.y
+        lams, mix = self._wavelength_mixture(wavelengths)
+        j, t, L = layer["j"], layer["t"], layer["L"]
+        interpolate = self.n_rows > 1
+        values = []
+        pdf = mi.Float(0.0)
+        for lam_nm, m in zip(lams, mix):
+            lam = lambda_um(lam_nm)
+            k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
+            ux, uy = dx * k, dy * k
+            if self.isotropic:                         # each row is sampled exactly ∝ v
+                if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
+                    v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
+                    p_u = v / dr.maximum(layer["energy"], 1e-30)
+                else:
+                    v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
+                                                         layer["hermite"])
+                    p_u = v / dr.maximum(layer["total"], 1e-30)
+                if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
+                    p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
+                    v = v_mid
+            else:                                      # the exact density of the kernel's sampling table
+                srow = None if layer["hermite"] is None else (j, *layer["hermite"])
+                dfa = layer["fa"] - self.fa_centre if self.centred else None
+                v = self.kernel.value(ux, uy, active, srow, dfa)
+                p_u = self.kernel.pdf(ux, uy, active)
+            values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
+            # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
+            pdf += m * p_u * dr.square(k)
+        if modulation is None:
+            return self._fold(values), pdf
+        return self._fold(values), pdf, self._fold([v * modulation(q, lam_nm)
+                                                     for q, (v, lam_nm) in enumerate(zip(values, lams))])
+
+    def _fold(self, values):
+        """The Spectrum of per-wavelength values: spectral as is, RGB/mono each channel's mean."""
+        return fold_spectrum(values, getattr(self, "channel_lambdas", None), getattr(self, "channel_weights", None))
+
+    def _wavelength_mixture(self, wavelengths):
+        """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
+        return wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
+
+    def _pane_reflectance(self, cos_theta, lam_nm=None):
+        """``R'``: the thin pane's reflectance at ``|cos θ|`` (:func:`corona.mitsuba.common.pane_reflectance`);
+        a mirror's ``R + T² R_m / (1 - R R_m)``, ``R_m`` at ``lam_nm`` when given (else at 550 nm)."""
+        if self.is_mirror:
+            r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
+            rm = self.silver if lam_nm is None or not self.silver_varies else self._silver_at(lam_nm)
+            return r + dr.square(1.0 - r) * rm / (1.0 - r * rm)
+        return pane_reflectance(cos_theta, self.eta)
+
+    def _silver_at(self, lam_nm):
+        """``R_m(λ)`` of a silvering spectrum, linear between its 1 nm table entries (clamped)."""
+        x = dr.clip(mi.Float(lam_nm) - SILVER_GRID[0], 0.0, float(SILVER_GRID.size - 1))
+        i = mi.UInt32(dr.minimum(dr.floor(x), float(SILVER_GRID.size - 2)))
+        t = x - mi.Float(i)
+        return dr.lerp(_gather(mi.Float, self.silver_table, i), _gather(mi.Float, self.silver_table, i + 1), t)
+
+    def _face_reflectance(self, cos_theta):
+        """``R``: the Fresnel reflectance of the face the layer lies on, at ``|cos θ|``."""
+        return mi.fresnel(dr.abs(cos_theta), self.eta)[0]
+
+    def _pane_transmittance(self, cos_theta):
+        """``T' = 1 - R'`` of the pane at ``|cos θ|``; 0 for a mirror."""
+        if self.is_mirror:
+            return 0.0 * cos_theta
+        return 1.0 - self._pane_reflectance(cos_theta)
+
+    # --- the coherent double pass (docs/physics.md#the-coherent-double-pass-quetelet-rings) -----
+    def _setup_double_pass(self, pane):
+        """Constants of the pane's thickness, silvering and (RGB) the wavenumber bins."""
+        self.is_mirror = isinstance(pane, Mirror)
+        self.silver = float(pane.silver(550.0)) if self.is_mirror else 0.0
+        self.silver_varies = self.is_mirror and pane.spectral
+        if self.silver_varies:   # R_m(λ) per evaluated wavelength
+            self.silver_table = _array(mi.Float, pane.silver(SILVER_GRID))
+        self.coherent_pane = pane.coherent
+        if not self.coherent_pane:
+            return
+        self.thickness = float(pane.thickness)
+        if not mi.is_spectral:   # each response wavelength stands for its quantile bin: its fringe table
+            sigma, env = _channel_envelopes(bool(mi.is_monochromatic))
+            self.bin_sigma = sigma.ravel()
+            env = env.reshape(-1, env.shape[-1])
+            self.env_n = env.shape[-1]
+            self.env_re = _array(mi.Float, env.real.ravel())
+            self.env_im = _array(mi.Float, env.imag.ravel())
+
+    def _envelope_index(self, delta, active):
+        """Where ``Δ`` falls in the fringe tables (shared by every bin): (entry, weight, inside)."""
+        x = delta * (1.0 / DELTA_STEP)
+        inside = active & (x < self.env_n - 1)
+        i = mi.UInt32(dr.clip(dr.floor(x), 0, self.env_n - 2))
+        return i, x - mi.Float(i), inside
+
+    def _bin_average_cos(self, q, index, sin_cos):
+        """``G_q(Δ) = Re[e^{2πiΔσ_q} E_q(Δ)]``, the envelope linear between table entries, 0 beyond;
+        ``index`` from :meth:`_envelope_index`, ``sin_cos`` = sincos(2π σ_q Δ)."""
+        i, t, inside = index
+        k = i + q * self.env_n
+        re = dr.lerp(_gather(mi.Float, self.env_re, k, inside), _gather(mi.Float, self.env_re, k + 1, inside), t)
+        im = dr.lerp(_gather(mi.Float, self.env_im, k, inside), _gather(mi.Float, self.env_im, k + 1, inside), t)
+        s, c = sin_cos
+        return dr.select(inside, c * re - s * im, 0.0)
+
+    def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o, active=True):
+        """Per evaluated wavelength, the factor ``min(R_i, R_o) + C (P_i + P_o + 2 V Q)`` on ``f`` (a callable
+        ``(q, λ [nm]) -> Float`` for :meth:`_lobe_and_pdf`), ``Q`` the interference of the round
+        trips: exact per wavelength (spectral), averaged over each response bin (RGB/mono)."""
+        n = self.eta
+        ri = self._face_reflectance(cos_i)
+        ro = self._face_reflectance(cos_o)
+        c2 = layer["coherent"]
+        base = dr.minimum(ri, ro) + c2 * (self._pane_reflectance(cos_i) - ri + self._pane_reflectance(cos_o) - ro)
+        s2i = dr.fma(wi.x, wi.x, wi.y * wi.y)
+        s2o = dr.fma(wo.x, wo.x, wo.y * wo.y)
+        cri = dr.safe_sqrt(1.0 - s2i / (n * n))
+        cro = dr.safe_sqrt(1.0 - s2o / (n * n))
+        delta = (2.0 * self.thickness / n) * (s2o - s2i) / (cri + cro)        # 2 n t (cos r_s - cos r_o), µm
+        rb = self.silver if self.is_mirror else dr.sqrt(ri * ro)
+        a = (1.0 - ri) * (1.0 - ro) * rb
+        x = rb * dr.sqrt(ri * ro)
+        front = dr.minimum(ri, ro)
+        lobe = layer["plane"] * layer["weight"] / dr.maximum(layer["fa"], 1e-30)
+        cd = c2 * lobe                         # the visibility cap (substrate.double_pass_visibility)
+        slack = 1.0 - layer["reflect"]
+        inv = 1.0 / dr.maximum(cd, 1e-30)
+        e = (slack - c2 * c2 - lobe - cd) * inv
+        vis = dr.minimum(dr.minimum((slack - c2 * c2 - 2.0 * cd) * 0.5 * inv, (slack - c2 - cd) * inv), e)
+        vis = dr.maximum(vis, dr.safe_sqrt(e * (1.0 - c2) / dr.maximum(c2, 1e-30)))
+        vis = dr.select(cd > 0, dr.clip(vis, 0.0, 1.0), 1.0)
+        if not mi.is_spectral:   # the table position of each order's k |Δ|, the same for every bin
+            index = [self._envelope_index(k * dr.abs(delta), active) for k in range(1, RGB_ORDERS + 1)]
+
+        def factor(q, lam_nm):
+            b, aq, xq = base, a, x
+            if self.silver_varies:   # the silvering's R_m at this wavelength
+                rm = self._silver_at(lam_nm)
+                b = front + c2 * (self._pane_reflectance(cos_i, lam_nm) - ri + self._pane_reflectance(cos_o, lam_nm) - ro)
+                aq, xq = (1.0 - ri) * (1.0 - ro) * rm, rm * dr.sqrt(ri * ro)
+            if mi.is_spectral:
+                c = dr.cos(2.0 * dr.pi * delta / lambda_um(lam_nm))
+                qv = aq * (c - xq) / (1.0 - 2.0 * xq * c + xq * xq)
+            else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
+                qv = mi.Float(0.0)
+                xk = mi.Float(1.0)
+                s1, c1 = dr.sincos(2.0 * dr.pi * float(self.bin_sigma[q]) * dr.abs(delta))
+                sk, ck = s1, c1
+                for k in range(1, RGB_ORDERS + 1):   # e^{ikφ} by recurrence: one sincos a bin
+                    qv += xk * self._bin_average_cos(q, index[k - 1], (sk, ck))
+                    sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
+                    xk = xk * xq
+                qv = aq * qv
+            return b + 2.0 * c2 * vis * qv
+        return factor
+
+    def _layer_first(self, cos_i):
+        """True where light from ``wi`` meets the layer before the pane."""
+        return layer_first(cos_i, self.layer_on_front)
+
+    def _delta_weights(self, layer, cos_i, wavelengths=None):
+        """Weights of the coherent transmission and of the specular reflection (pane only); with
+        ``wavelengths`` and a silvering spectrum, the specular weight per wavelength (a Spectrum)."""
+        def weights(lam_nm=None):
+            r_i = self._pane_reflectance(cos_i, lam_nm)
+            return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
+                                      t_i=self._pane_transmittance(cos_i),
+                                      behind=0.0 if self.is_mirror else r_i,     # a mirror's back is black
+                                      front=self._face_reflectance(cos_i))
+        w_coh, w_spec = weights()
+        if wavelengths is not None and self.silver_varies:
+            lams, _ = self._wavelength_mixture(wavelengths)
+            w_spec = self._fold([weights(lam)[1] for lam in lams])
+        return w_coh, w_spec
+
+    def _reflected_lobe_energy(self, coherent, cos_i):
+        """The reflected lobe's energy over ``D`` at ``θi``, the two angles taken equal:
+        ``R + 2 C P`` (its selection weight)."""
+        r = self._face_reflectance(cos_i)
+        return r + 2.0 * coherent * (self._pane_reflectance(cos_i) - r)
+
+    def _selection(self, ctx, layer, cos_i=None):
+        """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
+        honouring the context: each component's energy, roughly for the lobes."""
+        flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
+                 mi.BSDFFlags.DiffuseReflection)
+        if not self.has_pane:
+            energies = (layer["coherent"], layer["lobe"], layer["reflect"])
+        else:
+            flags += (mi.BSDFFlags.DeltaReflection, mi.BSDFFlags.GlossyReflection)
+            first = self._layer_first(cos_i)
+            t_i = self._pane_transmittance(cos_i)
+            w_coh, w_spec = self._delta_weights(layer, cos_i)
+            energies = (w_coh, layer["lobe"] * t_i,
+                        dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
+                        dr.select(first, layer["lobe"] * self._reflected_lobe_energy(layer["coherent"], cos_i),
+                                  0.0))
+        return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
+
+    # ------------------------------------------------------------------
+    # BSDF interface
+    # ------------------------------------------------------------------
+    def _eval_pdf(self, ctx, si, wo, active, layer=None):
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        cos_o = mi.Frame3f.cos_theta(wo)
+        # the delta components' own directions (d = (wo + wi).xy = 0: the coherent beam, the pane's
+        # mirror image), where the smooth ones are a set of measure zero: 0 there, so that an
+        # integrator re-evaluating `eval` along a sampled delta path (Mitsuba's prb) does not
+        # differentiate the lobe or the diffuse value as if they carried that path.  1e-6 is 4x
+        # the float32 round trip of -wi through a shading frame.
+        off_delta = dr.fma(wo.x + wi.x, wo.x + wi.x, dr.square(wo.y + wi.y)) >= 1e-12
+        transmit = active & (cos_i * cos_o < 0) & off_delta
+        reflect = active & (cos_i * cos_o > 0) & off_delta
+        if layer is None:
+            layer = self._layer(si, active)
+        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
+        lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
+        refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
+
+        lobe_sides = (transmit | reflect) if self.has_pane else transmit   # the pane: the lobe in reflection
+        coherent = self.has_pane and self.coherent_pane
+        modulation = self._double_pass_modulation(layer, wi, wo, cos_i, cos_o, reflect) if coherent else None
+        f, pdf_d, *f_mod = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, lobe_sides, modulation)
+        abs_cos_o = dr.abs(cos_o)
+        lobe = f * abs_cos_o                                              # eval = f |cos θo|
+        diffuse = layer["reflect"] * dr.inv_pi * abs_cos_o
+        if self.has_pane:   # Fresnel factors of the pane (module docstring's table)
+            first = self._layer_first(cos_i)
+            r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
+            t_i, t_o = self._pane_transmittance(cos_i), self._pane_transmittance(cos_o)
+            f_through, f_reflected, f_diffuse = pane_smooth_factors(
+                layer["coherent"], r_i, r_o, first, t_i=t_i, t_o=t_o,
+                front_i=self._face_reflectance(cos_i), front_o=self._face_reflectance(cos_o))
+            if coherent:   # the double pass: f [R_min + C (P_i + P_o + 2 V Q)] (f_reflected modulated)
+                lobe_reflected = dr.select(first, f_mod[0] * abs_cos_o, 0.0)
+            else:
+                lobe_reflected = lobe * f_reflected
+            lobe = lobe * f_through
+            diffuse = diffuse * f_diffuse
+        value = dr.select(transmit & lobe_on, lobe, 0.0)
+        if self.sampling == "cosine":
+            pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
+        pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
+        value += dr.select(reflect & refl_on, diffuse, 0.0)
+        pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
+        if self.has_pane:
+            rlobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
+            value += dr.select(reflect & rlobe_on, lobe_reflected, 0.0)
+            pdf += dr.select(reflect, p_pane[1] * pdf_d * abs_cos_o, 0.0)
+        return value, pdf
+
+    def eval(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)[0]
+
+    def pdf(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)[1]
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, active)
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        active = mi.Bool(active) & (cos_i != 0)
+        layer = self._layer(si, active)
+        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
+        pick_coh = active & (sample1 < p_coh)
+        pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
+        if self.has_pane:   # after the reflection: 3 specular, 4 the lobe in reflection
+            p_spec, p_rlobe = p_pane
+            c3 = p_coh + p_lobe + p_refl
+            c4 = c3 + p_spec
+            pick_rlobe = active & (sample1 >= c4) & (p_rlobe > 0)
+            pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_rlobe <= 0)) & (p_spec > 0)
+            pick_refl = (active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
+                         & ((sample1 < c3) | ((p_spec <= 0) & (p_rlobe <= 0))))
+        else:
+            pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
+
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.eta = 1.0
+
+        # reflection: cosine-weighted on the side of wi
+        wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
+        wo_refl = mi.Vector3f(wo_cos.x, wo_cos.y, dr.mulsign(wo_cos.z, cos_i))
+
+        if self.sampling == "cosine":   # lobe: the same warp, mirrored to the far side
+            wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
+            lobe_valid = pick_lobe & (wo_cos.z > 0)
+            if self.has_pane:           # the lobe in reflection: the warp itself
+                wo_rlobe = wo_refl
+                rlobe_valid = pick_rlobe & (wo_cos.z > 0)
+        else:
+            # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
+            # sample1's position inside the lobe's share picks the wavelength (equal weights)
+            # and what is left of it the row (j with probability 1 - t, j + 1 with t)
+            lams, _ = self._wavelength_mixture(si.wavelengths)
+            s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
+            pick_any_lobe = pick_lobe
+            if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
+                s = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s)
+                pick_any_lobe = pick_lobe | pick_rlobe
+            pick, hero, rest = pick_wavelength(s, lams)
+            lam = lambda_um(hero)
+            row = layer["j"]
+            if self.n_rows > 1 and self.isotropic:
+                row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
+            u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
+            d = u * (lam / (2.0 * dr.pi * layer["L"]))
+            ox = d.x - wi.x
+            oy = d.y - wi.y
+            r2 = dr.fma(ox, ox, oy * oy)
+            oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
+            wo_lobe = mi.Vector3f(ox, oy, oz)
+            lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
+            if self.has_pane:
+                wo_rlobe = mi.Vector3f(ox, oy, -oz)
+                rlobe_valid = pick_rlobe & (r2 < 1.0) & (oz != 0)
+
+        bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))
+        bs.sampled_component = dr.select(pick_coh, mi.UInt32(0),
+                                         dr.select(pick_lobe, mi.UInt32(1), mi.UInt32(2)))
+        bs.sampled_type = dr.select(
+            pick_coh, mi.UInt32(+mi.BSDFFlags.DeltaTransmission),
+            dr.select(pick_lobe, mi.UInt32(+mi.BSDFFlags.GlossyTransmission),
+                      mi.UInt32(+mi.BSDFFlags.DiffuseReflection)))
+
+        smooth = lobe_valid | pick_refl
+        pick_delta = pick_coh
+        if self.has_pane:
+            bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z),      # mirror of wi
+                              dr.select(pick_rlobe, wo_rlobe, bs.wo))
+            bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
+                                             dr.select(pick_rlobe, mi.UInt32(4), bs.sampled_component))
+            bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
+                                        dr.select(pick_rlobe, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                                  bs.sampled_type))
+            smooth = smooth | rlobe_valid
+            pick_delta = pick_coh | pick_spec
+
+        value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, layer)
+        bs.pdf = dr.select(pick_coh, p_coh, pdf)
+        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)          # no 0/0 (scalar variants too)
+        if self.has_pane:
+            w_coh, w_spec = self._delta_weights(layer, cos_i, si.wavelengths)
+            bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
+            weight = dr.select(pick_spec, w_spec / dr.maximum(p_spec, 1e-30), weight)
+        else:
+            w_coh = layer["coherent"]
+        weight = dr.select(pick_coh, w_coh / dr.maximum(p_coh, 1e-30), weight)
+        ok = pick_delta | (smooth & (bs.pdf > 0))
+        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
+
+    def traverse(self, callback):
+        # float parameters are uniform textures: keys "area_fraction.value", "radius.value",
+        # "albedo.value" (a texture exposes its own keys); all differentiable
+        flag = mi.ParamFlags.Differentiable
+        if self.material.process.varying_area_fraction:
+            callback.put("area_fraction", self.fa_tex, flag)
+        if not self.fixed_radius:
+            callback.put("radius", self.radius_tex, flag)
+        callback.put("albedo", self.albedo_tex, flag)
+
+    def parameters_changed(self, keys):
+        # new values: check them; rebuild the tables only when they leave what the tables cover
+        (fa_lo, fa_hi), radius, albedo = ranges = self._ranges()
+        outside = (fa_lo < self.fa_cover[0] - 1e-7 or fa_hi > self.fa_cover[1] + 1e-7
+                   or (not self.fixed_radius and radius[1] > self.radius_cover * (1 + 1e-6)))
+        if outside:
+            self._setup(*ranges)
+        elif self.centred:
+            self._centre(float(np.float32(fa_hi)))
+
+    def to_string(self):
+        # the material at the current (largest) values, not at the table's headroom
+        (_, fa), (_, radius), (_, albedo) = self._ranges()
+        now = {**self.params, "area_fraction": min(max(fa, 1e-6), 1 - 1e-6), "albedo": albedo}
+        if self.mixture_scaled:
+            now["mixture"] = self._mixture_at(radius)
+        elif not self.fixed_radius:
+            now["radius"] = radius
+        if not self.fixed_radius:
+            for name in ("edge_width", "exclusion_diameter", "jitter"):
+                if now.get(name) is not None:
+                    now[name] = now[name] * radius / self.radius_ref
+        textured = f", textured: {', '.join(sorted(self._textured))}" if self._textured else ""
+        return f"CoronaBSDF[{material_from_parameters(**now)!r}{textured}]"
+
+
+_REGISTERED: set[str] = set()
+
+
+def bsdf_class() -> type:
+    """The ``CoronaBSDF`` class of the active variant."""
+    return variant_class(CoronaBSDFMixin, "BSDF", "CoronaBSDF")
+
+
+def register() -> None:
+    """Register the ``corona`` BSDF for the active Mitsuba variant (idempotent).
+
+    Call after ``mi.set_variant(...)``.  Polarized variants are not supported.
+    """
+    variant = mi.variant()
+    if variant is None:
+        raise CoronaError("corona.register(): call mi.set_variant(...) first "
+                          "(e.g. corona.set_default_variant())")
+    if "polarized" in variant:
+        raise CoronaError(f"variant={variant!r} is not supported; use a spectral, rgb or mono variant")
+    if variant in _REGISTERED:
+        return
+    cls = bsdf_class()
+
+    def make(props):
+        # shape=sphere: the Mie layer's own code path (corona.mitsuba.sphere, docs/physics.md#transparent-droplets-mie-spheres)
+        if "shape" in props and str(props["shape"]) == "sphere":
+            from corona.mitsuba.sphere import sphere_bsdf_class
+            return sphere_bsdf_class()(props)
+        return cls(props)
+    mi.register_bsdf("corona", make)
+    _REGISTERED.add(variant)

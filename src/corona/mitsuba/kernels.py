@@ -1,0 +1,401 @@
+"""Dr.Jit kernels of the renderer's lobe for anisotropic materials.
+
+The plugin (:mod:`corona.mitsuba.bsdf`) evaluates, samples and gives the pdf
+of the lobe ``v(u)`` of :class:`corona.tables.lobe.RenderLobe` through
+:class:`LobeKernel` whenever the lobe is not radial.  Everything inside the
+methods is Dr.Jit (float32), traced once per variant; Python loops run over
+the (few) outlines and polygon edges only, never over lanes.
+
+* ``analytic``: ``Â`` of circles (Airy; ``J1`` by Abramowitz & Stegun 9.4.4
+  and 9.4.6, |error| < 4e-8), ellipses (Airy of the scaled wave vector),
+  rectangles (sinc × sinc) and polygons (edge sum; Taylor series of order
+  :data:`corona.tables.lobe.TAYLOR_ORDER` near q = 0), times the Gaussian of
+  a soft edge, combined as ``P = Σ w_i |Â_i|² / ⟨|A|⟩``, ``C = |Σ w_i Â_i|² /
+  ⟨|A|⟩``;
+* ``grid``: ``P`` (and ``C``) by a 4×4-tap cubic B-spline of the prefiltered
+  grid (mirror boundary, as :func:`scipy.ndimage.map_coordinates`);
+* both times ``1 + (S - 1)`` from the radial ``S - 1`` table (linear);
+* ``table``: the bilinear table (lattices).
+
+Sampling: the bilinear table of ``v`` (uniform in u, or in ``t = u / (1 + |u|/c)``
+for lobes reaching beyond it) sampled exactly, a cell by two guided searches, a
+corner of it and the product of two linear ramps (:meth:`LobeKernel._sample_cell`);
+the pdf is the exact density of that table (divided by the Jacobian ``d²u/d²t``).
+
+References
+----------
+M. Abramowitz, I. A. Stegun, *Handbook of Mathematical Functions* (1964),
+9.4.4 and 9.4.6 (polynomial approximations of J1).
+"""
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from corona.mitsuba.common import array as _array, gather as _gather, gather4, guided_cdfs, guided_search
+from corona.tables.lobe import TAYLOR_ORDER, TAYLOR_U
+
+# Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
+_J1_SMALL = (0.5, -0.56249985, 0.21093573, -0.03954289, 0.00443319, -0.00031761, 0.00001109)
+# 9.4.6: J1(x) = x^{-1/2} f1 cos θ1, x >= 3, in powers of 3/x
+_J1_F1 = (0.79788456, 0.00000156, 0.01659667, 0.00017105, -0.00249511, 0.00113653, -0.00020033)
+_J1_TH = (-2.35619449, 0.12499612, 0.00005650, -0.00637879, 0.00074348, 0.00079824, -0.00029166)
+
+
+def _poly(coeffs, x):
+    acc = mi.Float(coeffs[-1])
+    for c in coeffs[-2::-1]:
+        acc = dr.fma(acc, x, c)
+    return acc
+
+
+def airy(v):
+    """``2 J1(v)/v`` (limit 1 at v = 0), Abramowitz & Stegun 9.4.4 / 9.4.6."""
+    x = dr.abs(v)
+    small = 2.0 * _poly(_J1_SMALL, dr.square(x * (1.0 / 3.0)))
+    xb = dr.maximum(x, 3.0)
+    t = 3.0 / xb
+    f1 = _poly(_J1_F1, t)
+    th = xb + _poly(_J1_TH, t)
+    big = 2.0 * f1 * dr.cos(th) * dr.rsqrt(xb) / xb
+    return dr.select(x <= 3.0, small, big)
+
+
+def sinc(x):
+    """``sin(x)/x`` (limit 1 at 0)."""
+    tiny = dr.abs(x) < 1e-3
+    xs = dr.select(tiny, 1.0, x)
+    return dr.select(tiny, 1.0 - dr.square(x) * (1.0 / 6.0), dr.sin(xs) / xs)
+
+
+class LobeKernel:
+    """The renderer's lobe of a non-radial material in Dr.Jit (see the module docstring)."""
+
+    def __init__(self, material):
+        rl = material.render_lobe
+        self.kind = rl.kind
+        self.R = float(rl.R)
+        self.inv_area_R2 = 1.0 / (float(rl.area) * self.R**2)
+        # --- S - 1 (radial) ----------------------------------------------------
+        self.has_s = rl.kind in ("analytic", "grid") and rl.s_minus_one is not None
+        if self.has_s:
+            self.s_du = float(rl.s_du)
+            self.s_n = int(rl.s_minus_one.size)
+            self.s_values = _array(mi.Float, rl.s_minus_one)
+        # --- analytic outlines ----------------------------------------------------
+        self.terms = []
+        if rl.kind == "analytic":
+            for t in rl.terms:
+                p = dict(t.params)
+                if "angle" in p:
+                    p["cos"], p["sin"] = math.cos(p["angle"]), math.sin(p["angle"])
+                if t.kind == "polygon":
+                    v = np.asarray(p["vertices"], dtype=np.float64)
+                    w = np.roll(v, -1, axis=0)
+                    p["edges"] = (w - v).tolist()
+                    p["mids"] = (0.5 * (w + v)).tolist()
+                    p["v0"] = v.tolist()
+                    p["v1"] = w.tolist()
+                    p["cross"] = (v[:, 0] * w[:, 1] - v[:, 1] * w[:, 0]).tolist()
+                    p["circumradius"] = float(np.max(np.hypot(v[:, 0], v[:, 1])))
+                    # centrosymmetric (v_{k+n/2} = -v_k): Â is real, and edge k+n/2
+                    # doubles edge k's sine term (and cancels its cosine term)
+                    h = len(v) // 2
+                    p["centrosymmetric"] = bool(len(v) % 2 == 0 and np.allclose(
+                        v[h:], -v[:h], rtol=0.0, atol=1e-9 * p["circumradius"]))
+                    if p["centrosymmetric"]:
+                        for key in ("edges", "mids", "v0", "v1", "cross"):
+                            p[key] = p[key][:h]
+                self.terms.append((t.kind, p, float(t.weight), float(t.area), float(t.blur)))
+        # --- form-factor grids --------------------------------------------------------
+        if rl.kind == "grid":
+            self.g_n = int(rl.P.n)
+            self.g_lo = float(rl.P.lo)
+            self.g_cell = float(rl.P.cell)
+            # coefficients padded by their mirror images (1 before, 2 after each
+            # axis): the 4×4 taps of any point inside index the array directly
+            self.g_P = self._taps(self._padded(rl.P.coef))
+            self.g_C = None if rl.C is None else self._taps(self._padded(rl.C.coef))
+        # --- the sampling table (bilinear, in u or in the warped t) -----------------------
+        t = material.table
+        self.near = dict(n=int(t.n), lo=float(t.lo), cell=float(t.cell), span=float(t.cell * (t.n - 1)),
+                         total=float(t.total), values=self.corners(t.values))
+        self.warp = float(t.warp)
+        self.set_sampling_table(t.values)
+
+    def set_sampling_table(self, values):
+        """Sample the bilinear table ``values`` ``(n, n)`` (:meth:`sample`): the CDF of its rows of
+        cells and, in each row, of its cells (:func:`corona.mitsuba.common.guided_cdfs`), a cell's
+        weight the mean of its corners (its integral)."""
+        v = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
+        cells = 0.25 * (v[:-1, :-1] + v[:-1, 1:] + v[1:, :-1] + v[1:, 1:])        # (n - 1, n - 1)
+        zero = np.zeros((cells.shape[0], 1))
+        self.s_rows_g = guided_cdfs([np.concatenate([[0.0], np.cumsum(cells.sum(axis=1))])])
+        self.s_cols_g = guided_cdfs(list(np.concatenate([zero, np.cumsum(cells, axis=1)], axis=1)))
+        for g in (self.s_rows_g, self.s_cols_g):
+            g["cdf"], g["guide"] = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
+
+    @staticmethod
+    def corners(values):
+        """A bilinear table ``(n, n)`` as one packet per cell, ``(v[y, x], v[y, x + 1], v[y + 1, x],
+        v[y + 1, x + 1])`` for ``x, y < n - 1`` (row-major cells): one packet gather a lookup."""
+        v = np.asarray(values, dtype=np.float32)
+        return _array(mi.Float, np.stack([v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]], -1).ravel())
+
+    @staticmethod
+    def _taps(padded):
+        """A padded coefficient grid ``(m, m)`` as packets of four neighbours along x:
+        ``packet[y, x] = padded[y, x : x + 4]`` (``x < m - 3``), one packet gather a row of 4×4 taps."""
+        m = padded.shape[0]
+        return _array(mi.Float, np.stack([padded[:, a:m - 3 + a] for a in range(4)], -1).ravel())
+
+    @staticmethod
+    def _padded(coef):
+        n = coef.shape[0]
+        idx = np.arange(-1, n + 2)
+        idx = np.where(idx < 0, -idx, idx)
+        idx = np.where(idx > n - 1, 2 * (n - 1) - idx, idx)
+        return np.ascontiguousarray(coef[np.ix_(idx, idx)])
+
+    # ------------------------------------------------------------------
+    # pieces
+    # ------------------------------------------------------------------
+    @staticmethod
+    def _bilinear(tb, ux, uy, active):
+        n = tb["n"]
+        fx = (ux - tb["lo"]) / tb["cell"]
+        fy = (uy - tb["lo"]) / tb["cell"]
+        inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
+        x0 = dr.clip(dr.floor(fx), 0, n - 2)
+        y0 = dr.clip(dr.floor(fy), 0, n - 2)
+        tx = dr.clip(fx - x0, 0.0, 1.0)
+        ty = dr.clip(fy - y0, 0.0, 1.0)
+        q = gather4(tb["values"], mi.UInt32(y0) * (n - 1) + mi.UInt32(x0), inside)   # the cell's corners
+        v = dr.lerp(dr.lerp(q.x, q.y, tx), dr.lerp(q.z, q.w, tx), ty)
+        return dr.select(inside, dr.maximum(v, 0.0), 0.0)
+
+    def set_structure_rows(self, s_rows, s_slopes):
+        """Rows of ``S - 1`` over the area fraction (``(n_rows, s_n)``, :func:`corona.tables.lobe.structure_rows`)
+        and their slopes in ``F_a``: :meth:`value` then takes the row and Hermite weights of each lane."""
+        rows, slopes = np.asarray(s_rows, dtype=np.float64), np.asarray(s_slopes, dtype=np.float64)
+        # one packet per row and node i: S(i), S(i + 1), dS(i), dS(i + 1)
+        self.s_rows = _array(mi.Float, np.stack([rows[:, :-1], rows[:, 1:], slopes[:, :-1], slopes[:, 1:]],
+                                                -1).ravel())
+
+    def set_structure_centre(self, s1, ds1):
+        """One row of ``S - 1`` (``s_n``) at a layer's uniform F_a and its slope in F_a:
+        :meth:`value` then takes ``dfa`` (the lane's F_a minus that one: 0 in value)."""
+        s1, ds1 = np.asarray(s1, dtype=np.float64), np.asarray(ds1, dtype=np.float64)
+        # one packet per node i: S(i), dS(i), S(i + 1), dS(i + 1)
+        self.s_centre = _array(mi.Float, np.stack([s1[:-1], ds1[:-1], s1[1:], ds1[1:]], -1).ravel())
+
+    def _s_minus_one(self, ux, uy, active, srow=None, dfa=None):
+        """``S - 1`` at ``|u|``: linear in ``|u|``; with ``srow = (j, h00, h10, h01, h11)`` the cubic
+        Hermite in ``F_a`` between rows ``j`` and ``j + 1`` (``h10``, ``h11`` times the rows' spacing)."""
+        x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.s_du
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
+        t = x - mi.Float(i)
+        inside = active & (x <= self.s_n - 1)
+        if dfa is not None:
+            q = gather4(self.s_centre, i, inside)
+            return dr.select(inside, dr.fma(dfa, dr.lerp(q.y, q.w, t), dr.lerp(q.x, q.z, t)), 0.0)
+        if srow is None:
+            v0 = _gather(mi.Float, self.s_values, i, inside)
+            v1 = _gather(mi.Float, self.s_values, i + 1, inside)
+            return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
+        j, h00, h10, h01, h11 = srow
+        k = j * (self.s_n - 1) + i
+        q0 = gather4(self.s_rows, k, inside)
+        q1 = gather4(self.s_rows, k + (self.s_n - 1), inside)
+        v = (h00 * dr.lerp(q0.x, q0.y, t) + h01 * dr.lerp(q1.x, q1.y, t)
+             + h10 * dr.lerp(q0.z, q0.w, t) + h11 * dr.lerp(q1.z, q1.w, t))
+        return dr.select(inside, v, 0.0)
+
+    def _cubic(self, grids, ux, uy, active):
+        """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
+        and weights for all; mirror boundary by the padding); 0 outside."""
+        n = self.g_n
+        fx = (ux - self.g_lo) / self.g_cell
+        fy = (uy - self.g_lo) / self.g_cell
+        inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
+        ix = dr.clip(dr.floor(fx), 0, n - 1)
+        iy = dr.clip(dr.floor(fy), 0, n - 1)
+        tx = fx - ix
+        ty = fy - iy
+
+        def weights(t):
+            t2 = t * t
+            t3 = t2 * t
+            return ((1.0 - t) * (1.0 - t) * (1.0 - t) * (1.0 / 6.0),
+                    (4.0 - 6.0 * t2 + 3.0 * t3) * (1.0 / 6.0),
+                    (1.0 + 3.0 * t + 3.0 * t2 - 3.0 * t3) * (1.0 / 6.0),
+                    t3 * (1.0 / 6.0))
+
+        wx, wy = weights(tx), weights(ty)
+        m = n                                       # packets a row of the padded array (n + 3 wide)
+        base = mi.UInt32(iy) * m + mi.UInt32(ix)    # taps (-1 .. 2, -1) in the padded array
+        acc = [mi.Float(0.0) for _ in grids]
+        for b in range(4):
+            for g, coef in enumerate(grids):
+                q = gather4(coef, base + b * m, inside)      # the row's four taps in one packet
+                racc = dr.fma(wx[0], q.x, dr.fma(wx[1], q.y, dr.fma(wx[2], q.z, wx[3] * q.w)))
+                acc[g] = dr.fma(wy[b], racc, acc[g])
+        return [dr.select(inside, x, 0.0) for x in acc]
+
+    def _term_amplitude(self, term, qx, qy):
+        """(re, im) of ``Â`` of one outline at q [rad/µm] (im None when real)."""
+        kind, p, _, area, blur = term
+        if "cos" in p:
+            c, s = p["cos"], p["sin"]
+            qxr, qyr = c * qx + s * qy, -s * qx + c * qy
+        else:
+            qxr, qyr = qx, qy
+        im = None
+        if kind == "circle":
+            re = area * airy(dr.sqrt(dr.fma(qx, qx, qy * qy)) * p["radius"])
+        elif kind == "ellipse":
+            ax, by = p["a"] * qxr, p["b"] * qyr
+            re = area * airy(dr.sqrt(dr.fma(ax, ax, by * by)))
+        elif kind == "rect":
+            re = area * sinc(0.5 * p["width"] * qxr) * sinc(0.5 * p["height"] * qyr)
+        else:
+            re, im = self._polygon(p, qx, qy)
+        if blur > 0:
+            g = dr.exp(-0.5 * blur * blur * dr.fma(qx, qx, qy * qy))
+            re = re * g
+            im = None if im is None else im * g
+        return re, im
+
+    @staticmethod
+    def _polygon(p, qx, qy):
+        """``Â`` of a polygon: the edge sum ``(i/|q|²) Σ (q × e) sinc(q·e/2) e^{-i q·m}``
+        (Lee & Mittra 1983), and the Taylor series of the fan of triangles
+        ``Σ_n (-i)^n/(n+2)! 2|T| Σ_{i+j=n} α^i β^j`` near q = 0."""
+        qq = dr.fma(qx, qx, qy * qy)
+        small = qq * (p["circumradius"] ** 2) < TAYLOR_U**2
+        sym = p["centrosymmetric"]
+        sw = mi.Float(0.0)   # Σ w sin φ
+        cw = mi.Float(0.0)   # Σ w cos φ
+        for (ex, ey), (mx, my) in zip(p["edges"], p["mids"]):
+            w = (qx * ey - qy * ex) * sinc(0.5 * (qx * ex + qy * ey))
+            if sym:
+                sw = dr.fma(w, dr.sin(qx * mx + qy * my), sw)
+            else:
+                s, c = dr.sincos(qx * mx + qy * my)
+                sw = dr.fma(w, s, sw)
+                cw = dr.fma(w, c, cw)
+        inv = (2.0 if sym else 1.0) / dr.select(small, 1.0, qq)
+        re_e, im_e = sw * inv, cw * inv
+        # Taylor: (-i)^n cycles 1, -i, -1, i
+        re_t = mi.Float(0.0)
+        im_t = mi.Float(0.0)
+        for (ax, ay), (bx, by), cr in zip(p["v0"], p["v1"], p["cross"]):
+            alpha = qx * ax + qy * ay
+            beta = qx * bx + qy * by
+            h = mi.Float(1.0)
+            apow = mi.Float(1.0)
+            re_t += 0.5 * cr * (2.0 if sym else 1.0)
+            for n in range(1, TAYLOR_ORDER + 1):
+                apow = apow * alpha
+                h = dr.fma(beta, h, apow)
+                if sym and n % 2 == 1:
+                    continue          # odd moments vanish; even ones double
+                term = h * (cr * (2.0 if sym else 1.0) / math.factorial(n + 2))
+                if n % 4 == 0:
+                    re_t += term
+                elif n % 4 == 1:
+                    im_t -= term
+                elif n % 4 == 2:
+                    re_t -= term
+                else:
+                    im_t += term
+        if sym:
+            return dr.select(small, re_t, re_e), None
+        return dr.select(small, re_t, re_e), dr.select(small, im_t, im_e)
+
+    # ------------------------------------------------------------------
+    # interface
+    # ------------------------------------------------------------------
+    def value(self, ux, uy, active, srow=None, dfa=None):
+        """The renderer's ``v(u)`` (>= 0); ``srow`` picks rows of ``S - 1`` (:meth:`_s_minus_one`)."""
+        if self.kind == "table":
+            return self._bilinear(self.near, ux, uy, active)
+        if self.kind == "grid":
+            if not self.has_s or self.g_C is None:      # v = P (S = 1) or P S (C = P)
+                P = C = self._cubic([self.g_P], ux, uy, active)[0]
+                if not self.has_s:
+                    return dr.select(active, dr.maximum(P, 0.0), 0.0)
+            else:
+                P, C = self._cubic([self.g_P, self.g_C], ux, uy, active)
+        else:
+            qx, qy = ux * (1.0 / self.R), uy * (1.0 / self.R)
+            inten = mi.Float(0.0)
+            re = mi.Float(0.0)
+            im = mi.Float(0.0)
+            for term in self.terms:
+                a_re, a_im = self._term_amplitude(term, qx, qy)
+                w = term[2]
+                if a_im is None:
+                    inten = dr.fma(w * a_re, a_re, inten)
+                else:
+                    inten = dr.fma(w * a_re, a_re, dr.fma(w * a_im, a_im, inten))
+                    im = dr.fma(w, a_im, im)
+                re = dr.fma(w, a_re, re)
+            P = inten * self.inv_area_R2
+            C = dr.fma(re, re, im * im) * self.inv_area_R2
+        s1 = self._s_minus_one(ux, uy, active, srow, dfa) if self.has_s else 0.0
+        return dr.select(active, dr.maximum(P + C * s1, 0.0), 0.0)
+
+    def pdf(self, ux, uy, active):
+        """Density in the u plane of :meth:`sample`."""
+        if self.warp == 0.0:
+            return self._bilinear(self.near, ux, uy, active) * (1.0 / self.near["total"])
+        inv_c = 1.0 / self.warp
+        gx = dr.fma(dr.abs(ux), inv_c, 1.0)         # 1 + |u|/c = du/dt^(1/2)
+        gy = dr.fma(dr.abs(uy), inv_c, 1.0)
+        rx, ry = dr.rcp(gx), dr.rcp(gy)
+        p = self._bilinear(self.near, ux * rx, uy * ry, active)      # t = u / (1 + |u|/c)
+        return p * (1.0 / self.near["total"]) * dr.square(rx * ry)
+
+    def _sample_cell(self, s, active):
+        """``s`` (Point2f in [0, 1)²) -> a point in [0, 1]² of the sampling table with the density of
+        its bilinear interpolant (exactly): the row of cells by ``s.x``, the cell in it by ``s.y``
+        (guided searches), one of the cell's four corners with probability ∝ its value (what is
+        left of ``s.x``), then the product of the two linear ramps that vanish at the opposite
+        edges (``√ξ``; ``ξ``: what is left of each): the mixture of the corners' ramps weighted by
+        their values is the bilinear interpolant of the cell, and the cell's probability its integral."""
+        n1 = self.near["n"] - 1
+        rg, cg = self.s_rows_g, self.s_cols_g
+        y0, a0, a1 = guided_search(rg["cdf"], rg["guide"], rg["G"], rg["n_bins"], rg["steps"], mi.UInt32(0),
+                                   s.x, active)
+        x0, b0, b1 = guided_search(cg["cdf"], cg["guide"], cg["G"], cg["n_bins"], cg["steps"], y0, s.y, active)
+        ry = dr.clip((s.x - a0) / dr.maximum(a1 - a0, 1e-30), 0.0, 0.99999994)
+        rx = dr.clip((s.y - b0) / dr.maximum(b1 - b0, 1e-30), 0.0, 0.99999994)
+        q = gather4(self.near["values"], y0 * n1 + x0, active)      # v00, v01 (x + 1), v10 (y + 1), v11
+        q0, q1, q2, q3 = (dr.maximum(q.x, 0.0), dr.maximum(q.y, 0.0), dr.maximum(q.z, 0.0),
+                          dr.maximum(q.w, 0.0))
+        c1 = q0 + q1
+        c2 = c1 + q2
+        total = dr.maximum(c2 + q3, 1e-30)
+        target = ry * total
+        hi_x = ((target >= q0) & (target < c1)) | (target >= c2)       # corners 01 and 11
+        hi_y = target >= c1                                            # corners 10 and 11
+        start = dr.select(target < q0, 0.0, dr.select(target < c1, q0, dr.select(target < c2, c1, c2)))
+        width = dr.select(target < q0, q0, dr.select(target < c1, q1, dr.select(target < c2, q2, q3)))
+        ry2 = dr.clip((target - start) / dr.maximum(width, 1e-30), 0.0, 1.0)
+        fx = dr.select(hi_x, dr.safe_sqrt(rx), 1.0 - dr.safe_sqrt(1.0 - rx))   # density 2x or 2(1 - x)
+        fy = dr.select(hi_y, dr.safe_sqrt(ry2), 1.0 - dr.safe_sqrt(1.0 - ry2))
+        return mi.Point2f((mi.Float(x0) + fx) * (1.0 / n1), (mi.Float(y0) + fy) * (1.0 / n1))
+
+    def sample(self, s, active):
+        """``s`` (Point2f in [0, 1)²) -> u (Vector2f) with density :meth:`pdf`."""
+        tb = self.near
+        p01 = self._sample_cell(s, active)
+        tx, ty = tb["lo"] + p01.x * tb["span"], tb["lo"] + p01.y * tb["span"]
+        if self.warp == 0.0:
+            return mi.Vector2f(tx, ty)
+        inv_c = 1.0 / self.warp        # u = t / (1 - |t|/c)
+        return mi.Vector2f(tx / (1.0 - dr.abs(tx) * inv_c), ty / (1.0 - dr.abs(ty) * inv_c))

@@ -1,0 +1,602 @@
+"""The ``corona`` plugin's code path for ``shape=sphere``: a layer of Mie droplets (docs/physics.md#transparent-droplets-mie-spheres).
+
+``mi.load_dict({'type': 'corona', 'shape': 'sphere', ...})`` builds this BSDF
+(:func:`corona.mitsuba.bsdf.register` dispatches on ``shape``).  It evaluates
+and samples the tables of :class:`corona.model.mie.layer.SphereMaterial`
+exactly as that numpy reference does, in Dr.Jit, with the parts every
+``corona`` BSDF shares (:mod:`corona.mitsuba.common`: the guide-table CDFs and
+their search, the radial Newton inversion, the wavelength mixture and pick,
+the spectrum folding, the pane's weights, the component selection):
+
+* component 0, coherent transmission (``DeltaTransmission``): ``|1 - F_s s₀(λ)|²``
+  along ``-wi``, a spectrum (the optical theorem's mean field depends on λ);
+* component 1, the **forward lobe** (Θ < 90° from ``wt = -wi``): ``F_s w [P + C (S(q) - 1)]``;
+* component 2, the **backward lobe** (Θ >= 90°: glory, fogbow): ``F_s w P``;
+
+both lobes may fall on either side of the layer at oblique incidence, so
+each is flagged ``GlossyTransmission | GlossyReflection``.  A lobe is
+tabulated in rows of the size parameter ``x`` (not evenly spaced: a guide of
+uniform bins in x finds the row) and in the chord
+``s = |wo + wi|`` (forward) or ``|wo - wi|`` (backward), with ``dΩ = s ds dφ``:
+the two rows j, j+1 around a wavelength (weight t) are read at the chord
+scaled by ``x / x_row`` (rings at a fixed ``x·s`` line up), with Catmull–Rom
+cubics in the chord for the value.  Sampling draws the chord from one row's
+piecewise-linear radial density (:func:`corona.mitsuba.common.guided_search`,
+:func:`corona.mitsuba.common.invert_radial_bin`), row j+1 with probability
+``t T_j+1 / ((1-t) T_j + t T_j+1)``, scales it by ``x_row / x`` and draws the
+azimuth uniformly, so the pdf is the rows' linear, scaled blend over the
+interpolated total (both lobes' densities, since a lobe's sampler reaches a
+sliver past 90°); the lane's wavelengths are mixed as for the flat layers
+(one-sample balance heuristic).
+
+With ``substrate=glass`` the droplets sit on a thin pane, with the flat
+layer's weights (:mod:`corona.mitsuba.bsdf`'s table, ``R'``, ``T'`` of the
+pane, ``C`` the coherent weight at ``θi``): light meeting the layer first
+sends the lobes' far-side part through the pane (``T'(θo)``), leaves their
+near-side part as it is, and adds 3, the pane's specular reflection
+``C² R'(θi)``, and 4, the lobe in reflection ``C [R'(θi) + R'(θo)] f(wi, wo')``
+(``wo'`` the mirror image of ``wo`` in the layer's plane: scattered to the far
+side and reflected back, or reflected first and scattered back); light
+meeting the glass first has ``T'(θi)`` on the far side, ``T'(θi) T'(θo)`` on
+its own side, specular ``R'(θi)``.  Component 4 is sampled as the lobes
+(forward or backward in their selection ratio), mirrored.
+
+``area_fraction`` takes a float or a texture and is exposed to
+``mi.traverse`` (``area_fraction.value`` or the texture's keys,
+differentiable): the lane's F_a enters ``F_s``, the coherent beam and the cap.
+With Poisson centres nothing else depends on it.  With a hard core (hard-disk,
+rsa) ``S(q)`` and the forward lobe's energies (the cap) are tabulated in rows
+of F_a :data:`FA_ROW_STEP` apart over the texture's range (a uniform value:
+± :data:`FA_ROW_STEP` about it, re-centred when an update leaves them) and
+read as the cubic Hermite interpolation between two rows, slopes from the
+rows (:func:`corona.tables.lobe.row_slopes`), so ``∂/∂F_a`` is continuous;
+the sampler draws the Mie ``P`` and does not depend on ``S``.  ``radius``
+takes no texture: the Mie rows belong to one radius (``x = 2π r/λ`` together
+with the index at that λ).
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from corona import tables
+from corona._validation import CoronaError
+from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, texture_range
+from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, layer_first, pane_delta_weights
+from corona.mitsuba.common import pane_reflectance, pane_smooth_factors, positive as _positive, selection
+from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
+from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
+from corona.mitsuba.common import read_props as _read_props
+from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
+from corona.tables.lobe import row_slopes
+from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU
+
+__all__ = ["NEWTON_STEPS", "SphereBSDFMixin", "sphere_bsdf_class"]
+
+#: Why a sphere layer takes no radius texture (the one line of its refusal).
+NO_RADIUS_TEXTURE = ("the Mie rows belong to one radius: the pattern is a function of x = 2πr/λ and of the "
+                     "droplets' index at that λ, so another radius needs its own Mie table")
+#: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa).
+FA_ROW_STEP = 0.05
+
+
+class SphereBSDFMixin:
+    """Mitsuba 3 BSDF of a layer of Mie spheres (see the module docstring)."""
+
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)
+        params, textures = _read_props(props)
+        process = params.get("process", SPEC["process"].default)
+        albedo_tex = textures.pop("albedo", None)
+        if albedo_tex is not None:     # means nothing for a sphere: the one unused-parameter warning
+            warn_unused(["albedo"], {**DEFAULTS, **params}, stacklevel=2)
+        radius_tex = textures.pop("radius", None)
+        if radius_tex is not None:
+            if radius_tex.is_spatially_varying():
+                raise CoronaError(f"radius texture is out of range for shape='sphere'; allowed a float "
+                                  f"({NO_RADIUS_TEXTURE})")
+            params["radius"] = SPEC["radius"].check(texture_range(radius_tex)[1])
+        fa_tex = textures.pop("area_fraction", None)
+        self.fa_range = (0.0, 1.0)
+        if fa_tex is not None and fa_tex.is_spatially_varying():
+            lo, hi = texture_range(fa_tex)
+            if lo is None or not (0.0 < lo and hi < 1.0):
+                raise CoronaError(f"corona BSDF: area_fraction texture values {lo!r} … {hi!r} are out of "
+                                  "range for shape='sphere'; allowed (0, 1)")
+            self.fa_range = (lo, hi)
+            params["area_fraction"] = hi
+        elif fa_tex is not None:                  # a uniform texture is a value
+            params["area_fraction"] = texture_range(fa_tex)[1]
+            fa_tex = None
+        self.sampling = params.pop("sampling", SPEC["sampling"].default)
+        self.params = params
+        self.fa_textured = fa_tex is not None
+        self._setup(*(self.fa_range if self.fa_textured else (params.get("area_fraction", SPEC["area_fraction"].default),) * 2))
+        self.fa_tex = fa_tex if fa_tex is not None else _uniform(self.fa)
+        if not mi.is_spectral:
+            self.channel_lambdas, self.channel_weights = _channel_response()
+        sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+        glossy = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection | sides
+        self.m_components = [mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
+        if self.has_pane:   # 3: the pane's mirror image, 4: the lobe in reflection
+            self.m_components += [mi.BSDFFlags.DeltaReflection | sides, mi.BSDFFlags.GlossyReflection | sides]
+        flags = self.m_components[0]
+        for c in self.m_components[1:]:
+            flags = flags | c
+        self.m_flags = flags
+
+    def _setup(self, fa_lo, fa_hi):
+        """The tables of the layer, their F_a rows covering [fa_lo, fa_hi] (a hard core)."""
+        material = material_from_parameters(**self.params)
+        self.material = material
+        rows = material.rows
+        der = material._derived
+        self.fa = float(material.area_fraction)
+        self.radius = float(material.sphere.radius)
+        x = rows["x"]
+        self.x0, self.n_rows = float(x[0]), int(x.size)
+        self.x_rows = _array(mi.Float, x)
+        # rows are not evenly spaced: a guide of bins half the smallest row step wide names the
+        # row at or below each bin's start; one step up at most finds the row below x
+        self.bin_dx = 0.5 * float(np.min(np.diff(x)))
+        n_bins = int(np.ceil((x[-1] - x[0]) / self.bin_dx)) + 2
+        edges = x[0] + np.arange(n_bins) * self.bin_dx
+        self.x_bins = n_bins
+        self.row_guide = _array(mi.UInt32, np.clip(np.searchsorted(x, edges, side="right") - 1, 0, x.size - 2))
+        self.ds = float(rows["ds"])
+        # the largest chord a lobe's sampler draws: a row's last node scaled by x_j+1 / x_j
+        self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(np.max(x[1:] / x[:-1])) * (1 + 1e-6))
+        self.K = int(rows["P_f"].shape[1])
+        self.has_C = bool(rows["C_f"].size)
+        if self.has_C:
+            self.Cf = _array(mi.Float, rows["C_f"].ravel())
+        self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
+        self._setup_area_fraction_rows(material, fa_lo, fa_hi)
+        # per-row scalars packed 8 to a row, gathered as two Vector4f:
+        # (Re s0, Im s0, e_f, e_b), (T_f, T_b, 0, 0)
+        packed = np.zeros((x.size, 8))
+        packed[:, 0], packed[:, 1] = rows["s0"][:, 0], rows["s0"][:, 1]
+        packed[:, 2], packed[:, 3] = der["e_f"], der["e_b"]
+        packed[:, 4], packed[:, 5] = der["T_f"], der["T_b"]
+        self.row_data = _array(mi.Float, packed.ravel())
+        # both lobes in one array: forward rows, then backward rows
+        self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
+        self.back_offset = int(rows["P_f"].size)
+        # the radial densities 2π s P(s) of both lobes' rows in one guided table: forward rows 0 .. J-1,
+        # backward rows J .. 2J-1 (corona.mitsuba.common.guided_cdfs)
+        ds = self.ds
+        g = guided_cdfs([tables.RadialTable(ds, row).cdf for row in rows["P_f"]]
+                        + [tables.RadialTable(ds, row).cdf for row in rows["P_b"]])
+        self.cdf, self.guide = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
+        self.G, self.n_bins, self.steps = g["G"], g["n_bins"], g["steps"]
+        # the pane (docs/physics.md#the-layer-on-glass-substrateglass): incoherent glass only
+        pane = material.substrate
+        self.has_pane = pane is not None
+        if self.has_pane:
+            self.eta = float(pane.ior)
+            self.layer_on_front = pane.side == "front"
+
+    def _setup_area_fraction_rows(self, material, fa_lo, fa_hi):
+        """``S(u)`` and the forward energies ``e_f(x_j, μ)`` in rows of F_a (a hard core) with their
+        slopes in F_a, or the one F_a-independent energy table (Poisson)."""
+        st = material.structure_table
+        self.has_S = st is not None
+        if not self.has_S:
+            self.n_fa = 1
+            self.Ef = _array(mi.Float, material._derived["e_f_mu"].ravel())
+            self.fa_cover = (0.0, 1.0)
+            return
+        top = material.process.area_fraction_limit(material.shape)
+        lo, hi = float(fa_lo), float(fa_hi)
+        if hi - lo < FA_ROW_STEP:                   # a uniform value (or a narrow range): a row at hi, one step either side
+            fas = hi + FA_ROW_STEP * np.array([-1.0, 0.0, 1.0])
+            fas = fas[(fas >= 1e-3) & (fas <= top * (1 + 1e-12))]
+        else:                                       # a texture's range, its ends on rows
+            n = int(np.ceil((hi - lo) / FA_ROW_STEP - 1e-9)) + 1
+            fas = np.linspace(lo, hi, n)
+        S, E = [], []
+        import warnings
+        with warnings.catch_warnings():             # the unused-parameter warning was given once
+            warnings.simplefilter("ignore")
+            for fa in fas:
+                m = material if abs(fa - material.area_fraction) < 1e-12 else \
+                    material_from_parameters(**{**self.params, "area_fraction": float(fa)})
+                S.append(m.structure_table[1])
+                E.append(m._derived["e_f_mu"])
+        S, E = np.array(S), np.array(E)
+        self.S_du, self.S_n = float(st[0]), int(S.shape[1])
+        self.n_fa, self.fa0, self.dfa = int(fas.size), float(fas[0]), float(fas[1] - fas[0])
+        self.fa_cover = (float(fas[0]), float(fas[-1]))
+        self.fa_rows_np = fas
+        self.S = self._packed(fas, S)
+        self.Ef = self._packed(fas, E)
+
+    def _packed(self, fas, rows):
+        """Rows in F_a packed for one Vector4f gather per node: (y_k, Δ y'_k, y_k+1, Δ y'_k+1) of each
+        interval k (Δ the row step, ``y'`` from :func:`corona.tables.lobe.row_slopes`)."""
+        y = rows.reshape(rows.shape[0], -1)
+        m = row_slopes(fas, y) * self.dfa
+        return _array(mi.Float, np.stack([y[:-1], m[:-1], y[1:], m[1:]], axis=-1).ravel())
+
+    def _fa_weights(self, fa):
+        """Row k and the cubic Hermite weights (value k, slope k, value k+1, slope k+1) of the lane's F_a
+        between the F_a rows (the slopes stored times the row step)."""
+        if self.n_fa == 1:
+            return None
+        g = dr.clip((fa - self.fa0) / self.dfa, 0.0, self.n_fa - 1.0)
+        k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
+        t = g - mi.Float(k)
+        t2 = t * t
+        t3 = t2 * t
+        return k, (2.0 * t3 - 3.0 * t2 + 1.0, t3 - 2.0 * t2 + t, 3.0 * t2 - 2.0 * t3, t3 - t2)
+
+    def _hermite(self, values, stride, index, hw, active):
+        """Node ``index`` of rows ``stride`` long, interpolated in F_a with the weights ``hw``
+        (:meth:`_fa_weights`) from the :meth:`_packed` rows; ``hw`` None: the one row, unpacked."""
+        if hw is None:
+            return _gather(mi.Float, values, index, active)
+        k, (a, b, c, d) = hw
+        v = gather4(values, k * stride + index, active)
+        return a * v.x + b * v.y + c * v.z + d * v.w
+
+    # ------------------------------------------------------------------
+    # per-wavelength state
+    # ------------------------------------------------------------------
+    def _wavelengths(self, wavelengths):
+        """The lane's wavelengths [nm] and their (equal) mixture weight (:func:`wavelength_mixture`)."""
+        lams, weights = wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
+        return lams, weights[0]
+
+    def _row(self, lam_nm):
+        lam = dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+        x = (2.0 * dr.pi * self.radius) / lam
+        b = mi.UInt32(dr.clip(dr.floor((x - self.x0) / self.bin_dx), 0, self.x_bins - 1))
+        j = _gather(mi.UInt32, self.row_guide, b)
+        for _ in range(2):        # float32 rounding of the bin: at most one row up, checked twice
+            up = (j + 1 < self.n_rows - 1) & (x >= _gather(mi.Float, self.x_rows, j + 1))
+            j = dr.select(up, j + 1, j)
+        xj, xj1 = _gather(mi.Float, self.x_rows, j), _gather(mi.Float, self.x_rows, j + 1)
+        return j, (x - xj) / (xj1 - xj), lam, x, xj, xj1
+
+    def _state(self, lam_nm, mu_i, active, fa, hw=None):
+        """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a, ``hw`` its
+        F_a rows' weights)."""
+        j, t, lam, x, xj, xj1 = self._row(lam_nm)
+
+        if dr.is_array_v(mi.Float):
+            a0 = dr.gather(mi.Vector4f, self.row_data, 2 * j, active)
+            a1 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 2, active)
+            b0 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 1, active)
+            b1 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 3, active)
+        else:   # scalar variants
+            row = lambda k: mi.Vector4f(*[float(self.row_data[4 * k + c]) for c in range(4)])
+            a0, a1, b0, b1 = row(2 * j), row(2 * j + 2), row(2 * j + 1), row(2 * j + 3)
+        a = dr.lerp(a0, a1, t)
+        fs = dr.minimum(fa / dr.maximum(mu_i, 1e-12), 1.0)
+        re = 1.0 - fs * a.x
+        im = fs * a.y
+        coherent = dr.minimum(dr.fma(re, re, im * im), 1.0)
+        ef, eb = self._forward(j, t, mu_i, active, hw), a.w
+        scattered = fs * (ef + eb) * ENERGY_MARGIN
+        w = dr.minimum(1.0, dr.maximum(1.0 - coherent, 0.0) / dr.maximum(scattered, 1e-30))
+        Tf0, Tf1, Tb0, Tb1 = b0.x, b1.x, b0.y, b1.y
+        return dict(hw=hw, j=j, t=t, lam=lam, x=x, xj=xj, xj1=xj1, fs=fs, coherent=coherent, w=w,
+                    e_f=fs * w * ef, e_b=fs * w * eb,
+                    Tf=dr.lerp(Tf0, Tf1, t), Tb=dr.lerp(Tb0, Tb1, t), Tf1=Tf1, Tb1=Tb1, Tf0=Tf0, Tb0=Tb0)
+
+    def _forward(self, st_j, t, mu_i, active, hw=None):
+        """The forward lobe's energy e_f at the row (j, t), ``mu_i`` (SphereMaterial._forward) and the
+        lane's F_a (``hw``)."""
+        n = len(INCIDENCE_MU)
+        g = (1.0 - dr.clip(mu_i, 0.0, 1.0)) * (n - 1)
+        b = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), n - 2)
+        f = dr.clip(g - mi.Float(b), 0.0, 1.0)
+        k = st_j * n + b
+        stride = self.n_rows * n
+        e00 = self._hermite(self.Ef, stride, k, hw, active)
+        e01 = self._hermite(self.Ef, stride, k + 1, hw, active)
+        e10 = self._hermite(self.Ef, stride, k + n, hw, active)
+        e11 = self._hermite(self.Ef, stride, k + n + 1, hw, active)
+        return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
+
+    def _states(self, si, active):
+        lams, m = self._wavelengths(si.wavelengths)
+        mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
+        fa = self.fa_tex.eval_1(si, active)
+        if self.fa_textured:
+            fa = dr.clip(fa, self.fa_range[0], self.fa_range[1])
+        hw = self._fa_weights(fa)
+        states = [self._state(lam, mu_i, active, fa, hw) for lam in lams]
+        return states, m
+
+    # ------------------------------------------------------------------
+    # the pane's weights (corona.mitsuba.common, as the flat layer's)
+    # ------------------------------------------------------------------
+    def _pane(self, cos_i, cos_o=None):
+        """(first, R'(θi), R'(θo)) of the pane: where light meets the layer first, and its reflectances."""
+        first = layer_first(cos_i, self.layer_on_front)
+        r_i = pane_reflectance(cos_i, self.eta)
+        return first, r_i, (None if cos_o is None else pane_reflectance(cos_o, self.eta))
+
+    def _delta_weights(self, st, cos_i):
+        """Per wavelength: (coherent transmission, specular reflection) on the pane, or (C, 0) without."""
+        if not self.has_pane:
+            return st["coherent"], mi.Float(0.0)
+        first, r_i, _ = self._pane(cos_i)
+        return pane_delta_weights(st["coherent"], r_i, first)
+
+    def _selection(self, ctx, states, cos_i):
+        """Per-lane probabilities of (coherent, forward, backward[, specular, lobe in reflection]) ∝ their
+        energies summed over the lane's wavelengths (roughly, on the pane), honouring the context."""
+        flags = [(mi.BSDFFlags.DeltaTransmission, 0), (mi.BSDFFlags.GlossyTransmission, 1),
+                 (mi.BSDFFlags.GlossyReflection, 2)]
+        en = [mi.Float(0.0) for _ in range(5 if self.has_pane else 3)]
+        if self.has_pane:
+            flags += [(mi.BSDFFlags.DeltaReflection, 3), (mi.BSDFFlags.GlossyReflection, 4)]
+            first, r_i, _ = self._pane(cos_i)
+            t_i = 1.0 - r_i
+        for st in states:
+            w_coh, w_spec = self._delta_weights(st, cos_i)
+            en[0] = en[0] + w_coh
+            if self.has_pane:
+                through = dr.select(first, 1.0, t_i)
+                en[1] = en[1] + st["e_f"] * through
+                en[2] = en[2] + st["e_b"] * through
+                en[3] = en[3] + w_spec
+                en[4] = en[4] + dr.select(first, 2.0 * st["coherent"] * r_i * (st["e_f"] + st["e_b"]), 0.0)
+            else:
+                en[1] = en[1] + st["e_f"]
+                en[2] = en[2] + st["e_b"]
+        return selection(en, [ctx.is_enabled(fl, i) for fl, i in flags])
+
+    def _spectrum(self, values):
+        """Per-wavelength values as a Spectrum (:func:`fold_spectrum`)."""
+        return fold_spectrum(values, getattr(self, "channel_lambdas", None), getattr(self, "channel_weights", None))
+
+    # ------------------------------------------------------------------
+    # tables
+    # ------------------------------------------------------------------
+    def _rows_at(self, arr, st, s, active, offset=0):
+        """Rows j, j+1 (weight t) of a chord table, each read at its chord scaled by ``x / x_row``
+        (corona.model.mie.layer._scaled_blend): (Catmull–Rom value, linear value, the sampler's
+        density up to its total)."""
+        cub, lin = mi.Float(0.0), mi.Float(0.0)
+        K = self.K
+        for d, wgt, x_row in ((0, 1.0 - st["t"], st["xj"]), (1, st["t"], st["xj1"])):
+            row = st["j"] + d
+            c = x_row / st["x"]
+            g = s / (c * self.ds)
+            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
+            f = dr.clip(g - mi.Float(i), 0.0, 1.0)
+            inside = active & (g <= K - 1)
+            k = row * K + i + offset
+            p1 = _gather(mi.Float, arr, k, inside)
+            p2 = _gather(mi.Float, arr, k + 1, inside)
+            p0 = dr.select(i > 0, _gather(mi.Float, arr, k - 1, inside & (i > 0)), p1)
+            p3 = dr.select(i + 2 < K, _gather(mi.Float, arr, k + 2, inside & (i + 2 < K)), p2)
+            v = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3
+                                               + f * (3.0 * (p1 - p2) + p3 - p0)))
+            scale = wgt / (c * c)
+            cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
+            lin += dr.select(inside, dr.maximum(dr.lerp(p1, p2, f), 0.0) * scale, 0.0)
+        return cub, lin
+
+    def _structure(self, u, hw, active):
+        """``S`` at ``u = q r``: linear in u, the cubic Hermite in F_a between its rows; 1 beyond."""
+        x = u / self.S_du
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
+        f = dr.clip(x - mi.Float(i), 0.0, 1.0)
+        inside = active & (x <= self.S_n - 1)
+        v = dr.lerp(self._hermite(self.S, self.S_n, i, hw, inside),
+                    self._hermite(self.S, self.S_n, i + 1, hw, inside), f)
+        return dr.select(inside, v, 1.0)
+
+    def _sample_chord(self, xi, row, forward, active):
+        """Invert the normalised CDF of a row of the forward or backward table (radial density 2π s P):
+        :func:`guided_search` for the bin, :func:`invert_radial_bin` inside it."""
+        table_row = dr.select(forward, row, row + self.n_rows)
+        idx, c0, c1 = guided_search(self.cdf, self.guide, self.G, self.n_bins, self.steps, table_row, xi, active)
+        k = row * self.K + idx + dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
+        a = _gather(mi.Float, self.P, k, active)
+        b = _gather(mi.Float, self.P, k + 1, active) - a
+        total = dr.select(forward, _gather(mi.Float, self.Tf, row, active), _gather(mi.Float, self.Tb, row, active))
+        s0 = mi.Float(idx) * self.ds
+        return s0 + invert_radial_bin(xi - c0, c0, c1, s0, self.ds, a, b, total) * self.ds
+
+    def _lobes(self, states, wi, wo, active, on_f, on_b, with_pdf=True):
+        """Per wavelength the lobes' ``Z`` at ``wo`` (the enabled lobe, 0 else) and the sampler's
+        density there for each lobe, ``(dens_f, dens_b)`` per wavelength (solid angle)."""
+        s_f = dr.norm(wo + wi)
+        s_b = dr.norm(wo - wi)
+        forward = s_f <= s_b
+        a_f = active & forward
+        dxy = dr.sqrt(dr.square(wo.x + wi.x) + dr.square(wo.y + wi.y))
+        s_any = dr.select(forward, s_f, s_b)
+        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
+        on = dr.select(forward, on_f, on_b)
+        s_other = dr.select(forward, s_b, s_f)
+        offset_other = dr.select(forward, mi.UInt32(self.back_offset), mi.UInt32(0))
+        near = active & (s_other < self.reach)     # the sliver past 90° that a lobe's sampler reaches
+        values, dens = [], []
+        for st in states:
+            P, P_lin = self._rows_at(self.P, st, s_any, active, offset)       # P_f or P_b
+            Z = P
+            if self.has_S:
+                S = self._structure((2.0 * dr.pi * self.radius) * dxy / st["lam"], st["hw"], a_f)
+                C_f = self._rows_at(self.Cf, st, s_f, a_f)[0] if self.has_C else P
+                # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
+                Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
+            values.append(dr.select(active & on, Z, 0.0))
+            if not with_pdf or self.sampling == "cosine":
+                continue
+            Q_lin = self._rows_at(self.P, st, s_other, near, offset_other)[1]
+            dens.append((dr.select(forward, P_lin, Q_lin) / dr.maximum(st["Tf"], 1e-30),
+                         dr.select(forward, Q_lin, P_lin) / dr.maximum(st["Tb"], 1e-30)))
+        return values, dens
+
+    @staticmethod
+    def _mix(dens, m, p_f, p_b):
+        pdf = mi.Float(0.0)
+        for d_f, d_b in dens:
+            pdf += m * (p_f * d_f + p_b * d_b)
+        return pdf
+
+    # ------------------------------------------------------------------
+    # BSDF interface
+    # ------------------------------------------------------------------
+    def _eval_pdf(self, ctx, si, wo, active, cached=None):
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        cos_o = mi.Frame3f.cos_theta(wo)
+        states, m = cached if cached is not None else self._states(si, active)
+        p_coh, p_f, p_b, *p_pane = self._selection(ctx, states, cos_i)
+        on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
+        on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
+        Z, dens = self._lobes(states, wi, wo, active, on_f, on_b)
+        pdf = self._mix(dens, m, p_f, p_b)
+        if self.has_pane:
+            same_side = cos_i * cos_o > 0
+            first, r_i, r_o = self._pane(cos_i, cos_o)
+            wo_m = mi.Vector3f(wo.x, wo.y, -wo.z)          # the mirror image: the far side's lobe
+            mirrored = active & same_side & first
+            on_r = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
+            Z_m, dens_m = self._lobes(states, wi, wo_m, mirrored, True, True)
+            values = []
+            for st, z, zm in zip(states, Z, Z_m):
+                through, reflected, own_side = pane_smooth_factors(st["coherent"], r_i, r_o, first)
+                v = z * dr.select(same_side, own_side, through)
+                if on_r:
+                    v += dr.select(mirrored, zm * reflected, 0.0)
+                values.append(v * (st["fs"] * st["w"]))
+            if self.sampling != "cosine":   # component 4: the lobes' sampler, mirrored
+                pdf += dr.select(mirrored, p_pane[1] * self._mix(dens_m, m, p_f, p_b)
+                                 / _positive(p_f + p_b), 0.0)
+        else:
+            values = [z * (st["fs"] * st["w"]) for st, z in zip(states, Z)]
+        if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes
+            smooth = p_f + p_b + (p_pane[1] if self.has_pane else 0.0)
+            pdf = dr.select(active, smooth * (0.25 * dr.inv_pi), 0.0)
+        return self._spectrum(values), dr.select(active, pdf, 0.0)
+
+    def eval(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, mi.Bool(active))[0]
+
+    def pdf(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, mi.Bool(active))[1]
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        return self._eval_pdf(ctx, si, wo, mi.Bool(active))
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        active = mi.Bool(active) & (cos_i != 0)
+        states, m = self._states(si, active)
+        p_coh, p_f, p_b, *p_pane = self._selection(ctx, states, cos_i)
+        pick_coh = active & (sample1 < p_coh)
+        pick_f = active & _not(pick_coh) & (sample1 < p_coh + p_f) & (p_f > 0)
+        pick_b = active & _not(pick_coh) & _not(pick_f) & (sample1 < p_coh + p_f + p_b) & (p_b > 0)
+        # what is left of sample1 inside the picked lobe's share
+        s = dr.select(pick_f, (sample1 - p_coh) / dr.maximum(p_f, 1e-30),
+                      (sample1 - p_coh - p_f) / dr.maximum(p_b, 1e-30))
+        if self.has_pane:   # after the lobes: 3 the pane's mirror image, 4 the lobes mirrored
+            p_spec, p_r = p_pane
+            c3 = p_coh + p_f + p_b
+            c4 = c3 + p_spec
+            pick_r = active & (sample1 >= c4) & (p_r > 0)
+            pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_r <= 0)) & (p_spec > 0)
+            pick_b = pick_b | (active & _not(pick_coh | pick_f | pick_spec | pick_r) & (p_b > 0))
+            # component 4: forward or backward in the ratio p_f : p_b, then as the lobe
+            q_f = p_f / _positive(p_f + p_b)
+            s_r = (sample1 - c4) / dr.maximum(p_r, 1e-30)
+            r_f = pick_r & (s_r < q_f)
+            s = dr.select(pick_r, dr.select(r_f, s_r / dr.maximum(q_f, 1e-30),
+                                            (s_r - q_f) / dr.maximum(1.0 - q_f, 1e-30)), s)
+            lobe_f = pick_f | r_f
+            lobe_any = pick_f | pick_b | pick_r
+        else:
+            pick_b = pick_b | (active & _not(pick_coh | pick_f) & (p_b > 0))
+            lobe_f = pick_f
+            lobe_any = pick_f | pick_b
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.eta = 1.0
+        if self.sampling == "cosine":
+            wo_lobe = mi.warp.square_to_uniform_sphere(sample2)
+        else:
+            # the lobe's share of sample1 picks the hero wavelength, what is left of it the row
+            n = len(states)
+            pick, _, rest = pick_wavelength(s, [st["x"] for st in states])
+            j, p_next, x = states[-1]["j"], mi.Float(0.0), states[-1]["x"]
+            for q in range(n - 1, -1, -1):
+                st = states[q]
+                x = dr.select(pick == q, st["x"], x)
+                T0 = dr.select(lobe_f, st["Tf0"], st["Tb0"])
+                T1 = dr.select(lobe_f, st["Tf1"], st["Tb1"])
+                pn = st["t"] * T1 / dr.maximum(dr.lerp(T0, T1, st["t"]), 1e-30)
+                j = dr.select(pick == q, st["j"], j)
+                p_next = dr.select(pick == q, pn, p_next)
+            row = dr.select(rest < p_next, j + 1, j)
+            chord = self._sample_chord(sample2.x, row, lobe_f, lobe_any)
+            # the row's chord scaled to the lane's x: rings at a fixed x·s
+            chord = dr.minimum(chord * _gather(mi.Float, self.x_rows, row, lobe_any) / x, 2.0)
+            cos_t = 1.0 - 0.5 * chord * chord
+            sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
+            sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)
+            axis = dr.select(lobe_f, -wi, wi)
+            wo_lobe = mi.Frame3f(axis).to_world(mi.Vector3f(sin_t * cp, sin_t * sp, cos_t))
+            wo_lobe = dr.normalize(wo_lobe)
+        bs.wo = dr.select(pick_coh, -wi, wo_lobe)
+        bs.sampled_component = dr.select(pick_coh, mi.UInt32(0), dr.select(pick_f, mi.UInt32(1), mi.UInt32(2)))
+        same_side = cos_i * mi.Frame3f.cos_theta(bs.wo) > 0
+        bs.sampled_type = dr.select(pick_coh, mi.UInt32(+mi.BSDFFlags.DeltaTransmission),
+                                    dr.select(same_side, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                              mi.UInt32(+mi.BSDFFlags.GlossyTransmission)))
+        smooth = pick_f | pick_b
+        pick_delta = pick_coh
+        if self.has_pane:
+            wo_r = mi.Vector3f(wo_lobe.x, wo_lobe.y, -wo_lobe.z)
+            bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z), dr.select(pick_r, wo_r, bs.wo))
+            bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
+                                             dr.select(pick_r, mi.UInt32(4), bs.sampled_component))
+            bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
+                                        dr.select(pick_r, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                                  bs.sampled_type))
+            smooth = smooth | pick_r
+            pick_delta = pick_coh | pick_spec
+        value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, (states, m))
+        bs.pdf = dr.select(pick_coh, p_coh, pdf)
+        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)
+        deltas = [self._delta_weights(st, cos_i) for st in states]
+        coh = self._spectrum([d[0] for d in deltas])
+        weight = dr.select(pick_coh, coh / dr.maximum(p_coh, 1e-30), weight)
+        if self.has_pane:
+            spec = self._spectrum([d[1] for d in deltas])
+            bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
+            weight = dr.select(pick_spec, spec / dr.maximum(p_spec, 1e-30), weight)
+        ok = pick_delta | (smooth & (bs.pdf > 0))
+        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
+
+    def traverse(self, callback):
+        # area_fraction (a uniform texture's "area_fraction.value", or the texture's own keys), differentiable
+        callback.put("area_fraction", self.fa_tex, mi.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys):
+        # new values: check them; rebuild the F_a rows only when they leave what the rows cover
+        lo, hi = texture_range(self.fa_tex)
+        if lo is None or not (0.0 < lo and hi < 1.0) or not (np.isfinite(lo) and np.isfinite(hi)):
+            raise CoronaError(f"corona BSDF: area_fraction={lo!r} … {hi!r} is out of range for "
+                              "shape='sphere'; allowed (0, 1)")
+        if self.fa_textured:
+            self.fa_range = (lo, hi)
+        if lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7:
+            self.params["area_fraction"] = hi
+            self._setup(lo, hi)
+
+    def to_string(self):
+        return f"CoronaSphereBSDF[{self.material!r}]"
+
+
+def sphere_bsdf_class() -> type:
+    """The sphere BSDF class of the active variant."""
+    return variant_class(SphereBSDFMixin, "BSDF", "CoronaSphereBSDF")

@@ -1,0 +1,60 @@
+"""The base class of a point process of scatterer centres."""
+from __future__ import annotations
+
+
+import numpy as np
+
+from corona._validation import CoronaError
+
+
+class Process:
+    """Base class of a point process of scatterer centres."""
+
+    isotropic: bool = True
+
+    def area_fraction(self, shape) -> float:
+        raise NotImplementedError
+
+    def structure_factor_at(self, q, shape) -> np.ndarray:
+        """``S(q)`` at ``q`` [rad/µm] of shape (..., 2)."""
+        q = np.asarray(q, dtype=np.float64)
+        return self.structure_factor_radial(np.hypot(q[..., 0], q[..., 1]), shape)
+
+    def structure_factor_radial(self, q_abs, shape) -> np.ndarray:
+        """``S(|q|)`` for isotropic processes, ``q_abs`` in rad/µm."""
+        raise NotImplementedError
+
+    def validate(self, shape) -> None:
+        """Raise a clear error if this process cannot hold ``shape`` as given."""
+
+    # --- a varying area fraction (textured layers) -----------------------------
+    #: True when ``S`` depends on the area fraction only through a table or a
+    #: formula, so that the layer's ``F_a`` may vary over a surface.
+    varying_area_fraction: bool = False
+
+    def with_area_fraction(self, area_fraction: float) -> "Process":
+        """The same process at another area fraction."""
+        raise CoronaError(f"{type(self).__name__}: the area fraction fixes its geometry and cannot "
+                          "vary over the layer; use process poisson, hard-disk or rsa")
+
+    def area_fraction_limit(self, shape) -> float:
+        """The largest area fraction this process reaches with ``shape``."""
+        return self.area_fraction(shape)
+
+    def area_fraction_nodes(self, shape):
+        """Area fractions at which ``S`` is tabulated (rows of interpolation), within the limit."""
+        return np.zeros(0)
+
+    def key(self) -> dict:
+        from corona.model.shapes.base import _keyable
+        return {"type": type(self).__name__, **{k: _keyable(v) for k, v in vars(self).items()
+                                                if not k.startswith("_")}}
+
+
+def _check_exclusion(process_name, sigma, shape):
+    sd = shape.exclusion_diameter
+    if sigma < sd * (1.0 - 1e-9):
+        raise CoronaError(f"{process_name}: exclusion_diameter={sigma:g} µm is out of range; "
+                          f"expected >= the shape's exclusion diameter {sd:g} µm "
+                          "(smaller values let scatterers overlap)")
+

@@ -1,0 +1,407 @@
+"""Shapes with closed-form Fourier transforms: circle, ellipse, rectangle, square."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import special
+
+from corona._validation import CoronaError, check_positive
+from corona.model.shapes.base import (
+    Shape,
+    _check_finite,
+    _g,
+    _gauss_legendre,
+    _q_array,
+    _radial_array,
+    _rotate,
+    _sinc,
+    _warn_old_spelling,
+)
+
+
+class Circle(Shape):
+    """A circular aperture or particle of radius ``radius`` [µm].
+
+    ``Â(q) = π R² · 2 J1(qR)/(qR)``, so ``T_a = (π R²/λ²) (2 J1(u)/u)²``
+    with ``u = 2π R |d| / λ`` (Airy pattern; zeros at u = 3.8317, 7.0156, ...).
+
+    Parameters
+    ----------
+    radius : float
+        Radius R > 0 [µm]; also ``length_scale``; ``exclusion_diameter = 2R``.
+
+    References
+    ----------
+    Born & Wolf, *Principles of Optics*, §8.5.2.
+
+    Examples
+    --------
+    ``P(0) = |A| = π R²``, and the form factor vanishes on the Airy pattern's
+    dark rings (u = qR = 3.8317, 7.0156):
+
+    >>> import numpy as np, corona
+    >>> c = corona.Circle(radius=2.0)
+    >>> bool(np.isclose(c.form_factor_radial(0.0), np.pi * 2.0**2))
+    True
+    >>> bool(np.all(c.form_factor_radial(np.array([3.8317, 7.0156]) / 2.0) < 1e-10 * c.area))
+    True
+
+    Inside the first dark ring lies ``1 - J0(u1)² - J1(u1)² = 83.8 %`` of the
+    diffracted energy (Rayleigh); ``∫ P d²q = (2π)²`` (Parseval):
+
+    >>> from scipy.integrate import quad
+    >>> inside, _ = quad(lambda q: 2 * np.pi * q * c.form_factor_radial(q), 0.0, 3.8317 / 2.0)
+    >>> round(inside / (2 * np.pi) ** 2, 4)
+    0.8378
+    """
+
+    isotropic = True
+    _symmetry = 0
+
+    def __init__(self, radius: float):
+        self.radius = check_positive("radius", radius, "µm")
+
+    def __repr__(self):
+        return f"Circle(radius={self.radius:g})"
+
+    @property
+    def area(self) -> float:
+        return np.pi * self.radius**2
+
+    @property
+    def length_scale(self) -> float:
+        return self.radius
+
+    @staticmethod
+    def airy(u) -> np.ndarray:
+        """``2 J1(u)/u`` with its limit 1 at u = 0."""
+        u = np.asarray(u, dtype=np.float64)
+        out = np.ones_like(u)
+        nz = np.abs(u) > 1e-8
+        out[nz] = 2.0 * special.j1(u[nz]) / u[nz]
+        return out
+
+    def amplitude(self, q) -> np.ndarray:
+        q = _q_array(q)
+        qa = np.hypot(q[..., 0], q[..., 1])
+        return (self.area * self.airy(qa * self.radius)).astype(np.complex128)
+
+    def amplitude_radial(self, q_abs) -> np.ndarray:
+        u = _radial_array(q_abs) * self.radius
+        return (self.area * self.airy(u)).astype(np.complex128)
+
+    def form_factor(self, q) -> np.ndarray:
+        q = _q_array(q)
+        return self.form_factor_radial(np.hypot(q[..., 0], q[..., 1]))
+
+    def form_factor_radial(self, q_abs) -> np.ndarray:
+        u = np.asarray(q_abs, dtype=np.float64) * self.radius
+        return self.area * self.airy(u) ** 2
+
+    coherent_form_factor_radial = form_factor_radial
+
+    def coherent_form_factor(self, q) -> np.ndarray:
+        return self.form_factor(q)
+
+    def _overlap_sum(self, widths, coeffs) -> float:
+        # ∫(B*G_w)² = ∫ C(r) G_{√2 w}(r) d²r with the disk's covariogram
+        # C(r) = 2R² acos(r/2R) - (r/2) √(4R² - r²).
+        R = self.radius
+        x, wt = _gauss_legendre(400)
+        total = 0.0
+        for w, c in zip(np.ravel(widths), np.ravel(coeffs)):
+            if w <= 0.0:
+                total += c * self.area
+                continue
+            s = math.sqrt(2.0) * w
+            r_max = min(2.0 * R, 12.0 * s)
+            r = 0.5 * r_max * (x + 1.0)
+            C = 2 * R**2 * np.arccos(np.minimum(r / (2 * R), 1.0)) \
+                - 0.5 * r * np.sqrt(np.maximum(4 * R**2 - r**2, 0.0))
+            total += c * float(np.sum(0.5 * r_max * wt * C * np.exp(-r**2 / (2 * s**2)) * r)) / s**2
+        return total
+
+
+def _old_two_lengths(cls: str, names: tuple[str, str], radius, legacy, x, y, aspect, angle):
+    """The previous release's ``cls(x, y, angle [rad])`` (positional or by the keywords ``names``):
+    ``(x, y)`` [µm] and the angle in degrees; ``radius`` stands for ``x`` when given positionally."""
+    if len(legacy) > 2:
+        raise TypeError(f"{cls} takes at most 3 positional arguments ({1 + len(legacy)} given)")
+    if legacy:
+        y = legacy[0]
+    if len(legacy) > 1:
+        angle = legacy[1]
+    if radius is not None and x is not None:
+        raise CoronaError(f"{cls}: give radius or {names[0]}, not both")
+    if aspect is not None:
+        raise CoronaError(f"{cls}: give aspect or {names[1]}, not both")
+    x = check_positive(names[0], radius if x is None else x, "µm")
+    y = check_positive(names[1], y, "µm")
+    return x, y, math.degrees(_check_finite("angle", angle, "rad"))
+
+
+class Ellipse(Shape):
+    """An elliptical aperture or particle: semi-axis ``radius`` along x, ``aspect · radius`` along y.
+
+    With ``q'`` the wave vector in the ellipse's frame (rotated by ``angle``),
+    ``Â(q) = π a b · 2 J1(v)/v``, ``v = √((a q'_x)² + (b q'_y)²)``,
+    ``a = radius``, ``b = aspect · radius``: the Airy pattern with
+    anisotropically scaled q (the ellipse is an affine image of the unit disk).
+
+    Parameters
+    ----------
+    radius : float
+        Semi-axis a > 0 [µm] along the ellipse's own x axis (the plugin's
+        ``radius``).
+    aspect : float, default 1
+        Semi-axis along y over semi-axis along x, ``b / a`` > 0 (the plugin's
+        ``aspect``).
+    angle : float, default 0
+        Rotation of the ellipse's x axis from the layer's x axis [degree],
+        counter-clockwise (the plugin's ``angle``).
+
+    Notes
+    -----
+    ``length_scale = max(a, b)`` (circumradius), ``exclusion_diameter = 2 max(a, b)``.
+    Isotropic only when a == b.  The attributes ``semi_axis_x`` and
+    ``semi_axis_y`` are a and b [µm].
+
+    The previous release's spelling ``Ellipse(semi_axis_x, semi_axis_y, angle)``
+    (angle in radians, positional or by these keywords) still builds the same
+    ellipse as before, with a DeprecationWarning, for one release.
+
+    References
+    ----------
+    Born & Wolf, *Principles of Optics*, §8.5.2; Goodman, *Introduction to
+    Fourier Optics*, §2.1 (similarity theorem).
+
+    Examples
+    --------
+    The same ellipse as the plugin's ``{"shape": "ellipse", "radius": 2, "aspect": 0.5,
+    "angle": 30}``; along its short axis the first dark ring is at ``q b = 3.8317``:
+
+    >>> import numpy as np, corona
+    >>> e = corona.Ellipse(2.0, aspect=0.5, angle=30.0)
+    >>> e.semi_axis_x, e.semi_axis_y, e.length_scale
+    (2.0, 1.0, 2.0)
+    >>> short = np.array([-np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])
+    >>> bool(e.form_factor(3.8317 / 1.0 * short) < 1e-10 * e.area)
+    True
+    """
+
+    _symmetry = 2
+
+    def __init__(self, radius: float | None = None, *legacy, aspect: float | None = None,
+                 angle: float = 0.0, semi_axis_x: float | None = None, semi_axis_y: float | None = None):
+        old = bool(legacy) or semi_axis_x is not None or semi_axis_y is not None
+        if not old:
+            self.semi_axis_x = check_positive("radius", radius, "µm")
+            aspect = 1.0 if aspect is None else check_positive("aspect", aspect)
+            self.semi_axis_y = self.semi_axis_x * aspect
+            self.angle = _check_finite("angle", angle, "degree")
+            return
+        # the previous release: Ellipse(semi_axis_x, semi_axis_y, angle [rad])
+        self.semi_axis_x, self.semi_axis_y, self.angle = _old_two_lengths(
+            "Ellipse", ("semi_axis_x", "semi_axis_y"), radius, legacy, semi_axis_x, semi_axis_y, aspect, angle)
+        _warn_old_spelling(f"Ellipse({_g(self.semi_axis_x)}, {_g(self.semi_axis_y)}, angle={_g(math.radians(self.angle))})",
+                           f"Ellipse({_g(self.semi_axis_x)}, aspect={_g(self.aspect)}, angle={_g(self.angle)})")
+
+    def __repr__(self):
+        return f"Ellipse(radius={self.radius:g}, aspect={self.aspect:g}, angle={self.angle:g})"
+
+    @property
+    def radius(self) -> float:
+        """Semi-axis along the ellipse's x axis [µm] (the plugin's ``radius``)."""
+        return self.semi_axis_x
+
+    @property
+    def aspect(self) -> float:
+        """``semi_axis_y / semi_axis_x``."""
+        return self.semi_axis_y / self.semi_axis_x
+
+    @property
+    def isotropic(self) -> bool:
+        return self.semi_axis_x == self.semi_axis_y
+
+    @property
+    def area(self) -> float:
+        return np.pi * self.semi_axis_x * self.semi_axis_y
+
+    @property
+    def length_scale(self) -> float:
+        return max(self.semi_axis_x, self.semi_axis_y)
+
+    def amplitude(self, q) -> np.ndarray:
+        q = _q_array(q)
+        qx, qy = _rotate(q, math.radians(self.angle))
+        v = np.hypot(self.semi_axis_x * qx, self.semi_axis_y * qy)
+        return (self.area * Circle.airy(v)).astype(np.complex128)
+
+    def form_factor(self, q) -> np.ndarray:
+        q = _q_array(q)
+        qx, qy = _rotate(q, math.radians(self.angle))
+        v = np.hypot(self.semi_axis_x * qx, self.semi_axis_y * qy)
+        return self.area * Circle.airy(v) ** 2
+
+
+class Rectangle(Shape):
+    """A rectangular aperture or particle: half-width ``radius`` along x, ``aspect · radius`` along y.
+
+    ``Â(q) = W H · sinc(q'_x W/2) · sinc(q'_y H/2)`` with ``sinc(x) = sin(x)/x``,
+    the side lengths ``W = 2 radius``, ``H = 2 aspect · radius``, and ``q'`` the
+    wave vector in the rectangle's frame (rotated by ``angle``).
+
+    Parameters
+    ----------
+    radius : float
+        Half-width W/2 > 0 [µm] along the rectangle's own x axis (the
+        plugin's ``radius``).
+    aspect : float, default 1
+        Extent along y over extent along x, ``H / W`` > 0 (the plugin's ``aspect``).
+    angle : float, default 0
+        Rotation of the rectangle's x axis from the layer's x axis [degree],
+        counter-clockwise (the plugin's ``angle``).
+
+    Notes
+    -----
+    ``length_scale = √(W² + H²)/2`` (circumradius, half the diagonal).  The
+    attributes ``width`` and ``height`` are the full side lengths W, H [µm].
+
+    The previous release's spelling ``Rectangle(width, height, angle)`` (full
+    side lengths, angle in radians, positional or by these keywords) still
+    builds the same rectangle as before, with a DeprecationWarning, for one
+    release.
+
+    References
+    ----------
+    Born & Wolf, *Principles of Optics*, §8.5.1.
+    """
+
+    _symmetry = 2
+    _cost = 2.0
+
+    def __init__(self, radius: float | None = None, *legacy, aspect: float | None = None,
+                 angle: float = 0.0, width: float | None = None, height: float | None = None):
+        old = bool(legacy) or width is not None or height is not None
+        if not old:
+            r = check_positive("radius", radius, "µm")
+            aspect = 1.0 if aspect is None else check_positive("aspect", aspect)
+            self._set(2.0 * r, 2.0 * r * aspect, _check_finite("angle", angle, "degree"))
+            return
+        # the previous release: Rectangle(width, height, angle [rad])
+        self._set(*_old_two_lengths("Rectangle", ("width", "height"), radius, legacy, width, height, aspect, angle))
+        _warn_old_spelling(f"Rectangle({_g(self.width)}, {_g(self.height)}, angle={_g(math.radians(self.angle))})",
+                           f"Rectangle({_g(self.radius)}, aspect={_g(self.aspect)}, angle={_g(self.angle)})")
+
+    def _set(self, width: float, height: float, angle_deg: float) -> None:
+        self.width = width
+        self.height = height
+        self.angle = angle_deg
+
+    def __repr__(self):
+        return f"Rectangle(radius={self.radius:g}, aspect={self.aspect:g}, angle={self.angle:g})"
+
+    @property
+    def radius(self) -> float:
+        """Half-width along the rectangle's x axis [µm] (the plugin's ``radius``)."""
+        return 0.5 * self.width
+
+    @property
+    def aspect(self) -> float:
+        """``height / width``."""
+        return self.height / self.width
+
+    @property
+    def area(self) -> float:
+        return self.width * self.height
+
+    @property
+    def length_scale(self) -> float:
+        return 0.5 * math.hypot(self.width, self.height)
+
+    def amplitude(self, q) -> np.ndarray:
+        q = _q_array(q)
+        qx, qy = _rotate(q, math.radians(self.angle))
+        a = self.area * _sinc(0.5 * qx * self.width) * _sinc(0.5 * qy * self.height)
+        return a.astype(np.complex128)
+
+    def form_factor(self, q) -> np.ndarray:
+        q = _q_array(q)
+        qx, qy = _rotate(q, math.radians(self.angle))
+        return self.area * (_sinc(0.5 * qx * self.width) * _sinc(0.5 * qy * self.height)) ** 2
+
+    def _overlap_sum(self, widths, coeffs) -> float:
+        # separable: ∫(box_L * g_w)² dx = ∫ (L - |r|)_+ g_{√2 w}(r) dr
+        s = math.sqrt(2.0) * np.asarray(widths, dtype=np.float64).ravel()
+        c = np.asarray(coeffs, dtype=np.float64).ravel()
+        pos = s > 0
+        phi0 = 1.0 / math.sqrt(2 * math.pi)
+
+        def one(L):
+            t = L / s[pos]
+            return 2.0 * (L * (special.ndtr(t) - 0.5)
+                          - s[pos] * phi0 * (1.0 - np.exp(-0.5 * t * t)))
+        blurred = np.sum(c[pos] * one(self.width) * one(self.height))
+        return float(np.sum(c[~pos]) * self.area + blurred)
+
+
+class Square(Rectangle):
+    """A square aperture or particle of half-width ``radius`` [µm], rotated by ``angle`` [degree].
+
+    ``Â(q) = s² sinc(q'_x s/2) sinc(q'_y s/2)`` with the side ``s = 2 radius``
+    (see :class:`Rectangle`); ``length_scale = s/√2``.  ``Square(r, angle=a)``
+    is the plugin's ``{"shape": "square", "radius": r, "angle": a}``.
+
+    Parameters
+    ----------
+    radius : float
+        Half the side, s/2 > 0 [µm] (the plugin's ``radius``).
+    angle : float, default 0
+        Rotation [degree], counter-clockwise (the plugin's ``angle``).
+
+    Notes
+    -----
+    The previous release's spelling ``Square(side=s, angle=a)`` (the full
+    side, angle in radians), and a positional angle ``Square(s, a)``, still
+    build the same square as before, with a DeprecationWarning, for one release.
+
+    Examples
+    --------
+    Along an edge normal, ``P/|A| = sinc²(q s/2)``: 1 at q = 0, ``(2/π)²`` at
+    ``q s/2 = π/2``, 0 at the first zero ``q s/2 = π``:
+
+    >>> import numpy as np, corona
+    >>> sq = corona.Square(1.5)                          # side 3 µm
+    >>> sq.area, round(sq.length_scale, 4)                 # s², s/√2
+    (9.0, 2.1213)
+    >>> q = np.array([[0.0, 0.0], [np.pi / 3, 0.0], [2 * np.pi / 3, 0.0]])
+    >>> (sq.form_factor(q) / sq.area).round(4)
+    array([1.    , 0.4053, 0.    ])
+    """
+
+    _symmetry = 4
+
+    def __init__(self, radius: float | None = None, *legacy, angle: float = 0.0, side: float | None = None):
+        old = bool(legacy) or side is not None
+        if not old:
+            r = check_positive("radius", radius, "µm")
+            self._set(2.0 * r, 2.0 * r, _check_finite("angle", angle, "degree"))
+            return
+        # the previous release: Square(side, angle [rad])
+        if len(legacy) > 1:
+            raise TypeError(f"Square takes at most 2 positional arguments ({1 + len(legacy)} given)")
+        if legacy:
+            angle = legacy[0]
+        if radius is not None and side is not None:
+            raise CoronaError("Square: give radius or side, not both")
+        s = check_positive("side", radius if side is None else side, "µm")
+        self._set(s, s, math.degrees(_check_finite("angle", angle, "rad")))
+        _warn_old_spelling(f"Square(side={_g(s)}, angle={_g(math.radians(self.angle))})",
+                           f"Square({_g(self.radius)}, angle={_g(self.angle)})")
+
+    def __repr__(self):
+        return f"Square(radius={self.radius:g}, angle={self.angle:g})"
+
+    def key(self) -> dict:
+        return {"type": "Square", "side": self.width, "angle": self.angle}
