@@ -152,12 +152,7 @@ class Material:
             raise CoronaError(f"substrate={substrate!r} is not a corona substrate "
                               "(None or corona.GlassPane(ior=1.52, side='front'))")
         self.substrate = substrate
-        process.validate(shape)
-        fa = float(process.area_fraction(shape))
-        if not (0.0 < fa < 1.0):
-            raise CoronaError(f"area_fraction={fa:g} (from {process!r} with {shape!r}) is out of range; "
-                              "allowed (0, 1)")
-        self.area_fraction = fa
+        self.area_fraction = process.layer_area_fraction(shape)
         _warn_if_small(shape)
 
     def __repr__(self):

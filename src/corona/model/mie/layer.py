@@ -540,12 +540,7 @@ class SphereMaterial:
         self.shape = shape
         self.process = process
         self.use_cache = bool(use_cache)
-        process.validate(shape)
-        fa = float(process.area_fraction(shape))
-        if not (0.0 < fa < 1.0):
-            raise CoronaError(f"area_fraction={fa:g} (from {process!r} with {shape!r}) is out of range; "
-                              "allowed (0, 1)")
-        self.area_fraction = fa
+        self.area_fraction = process.layer_area_fraction(shape)
         if self.sphere.radius > SPHERE_RADIUS_MAX:
             raise CoronaError(f"radius={self.sphere.radius:g} is out of range for shape='sphere'; allowed "
                               f"(0, {SPHERE_RADIUS_MAX:g}] µm (larger droplets: use shape='circle', "

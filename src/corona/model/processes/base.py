@@ -27,6 +27,16 @@ class Process:
     def validate(self, shape) -> None:
         """Raise a clear error if this process cannot hold ``shape`` as given."""
 
+    def layer_area_fraction(self, shape) -> float:
+        """The area fraction of a layer of ``shape`` on this process, checked: :meth:`validate`,
+        then one clear error unless it lies in (0, 1) (what every material needs)."""
+        self.validate(shape)
+        fa = float(self.area_fraction(shape))
+        if not (0.0 < fa < 1.0):
+            raise CoronaError(f"area_fraction={fa:g} (from {self!r} with {shape!r}) is out of range; "
+                              "allowed (0, 1)")
+        return fa
+
     # --- a varying area fraction (textured layers) -----------------------------
     #: True when ``S`` depends on the area fraction only through a table or a
     #: formula, so that the layer's ``F_a`` may vary over a surface.
