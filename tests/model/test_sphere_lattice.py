@@ -44,23 +44,18 @@ def _wi(theta_deg, phi_deg):
     return np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
 
 
-@pytest.fixture(scope="module")
-def sparse_hex():
-    # 0.6 µm water droplets 6 µm apart (F_a ≈ 0.036: the cap does not bind), jitter 0.2 µm
-    return corona.Material(corona.Sphere(0.6), corona.Lattice("hexagonal", 6.0, jitter=0.2))
-
-
-@pytest.mark.parametrize("theta,phi", [(0.0, 0.0), (30.0, 20.0)])
-def test_orders_match_the_grating_equation_and_efficiency(sparse_hex, theta, phi):
-    m = sparse_hex
+@pytest.mark.parametrize("kind,delta,theta,phi", [("hexagonal", 0.2, 0.0, 0.0), ("hexagonal", 0.2, 30.0, 20.0),
+                                                 ("square", 0.0, 0.0, 0.0), ("square", 0.0, 140.0, 50.0)])
+def test_orders_match_the_grating_equation_and_efficiency(kind, delta, theta, phi):
+    # 0.6 µm water droplets 6 µm apart (F_a ≈ 0.03: the cap trims little); θ > 90°: from below
+    m = corona.Material(corona.Sphere(0.6), corona.Lattice(kind, 6.0, jitter=delta))
     lam = 550.0
     k = 2 * np.pi / (lam * 1e-3)
     x = k * 0.6
     n_w = complex(m.sphere.index(lam))
     wi = _wi(theta, phi)
-    mu_i = wi[2]
-    B, area = _reciprocal("hexagonal", 6.0)
-    delta = 0.2
+    mu_i = abs(wi[2])
+    B, area = _reciprocal(kind, 6.0)
     # the cap trims the O(F_a²) by which the kinematic orders and the coherent beam overshoot
     w = float(m._lattice_weight(wi, lam, ()))
     assert 0.98 < w <= 1.0
@@ -97,6 +92,8 @@ def test_orders_match_the_grating_equation_and_efficiency(sparse_hex, theta, phi
             diffuse = float(np.sum(_mie_f2(n_w, x, k, cos_all) * -np.expm1(-q2 * delta ** 2)
                                    / (area * mu_i) / czs) * dp * dp)
             assert got == pytest.approx(w * (eta + diffuse), rel=0.02), (h, kk, side, got, eta, diffuse)
+            if delta == 0.0:
+                assert diffuse == 0.0
             # the layer's lattice_nodes (its cap's quadrature) hold the same order energy
             nodes = m.lattice_nodes(wi, lam)
             near = (np.abs(nodes["wo"][:, 0] - p_G[0]) <= half) & (np.abs(nodes["wo"][:, 1] - p_G[1]) <= half) \
