@@ -190,3 +190,31 @@ def test_refusals_name_the_reason():
     with pytest.raises(CoronaError, match="spacing"):
         corona.Material(corona.Sphere(1.0), corona.Lattice("square", 1.5))      # spheres overlap
     assert isinstance(corona.Material(corona.Sphere(1.0), corona.Lattice("square", 3.0)), SphereMaterial)
+
+
+@pytest.mark.parametrize("rho", [0.97, 0.995, 0.999, 1.001])
+def test_grazing_order_energy_and_furnace(rho):
+    """An order leaving near grazing (a Rayleigh anomaly, ``|cos θ_G| → 0``): its energy from
+    ``eval`` integrated in the polar angles of ``wo`` (``dΩ = sin θ dθ dφ``, no singularity)
+    equals what the cap counts (lattice_nodes), and the furnace holds there."""
+    m = corona.Material(corona.Sphere(1.0), corona.Lattice("hexagonal", 4.0, jitter=0.0))
+    B, _ = _reciprocal("hexagonal", 4.0)
+    G = 5 * B[0] - 3 * B[1]
+    k = np.hypot(*G) / rho                     # |wo_xy| of the order = rho at normal incidence
+    lam = 2 * np.pi / k * 1e3
+    wi = np.array([0.0, 0.0, 1.0])
+    r_w = 6 * m.lattice.peak_width / k
+    r0, ph0 = np.hypot(*G) / k, math.atan2(G[1], G[0])
+    th = np.linspace(math.asin(min(r0 - r_w, 1.0)), math.asin(min(r0 + r_w, 1.0)), 1500)
+    ph = np.linspace(ph0 - r_w / r0, ph0 + r_w / r0, 160)
+    T, PH = np.meshgrid(th, ph, indexing="ij")
+    got = 0.0
+    for side in (-1.0, 1.0):
+        wo = np.stack([np.sin(T) * np.cos(PH), np.sin(T) * np.sin(PH), side * np.cos(T)], -1).reshape(-1, 3)
+        got += float(np.sum(m.eval(wi, wo, lam).reshape(T.shape) * np.sin(T)) * (th[1] - th[0]) * (ph[1] - ph[0]))
+    nodes = m.lattice_nodes(wi, lam)
+    near = np.hypot(nodes["wo"][:, 0] - G[0] / k, nodes["wo"][:, 1] - G[1] / k) < r_w
+    counted = float(m._slant(1.0)) * float(m._lattice_weight(wi, lam, ())) * float(np.sum(nodes["energy"][near]))
+    assert got > 0
+    assert counted == pytest.approx(got, rel=3e-3)
+    assert m.directional_albedo(1.0, lam)["total"] <= 1.0 + 1e-9

@@ -129,6 +129,9 @@ SPHERE_LATTICE_ONE_SIZE = ("the reflected Bragg orders need the coherent part |<
 #: energy of every order, :meth:`SphereMaterial.lattice_nodes`).
 LATTICE_PEAK_NODES = 12
 LATTICE_PEAK_REACH = 5.0
+#: Orders whose window reaches past this ``|wo_xy|`` (near grazing exit) are integrated in the
+#: polar angles of ``wo`` instead (twice the nodes in θ), which removes the ``1/|cos θo|``.
+LATTICE_STEEP = 0.9
 #: Azimuths of the quadrature of a jittered lattice's diffuse part (1 - e^{-q²δ²}) P.
 LATTICE_DIFFUSE_PHI = 64
 
@@ -816,22 +819,53 @@ class SphereMaterial:
         keep = np.hypot(pc[:, 0], pc[:, 1]) < 1.0 + reach / k
         G, W = G[keep], W[keep]
         xg, wg = np.polynomial.legendre.leggauss(LATTICE_PEAK_NODES)
+        # orders well inside the unit disk of wo_xy: a tensor grid in q, weights d²q / (k² |cos θo|)
+        rho0 = np.hypot(pc[keep, 0], pc[keep, 1])
+        r_w = reach / k
+        flat = rho0 + r_w < LATTICE_STEEP
         d = reach * xg
         g1 = reach * wg * np.exp(-0.5 * (d / w) ** 2) / (math.sqrt(2 * np.pi) * w)
-        q = np.stack(np.broadcast_arrays(G[:, None, None, 0] + d[None, :, None],
-                                         G[:, None, None, 1] + d[None, None, :]), -1).reshape(-1, 2)
-        wq = (W[:, None, None] * g1[None, :, None] * g1[None, None, :]).reshape(-1)
+        Gf, Wf = G[flat], W[flat]
+        q = np.stack(np.broadcast_arrays(Gf[:, None, None, 0] + d[None, :, None],
+                                         Gf[:, None, None, 1] + d[None, None, :]), -1).reshape(-1, 2)
+        wq = (Wf[:, None, None] * g1[None, :, None] * g1[None, None, :]).reshape(-1)
         p = q / k - wi[:2]
         r2 = p[:, 0] ** 2 + p[:, 1] ** 2
         ok = (r2 < 1.0) & (wq > 0)
-        p, wq, r2 = p[ok], wq[ok], r2[ok]
+        p, r2 = p[ok], r2[ok]
         cz = np.sqrt(1.0 - r2)
+        wq = wq[ok] / (k * k * cz)
+        # orders near grazing exit: wo_xy = sin θ (cos φ, sin φ), d²q / (k² |cos θo|) = sin θ dθ dφ
+        # (no 1/|cos θo| singularity), a Gauss–Legendre grid in θ and φ over the peak's window
+        if np.any(~flat):
+            Gs, Ws, ps = G[~flat], W[~flat], pc[keep][~flat]
+            r0 = np.hypot(ps[:, 0], ps[:, 1])
+            ph0 = np.arctan2(ps[:, 1], ps[:, 0])
+            th_lo = np.arcsin(np.clip(r0 - r_w, 0.0, 1.0))
+            th_hi = np.arcsin(np.clip(r0 + r_w, 0.0, 1.0))
+            dph = np.arcsin(np.clip(r_w / np.maximum(r0, 1e-12), 0.0, 1.0))
+            xt, wt = np.polynomial.legendre.leggauss(2 * LATTICE_PEAK_NODES)
+            th = 0.5 * (th_lo + th_hi)[:, None] + 0.5 * (th_hi - th_lo)[:, None] * xt[None, :]
+            wth = 0.5 * (th_hi - th_lo)[:, None] * wt[None, :]
+            ph = ph0[:, None] + dph[:, None] * xg[None, :]
+            wph = dph[:, None] * wg[None, :]
+            st = np.sin(th)[:, :, None]
+            pp = np.stack(np.broadcast_arrays(st * np.cos(ph)[:, None, :], st * np.sin(ph)[:, None, :]), -1)
+            dq = k * (pp + wi[:2]) - Gs[:, None, None, :]
+            gauss = np.exp(-0.5 * np.sum(dq * dq, axis=-1) / (w * w)) / (2 * np.pi * w * w)
+            ws = (Ws[:, None, None] * gauss * st * wth[:, :, None] * wph[:, None, :]).reshape(-1)
+            pp = pp.reshape(-1, 2)
+            r2s = np.sum(pp * pp, axis=-1)
+            ok = (r2s < 1.0) & (ws > 0)
+            p = np.concatenate([p, pp[ok]])
+            cz = np.concatenate([cz, np.sqrt(1.0 - r2s[ok])])
+            wq = np.concatenate([wq, ws[ok]])
         parts_wo, parts_e, parts_f = [], [], []
         for side in (1.0, -1.0):
             wo = np.concatenate([p, side * cz[:, None]], axis=-1)
             P_f, P_b, fwd = self._mie_at(wi, wo, lam)
             parts_wo.append(wo)
-            parts_e.append(np.where(fwd, P_f, P_b) * wq / (k * k * np.maximum(cz, 1e-300)))
+            parts_e.append(np.where(fwd, P_f, P_b) * wq)
             parts_f.append(fwd)
         if lat.jitter > 0.0:
             K = self.rows["P_f"].shape[1]
