@@ -218,3 +218,17 @@ def test_grazing_order_energy_and_furnace(rho):
     assert got > 0
     assert counted == pytest.approx(got, rel=3e-3)
     assert m.directional_albedo(1.0, lam)["total"] <= 1.0 + 1e-9
+
+
+def test_dimensionless_lobe_is_the_lobe_on_a_lattice():
+    m = corona.Material(corona.Sphere(0.6), corona.Lattice("square", 5.0, jitter=0.1))
+    lam = 550.0
+    B = 2 * np.pi / 5.0
+    u = np.array([[B * 0.6, 0.0], [0.0, B * 0.6], [0.5 * B * 0.6, 0.5 * B * 0.6], [40.0, 0.0]])
+    d = u * (lam * 1e-3) / (2 * np.pi * 0.6)
+    v = m.lobe_dimensionless(u, lam)
+    ref = np.where(np.sum(d * d, -1) < 1, m.lobe(d, lam), 0.0) / (m.area_fraction * (0.6 / (lam * 1e-3)) ** 2)
+    np.testing.assert_allclose(v, ref, rtol=1e-12)
+    assert v[0] > 100 * v[2] > 0                  # an order against the diffuse part between them
+    with pytest.raises(CoronaError, match="anisotropic"):
+        m.lobe_dimensionless_radial(np.array([1.0]), lam)

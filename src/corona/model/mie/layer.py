@@ -1235,6 +1235,9 @@ class SphereMaterial:
         """``v(|u|)`` with ``lobe(d, λ) = F_a (R/λ)² v(2π R |d| / λ)`` at ``wavelength`` [nm]
         (the shared protocol of :class:`corona.Material`; a sphere's pattern is not a function of
         ``u`` alone, so ``v`` belongs to one wavelength).  0 where ``|d| >= 1``."""
+        if self.lattice is not None:
+            raise CoronaError(f"{self!r}: a fixed lattice's lobe is anisotropic; use lobe_dimensionless(u) "
+                              "with u of shape (..., 2)")
         u = np.abs(check_finite_array("u", u))
         lam = float(wavelength) * 1e-3
         rho = u * lam / (2 * np.pi * self.length_scale)
@@ -1243,9 +1246,18 @@ class SphereMaterial:
         return np.where(rho < 1.0, val / (self.area_fraction * (self.length_scale / lam) ** 2), 0.0)
 
     def lobe_dimensionless(self, u, wavelength: float = 550.0) -> np.ndarray:
-        """``v(u)`` at ``u`` (..., 2): the radial one at ``|u|`` (the layer is isotropic)."""
+        """``v(u)`` at ``u`` (..., 2): the radial one at ``|u|`` for an isotropic layer; on a fixed
+        lattice the lobe at ``d = u λ / (2π R)`` itself (0 where ``|d| >= 1``)."""
         u = check_finite_array("u", u)
-        return self.lobe_dimensionless_radial(np.hypot(u[..., 0], u[..., 1]), wavelength)
+        if self.lattice is None:
+            return self.lobe_dimensionless_radial(np.hypot(u[..., 0], u[..., 1]), wavelength)
+        if u.ndim == 0 or u.shape[-1] != 2:
+            raise CoronaError(f"u must have shape (..., 2), got {u.shape}")
+        lam = float(wavelength) * 1e-3
+        d = u * lam / (2 * np.pi * self.length_scale)
+        inside = np.sum(d * d, axis=-1) < 1.0
+        val = self.lobe(np.where(inside[..., None], d, 0.0), float(wavelength))
+        return np.where(inside, val / (self.area_fraction * (self.length_scale / lam) ** 2), 0.0)
 
     def lobe_tabulated(self, d, wavelength) -> np.ndarray:
         """The lobe as the renderer evaluates it: :meth:`lobe` reads the same tables."""
