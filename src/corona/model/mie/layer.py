@@ -68,7 +68,7 @@ from corona import tables
 from corona.model.mie import theory as mie
 from corona._validation import CoronaError, check_choice, check_finite_array, check_range
 from corona.model.layer import decoupled_lobe
-from corona.model.processes import Poisson, Process
+from corona.model.processes import Lattice, Poisson, Process
 from corona.model.shapes.modifiers import SizeDistribution
 from corona.model.mie.sphere import Sphere, sphere_parts
 from corona.model.substrate import GlassPane, Mirror
@@ -541,7 +541,6 @@ class SphereMaterial:
             process = Poisson()
         if not isinstance(process, Process):
             raise CoronaError(f"process={process!r} is not a corona point process (e.g. corona.Poisson())")
-        from corona.model.processes import Lattice
         #: the fixed lattice of the centres (None: an isotropic process)
         self.lattice = process if isinstance(process, Lattice) and not process.isotropic else None
         if not process.isotropic and self.lattice is None:
