@@ -24,6 +24,10 @@ Model (per unit layer area; ``μ_i = |cos θi|``; λ the wavelength in air)
   is ``n dσ/dΩ`` and ``∫ P dΩ = Q_sca``; ``S(q)`` is the structure factor of
   the centres at the in-plane momentum transfer ``q = 2π |(wo + wi).xy| / λ``
   (decoupling rule, docs/physics.md#mixtures-and-size-distributions);
+* on a fixed :class:`corona.Lattice` (a colloidal crystal, one size) ``S`` is the lattice's
+  at the in-plane ``q = k (wo + wi)_xy`` (Bragg orders and the Debye–Waller background) and
+  multiplies both lobes, ``Z = P S(q)``: transmitted and reflected orders
+  (:meth:`SphereMaterial.lattice_nodes`, docs/physics.md#spheres-on-a-lattice);
 * ``F_s = min(F_a / μ_i, 1)``: the spheres' shadow area per unit layer area
   along the beam (their cross-section does not shrink with the angle as a
   flat disk's does), saturated at full cover;
