@@ -52,7 +52,9 @@ SLOW_TESTS = {"test_fit_window_recovers_radius_area_fraction_and_bitmap", "test_
               "test_rsa_saturates_at_jamming_limit",
               # reverse and forward AD of a textured or anisotropic layer (a kernel compiled per
               # case: 1-17 s each on two idle cores)
-              "test_derivatives_match_central_differences"}
+              "test_derivatives_match_central_differences",
+              # spheres on a lattice: an order near grazing exit integrated on a fine polar grid
+              "test_grazing_order_energy_and_furnace"}
 BROWSER_FILES = {"test_designer_browser.py"}
 #: a CLI test (CliRunner.invoke, subprocess.run) of one of these commands renders
 CLI_RENDERS = {"str:render", "str:sweep"}

@@ -543,10 +543,9 @@ def material_from_parameters(**params):
     shape = make_shape(p)
     process = make_process(p, shape)
     if p["shape"] == "sphere":   # droplets in air: particles; the mode given must say so
-        from corona.model.mie.layer import SPHERE_NO_LATTICE, SphereMaterial
-        if p["process"] not in ("poisson", "hard-disk", "rsa"):
-            raise CoronaError(f"process={p['process']!r} is out of range for shape='sphere'; allowed "
-                              f"poisson, hard-disk, rsa ({SPHERE_NO_LATTICE})")
+        from corona.model.mie.layer import SphereMaterial
+        # every process: lattices are the numpy model's (the plugin refuses them at load, with
+        # the reason), a point file's S(q) is radial (an isotropic corona.PointSet)
         material = SphereMaterial(shape, process, mode=params.get("mode") or "particle", substrate=substrate)
     else:
         material = Material(shape, process, mode=p["mode"], albedo=p["albedo"], substrate=substrate)

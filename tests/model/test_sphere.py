@@ -55,7 +55,8 @@ def test_parameters():
     for bad, msg in [(dict(ior=1.5), "need shape='sphere'"),
                      (dict(shape="sphere", ior_imag=0.1), "needs ior"),
                      (dict(shape="sphere", mode="aperture"), "mode='aperture'"),
-                     (dict(shape="sphere", process="lattice-hex"), "process='lattice-hex'"),
+                     (dict(shape="sphere", process="lattice-hex", size_spread=0.1),
+                      "size_spread=0.1 is out of range for shape='sphere' on a lattice"),
                      (dict(shape="sphere", ior=-2.0), "ior=-2")]:
         with pytest.raises(CoronaError, match=msg):
             material_from_parameters(**bad)

@@ -133,8 +133,9 @@ def test_albedo_texture_is_unused(mi_variant):
 
 
 @pytest.mark.parametrize("extra,line", [
-    ({"process": "lattice-hex"}, r"process='lattice-hex' is out of range for shape='sphere'; allowed poisson, "
-                                 r"hard-disk, rsa \(a lattice's S\(q\) is a grating of Bragg peaks"),
+    ({"process": "lattice-hex"}, r"process='lattice-hex' is out of range for shape='sphere' in the renderer; "
+                                 r"allowed poisson, hard-disk, rsa, points \(the Bragg orders of spheres on a "
+                                 r"lattice are evaluated by the numpy model"),
     ({"radius": "tex"}, r"radius texture is out of range for shape='sphere'; allowed a float \(the Mie rows "
                         r"belong to one radius"),
     ({"substrate": "mirror"}, r"substrate=Mirror\(.*\) is out of range for shape='sphere'; allowed none or an "

@@ -88,6 +88,10 @@ class SphereBSDFMixin:
         mi.BSDF.__init__(self, props)
         params, textures = _read_props(props)
         process = params.get("process", SPEC["process"].default)
+        if str(process).startswith("lattice"):
+            from corona.model.mie.layer import SPHERE_NO_LATTICE
+            raise CoronaError(f"process={process!r} is out of range for shape='sphere' in the renderer; "
+                              f"allowed poisson, hard-disk, rsa, points ({SPHERE_NO_LATTICE})")
         albedo_tex = textures.pop("albedo", None)
         if albedo_tex is not None:     # means nothing for a sphere: the one unused-parameter warning
             warn_unused(["albedo"], {**DEFAULTS, **params}, stacklevel=2)

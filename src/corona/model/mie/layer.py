@@ -24,6 +24,10 @@ Model (per unit layer area; ``μ_i = |cos θi|``; λ the wavelength in air)
   is ``n dσ/dΩ`` and ``∫ P dΩ = Q_sca``; ``S(q)`` is the structure factor of
   the centres at the in-plane momentum transfer ``q = 2π |(wo + wi).xy| / λ``
   (decoupling rule, docs/physics.md#mixtures-and-size-distributions);
+* on a fixed :class:`corona.Lattice` (a colloidal crystal, one size) ``S`` is the lattice's
+  at the in-plane ``q = k (wo + wi)_xy`` (Bragg orders and the Debye–Waller background) and
+  multiplies both lobes, ``Z = P S(q)``: transmitted and reflected orders
+  (:meth:`SphereMaterial.lattice_nodes`, docs/physics.md#spheres-on-a-lattice);
 * ``F_s = min(F_a / μ_i, 1)``: the spheres' shadow area per unit layer area
   along the beam (their cross-section does not shrink with the angle as a
   flat disk's does), saturated at full cover;
@@ -68,7 +72,7 @@ from corona import tables
 from corona.model.mie import theory as mie
 from corona._validation import CoronaError, check_choice, check_finite_array, check_range
 from corona.model.layer import decoupled_lobe
-from corona.model.processes import Poisson, Process
+from corona.model.processes import Lattice, Poisson, Process
 from corona.model.shapes.modifiers import SizeDistribution
 from corona.model.mie.sphere import Sphere, sphere_parts
 from corona.model.substrate import GlassPane, Mirror
@@ -115,10 +119,25 @@ SIZE_PER_SIGMA = 4.0
 MAX_SIZE_SAMPLES = 8000
 SIZE_TAIL = 1e-6
 SIZE_DM = 0.002
-#: Why spheres take no lattice (the one line of the refusal).
-SPHERE_NO_LATTICE = ("a lattice's S(q) is a grating of Bragg peaks at its reciprocal vectors, anisotropic "
-                     "discrete orders in the plane of the layer, while the Mie lobes are tabulated and "
-                     "sampled by scattering angle alone")
+#: Why the renderer's sphere layer takes no fixed lattice (the one line of the refusal): the numpy
+#: model evaluates it (:class:`SphereMaterial`), the plugin has no sampler for its orders.
+SPHERE_NO_LATTICE = ("the Bragg orders of spheres on a lattice are evaluated by the numpy model "
+                     "(corona.Material(corona.Sphere(r), corona.Lattice(...))) only; the renderer's sphere "
+                     "layer tabulates and samples its lobes by scattering angle alone and has no 2-D "
+                     "table of the orders yet")
+#: Why a size spread takes no fixed lattice (the one line of the refusal).
+SPHERE_LATTICE_ONE_SIZE = ("the reflected Bragg orders need the coherent part |<S(Θ)>|² of the backward "
+                           "amplitudes, which the tables of a size spread do not hold (a colloidal "
+                           "crystal is of one size)")
+#: Gauss–Legendre nodes per axis over ``±LATTICE_PEAK_REACH`` rms widths of a Bragg peak (the
+#: energy of every order, :meth:`SphereMaterial.lattice_nodes`).
+LATTICE_PEAK_NODES = 12
+LATTICE_PEAK_REACH = 5.0
+#: Orders whose window reaches past this ``|wo_xy|`` (near grazing exit) are integrated in the
+#: polar angles of ``wo`` instead (twice the nodes in θ), which removes the ``1/|cos θo|``.
+LATTICE_STEEP = 0.9
+#: Azimuths of the quadrature of a jittered lattice's diffuse part (1 - e^{-q²δ²}) P.
+LATTICE_DIFFUSE_PHI = 64
 
 
 def _grid(radius: float, radius_max: float, spread: float = 0.0):
@@ -481,7 +500,11 @@ class SphereMaterial:
     ----------
     shape : corona.Sphere or corona.SizeDistribution of a Sphere
     process : corona.Process, default Poisson()
-        An isotropic process of the centres (poisson, hard-disk, rsa).
+        An isotropic process of the centres (poisson, hard-disk, rsa, a powder lattice, a
+        point set), or a fixed :class:`corona.Lattice` (one sphere size): a colloidal
+        crystal, whose lobes are the Mie lobes times the lattice's Bragg peaks and
+        Debye–Waller background, in transmission and in reflection
+        (docs/physics.md#spheres-on-a-lattice).
     mode : "particle"
         Spheres are particles in clear air; ``"aperture"`` is refused.
     albedo : 0
@@ -522,9 +545,17 @@ class SphereMaterial:
             process = Poisson()
         if not isinstance(process, Process):
             raise CoronaError(f"process={process!r} is not a corona point process (e.g. corona.Poisson())")
-        if not process.isotropic:
-            raise CoronaError(f"process={process!r} is out of range for shape='sphere'; allowed poisson, "
-                              f"hard-disk or rsa ({SPHERE_NO_LATTICE})")
+        #: the fixed lattice of the centres (None: an isotropic process)
+        self.lattice = process if isinstance(process, Lattice) and not process.isotropic else None
+        if not process.isotropic and self.lattice is None:
+            raise CoronaError(f"process={process!r} is out of range for shape='sphere'; allowed an isotropic "
+                              "process or a fixed lattice (the Mie lobes of an anisotropic point set's S(q) "
+                              "are not built)")
+        if self.lattice is not None and self.sizes is not None and self.sizes.spread > 0:
+            raise CoronaError(f"size_spread={self.sizes.spread:g} is out of range for shape='sphere' on a "
+                              f"lattice; allowed 0 ({SPHERE_LATTICE_ONE_SIZE})")
+        self.isotropic = self.lattice is None
+        self._lattice_cache = {}
         if check_choice("mode", mode, ("aperture", "particle")) != "particle":
             raise CoronaError("mode='aperture' is out of range for shape='sphere'; allowed: particle "
                               "(droplets in clear air)")
@@ -581,8 +612,9 @@ class SphereMaterial:
 
     @functools.cached_property
     def structure_table(self):
-        """``S`` on a radial grid of ``u = q r`` (RADIAL_DU), or None for Poisson (S = 1)."""
-        if isinstance(self.process, Poisson):
+        """``S`` on a radial grid of ``u = q r`` (RADIAL_DU), or None for Poisson (S = 1) and for a
+        fixed lattice (its ``S`` is evaluated at the in-plane ``q`` itself: :meth:`_lobes`)."""
+        if isinstance(self.process, Poisson) or self.lattice is not None:
             return None
         u_max = tables.u_max_for(self.length_scale)
         n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
@@ -742,6 +774,149 @@ class SphereMaterial:
                 "slant": fs}
 
     # ------------------------------------------------------------------
+    # a fixed lattice (docs/physics.md#spheres-on-a-lattice)
+    # ------------------------------------------------------------------
+    def _mie_at(self, wi, wo, lam):
+        """(P_f, P_b, forward mask) of the tables at directions ``wo`` (M, 3) for one ``wi`` (3,)."""
+        s_f = np.linalg.norm(wo + wi, axis=-1)
+        s_b = np.linalg.norm(wo - wi, axis=-1)
+        j, t = self._row(lam)
+        x = self._x(lam)
+        return self._blend("P_f", j, t, x, s_f), self._blend("P_b", j, t, x, s_b), s_f <= s_b
+
+    def lattice_nodes(self, wi, wavelength: float) -> dict:
+        """A quadrature of the lattice layer's lobes over the sphere of directions, for one ``wi``.
+
+        On a fixed lattice (one size, ``C = P``) the lobe is
+        ``Z = P (1 - e^{-q²δ²}) + P Σ_G W_G g_G(q)`` (forward lobe's ``P_f`` or backward
+        lobe's ``P_b`` by the chord, :meth:`_lobes`), ``W_G = (2π)² n e^{-G²δ²}`` and ``g_G`` the
+        unit Gaussian of the broadened peak (:class:`corona.Lattice`).  Since
+        ``d²q = k² |cos θo| dΩ`` (``q = k (wo + wi)_xy``), order ``G`` carries
+        ``∫ P W_G g_G(q) d²q / (k² |cos θo|)``, summed over the directions on both sides of the
+        layer that it reaches (``|q/k - wi_xy| < 1``): ``LATTICE_PEAK_NODES``² Gauss–Legendre
+        nodes over ``±LATTICE_PEAK_REACH`` rms widths per peak and side.  The diffuse part
+        ``P (1 - e^{-q²δ²})`` of a jittered lattice is integrated on the tables' chord grid
+        about ``∓wi`` (``dΩ = s ds dφ``, ``LATTICE_DIFFUSE_PHI`` azimuths).  In the narrow-peak
+        limit ``F_s`` times an order's energy is the kinematic grating efficiency
+        ``η_G = λ² |f(Θ_G)|² e^{-G²δ²} / (A² μ_i |cos θ_G|)`` (``|f|² = (|S1|² + |S2|²) / 2k²``
+        the sphere's differential cross-section at the order's scattering angle, ``A`` the cell
+        area; e.g. Ashcroft & Mermin ch. 6, Guinier ch. 7).
+
+        Returns
+        -------
+        dict: ``wo`` (M, 3) the nodes' directions, ``energy`` (M,) their ``Z dΩ`` (the layer's
+        lobes before ``F_s w``), ``forward`` (M,) the lobe they belong to, ``bragg`` (M,) True for
+        the orders' nodes (False: the diffuse part's).
+        """
+        wi = np.asarray(wi, dtype=np.float64)
+        lam = float(np.clip(wavelength, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX))
+        key = (tuple(np.round(wi, 12)), lam)
+        if key in self._lattice_cache:
+            return self._lattice_cache[key]
+        k = 2 * np.pi / (lam * 1e-3)
+        lat = self.lattice
+        w = lat.peak_width
+        reach = LATTICE_PEAK_REACH * w
+        G, W = lat.bragg_peaks(2.0 * k + reach)
+        pc = G / k - wi[:2]
+        keep = np.hypot(pc[:, 0], pc[:, 1]) < 1.0 + reach / k
+        G, W = G[keep], W[keep]
+        xg, wg = np.polynomial.legendre.leggauss(LATTICE_PEAK_NODES)
+        # orders well inside the unit disk of wo_xy: a tensor grid in q, weights d²q / (k² |cos θo|)
+        rho0 = np.hypot(pc[keep, 0], pc[keep, 1])
+        r_w = reach / k
+        flat = rho0 + r_w < LATTICE_STEEP
+        d = reach * xg
+        g1 = reach * wg * np.exp(-0.5 * (d / w) ** 2) / (math.sqrt(2 * np.pi) * w)
+        Gf, Wf = G[flat], W[flat]
+        q = np.stack(np.broadcast_arrays(Gf[:, None, None, 0] + d[None, :, None],
+                                         Gf[:, None, None, 1] + d[None, None, :]), -1).reshape(-1, 2)
+        wq = (Wf[:, None, None] * g1[None, :, None] * g1[None, None, :]).reshape(-1)
+        p = q / k - wi[:2]
+        r2 = p[:, 0] ** 2 + p[:, 1] ** 2
+        ok = (r2 < 1.0) & (wq > 0)
+        p, r2 = p[ok], r2[ok]
+        cz = np.sqrt(1.0 - r2)
+        wq = wq[ok] / (k * k * cz)
+        # orders near grazing exit: wo_xy = sin θ (cos φ, sin φ), d²q / (k² |cos θo|) = sin θ dθ dφ
+        # (no 1/|cos θo| singularity), a Gauss–Legendre grid in θ and φ over the peak's window
+        if np.any(~flat):
+            Gs, Ws, ps = G[~flat], W[~flat], pc[keep][~flat]
+            r0 = np.hypot(ps[:, 0], ps[:, 1])
+            ph0 = np.arctan2(ps[:, 1], ps[:, 0])
+            th_lo = np.arcsin(np.clip(r0 - r_w, 0.0, 1.0))
+            th_hi = np.arcsin(np.clip(r0 + r_w, 0.0, 1.0))
+            dph = np.arcsin(np.clip(r_w / np.maximum(r0, 1e-12), 0.0, 1.0))
+            xt, wt = np.polynomial.legendre.leggauss(2 * LATTICE_PEAK_NODES)
+            th = 0.5 * (th_lo + th_hi)[:, None] + 0.5 * (th_hi - th_lo)[:, None] * xt[None, :]
+            wth = 0.5 * (th_hi - th_lo)[:, None] * wt[None, :]
+            ph = ph0[:, None] + dph[:, None] * xg[None, :]
+            wph = dph[:, None] * wg[None, :]
+            st = np.sin(th)[:, :, None]
+            pp = np.stack(np.broadcast_arrays(st * np.cos(ph)[:, None, :], st * np.sin(ph)[:, None, :]), -1)
+            dq = k * (pp + wi[:2]) - Gs[:, None, None, :]
+            gauss = np.exp(-0.5 * np.sum(dq * dq, axis=-1) / (w * w)) / (2 * np.pi * w * w)
+            ws = (Ws[:, None, None] * gauss * st * wth[:, :, None] * wph[:, None, :]).reshape(-1)
+            pp = pp.reshape(-1, 2)
+            r2s = np.sum(pp * pp, axis=-1)
+            ok = (r2s < 1.0) & (ws > 0)
+            p = np.concatenate([p, pp[ok]])
+            cz = np.concatenate([cz, np.sqrt(1.0 - r2s[ok])])
+            wq = np.concatenate([wq, ws[ok]])
+        parts_wo, parts_e, parts_f = [], [], []
+        for side in (1.0, -1.0):
+            wo = np.concatenate([p, side * cz[:, None]], axis=-1)
+            P_f, P_b, fwd = self._mie_at(wi, wo, lam)
+            parts_wo.append(wo)
+            parts_e.append(np.where(fwd, P_f, P_b) * wq)
+            parts_f.append(fwd)
+        if lat.jitter > 0.0:
+            K = self.rows["P_f"].shape[1]
+            s = np.linspace(0.0, CHORD_MAX, K)
+            ws = np.full(s.size, s[1] - s[0])
+            ws[0] = ws[-1] = 0.5 * ws[0]
+            phi = (np.arange(LATTICE_DIFFUSE_PHI) + 0.5) * (2 * np.pi / LATTICE_DIFFUSE_PHI)
+            cos_t, sin_t = 1 - 0.5 * s * s, s * np.sqrt(1 - 0.25 * s * s)
+            for axis in (-wi, wi):
+                e1, e2 = _frame(axis)
+                wo = (cos_t[:, None, None] * axis + sin_t[:, None, None]
+                      * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2)).reshape(-1, 3)
+                dw = np.repeat(ws * s * (2 * np.pi / LATTICE_DIFFUSE_PHI), phi.size)
+                P_f, P_b, fwd = self._mie_at(wi, wo, lam)
+                mine = fwd if axis[2] == -wi[2] else ~fwd     # each lobe on its own grid
+                q2 = k * k * np.sum((wo + wi)[:, :2] ** 2, axis=-1)
+                diffuse = np.where(fwd, P_f, P_b) * -np.expm1(-q2 * lat.jitter ** 2)
+                parts_wo.append(wo)
+                parts_e.append(np.where(mine, diffuse * dw, 0.0))
+                parts_f.append(fwd)
+        n_bragg = 2 * p.shape[0]
+        out = {"wo": np.concatenate(parts_wo), "energy": np.concatenate(parts_e),
+               "forward": np.concatenate(parts_f)}
+        out["bragg"] = np.arange(out["energy"].size) < n_bragg
+        if len(self._lattice_cache) > 256:
+            self._lattice_cache.clear()
+        self._lattice_cache[key] = out
+        return out
+
+    def lattice_energy(self, wi, wavelength: float) -> float:
+        """``e = ∫ Z dΩ`` of both lobes on the lattice for one ``wi`` (3,) (:meth:`lattice_nodes`)."""
+        return float(np.sum(self.lattice_nodes(wi, wavelength)["energy"]))
+
+    def _lattice_weight(self, wi, wavelength, shape):
+        """The cap ``w = min(1, (1 - |t|²) / (ENERGY_MARGIN F_s e))`` of the lattice layer at each
+        (``wi``, λ) (broadcast to ``shape``); ``e`` by :meth:`lattice_energy`."""
+        wi = np.broadcast_to(np.asarray(wi, dtype=np.float64), shape + (3,)).reshape(-1, 3)
+        lam = np.broadcast_to(np.asarray(wavelength, dtype=np.float64), shape).reshape(-1)
+        keys = np.concatenate([wi, lam[:, None]], axis=-1)
+        uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+        out = np.empty(uniq.shape[0])
+        for n, row in enumerate(uniq):
+            e = self.energies(row[2], row[3])
+            scattered = e["slant"] * self.lattice_energy(row[:3], row[3]) * ENERGY_MARGIN
+            out[n] = min(1.0, max(1.0 - float(e["coherent"]), 0.0) / max(float(scattered), 1e-300))
+        return out[inv.reshape(-1)].reshape(shape)
+
+    # ------------------------------------------------------------------
     # the pane (docs/physics.md#the-layer-on-glass-substrateglass), as corona.Material's
     # ------------------------------------------------------------------
     def _pane(self, cos_theta):
@@ -794,7 +969,11 @@ class SphereMaterial:
         dxy = np.linalg.norm((wo + wi)[..., :2], axis=-1)
         u = 2 * np.pi * self.length_scale * dxy / (np.clip(lam, tables.WAVELENGTH_MIN,
                                                            tables.WAVELENGTH_MAX) * 1e-3)
-        S = self.structure_factor(u)
+        if self.lattice is None:
+            S = self.structure_factor(u)
+        else:   # the fixed lattice's S at the in-plane momentum transfer q = 2π (wo + wi)_xy / λ
+            lam_um = np.clip(lam, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+            S = self.lattice.structure_factor_at(2 * np.pi * (wo + wi)[..., :2] / lam_um[..., None])
         if exact:
             P_f, C_f, P_b = self._exact(s_f, s_b, lam)
         else:
@@ -804,6 +983,9 @@ class SphereMaterial:
             C_f = self._blend("C_f", j, t, x, s_f) if self.rows["C_f"].size else P_f
             P_b = self._blend("P_b", j, t, x, s_b)
         Z_f = decoupled_lobe(P_f, C_f, S)        # per steradian: R = 1
+        if self.lattice is not None:
+            # the reflected orders: one size, C = P (a lattice takes no size spread)
+            return Z_f, decoupled_lobe(P_b, P_b, S), forward
         return Z_f, P_b, forward
 
     def _exact(self, s_f, s_b, lam):
@@ -839,7 +1021,8 @@ class SphereMaterial:
         Z_f, Z_b, forward = self._lobes(wi, wo, wavelength, exact)
         wi = np.asarray(wi, dtype=np.float64)
         e = self.energies(np.broadcast_to(wi[..., 2], Z_f.shape), wavelength)
-        return e["slant"] * e["weight"] * np.where(forward, Z_f, Z_b), e["coherent"]
+        weight = e["weight"] if self.lattice is None else self._lattice_weight(wi, wavelength, Z_f.shape)
+        return e["slant"] * weight * np.where(forward, Z_f, Z_b), e["coherent"]
 
     def _pane_factors(self, ci, co, coherent):
         """(far side, own side, mirrored) factors of the lobes on the pane (1, 1, 0 without one)."""
@@ -993,7 +1176,20 @@ class SphereMaterial:
                         if on_pane else 0.0,
                "lobe_transmission": 0.0, "lobe_reflection": 0.0, "diffuse": 0.0,
                "forward": 0.0, "backward": 0.0}
-        for which, axis in (("forward", -wi), ("backward", wi)):
+        if self.lattice is not None:
+            # the orders and the diffuse part on their own quadrature (a Bragg peak is far
+            # narrower than the chord grid's azimuths): lattice_nodes, scaled by F_s w
+            st = math.sqrt(max(0.0, 1 - ci * ci))
+            wi = np.array([st * math.cos(phi_i), st * math.sin(phi_i), ci])
+            nodes = self.lattice_nodes(wi, wavelength)
+            wo = nodes["wo"]
+            e = nodes["energy"] * float(self._slant(ci)) * float(self._lattice_weight(wi, wavelength, ()))
+            out["forward"] = float(np.sum(e[nodes["forward"]]))
+            out["backward"] = float(np.sum(e[~nodes["forward"]]))
+            lobes = [(wo, e)]
+        else:
+            lobes = []
+        for which, axis in (("forward", -wi), ("backward", wi)) if self.lattice is None else ():
             e1, e2 = _frame(axis)
             cos_t = 1 - 0.5 * s * s
             sin_t = s * np.sqrt(1 - 0.25 * s * s)
@@ -1005,6 +1201,8 @@ class SphereMaterial:
             # trapezoid end weight there is 0.5 of a thin ring, negligible
             e = val * dw
             out[which] = float(np.sum(e))
+            lobes.append((wo, e))
+        for wo, e in lobes:
             same = np.sign(wo[..., 2]) == np.sign(ci)
             if on_pane:   # each direction's energy as eval splits it (the mirrored part: wo' on the far side)
                 through, own, mirrored = self._pane_factors(np.full(wo.shape[:-1], ci), wo[..., 2], coherent)
@@ -1040,6 +1238,9 @@ class SphereMaterial:
         """``v(|u|)`` with ``lobe(d, λ) = F_a (R/λ)² v(2π R |d| / λ)`` at ``wavelength`` [nm]
         (the shared protocol of :class:`corona.Material`; a sphere's pattern is not a function of
         ``u`` alone, so ``v`` belongs to one wavelength).  0 where ``|d| >= 1``."""
+        if self.lattice is not None:
+            raise CoronaError(f"{self!r}: a fixed lattice's lobe is anisotropic; use lobe_dimensionless(u) "
+                              "with u of shape (..., 2)")
         u = np.abs(check_finite_array("u", u))
         lam = float(wavelength) * 1e-3
         rho = u * lam / (2 * np.pi * self.length_scale)
@@ -1048,9 +1249,18 @@ class SphereMaterial:
         return np.where(rho < 1.0, val / (self.area_fraction * (self.length_scale / lam) ** 2), 0.0)
 
     def lobe_dimensionless(self, u, wavelength: float = 550.0) -> np.ndarray:
-        """``v(u)`` at ``u`` (..., 2): the radial one at ``|u|`` (the layer is isotropic)."""
+        """``v(u)`` at ``u`` (..., 2): the radial one at ``|u|`` for an isotropic layer; on a fixed
+        lattice the lobe at ``d = u λ / (2π R)`` itself (0 where ``|d| >= 1``)."""
         u = check_finite_array("u", u)
-        return self.lobe_dimensionless_radial(np.hypot(u[..., 0], u[..., 1]), wavelength)
+        if self.lattice is None:
+            return self.lobe_dimensionless_radial(np.hypot(u[..., 0], u[..., 1]), wavelength)
+        if u.ndim == 0 or u.shape[-1] != 2:
+            raise CoronaError(f"u must have shape (..., 2), got {u.shape}")
+        lam = float(wavelength) * 1e-3
+        d = u * lam / (2 * np.pi * self.length_scale)
+        inside = np.sum(d * d, axis=-1) < 1.0
+        val = self.lobe(np.where(inside[..., None], d, 0.0), float(wavelength))
+        return np.where(inside, val / (self.area_fraction * (self.length_scale / lam) ** 2), 0.0)
 
     def lobe_tabulated(self, d, wavelength) -> np.ndarray:
         """The lobe as the renderer evaluates it: :meth:`lobe` reads the same tables."""
