@@ -323,7 +323,8 @@ def truncate_table(table: dict, truncation: float) -> dict:
     return out
 
 
-#: (row, size) pairs per block of :func:`size_averaged_scattering` (its products' height).
+#: (row, size) pairs per block of :func:`size_averaged_scattering` (its products' height; fewer
+#: where the angle grid is long, the products at most 2^22 values).
 PAIR_BLOCK = 1024
 
 
@@ -358,7 +359,7 @@ def size_averaged_scattering(m, k, radii, weights, mu, coherent=False):
     so that ``|S1|² + |S2|² = (|S+|² + |S-|²) / 2`` (and the same for the averaged amplitudes
     in ``C``): two products of real matrices (the coefficients' real and imaginary parts stacked)
     with ``π_n ± τ_n`` per (row, size) pair instead of four complex ones.  The pairs are taken in
-    blocks of :data:`PAIR_BLOCK` ordered by their series length (Wiscombe's
+    blocks of at most :data:`PAIR_BLOCK` ordered by their series length (Wiscombe's
     :func:`corona.model.mie.theory.n_terms`), each block's products only as long as its longest
     series (the coefficients past a sphere's own length are 0 in
     :func:`corona.model.mie.theory.coefficients`): the same sums in a different order.
@@ -383,8 +384,9 @@ def size_averaged_scattering(m, k, radii, weights, mu, coherent=False):
     P = np.zeros((J, K))
     A = [np.zeros((J, K), complex), np.zeros((J, K), complex)] if coherent else None
     c_ext, c_sca = np.zeros(J), np.zeros(J)
-    for b0 in range(0, x.size, PAIR_BLOCK):
-        idx = order[b0:b0 + PAIR_BLOCK]
+    block = min(PAIR_BLOCK, max(64, (1 << 22) // max(K, 1)))      # (2 block, K) products <= 64 MB
+    for b0 in range(0, x.size, block):
+        idx = order[b0:b0 + block]
         idx = idx[np.argsort(row[idx], kind="stable")]            # the block's pairs grouped by row
         B = idx.size
         nb = int(own[idx].max())
