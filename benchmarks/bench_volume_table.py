@@ -29,23 +29,29 @@ POPULATIONS = {
 }
 
 
-def one(kwargs: dict) -> dict:
+def one(kwargs: dict, save: str | None = None) -> dict:
     import time
+
+    import numpy as np
 
     import corona  # noqa: F401
     from corona.mitsuba import volume
     v = volume.MieVolume(**kwargs, use_cache=False)
     v.grid()
     t0, c0 = time.perf_counter(), time.process_time()
-    v._build()
+    table = v._build()
+    if save:
+        np.savez(save, **table)
     return {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
             "rows": int(v.grid()[0].size), "sizes": int(v.radii.size), "angles": 2 * v.grid()[2] + 1}
 
 
-def run(src: str, kwargs: dict) -> dict:
+def run(src: str, kwargs: dict, save: str | None = None) -> dict:
     env = {**os.environ, "PYTHONPATH": src, "PYTHONDONTWRITEBYTECODE": "1"}
-    out = subprocess.run([sys.executable, os.path.abspath(__file__), "--one", json.dumps(kwargs)],
-                         env=env, capture_output=True, text=True, check=True, cwd=HERE)
+    cmd = [sys.executable, os.path.abspath(__file__), "--one", json.dumps(kwargs)]
+    if save:
+        cmd += ["--save", save]
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True, cwd=HERE)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -54,19 +60,24 @@ def main():
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--compare-src", default=None, help="another checkout's src folder (the 'before')")
     ap.add_argument("--one", help=argparse.SUPPRESS)
+    ap.add_argument("--save", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
-        print(json.dumps(one(json.loads(args.one))), flush=True)
+        print(json.dumps(one(json.loads(args.one), args.save)), flush=True)
         return
+    import tempfile
+
+    import numpy as np
+    tmp = tempfile.mkdtemp(prefix="corona-bench-volume-")
     src = os.path.join(ROOT, "src")
     load0 = os.getloadavg()[0]
     results = {}
     for name, kwargs in POPULATIONS.items():
         this, other = [], []
-        for _ in range(args.rounds):
-            this.append(run(src, kwargs))
+        for k in range(args.rounds):
+            this.append(run(src, kwargs, os.path.join(tmp, "this.npz") if k == 0 else None))
             if args.compare_src:
-                other.append(run(args.compare_src, kwargs))
+                other.append(run(args.compare_src, kwargs, os.path.join(tmp, "other.npz") if k == 0 else None))
         r = {"cpu_median_s": statistics.median(x["cpu_s"] for x in this),
              "wall_median_s": statistics.median(x["wall_s"] for x in this),
              "rows": this[0]["rows"], "sizes": this[0]["sizes"], "angles": this[0]["angles"]}
@@ -75,8 +86,13 @@ def main():
             ratios = [o["cpu_s"] / t["cpu_s"] for o, t in zip(other, this)]
             r.update(before_cpu_median_s=statistics.median(x["cpu_s"] for x in other),
                      speedup_cpu_median=statistics.median(ratios))
+            a, b = np.load(os.path.join(tmp, "this.npz")), np.load(os.path.join(tmp, "other.npz"))
+            r["max_relative_difference"] = {
+                key: float(np.max(np.abs(a[key] - b[key]) / np.maximum(np.abs(b[key]), 1e-300)))
+                for key in ("p", "c_ext", "c_sca", "g")}
             line += (f"   before {r['before_cpu_median_s']:6.2f} s CPU  speed-up {r['speedup_cpu_median']:.2f}× "
-                     f"(rounds {', '.join(f'{x:.2f}' for x in ratios)})")
+                     f"(rounds {', '.join(f'{x:.2f}' for x in ratios)}); max relative difference "
+                     + ", ".join(f"{k} {v:.1e}" for k, v in r["max_relative_difference"].items()))
         results[name] = r
         print(line, flush=True)
     load = [load0, os.getloadavg()[0]]
