@@ -18,7 +18,7 @@ shared, loaded machine the wall clock measures the neighbours too, while
 the CPU time is what the update costs (numpy runs it on one core).  The
 1-minute load average is recorded at the start and at the end of the run.
 
-    python benchmarks/bench_designer.py [--steps 12]
+    python benchmarks/bench_designer.py [--steps 12] [--only NAME]
 """
 from __future__ import annotations
 
@@ -52,6 +52,7 @@ MATERIALS = {
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=12)
+    ap.add_argument("--only", default="", help="run only the materials whose name contains this")
     args = ap.parse_args()
     from starlette.testclient import TestClient
 
@@ -62,6 +63,8 @@ def main():
     client.get("/api/corona.png", params={"radius": 1.0})
     results = {}
     for name, spec in MATERIALS.items():
+        if args.only not in name:
+            continue
         if isinstance(spec, str):
             material, view = compute.PRESETS[spec]["material"], compute.PRESETS[spec]["view"]
         else:
@@ -125,6 +128,8 @@ def main():
                  if drag else ""), flush=True)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None   # at the end of the run
     print(f"load average (1 min): {load_start} at the start, {load} at the end", flush=True)
+    if args.only:                     # a partial run: printed, not written
+        return
     write("designer", {"steps": args.steps, "load_average_1min": load, "load_average_1min_start": load_start,
                        "results": results,
                        "goal": "every update (picture + profiles) <= 100 ms on 2 cores, radial and 2-D "

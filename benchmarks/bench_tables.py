@@ -8,7 +8,8 @@ and CPU), the time spent constructing corona's plugins (``corona`` BSDF,
 ``corona_mie`` phase function: the tables' build), the part of it in Mie
 theory (``sphere_material.build_mie_rows`` for sphere layers,
 ``MieVolume`` tables for fog), the rest ("lobe"), a second load from the
-now warm cache, the number and size of the tables written, and the 1-minute
+now warm cache (the whole load's wall clock; corona's plugins' wall and CPU time: the goal is
+<= 0.5 s beyond Mitsuba's own load), the number and size of the tables written, and the 1-minute
 load average (the machine may be shared).  Goal: every scene's tables build
 in <= 2 s cold.  On a shared machine the wall clock counts the neighbours
 too: the CPU time of the constructing thread (numpy runs there) is reported
@@ -110,7 +111,7 @@ def one_scene(path: str) -> dict:
     warm = time.perf_counter() - t0
     return {"load_s": wall, "load_cpu_s": cpu, "corona_s": cold["corona"], "mie_s": cold["mie"],
             "lobe_s": cold["corona"] - cold["mie"], "corona_cpu_s": cold["corona_cpu"],
-            "mie_cpu_s": cold["mie_cpu"], "lobe_cpu_s": cold["corona_cpu"] - cold["mie_cpu"], "warm_load_s": warm, "warm_corona_s": spent["corona"],
+            "mie_cpu_s": cold["mie_cpu"], "lobe_cpu_s": cold["corona_cpu"] - cold["mie_cpu"], "warm_load_s": warm, "warm_corona_s": spent["corona"], "warm_corona_cpu_s": spent["corona_cpu"],
             "tables": len(files), "bytes": size, "load_average_1min": [load0, os.getloadavg()[0]],
             "meets_goal_wall": cold["corona"] <= GOAL_S, "meets_goal_cpu": cold["corona_cpu"] <= GOAL_S}
 
@@ -140,7 +141,8 @@ def scenes(paths, timeout: float) -> dict:
         else:
             print(f"{name:28s} corona {r['corona_s']:6.2f} s wall {r['corona_cpu_s']:6.2f} s CPU "
                   f"(Mie {r['mie_cpu_s']:6.2f}, lobe {r['lobe_cpu_s']:5.2f} CPU)  "
-                  f"load {r['load_s']:6.2f} s wall {r['load_cpu_s']:6.2f} s CPU  warm {r['warm_load_s']:5.2f} s  "
+                  f"load {r['load_s']:6.2f} s wall {r['load_cpu_s']:6.2f} s CPU  warm {r['warm_load_s']:5.2f} s "
+                  f"(corona {r['warm_corona_s']:5.2f} s, CPU {r['warm_corona_cpu_s']:5.2f} s)  "
                   f"{r['tables']} tables  load avg {r['load_average_1min'][0]:.1f}", flush=True)
     return out
 

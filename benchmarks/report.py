@@ -132,6 +132,19 @@ def headline() -> list[str]:
                          f"{lobe[1]['lobe_cpu_s']:.2f} s CPU ({lobe[0]}); {mie[1]['corona_cpu_s']:.2f} s CPU "
                          f"({mie[0]}, Mie {mie[1]['mie_cpu_s']:.2f} s); load {loads[0]:.1f}–{loads[-1]:.1f} on "
                          f"{t['machine'].get('cores', '?')} cores", "≤ 2 s each"))
+            vol = {k: v for k, v in sc.items() if v["mie_s"] > 0 and v["lobe_cpu_s"] < 0.2}   # corona_mie scenes
+            if vol:
+                name, worst = max(vol.items(), key=lambda kv: kv[1]["load_cpu_s"])
+                rows.append((f"Volume (corona_mie) scene cold, slowest ({name}): corona's plugins; the "
+                             "whole load, every thread",
+                             f"{worst['corona_s']:.2f} s wall ({worst['corona_cpu_s']:.2f} s CPU); "
+                             f"{worst['load_cpu_s']:.2f} s CPU (load {worst['load_average_1min'][0]:.1f})",
+                             "≤ 2 s each"))
+            if all("warm_corona_cpu_s" in v for v in sc.values()):
+                name, worst = max(sc.items(), key=lambda kv: kv[1]["warm_corona_cpu_s"])
+                rows.append((f"Scene load from a warm cache, corona's plugins, slowest ({name})",
+                             f"{worst['warm_corona_cpu_s']:.2f} s CPU, {worst['warm_corona_s']:.2f} s wall "
+                             f"(load {worst['load_average_1min'][-1]:.1f})", "≤ 0.5 s"))
     mie = _load("mie")
     if mie:
         b = mie["table_build"]

@@ -5,6 +5,7 @@ the material's own energies, and Mitsuba loading the exported XML / dict; with
 shape=sphere, Mie theory (corona.model.mie.theory) and the sphere layer's white-furnace energies."""
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -150,7 +151,7 @@ def test_anisotropic_picture_matches_far_field_corona(params):
     d, _ = compute._pixel_offsets(field, n)
     spd = blackbody(lams, 3000.0)
     mine = compute.lobe_rgb(m, d, spd / spd.max(), lams)     # first: before the table is built
-    assert ("_arrays" in m.__dict__) == (m.render_kind == "table" or params["process"] == "poisson")
+    assert ("_arrays" in m.__dict__) == (m.render_kind == "table")   # analytic lobes: no table
     ref = far_field_corona(m, field, n, 3000.0, lams.size)
     np.testing.assert_allclose(mine, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
     shifted = d[:, :-5] + [0.3 * d[0, 0, 1], 0.0]           # not symmetric about its centre
@@ -310,6 +311,57 @@ def test_hard_core_lobe_weight_is_the_area_fraction(params):
     m = material_from_parameters(**params)
     assert compute.lobe_weight(compute.material(params)) == m.area_fraction
     assert m.lobe_weight == pytest.approx(m.area_fraction, rel=1e-12)
+
+
+@pytest.mark.parametrize("params", [
+    dict(shape="ellipse", radius=2.0, aspect=2.0, angle=25.0, area_fraction=0.2, process="poisson"),
+    dict(shape="ellipse", radius=2.0, aspect=0.5, area_fraction=0.5, process="poisson", mode="aperture"),
+    dict(shape="ellipse", radius=2.0, aspect=1.5, area_fraction=0.6, process="poisson", mode="aperture"),
+    dict(shape="ellipse", radius=2.0, aspect=1.5, area_fraction=0.8, process="poisson", mode="aperture"),
+    dict(radius=2.0, area_fraction=0.9, process="poisson"),
+])
+def test_poisson_lobe_weight_is_the_tables(params):
+    """The designer's Poisson lobe weight (Parseval's plane integral, the table only near the
+    budget) is the material's own, from its table: F_a below the budget, lowered above it
+    (aperture F_a = 0.8: F_a² + F_a > 1)."""
+    fresh = material_from_parameters(**params)                   # not the designer's shared one
+    fresh.use_cache = False
+    got = compute.lobe_weight(fresh)
+    m = material_from_parameters(**params)
+    assert got == pytest.approx(m.lobe_weight, rel=1e-12)
+    if params["area_fraction"] == 0.8:
+        assert got < 0.8 * 0.9                                   # the negative control: lowered
+    if params["area_fraction"] <= 0.5:
+        assert "_arrays" not in fresh.__dict__                   # and no table was built for it
+
+
+@pytest.mark.parametrize("params", [
+    dict(shape="ellipse", radius=2.0, aspect=2.0, angle=25.0, area_fraction=0.2, process="poisson"),
+    dict(shape="ellipse", radius=1.5, aspect=0.5, angle=-70.0, area_fraction=0.3, process="hard-disk"),
+    dict(shape="ellipse", radius=3.0, aspect=1.5, angle=10.0, area_fraction=0.2, process="poisson",
+         edge_width=0.2),
+])
+def test_closed_form_disk_lobe_is_the_render_lobe_at_every_wavelength(params):
+    """The 2-D pictures' closed form for circles and ellipses (``|M d|`` once, one Bessel call for
+    every wavelength) is RenderLobe.eval at each wavelength, the centre ``d = 0`` included."""
+    m = compute.material(compute.parse(params)[0])
+    rl = compute._render_lobe(m)
+    assert rl.kind == "analytic" and {t.kind for t in rl.terms} == {"ellipse"}
+    d, _ = compute._pixel_offsets(compute.auto_field(m), 33)      # odd: the centre pixel is d = 0
+    assert np.all(d[16, 16] == 0.0)
+    lams = np.linspace(380.0, 780.0, 7) * 1e-3
+    ref = np.stack([rl.eval(d * (2 * np.pi * m.length_scale / lam)) for lam in lams], -1)
+    got = compute._disk_terms_lobe(rl, d, 2 * np.pi / lams)
+    assert got.shape == ref.shape and np.all(np.isfinite(got))
+    np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-13 * ref.max())
+    # a mixture of a circle and this outline (the intensity and amplitude sums, a circle's |d|)
+    from corona.tables.lobe import RenderLobe, Term
+    mix = RenderLobe("analytic", rl.R, rl.area, s_du=rl.s_du, s_minus_one=rl.s_minus_one,
+                     terms=[Term("circle", {"radius": 0.5 * rl.R}, 0.3, np.pi * (0.5 * rl.R) ** 2, 0.1),
+                            dataclasses.replace(rl.terms[0], weight=0.7)])
+    ref = np.stack([mix.eval(d * (2 * np.pi * m.length_scale / lam)) for lam in lams], -1)
+    np.testing.assert_allclose(compute._disk_terms_lobe(mix, d, 2 * np.pi / lams), ref,
+                               rtol=1e-9, atol=1e-13 * ref.max())
 
 
 def test_exports_load_in_mitsuba_and_rebuild_the_material(client, mi_variant):

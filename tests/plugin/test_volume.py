@@ -149,6 +149,40 @@ def test_table_between_nodes_and_rows_matches_mie(kwargs, fwd_tol, all_tol):
         assert np.median(np.abs(tb / eb - 1)) < all_tol, (lam, tb / eb)
 
 
+@pytest.mark.parametrize("coherent", [False, True])
+def test_size_averaged_scattering_is_the_sum_over_sizes(coherent):
+    """The table build's size average (S1 ± S2 in real products, pairs in blocks by series
+    length) against miepython's S1, S2 and efficiencies summed size by size and row by row,
+    with rows and sizes whose series lengths differ (several blocks), an absorbing index."""
+    from corona.mitsuba import volume
+    lam = np.array([380.0, 520.0, 790.0])
+    m = np.array([1.34 + 0.01j, 1.335 + 0.01j, 1.33 + 0.01j])
+    k = 2 * np.pi / (lam * 1e-3)
+    radii, weights = volume.size_nodes(3.0, "gamma", 0.1, n=40)
+    mu = np.cos(np.linspace(0.0, np.pi, 181))
+    old_block = volume.PAIR_BLOCK
+    try:
+        volume.PAIR_BLOCK = 16                                       # several blocks per row
+        P, C, c_ext, c_sca = volume.size_averaged_scattering(m, k, radii, weights, mu, coherent=coherent)
+    finally:
+        volume.PAIR_BLOCK = old_block
+    assert (C is None) == (not coherent)
+    for j in range(lam.size):
+        x = k[j] * radii
+        s1 = np.array([miepython.S1_S2(np.conj(m[j]), xx, mu, norm="wiscombe")[0] for xx in x])
+        s2 = np.array([miepython.S1_S2(np.conj(m[j]), xx, mu, norm="wiscombe")[1] for xx in x])
+        # miepython's "wiscombe" S are conjugates of Bohren & Huffman's (e^{+iωt}); |S|² is the same
+        ref_P = weights @ (np.abs(s1) ** 2 + np.abs(s2) ** 2)
+        np.testing.assert_allclose(P[j], ref_P, rtol=1e-7)        # two Mie codes: ~1e-9 apart
+        if coherent:
+            ref_C = np.abs(weights @ s1) ** 2 + np.abs(weights @ s2) ** 2
+            np.testing.assert_allclose(C[j], ref_C, rtol=1e-7, atol=1e-10 * ref_C.max())
+        eff = np.array([miepython.efficiencies_mx(np.conj(m[j]), xx)[:2] for xx in x])
+        area = np.pi * radii**2
+        assert c_ext[j] == pytest.approx(weights @ (eff[:, 0] * area), rel=1e-7)
+        assert c_sca[j] == pytest.approx(weights @ (eff[:, 1] * area), rel=1e-7)
+
+
 @pytest.mark.parametrize("radius", [0.5, 3.0, 12.0])
 def test_table_normalised_and_asymmetry(radius):
     v = MieVolume(radius)

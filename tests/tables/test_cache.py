@@ -194,3 +194,61 @@ def test_damaged_file_is_rebuilt(tmp_path, monkeypatch, damage):
     out = tables.cached(params, lambda: {"values": np.full(5000, 9.0)})
     assert np.all(out["values"] == 9.0)
     assert np.all(tables.cached(params, lambda: pytest.fail("rebuilt twice"))["values"] == 9.0)
+
+
+def test_radial_cdfs_and_totals_are_radial_tables_row_by_row():
+    """The batch CDFs equal RadialTable's bit for bit (negative values clipped), the totals to
+    rounding; a row of zeros stays 0."""
+    rng = np.random.default_rng(7)
+    rows = rng.normal(1.0, 1.0, (9, 57))
+    rows[3] = 0.0
+    cdfs = tables.radial_cdfs(0.013, rows)
+    totals = tables.radial_totals(0.013, rows)
+    for row, cdf, total in zip(rows, cdfs, totals):
+        ref = tables.RadialTable(0.013, row)
+        assert np.array_equal(cdf, ref.cdf)
+        assert total == pytest.approx(ref.total, rel=1e-13, abs=1e-300)
+    assert totals[3] == 0.0 and np.all(cdfs[3] == 0.0)
+    with pytest.raises(ValueError, match="rows"):
+        tables.radial_cdfs(0.1, rows[0])
+
+
+def test_code_key_follows_the_code():
+    """code_key: the same for the same code, another for a changed constant or a changed
+    nested function (the cache key of tables derived by that code)."""
+    def f(x):
+        return x + 1
+
+    def g(x):
+        return x + 2
+
+    def outer_a(x):
+        def inner(y):
+            return y * 3
+        return inner(x)
+
+    def outer_b(x):
+        def inner(y):
+            return y * 4
+        return inner(x)
+    assert tables.code_key(f) == tables.code_key(f)
+    assert tables.code_key(f) != tables.code_key(g)
+    assert tables.code_key(outer_a) != tables.code_key(outer_b)
+    assert tables.code_key(f, g) != tables.code_key(g, f)
+    assert tables.code_key(tables.RadialTable.__post_init__) == tables.code_key(tables.RadialTable.__post_init__)
+
+
+def test_checksum_is_that_of_the_bytes():
+    """The checksum (no copy of the arrays) is sha256 over names, dtypes, shapes and the bytes,
+    as written before: tables cached by an earlier release stay valid; any changed byte differs."""
+    import hashlib
+    arrays = {"a": np.arange(12.0).reshape(3, 4)[:, ::2], "b": np.zeros((0, 3)), "c": np.array(2.5),
+              "d": np.array([True, False]), "e": np.arange(5, dtype=np.uint32)}
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        for part in (name.encode(), str(a.dtype).encode(), str(a.shape).encode(), a.tobytes()):
+            h.update(part)
+    assert tables._checksum(arrays) == h.hexdigest()
+    changed = dict(arrays, e=np.array([0, 1, 2, 3, 5], dtype=np.uint32))
+    assert tables._checksum(changed) != h.hexdigest()

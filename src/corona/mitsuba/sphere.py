@@ -81,6 +81,24 @@ NO_RADIUS_TEXTURE = ("the Mie rows belong to one radius: the pattern is a functi
 FA_ROW_STEP = 0.05
 
 
+def _guided_rows(material, rows) -> dict:
+    """:func:`corona.mitsuba.common.guided_cdfs` of the forward then the backward rows of
+    ``rows["P_f"]``, ``rows["P_b"]`` (radial densities ``2π s P(s)``), kept in the table cache
+    beside the rows (the rows' key plus :func:`corona.tables.code_key` of the code that makes
+    them): a warm load reads them back instead of searching 2J rows."""
+    ds = float(rows["ds"])
+
+    def make():
+        cdfs = tables.radial_cdfs(ds, np.concatenate([rows["P_f"], rows["P_b"]]))
+        g = {k: np.asarray(v) for k, v in guided_cdfs(list(cdfs)).items()}
+        g["guide"] = g["guide"].astype(np.uint32)            # as the plugin holds it (half the bytes)
+        return g
+    key = {**material.table_params(), "guided_rows": tables.code_key(guided_cdfs, tables.radial_cdfs, make)}
+    g = tables.cached(key, make, use_cache=material.use_cache)
+    return {"cdf": np.asarray(g["cdf"]), "guide": np.asarray(g["guide"]),
+            **{k: int(g[k]) for k in ("G", "n_bins", "steps")}}
+
+
 class SphereBSDFMixin:
     """Mitsuba 3 BSDF of a layer of Mie spheres (see the module docstring)."""
 
@@ -169,9 +187,7 @@ class SphereBSDFMixin:
         self.back_offset = int(rows["P_f"].size)
         # the radial densities 2π s P(s) of both lobes' rows in one guided table: forward rows 0 .. J-1,
         # backward rows J .. 2J-1 (corona.mitsuba.common.guided_cdfs)
-        ds = self.ds
-        g = guided_cdfs([tables.RadialTable(ds, row).cdf for row in rows["P_f"]]
-                        + [tables.RadialTable(ds, row).cdf for row in rows["P_b"]])
+        g = _guided_rows(material, rows)
         self.cdf, self.guide = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
         self.G, self.n_bins, self.steps = g["G"], g["n_bins"], g["steps"]
         # the pane (docs/physics.md#the-layer-on-glass-substrateglass): incoherent glass only

@@ -323,6 +323,96 @@ def truncate_table(table: dict, truncation: float) -> dict:
     return out
 
 
+#: (row, size) pairs per block of :func:`size_averaged_scattering` (its products' height; fewer
+#: where the angle grid is long, the products at most 2^22 values).
+PAIR_BLOCK = 1024
+
+
+def size_averaged_scattering(m, k, radii, weights, mu, coherent=False):
+    """Size-averaged Mie intensities per wavelength: ``P = ⟨|S1|² + |S2|²⟩``, ``C = |⟨S1⟩|² + |⟨S2⟩|²``.
+
+    Parameters
+    ----------
+    m : complex ndarray (J,)
+        Relative index per row (wavelength).
+    k : ndarray (J,)
+        Wavenumber in the host [rad/µm] per row.
+    radii, weights : ndarray (S,)
+        The size distribution's nodes [µm] and number weights (sum 1; :func:`size_nodes`).
+    mu : ndarray (K,)
+        ``cos Θ`` of the angle nodes.
+    coherent : bool
+        Also return ``C`` (the decoupling approximation's coherent term); else ``C`` is None.
+
+    Returns
+    -------
+    P : ndarray (J, K)
+        ``Σ_s w_s (|S1|² + |S2|²)`` (dimensionless; ``dσ/dΩ = P / (2k²)``).
+    C : ndarray (J, K) or None
+        ``|Σ_s w_s S1|² + |Σ_s w_s S2|²``.
+    c_ext, c_sca : ndarray (J,)
+        ``Σ_s w_s C_ext``, ``Σ_s w_s C_sca`` [µm²].
+
+    Notes
+    -----
+    The amplitudes are summed as ``S± = S1 ± S2 = Σ_n (2n+1)/(n(n+1)) (a_n ± b_n)(π_n ± τ_n)``,
+    so that ``|S1|² + |S2|² = (|S+|² + |S-|²) / 2`` (and the same for the averaged amplitudes
+    in ``C``): two products of real matrices (the coefficients' real and imaginary parts stacked)
+    with ``π_n ± τ_n`` per (row, size) pair instead of four complex ones.  The pairs are taken in
+    blocks of at most :data:`PAIR_BLOCK` ordered by their series length (Wiscombe's
+    :func:`corona.model.mie.theory.n_terms`), each block's products only as long as its longest
+    series (the coefficients past a sphere's own length are 0 in
+    :func:`corona.model.mie.theory.coefficients`): the same sums in a different order.
+    """
+    m = np.asarray(m, dtype=np.complex128)
+    k = np.asarray(k, dtype=np.float64)
+    radii = np.asarray(radii, dtype=np.float64)
+    weights = np.asarray(weights, dtype=np.float64)
+    J, S, K = k.size, radii.size, np.size(mu)
+    x = (k[:, None] * radii[None, :]).ravel()                       # pair = row * S + size
+    own = mie.n_terms(x)
+    order = np.argsort(own, kind="stable")
+    n_all = int(own.max())
+    pi_all, tau_all = mie.angular_functions(mu, n_all)
+    plus, minus = pi_all + tau_all, pi_all - tau_all                # (N, K)
+    del pi_all, tau_all
+    n = np.arange(1, n_all + 1)
+    c = (2 * n + 1) / (n * (n + 1.0))
+    row = np.repeat(np.arange(J), S)
+    w = np.tile(weights, J)
+    m_pair = np.repeat(m, S)
+    P = np.zeros((J, K))
+    A = [np.zeros((J, K), complex), np.zeros((J, K), complex)] if coherent else None
+    c_ext, c_sca = np.zeros(J), np.zeros(J)
+    block = min(PAIR_BLOCK, max(64, (1 << 22) // max(K, 1)))      # (2 block, K) products <= 64 MB
+    for b0 in range(0, x.size, block):
+        idx = order[b0:b0 + block]
+        idx = idx[np.argsort(row[idx], kind="stable")]            # the block's pairs grouped by row
+        B = idx.size
+        nb = int(own[idx].max())
+        a, b = mie.coefficients(m_pair[idx], x[idx], n_max=nb)       # (B, nb)
+        rb, wb = row[idx], w[idx]
+        kb2 = k[rb] ** 2
+        nn = 2 * n[:nb] + 1
+        c_ext += np.bincount(rb, wb * 2 * np.pi / kb2 * ((a + b).real @ nn), minlength=J)
+        c_sca += np.bincount(rb, wb * 2 * np.pi / kb2 * ((np.abs(a) ** 2 + np.abs(b) ** 2) @ nn),
+                             minlength=J)
+        rows_b, starts = np.unique(rb, return_index=True)            # the block's rows and their runs
+        sw = np.sqrt(wb)
+        for sign, basis in ((1.0, plus), (-1.0, minus)):
+            cs = (a + sign * b) * (c[:nb] * sw[:, None])
+            amp = np.concatenate([cs.real, cs.imag]) @ basis[:nb]      # (2B, K): √w Re S±, √w Im S±
+            re, im = amp[:B], amp[B:]
+            P[rows_b] += 0.5 * np.add.reduceat(re * re + im * im, starts, axis=0)
+            if coherent:
+                A[0 if sign > 0 else 1][rows_b] += (np.add.reduceat(re * sw[:, None], starts, axis=0)
+                                                    + 1j * np.add.reduceat(im * sw[:, None], starts, axis=0))
+    C = None
+    if coherent:
+        C = 0.5 * (np.abs(A[0]) ** 2 + np.abs(A[1]) ** 2)
+    return P, C, c_ext, c_sca
+
+
 class MieVolume:
     """The spheres of a volume: cross-sections and the tabulated phase function per wavelength.
 
@@ -444,36 +534,14 @@ class MieVolume:
         mu = 1.0 - 2.0 * v
         theta = 2.0 * np.arcsin(np.sqrt(v))
         J = x_rows.size
-        P = np.zeros((J, K))
-        A1 = np.zeros((J, K), complex)
-        A2 = np.zeros((J, K), complex)
-        c_ext = np.zeros(J)
-        c_sca = np.zeros(J)
         m = self.index(lam)
         k = self.k_scale / (lam * 1e-3)                # in the host [rad/µm]
-        n_all = int(mie.n_terms(float(k.max() * self.radii.max())))
-        pi_all, tau_all = mie.angular_functions(mu, n_all)      # π_n, τ_n do not depend on N
-        n = np.arange(1, n_all + 1)
-        c = (2 * n + 1) / (n * (n + 1.0))
-        # (row, size) pairs in chunks of at most ~2048 GEMM rows (big products, little memory)
-        per = max(1, 2048 // J)
-        for s0 in range(0, self.radii.size, per):
-            r, w = self.radii[s0:s0 + per], self.weights[s0:s0 + per]
-            a, b = mie.coefficients(m[:, None], k[:, None] * r[None, :], n_max=n_all)   # (J, S, N)
-            ca, cb = (a * c).reshape(-1, n_all), (b * c).reshape(-1, n_all)
-            S1 = ca @ pi_all + cb @ tau_all
-            S2 = ca @ tau_all + cb @ pi_all
-            S1, S2 = S1.reshape(J, r.size, K), S2.reshape(J, r.size, K)
-            P += np.einsum("s,jsk->jk", w, np.abs(S1) ** 2 + np.abs(S2) ** 2)
-            A1 += np.einsum("s,jsk->jk", w, S1)
-            A2 += np.einsum("s,jsk->jk", w, S2)
-            c_ext += np.sum(w * 2 * np.pi / k[:, None] ** 2 * np.sum((2 * n + 1) * (a + b).real, axis=-1), axis=1)
-            c_sca += np.sum(w * 2 * np.pi / k[:, None] ** 2
-                            * np.sum((2 * n + 1) * (np.abs(a) ** 2 + np.abs(b) ** 2), axis=-1), axis=1)
+        P, C, c_ext, c_sca = size_averaged_scattering(m, k, self.radii, self.weights, mu,
+                                                     coherent=self.volume_fraction > 0)
         if self.volume_fraction > 0:
             S = _structure(self.volume_fraction, 2 * self.mean_radius)
             q = 2 * k[:, None] * np.sin(theta[None, :] / 2)
-            Z = np.maximum(P + (np.abs(A1) ** 2 + np.abs(A2) ** 2) * (S(q) - 1), 0.0)
+            Z = np.maximum(P + C * (S(q) - 1), 0.0)
         else:
             Z = P
         # the rows normalised under linear interpolation in v = sin²(Θ/2) (dΩ = 4π dv)

@@ -30,6 +30,7 @@ import weakref
 from collections import OrderedDict
 
 import numpy as np
+from scipy import special
 
 from corona import tables
 from corona._validation import CoronaError
@@ -269,9 +270,27 @@ def _uses_table_weight(m) -> bool:
     return isinstance(m.process, (Poisson, PointSet))
 
 
+#: Margin on Parseval's plane integral within which a Poisson layer's lobe weight is read from
+#: its table (the table's integral exceeds ``4π² self_overlap`` by its interpolation error, < 1 %).
+PLANE_MARGIN = 1.05
+
+
 def lobe_weight(m) -> float:
-    """The lobe's prefactor ``F_a`` (or the lowered one, :attr:`corona.Material.lobe_weight`)."""
-    return float(m.lobe_weight) if _uses_table_weight(m) else float(m.area_fraction)
+    """The lobe's prefactor ``F_a`` (or the lowered one, :attr:`corona.Material.lobe_weight`).
+
+    Poisson layers need the table's plane integral only near the budget: by Parseval the whole
+    plane's ``∫ v d²u / 4π²`` is the shape's ``self_overlap`` (``S = 1``), so while
+    ``F_a self_overlap`` with :data:`PLANE_MARGIN` stays within ``1 - coherent_transmittance``
+    the weight is ``F_a`` without building the table (what :attr:`corona.Material.lobe_weight`
+    finds there too)."""
+    from corona.model.processes import Poisson
+    if not _uses_table_weight(m):
+        return float(m.area_fraction)
+    if isinstance(m.process, Poisson) and "lobe_weight" not in m.__dict__:
+        fa = float(m.area_fraction)
+        if fa * float(m.shape.self_overlap) * PLANE_MARGIN <= 1.0 - m.coherent_transmittance:
+            return fa
+    return float(m.lobe_weight)
 
 
 def auto_field(m) -> float:
@@ -368,8 +387,54 @@ def lobe_rgb(m, d: np.ndarray, spectrum: np.ndarray, lams: np.ndarray) -> np.nda
         return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
     lam_um = lams * 1e-3
     rl = _render_lobe(m)
-    v = np.stack([rl.eval(d * (2 * np.pi * R / lam)) for lam in lam_um], -1)      # (..., nλ)
+    if rl.kind == "analytic" and all(t.kind in ("circle", "ellipse") for t in rl.terms):
+        v = _disk_terms_lobe(rl, d, 2 * np.pi / lam_um)                           # (..., nλ)
+    else:
+        v = np.stack([rl.eval(d * (2 * np.pi * R / lam)) for lam in lam_um], -1)  # (..., nλ)
     return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
+
+
+def _disk_terms_lobe(rl, d: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """``rl.eval(d k R)`` (:meth:`corona.tables.lobe.RenderLobe.eval`) at every wavenumber ``k``
+    [rad/µm] (nλ,), shape (..., nλ), for analytic terms that are circles and ellipses.
+
+    Their amplitudes are real, ``|A| · 2 J1(t)/t`` with ``t = k |M d|`` (``M`` the outline's
+    semi-axes in its own frame), so ``|M d|`` is found once per point and one Bessel call
+    serves every wavelength; ``P = Σ w |Â|² / (|A| R²)``, ``C = (Σ w Â)² / (|A| R²)``.
+    """
+    k = np.asarray(k, dtype=np.float64)
+    dx, dy = d[..., 0, None], d[..., 1, None]
+    rho = np.hypot(dx, dy)                                   # |d| (..., 1)
+    norm = 1.0 / (rl.area * rl.R**2)
+    one = len(rl.terms) == 1 and rl.s_minus_one is None
+    inten = amp = None
+    for t in rl.terms:
+        p = t.params
+        if t.kind == "circle":
+            r = rho * p["radius"]
+        else:
+            c, s = math.cos(p["angle"]), math.sin(p["angle"])
+            r = np.hypot(p["a"] * (c * dx + s * dy), p["b"] * (c * dy - s * dx))   # |M d| (..., 1)
+        x = r * k                                            # (..., nλ)
+        a = special.j1(x)                                    # 2 J1(x)/x, 1 at x = 0 (Circle.airy)
+        a *= 2.0
+        np.divide(a, x, out=a, where=x > 1e-8)
+        small = (r[..., 0] * k.max() <= 1e-8)
+        if np.any(small):
+            a[small] = np.where(x[small] > 1e-8, a[small], 1.0)
+        a *= t.area
+        if t.blur > 0:
+            a *= np.exp(-0.5 * (rho * k * t.blur) ** 2)
+        if one:                                              # one outline over Poisson: P only
+            a *= a
+            a *= t.weight * norm
+            return a
+        inten = t.weight * a * a if inten is None else inten + t.weight * a * a
+        amp = t.weight * a if amp is None else amp + t.weight * a
+    P = inten * norm
+    if rl.s_minus_one is None:
+        return np.maximum(P, 0.0)
+    return np.maximum(P + amp * amp * norm * rl.s1(rho * k * rl.R), 0.0)
 
 
 _render_lobes: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # material -> RenderLobe

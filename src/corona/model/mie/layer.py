@@ -640,8 +640,8 @@ class SphereMaterial:
         ds = float(r["ds"])
         s = np.arange(r["P_f"].shape[1]) * ds
         C = r["C_f"] if r["C_f"].size else r["P_f"]
-        T_f = np.array([tables.RadialTable(ds, row).total for row in r["P_f"]])
-        T_b = np.array([tables.RadialTable(ds, row).total for row in r["P_b"]])
+        T_f = tables.radial_totals(ds, r["P_f"])          # RadialTable(ds, row).total per row
+        T_b = tables.radial_totals(ds, r["P_b"])
         if self.structure_table is None:
             e_mu = np.repeat(T_f[:, None], len(INCIDENCE_MU), axis=1)
         else:   # seconds for a hard core: kept in the table cache, per process

@@ -1,0 +1,42 @@
+"""A sphere layer loaded from a warm table cache: its sampling tables read back, not rebuilt,
+and equal to the ones built from the rows."""
+import warnings
+
+import numpy as np
+
+
+def test_warm_load_reads_the_guided_rows_back(mi_variant, monkeypatch):
+    import mitsuba as mi
+
+    from corona import tables
+    from corona.mitsuba import sphere
+    made = []
+    real = sphere.guided_cdfs
+
+    def counting(cdfs):
+        made.append(len(cdfs))
+        return real(cdfs)
+    monkeypatch.setattr(sphere, "guided_cdfs", counting)
+    spec = {"type": "corona", "shape": "sphere", "radius": 1.3, "area_fraction": 0.2, "process": "poisson"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        first = mi.load_dict(spec)                         # cold (or cached by an earlier test)
+        cold = len(made)
+        second = mi.load_dict(spec)
+    assert cold <= 1 and len(made) == cold                 # the warm load read them back
+    rows = first.material.rows
+    J = rows["x"].size
+    ds = float(rows["ds"])
+    ref = real([tables.RadialTable(ds, r).cdf for r in rows["P_f"]]
+               + [tables.RadialTable(ds, r).cdf for r in rows["P_b"]])
+    for bsdf in (first, second):
+        assert (bsdf.G, bsdf.n_bins, bsdf.steps) == (ref["G"], ref["n_bins"], ref["steps"])
+        assert np.array_equal(np.asarray(bsdf.cdf), ref["cdf"])
+        assert np.array_equal(np.asarray(bsdf.guide), ref["guide"].astype(np.uint32))
+    assert np.asarray(first.cdf).size == 2 * J * (ref["n_bins"] + 1)
+    # another radius is another table: its guide is built (the cache is keyed by the rows)
+    before = len(made)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        third = mi.load_dict({**spec, "radius": 1.31})
+    assert len(made) == before + 1 and made[-1] == 2 * third.material.rows["x"].size
