@@ -239,3 +239,13 @@ def test_largest_sphere_holds_the_scattered_power_of_the_distribution():
     # s² p(s) of a lognormal is a lognormal with mu + 2 sigma² (up to its normalisation)
     beyond = stats.lognorm(sigma, scale=np.exp(mu + 2 * sigma ** 2)).sf(top)
     assert SIZE_TAIL / 3 < beyond < SIZE_TAIL * 3
+
+
+def test_row_totals_are_the_radial_tables_totals():
+    # the rows' totals in one array operation equal corona.tables.RadialTable's, row by row
+    from corona import tables
+    from corona.model.mie.layer import _radial_totals
+    rng = np.random.default_rng(3)
+    P = rng.random((40, 257)) - 0.05            # a few negative nodes: clipped to 0 as the table does
+    want = np.array([tables.RadialTable(0.013, row).total for row in P])
+    assert np.allclose(_radial_totals(0.013, P), want, rtol=1e-13, atol=0.0)

@@ -462,6 +462,15 @@ def _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi):
     return plan
 
 
+def _radial_totals(ds, values) -> np.ndarray:
+    """``∫ 2π s P(s) ds`` of each row of ``values`` (J, K), P linear between the nodes ``i·ds``
+    (:attr:`corona.tables.RadialTable.total` of every row at once)."""
+    v = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
+    u0 = np.arange(v.shape[1] - 1) * ds
+    a, b = v[:, :-1], v[:, 1:] - v[:, :-1]
+    return 2 * np.pi * ds * np.sum(u0 * a + (u0 * b + ds * a) / 2 + ds * b / 3, axis=1)
+
+
 def _lerp_rows(values, j, t, i, f):
     """Linear in the row (j, t) and in the node (i, f) of ``values[row, node]``."""
     v0 = values[j, i] * (1 - f) + values[j, i + 1] * f
@@ -645,8 +654,7 @@ class SphereMaterial:
         ds = float(r["ds"])
         s = np.arange(r["P_f"].shape[1]) * ds
         C = r["C_f"] if r["C_f"].size else r["P_f"]
-        T_f = np.array([tables.RadialTable(ds, row).total for row in r["P_f"]])
-        T_b = np.array([tables.RadialTable(ds, row).total for row in r["P_b"]])
+        T_f, T_b = _radial_totals(ds, r["P_f"]), _radial_totals(ds, r["P_b"])
         if self.structure_table is None:
             e_mu = np.repeat(T_f[:, None], len(INCIDENCE_MU), axis=1)
         else:   # seconds for a hard core: kept in the table cache, per process
