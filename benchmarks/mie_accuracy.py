@@ -7,9 +7,11 @@ grid of the scattering angle:
 
 * energy-weighted RMS: ``sqrt(Σ w (P_tab/P_mie - 1)²)``, weights ``w ∝ P_mie dΩ``;
 * scale: ``∫ P_tab dΩ / ∫ P_mie dΩ - 1`` over the lobe;
-* rings: the relative shift of the first three minima and maxima of the forward lobe.
+* rings: the relative shift of the first three minima and maxima of the forward lobe (each
+  against the table's extremum of the same kind nearest it).
 
-Run ``python benchmarks/mie_accuracy.py`` (prints a markdown table).
+Run ``python benchmarks/mie_accuracy.py [RADII [WAVELENGTHS]]`` (comma-separated; prints a markdown
+table and rewrites benchmarks/results/mie_accuracy.json after each radius).
 """
 from __future__ import annotations
 
@@ -66,13 +68,16 @@ def lobe_errors(material, wavelength: float) -> dict:
             mins = (np.where((d[:-1] < 0) & (d[1:] >= 0))[0] + 1)[:3]
             maxs = (np.where((d[:-1] > 0) & (d[1:] <= 0))[0] + 1)[:3]
             dt = np.diff(tab)
+            tab_ext = {1: np.where((dt[:-1] < 0) & (dt[1:] >= 0))[0] + 1,
+                       -1: np.where((dt[:-1] > 0) & (dt[1:] <= 0))[0] + 1}
             shifts = []
             for idx, sign in ((mins, 1), (maxs, -1)):
-                for i in idx:        # the table's extremum nearest the reference's
-                    half = max(3, int(0.25 * np.pi / x / (th[1] - th[0])))   # a quarter ring
-                    lo, hi = max(i - half, 1), min(i + half, n - 2)
-                    seg = tab[lo:hi] * sign
-                    k = lo + int(np.argmin(seg))
+                for i in idx:        # the table's extremum of the same kind nearest the reference's
+                    cand = tab_ext[sign]
+                    if not cand.size:
+                        shifts.append(float("inf"))
+                        continue
+                    k = int(cand[np.argmin(np.abs(cand - i))])
                     t_ref = _refine(th, ref, [i])[0]
                     t_tab = _refine(th, tab, [k])[0]
                     shifts.append(abs(t_tab / t_ref - 1))
@@ -81,8 +86,9 @@ def lobe_errors(material, wavelength: float) -> dict:
 
 
 def main(radii=(0.5, 2.0, 5.0, 8.0, 10.0, 20.0, 25.0), wavelengths=(361.3, 452.7, 551.9, 648.2, 829.1),
-         iors=(None, 1.5), results=None):
-    """Print the table; append one dict per (radius, ior, λ) to ``results`` if given."""
+         iors=(None, 1.5), results=None, done=None):
+    """Print the table; append one dict per (radius, ior, λ) to ``results`` if given and call
+    ``done()`` after each radius (the results so far survive an interrupted run)."""
     print("| radius µm | ior | build s | λ nm | fwd RMS % | fwd scale % | rings % | back RMS % | back scale % |")
     print("|---|---|---|---|---|---|---|---|---|")
     for ior in iors:
@@ -102,11 +108,13 @@ def main(radii=(0.5, 2.0, 5.0, 8.0, 10.0, 20.0, 25.0), wavelengths=(361.3, 452.7
                 print(f"| {r:g} | {'water' if ior is None else ior} | {build:.2f} | {lam:g} | "
                       f"{100 * e['f_rms']:.2f} | {100 * e['f_scale']:+.2f} | {100 * e['rings']:.3f} | "
                       f"{100 * e['b_rms']:.2f} | {100 * e['b_scale']:+.2f} |", flush=True)
+            if done is not None:
+                done()
 
 
 if __name__ == "__main__":
     sys.path.insert(0, __import__("os").path.dirname(__file__))
     from common import write
     out: list = []
-    main(*[tuple(float(v) for v in a.split(",")) for a in sys.argv[1:3]], results=out)
-    write("mie_accuracy", {"results": out, "goal": {"rms": 0.01, "scale": 0.005, "rings": 0.002}})
+    main(*[tuple(float(v) for v in a.split(",")) for a in sys.argv[1:3]], results=out,
+         done=lambda: write("mie_accuracy", {"results": out, "goal": {"rms": 0.01, "scale": 0.005, "rings": 0.002}}))

@@ -49,6 +49,8 @@ where the lobes change fastest in x: the resonances), up to ``MAX_ROWS``; for a
 size distribution, rows ``σ x / 4`` apart, each the exact average of one shared
 fine grid of sizes (:func:`build_mie_rows`).  In each row the forward ``P`` (and
 ``C``) on a uniform grid of the chord ``s = |wo - wt| = 2 sin(Θ/2)`` in ``[0, √2]``
+(step ``CHORD_DX / x_max``; ``CHORD_DX_SPREAD / x_max`` for a size spread of at least
+``SPREAD_COARSE_CHORD``, whose rings are smoothed)
 (a sliver beyond) and the backward ``P`` on the chord ``s' = |wo - wi| = 2 cos(Θ/2)``
 from the backscatter direction.  Since ``dΩ = s ds dφ`` exactly, each row is a
 radial table in the chord (:class:`corona.tables.RadialTable`: density
@@ -87,8 +89,15 @@ ROW_DLNX = 0.001
 ROW_DX_START = 0.1
 ROW_DX_MIN = 0.005
 ROW_TOLERANCE = 0.007
+#: The midpoint test reads every ``ROW_TEST_STRIDE``-th chord node (an RMS over thousands of nodes,
+#: a ring spans about 20).
+ROW_TEST_STRIDE = 2
 #: Chord step: ``ds <= CHORD_DX / x_max`` (about 25 nodes to the first Airy minimum).
 CHORD_DX = 0.15
+#: A size spread of at least ``SPREAD_COARSE_CHORD`` smooths the rings: chord step ``CHORD_DX_SPREAD / x_max``
+#: (the lookup between the nodes then differs from the finer grid's by < 0.06 %, docs/mie.md).
+CHORD_DX_SPREAD = 0.3
+SPREAD_COARSE_CHORD = 0.1
 MIN_NODES, MAX_NODES = 512, 8192
 MIN_ROWS, MAX_ROWS = 8, 4096
 CHORD_MAX = math.sqrt(2.0)
@@ -106,8 +115,12 @@ SPHERE_RADIUS_MAX = 25.0
 #: The largest droplet a size distribution's tables hold [µm] (their build time: the size
 #: grid's Mie series grow with the largest size parameter; docs/mie.md).
 SPHERE_SIZES_MAX = 50.0
+#: Precision of the angular products of the Mie sums (theory.AngularBasis).
+ANGULAR_DTYPE = np.float32
 #: Rows computed together (memory of the amplitudes: ROW_CHUNK x nodes complex values).
 ROW_CHUNK = 128
+#: Sizes of a size distribution computed together (fewer Python steps of the Mie recurrences).
+SIZE_CHUNK = 256
 #: Size distributions: step of the fine grid of size parameters the rows average (at most), the
 #: grid's steps per standard deviation of the sizes (at least), its most samples per index node,
 #: the part of the scattered power ``s² p(s)`` left out at each end of the distribution, and the
@@ -167,7 +180,8 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0):
         x_rows = np.linspace(x_lo, x_hi, n_rows)
     x_top = 2 * np.pi * radius_max / lam_lo
     s_max = min(2.0, CHORD_MAX * x_rows[1] / x_rows[0] * (1.0 + 1e-9))
-    n_nodes = int(np.clip(math.ceil(s_max * x_top / CHORD_DX) + 1, MIN_NODES, MAX_NODES))
+    chord_dx = CHORD_DX_SPREAD if spread >= SPREAD_COARSE_CHORD else CHORD_DX
+    n_nodes = int(np.clip(math.ceil(s_max * x_top / chord_dx) + 1, MIN_NODES, MAX_NODES))
     return x_rows, s_max / (n_nodes - 1), n_nodes
 
 
@@ -229,22 +243,24 @@ def _mono_sums(m, X, basis, amplitudes=False):
     return out
 
 
-def _blend_pair(Pa, Pb, xa, xb, x, ds):
+def _blend_pair(Pa, Pb, xa, xb, x, ds, stride: int = 1):
     """The lookup's value between two rows (:func:`_scaled_blend`, Catmull–Rom) at the weight of
-    ``x`` between ``xa`` and ``xb``, on the chord nodes: arrays (n, K), (n,)."""
-    K = Pa.shape[1]
-    s = np.arange(K) * ds
+    ``x`` between ``xa`` and ``xb``, on every ``stride``-th chord node: arrays (n, K), (n,)."""
+    n, K = Pa.shape
+    node = np.arange(0, K, stride, dtype=np.float64)
     t = ((x - xa) / (xb - xa))[:, None]
+    base = (np.arange(n, dtype=np.int64) * K)[:, None]
     out = 0.0
     for P, xr, wgt in ((Pa, xa, 1.0 - t), (Pb, xb, t)):
         c = (xr / x)[:, None]
-        g = s[None, :] / (c * ds)
-        i = np.clip(np.floor(g).astype(np.int64), 0, K - 2)
-        f = np.clip(g - i, 0.0, 1.0)
-        take = lambda k: np.take_along_axis(P, np.clip(k, 0, K - 1), axis=1)
-        p0, p1, p2, p3 = take(i - 1), take(i), take(i + 1), take(i + 2)
-        p0 = np.where(i > 0, p0, p1)
-        p3 = np.where(i + 2 < K, p3, p2)
+        g = node[None, :] / c                      # the node read at the chord scaled by x / x_row
+        i = np.minimum(g.astype(np.int64), K - 2)  # g >= 0: truncation is the floor
+        f = np.minimum(g - i, 1.0)
+        flat = P.ravel()
+        k = base + i
+        p1, p2 = flat[k], flat[k + 1]
+        p0 = np.where(i > 0, flat[np.maximum(k - 1, base)], p1)
+        p3 = np.where(i + 2 < K, flat[np.minimum(k + 2, base + K - 1)], p2)
         v = p1 + 0.5 * f * (p2 - p0 + f * (2 * p0 - 5 * p1 + 4 * p2 - p3 + f * (3 * (p1 - p2) + p3 - p0)))
         out = out + wgt * np.where(g <= K - 1, np.maximum(v, 0.0), 0.0) / (c * c)
     return out
@@ -268,44 +284,63 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
 
     ``rows``: per-row arrays keyed like :func:`_evaluate_rows`, normalised (P per steradian).
     Returns the same keys with the new rows, in increasing ``x``."""
-    flat = dict(rows)
+    n0 = rows["x"].size
+    # every row kept and every midpoint still pending lives in one store (grown by doubling)
+    store = {k: np.empty((max(2 * n0, 2 * ROW_CHUNK),) + np.shape(v)[1:], np.asarray(v).dtype)
+             for k, v in rows.items()}
+    used = 0
+
+    def put(new):
+        nonlocal store, used
+        n = new["x"].size
+        if used + n > store["x"].shape[0]:
+            size = max(2 * store["x"].shape[0], used + n)
+            for k, v in store.items():
+                grown = np.empty((size,) + v.shape[1:], v.dtype)
+                grown[:used] = v[:used]
+                store[k] = grown
+        for k, v in new.items():
+            store[k][used:used + n] = v
+        used += n
+        return np.arange(used - n, used)
 
     def candidates(pairs):
-        """Midpoints of the intervals ``pairs`` (n, 2) of row indices: their rows and errors."""
-        xa, xb = flat["x"][pairs[:, 0]], flat["x"][pairs[:, 1]]
+        """Midpoints of the intervals ``pairs`` (n, 2) of store indices: the intervals that
+        miss, their midpoints' store indices and their errors."""
+        xa, xb = store["x"][pairs[:, 0]], store["x"][pairs[:, 1]]
         keep = (xb - xa) > 2.0 * ROW_DX_MIN * (1 - 1e-9)
         pairs, xa, xb = pairs[keep], xa[keep], xb[keep]
         if not pairs.size:
-            return pairs, None, np.zeros(0)
+            return pairs, np.zeros(0, np.int64), np.zeros(0)
         xm = 0.5 * (xa + xb)
         new = _evaluate_rows(sphere, xm, basis)
         err = np.zeros(xm.size)
         for key in ("P_f", "P_b"):
-            est = _blend_pair(flat[key][pairs[:, 0]], flat[key][pairs[:, 1]], xa, xb, xm, ds)
-            err = np.maximum(err, _lobe_error(est, new[key], ds))
+            est = _blend_pair(store[key][pairs[:, 0]], store[key][pairs[:, 1]], xa, xb, xm, ds, ROW_TEST_STRIDE)
+            err = np.maximum(err, _lobe_error(est, new[key][:, ::ROW_TEST_STRIDE], ds * ROW_TEST_STRIDE))
         if bar is not None:
             bar.update(xm.size)
         bad = err > ROW_TOLERANCE
-        return pairs[bad], {k: v[bad] for k, v in new.items()}, err[bad]
+        return pairs[bad], put({k: v[bad] for k, v in new.items()}), err[bad]
 
-    n0 = flat["x"].size
-    pend_pairs, pend_rows, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1))
-    while pend_err.size and flat["x"].size < MAX_ROWS:
-        take = np.argsort(-pend_err)[:min(ROW_CHUNK, MAX_ROWS - flat["x"].size)]
+    kept = [put(rows)]
+    n_kept = n0
+    pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1))
+    while pend_err.size and n_kept < MAX_ROWS:
+        take = np.argsort(-pend_err)[:min(ROW_CHUNK, MAX_ROWS - n_kept)]
         rest = np.setdiff1d(np.arange(pend_err.size), take)
-        base = flat["x"].size
-        for k in flat:
-            flat[k] = np.concatenate([flat[k], pend_rows[k][take]])
-        idx = base + np.arange(take.size)
+        idx = pend_mid[take]
+        kept.append(idx)
+        n_kept += idx.size
         children = np.concatenate([np.stack([pend_pairs[take, 0], idx], -1),
                                    np.stack([idx, pend_pairs[take, 1]], -1)])
-        c_pairs, c_rows, c_err = candidates(children)
+        c_pairs, c_mid, c_err = candidates(children)
         pend_pairs = np.concatenate([pend_pairs[rest], c_pairs])
+        pend_mid = np.concatenate([pend_mid[rest], c_mid])
         pend_err = np.concatenate([pend_err[rest], c_err])
-        pend_rows = {k: np.concatenate([pend_rows[k][rest], c_rows[k]]) if c_rows is not None
-                     else pend_rows[k][rest] for k in pend_rows}
-    order = np.argsort(flat["x"])
-    return {k: v[order] for k, v in flat.items()}
+    kept = np.concatenate(kept)
+    kept = kept[np.argsort(store["x"][kept])]
+    return {k: v[kept] for k, v in store.items()}
 
 
 def _evaluate_rows(sphere, x, basis) -> dict:
@@ -363,7 +398,8 @@ def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
     mu = 1.0 - 0.5 * chord * chord                                        # cos Θ of the forward nodes
     J = x_rows.size
     x_top = float(x_rows[-1]) * s_hi
-    basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)))
+    # the angular products in single precision: |S|² to about 1e-6 (AngularBasis), twice as fast
+    basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)), ANGULAR_DTYPE)
     if sizes is None:
         with tqdm(unit="row", leave=False, delay=tables.PROGRESS_DELAY,
                   desc="corona: building the Mie sphere table") as bar:
@@ -382,10 +418,10 @@ def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
     with tqdm(total=total, unit="size", leave=False, delay=tables.PROGRESS_DELAY,
               desc="corona: building the Mie sphere table") as bar:
         for rows_q, node_w, m_q, X, W in plan:
-            for a0 in range(0, X.size, ROW_CHUNK):
-                c = slice(a0, min(a0 + ROW_CHUNK, X.size))
+            for a0 in range(0, X.size, SIZE_CHUNK):
+                c = slice(a0, min(a0 + SIZE_CHUNK, X.size))
                 sums = _mono_sums(np.full(c.stop - c.start, m_q), X[c], basis, amplitudes=True)
-                G = W[:, c] * node_w[:, None]                      # (rows of this node, chunk)
+                G = (W[:, c] * node_w[:, None]).astype(ANGULAR_DTYPE)    # (rows of this node, chunk)
                 for k in ("P_f", "P_b", "s0", "q_sca", "q_ext"):
                     out[k][rows_q] += G @ sums[k]
                 B = c.stop - c.start
@@ -599,9 +635,10 @@ class SphereMaterial:
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
         return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
-                "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_TOLERANCE],
-                "chord_dx": CHORD_DX, "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
-                "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM], "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+                "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_TOLERANCE, ROW_TEST_STRIDE],
+                "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
+                "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX],
+                "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
 
     @functools.cached_property
     def rows(self) -> dict:

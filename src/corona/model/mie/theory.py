@@ -243,14 +243,18 @@ class AngularBasis:
     Since ``π_n(-μ) = (-1)^{n-1} π_n(μ)`` and ``τ_n(-μ) = (-1)^n τ_n(μ)`` (Bohren & Huffman
     eq. 4.48), the sums over odd and even n at ``μ`` give both ``S(μ)`` and ``S(-μ)``.  The
     functions are computed once up to ``n_max`` and reused for every size with fewer terms.
+    ``dtype=np.float32`` keeps them (and the products of :func:`amplitudes_both_ways`) in single
+    precision: twice the speed of the products, relative errors of ``|S|²`` about 1e-6
+    (measured for water at x = 340-348 on 3300 nodes; docs/mie.md).
     """
 
-    def __init__(self, mu, n_max: int):
+    def __init__(self, mu, n_max: int, dtype=np.float64):
         self.mu = np.asarray(mu, dtype=np.float64).ravel()
         self.n_max = int(n_max)
-        pi, tau = angular_functions(self.mu, self.n_max)
-        self.pi_odd, self.pi_even = np.ascontiguousarray(pi[0::2]), np.ascontiguousarray(pi[1::2])
-        self.tau_odd, self.tau_even = np.ascontiguousarray(tau[0::2]), np.ascontiguousarray(tau[1::2])
+        pi, tau = angular_functions(self.mu, self.n_max)          # recurrences in float64
+        keep = lambda v: np.ascontiguousarray(v, dtype=dtype)
+        self.pi_odd, self.pi_even = keep(pi[0::2]), keep(pi[1::2])
+        self.tau_odd, self.tau_even = keep(tau[0::2]), keep(tau[1::2])
 
 
 def amplitudes_both_ways(m, x, basis: AngularBasis, coefs=None):
@@ -293,7 +297,8 @@ def _both_ways_parts(m, x, basis: AngularBasis, coefs=None):
     no, ne = (N + 1) // 2, N // 2                      # odd n = 1, 3, …; even n = 2, 4, …
 
     def stack(c):                                      # rows (Re ca, Im ca, Re cb, Im cb)
-        return np.concatenate([ca[:, c].real, ca[:, c].imag, cb[:, c].real, cb[:, c].imag])
+        return np.concatenate([ca[:, c].real, ca[:, c].imag, cb[:, c].real, cb[:, c].imag]).astype(
+            basis.pi_odd.dtype, copy=False)
 
     co, ce = stack(slice(0, N, 2)), stack(slice(1, N, 2))
     po, to = co @ basis.pi_odd[:no], co @ basis.tau_odd[:no]
