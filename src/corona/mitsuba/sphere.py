@@ -64,7 +64,7 @@ from corona import tables
 from corona._validation import CoronaError
 from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, texture_range
 from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, layer_first, pane_delta_weights
-from corona.mitsuba.common import pane_reflectance, pane_smooth_factors, positive as _positive, selection
+from corona.mitsuba.common import pane_reflectance, pane_sample, pane_smooth_factors, positive as _positive, selection
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
 from corona.mitsuba.common import read_props as _read_props
@@ -620,12 +620,7 @@ class SphereBSDFMixin:
         pick_delta = pick_coh
         if self.has_pane:
             wo_r = mi.Vector3f(wo_lobe.x, wo_lobe.y, -wo_lobe.z)
-            bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z), dr.select(pick_r, wo_r, bs.wo))
-            bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
-                                             dr.select(pick_r, mi.UInt32(4), bs.sampled_component))
-            bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
-                                        dr.select(pick_r, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
-                                                  bs.sampled_type))
+            pane_sample(bs, wi, pick_spec, pick_r, wo_r)
             smooth = smooth | pick_r
             pick_delta = pick_coh | pick_spec
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, (states, m))
