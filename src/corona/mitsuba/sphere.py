@@ -50,9 +50,21 @@ of F_a :data:`FA_ROW_STEP` apart over the texture's range (a uniform value:
 ± :data:`FA_ROW_STEP` about it, re-centred when an update leaves them) and
 read as the cubic Hermite interpolation between two rows, slopes from the
 rows (:func:`corona.tables.lobe.row_slopes`), so ``∂/∂F_a`` is continuous;
-the sampler draws the Mie ``P`` and does not depend on ``S``.  ``radius``
-takes no texture: the Mie rows belong to one radius (``x = 2π r/λ`` together
-with the index at that λ).
+the sampler draws the Mie ``P`` and does not depend on ``S``.
+
+``radius`` takes a float or a texture, exposed to ``mi.traverse``
+(``radius.value`` or the texture's keys, differentiable): each lane reads the
+rows at ``x = 2π r(uv)/λ`` (:meth:`SphereBSDFMixin._size_parameter`), the
+rows covering the radii :attr:`radius_cover` (a texture's range; a uniform
+value ``r``: ``[r/f, r f]``, ``f`` :data:`RADIUS_HEADROOM` or the span a
+dispersive index allows, :func:`corona.model.mie.layer.radius_span`), so an
+update inside them changes no table and no kernel; one outside rebuilds the
+rows about the new radii (a new kernel).  ``S(q r)`` and the forward energies
+are tabulated in ``u = q r`` and x, so they follow the lane's radius.  The rows
+hold the index of one radius (the texture's geometric middle): exact for a
+constant index; a dispersive one (water) is read at ``λ r_ref/r``, and ranges
+where that is more than :data:`corona.model.mie.layer.RADIUS_INDEX_PHASE`
+off are refused.
 """
 from __future__ import annotations
 

@@ -537,8 +537,9 @@ class SphereMaterial:
         optimiser's steps in the plugin): rows from ``2π r_lo/830 nm`` to ``2π r_hi/360 nm``, the
         chord grid fine enough for ``r_hi``; :meth:`at_radius` reads them at another radius.  Row x
         holds the index at ``λ = 2π r/x`` of the sphere's own radius r, so at radius ``r'`` a
-        dispersive index is read at ``λ r/r'`` instead of λ (water: ``|Δm| <= 0.004`` for
-        ``r'/r`` in [0.8, 1.25]; docs/layer.md#sphere-radius-textures).  None: the sphere's radius alone.
+        dispersive index is read at ``λ r/r'`` instead of λ: a cover whose phase error
+        (:func:`index_phase_error`) passes ``RADIUS_INDEX_PHASE`` is refused
+        (docs/layer.md#sphere-radius-textures).  None: the sphere's radius alone.
 
     Examples
     --------
