@@ -79,6 +79,56 @@ def _bitmap(first, lo, hi):
             "raw": True, "filter_type": "nearest"}
 
 
+def _loaded(base, pane, name, textured):
+    """(bsdf, its parameters, the key of ``name`` in them: a bitmap's ``.data``, else ``.value``)."""
+    import mitsuba as mi
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bsdf = mi.load_dict({**base, **({"substrate": "glass"} if pane else {})})
+    params = mi.traverse(bsdf)
+    key = f"{name}.data" if textured else f"{name}.value"
+    assert key in params
+    return bsdf, params, key
+
+
+def _setter(params, key, textured, lo, hi):
+    """``put(v)``: the parameter ``key`` set to ``v`` (a bitmap: its first texel, the others
+    ``lo``, ``hi``, ``lo``) and the scene updated."""
+    import mitsuba as mi
+
+    def put(v):
+        if textured:
+            i = dr.arange(mi.UInt32, 4)
+            data = dr.select(i == 0, v, dr.select(i == 2, mi.Float(hi), mi.Float(lo)))
+            params[key] = mi.TensorXf(data, shape=(2, 2, 1))
+        else:
+            params[key] = v
+        params.update()
+    return put
+
+
+def _assert_ad_matches(put, quantity, x, h, up, down, label):
+    """Reverse and forward derivatives of ``quantity()`` at ``x`` within 1 % of the central
+    difference ``(up - down) / 2h``, which must not vanish (the parameter matters)."""
+    import mitsuba as mi
+    fd = (up - down) / (2 * h)
+    xr = mi.Float(x)
+    dr.enable_grad(xr)
+    put(xr)
+    dr.backward(quantity())
+    rev = float(np.asarray(dr.grad(xr)).ravel()[0])
+    xf = mi.Float(x)
+    dr.enable_grad(xf)
+    put(xf)
+    y = quantity()
+    dr.forward(xf)
+    fwd = float(np.asarray(dr.grad(y)).ravel()[0])
+    label = (*label, rev, fwd, fd)
+    assert abs(fd) > 1e-2 * abs(up + down) * 0.5 / x, label
+    assert abs(rev - fd) < 0.01 * abs(fd), label
+    assert abs(fwd - fd) < 0.01 * abs(fd), label
+
+
 CASES = ([("poisson", tex, pane) for tex in (False, True) for pane in (False, True)]
          + [("hard-disk", tex, False) for tex in (False, True)] + [("rsa", False, True)])
 
@@ -91,48 +141,18 @@ def test_area_fraction_derivatives_match_central_differences(mi_variant, process
     x, h, lo, hi = (0.2, 0.002, 0.05, 0.35) if process == "poisson" else (0.2175, 0.001, 0.05, 0.35)
     base = {"type": "corona", "shape": "sphere", "radius": 2.0, "process": process,
             "area_fraction": _bitmap(x, lo, hi) if textured else (0.2 if process != "poisson" else x)}
-    if pane:
-        base["substrate"] = "glass"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        bsdf = mi.load_dict(base)
-    params = mi.traverse(bsdf)
-    key = "area_fraction.data" if textured else "area_fraction.value"
-    assert key in params
+    bsdf, params, key = _loaded(base, pane, "area_fraction", textured)
 
-    def put(v):
-        if textured:
-            i = dr.arange(mi.UInt32, 4)
-            data = dr.select(i == 0, v, dr.select(i == 2, mi.Float(hi), mi.Float(lo)))
-            params[key] = mi.TensorXf(data, shape=(2, 2, 1))
-        else:
-            params[key] = v
-        params.update()
+    put = _setter(params, key, textured, lo, hi)
 
-    for what in ("eval", "pdf", "weight"):
+    for what in ("eval", "pdf", "weight"):     # F_a matters for all three
         for theta in THETAS:
+            quantity = lambda: _quantity(bsdf, what, theta)
             put(mi.Float(x + h))
-            up = float(_quantity(bsdf, what, theta)[0])
+            up = float(quantity()[0])
             put(mi.Float(x - h))
-            down = float(_quantity(bsdf, what, theta)[0])
-            fd = (up - down) / (2 * h)
-            xr = mi.Float(x)
-            dr.enable_grad(xr)
-            put(xr)
-            y = _quantity(bsdf, what, theta)
-            dr.backward(y)
-            rev = float(np.asarray(dr.grad(xr)).ravel()[0])
-            xf = mi.Float(x)
-            dr.enable_grad(xf)
-            put(xf)
-            y = _quantity(bsdf, what, theta)
-            dr.forward(xf)
-            fwd = float(np.asarray(dr.grad(y)).ravel()[0])
-            label = (textured, pane, what, theta, rev, fwd, fd)
-            scale = abs(up + down) * 0.5 / x
-            assert abs(fd) > 1e-2 * scale, label          # F_a matters for all three
-            assert abs(rev - fd) < 0.01 * abs(fd), label
-            assert abs(fwd - fd) < 0.01 * abs(fd), label
+            down = float(quantity()[0])
+            _assert_ad_matches(put, quantity, x, h, up, down, (textured, pane, what, theta))
 
 
 def test_nothing_else_is_exposed(mi_variant):
@@ -200,25 +220,11 @@ def test_radius_derivatives_match_central_differences(mi_variant, process, textu
     lo, hi = 1.97, 2.03                                     # the texture's other texels (water: within its span)
     base = {"type": "corona", "shape": "sphere", "process": process, "area_fraction": 0.2,
             "radius": _bitmap(2.0, lo, hi) if textured else 2.0}
-    if pane:
-        base["substrate"] = "glass"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        bsdf = mi.load_dict(base)
-    params = mi.traverse(bsdf)
-    key = "radius.data" if textured else "radius.value"
-    assert key in params
+    bsdf, params, key = _loaded(base, pane, "radius", textured)
     h = 2e-5
     x = _mid_row_radius(bsdf, 2.0, h)
 
-    def put(v):
-        if textured:
-            i = dr.arange(mi.UInt32, 4)
-            data = dr.select(i == 0, v, dr.select(i == 2, mi.Float(hi), mi.Float(lo)))
-            params[key] = mi.TensorXf(data, shape=(2, 2, 1))
-        else:
-            params[key] = v
-        params.update()
+    put = _setter(params, key, textured, lo, hi)
 
     material = bsdf.material
     for what in ("eval", "pdf", "weight"):
@@ -243,22 +249,5 @@ def test_radius_derivatives_match_central_differences(mi_variant, process, textu
                 up = float(quantity()[0])
                 put(mi.Float(x - h))
                 down = float(quantity()[0])
-            fd = (up - down) / (2 * h)
-            xr = mi.Float(x)
-            dr.enable_grad(xr)
-            put(xr)
-            y = quantity()
-            dr.backward(y)
-            rev = float(np.asarray(dr.grad(xr)).ravel()[0])
-            xf = mi.Float(x)
-            dr.enable_grad(xf)
-            put(xf)
-            y = quantity()
-            dr.forward(xf)
-            fwd = float(np.asarray(dr.grad(y)).ravel()[0])
-            label = (process, textured, pane, what, theta, rev, fwd, fd)
-            scale = abs(up + down) * 0.5 / x
-            assert abs(fd) > 1e-2 * scale, label          # the radius matters for all three
-            assert abs(rev - fd) < 0.01 * abs(fd), label
-            assert abs(fwd - fd) < 0.01 * abs(fd), label
+            _assert_ad_matches(put, quantity, x, h, up, down, (process, textured, pane, what, theta))
     assert bsdf.material is material                          # no rebuild: r ± h inside the rows' radii

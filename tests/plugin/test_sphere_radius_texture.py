@@ -172,12 +172,21 @@ def test_uniform_radius_updates_without_a_rebuild(mi_variant):
     rng = np.random.default_rng(9)
     wi = np.array([0.0, 0.0, 1.0])
     wo = _directions(wi, rng, n=500)
-    for r in (2.07, 1.93):
-        params["radius.value"] = r
-        params.update()
-        assert bsdf.material is material
-        assert_eval_matches(bsdf, material.at_radius(float(np.float32(r))).eval, wi, wo, WAVELENGTHS,
-                            rtol=0.0, atol=2e-5, peak="all")
+    import drjit as dr
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        for k, r in enumerate((2.07, 1.93, 2.01)):
+            dr.kernel_history()
+            params["radius.value"] = r
+            params.update()
+            assert bsdf.material is material
+            assert_eval_matches(bsdf, material.at_radius(float(np.float32(r))).eval, wi, wo, WAVELENGTHS,
+                                rtol=0.0, atol=2e-5, peak="all")
+            jit = [h for h in dr.kernel_history() if h.get("type") == dr.KernelType.JIT]
+            if k:       # the same kernels: the radius is an opaque value
+                assert jit and all(h.get("cache_hit") for h in jit), jit
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
     params["radius.value"] = 2.5
     params.update()
     assert bsdf.material is not material and bsdf.radius_cover == pytest.approx((2.5 / 1.05, 2.5 * 1.05))
