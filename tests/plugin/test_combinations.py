@@ -38,11 +38,16 @@ def _bitmap(values):
             "raw": True, "filter_type": "nearest"}
 
 
+#: the sphere's radius texture is drawn with a constant index: with water's dispersion one table holds
+#: one radius's index, and a range wider than its span is refused (docs/layer.md#sphere-radius-textures)
+CONSTANT_INDEX = {"sphere": {"ior": 1.333}}
+
+
 def _features(family):
     r = LARGEST[family]
     return {
         "F_a texture": {"area_fraction": _bitmap([[0.05, 0.12], [0.17, 0.2]])},
-        "radius texture": {"radius": _bitmap([[0.6 * r, r], [0.8 * r, r]])},
+        "radius texture": {"radius": _bitmap([[0.6 * r, r], [0.8 * r, r]]), **CONSTANT_INDEX.get(family, {})},
         "albedo texture": {"albedo": _bitmap([[0.1, 0.4], [0.6, 0.3]])},
         "glass": {"substrate": "glass"},
         "size spread": {"size_spread": 0.1},
@@ -129,6 +134,11 @@ def matrix() -> str:
         "✓ (unused): the feature means nothing for that shape, which the plugin says in its "
         "one \"unused parameter\" warning, and the layer renders without it; "
         "✗: refused at load with the one line in the notes.",
+        "",
+        "The sphere's radius texture is drawn with a constant index (ior = 1.333): with water's "
+        "dispersion the rows of one table hold the index of one radius, and a texture wider than the "
+        "span that allows (a factor 1.02 about 2 µm) is refused in one line "
+        "(docs/layer.md#sphere-radius-textures).",
         "",
         "| shape | " + " | ".join(FEATURES) + " |",
         "|---|" + "---|" * len(FEATURES),

@@ -97,8 +97,11 @@ def test_bad_input(mi_variant):
     # Mitsuba wraps the plugin's CoronaError in its parser's error; the one line is kept
     with pytest.raises(Exception, match="process='lattice-hex' is out of range for shape='sphere'"):
         mi.load_dict({"type": "corona", "shape": "sphere", "process": "lattice-hex"})
-    with pytest.raises(Exception, match="radius texture is out of range for shape='sphere'; allowed a float"):
-        mi.load_dict({"type": "corona", "shape": "sphere", "radius": {"type": "checkerboard"}})
+    # a radius texture (here procedural: its sampled range) wider than water's index allows
+    with pytest.raises(Exception, match=r"radius=1 … 3 is out of range for shape='sphere' with a dispersive ior "
+                                        r"\(water\).*or a constant ior for any range"):
+        mi.load_dict({"type": "corona", "shape": "sphere",
+                      "radius": {"type": "checkerboard", "color0": 1.0, "color1": 3.0}})
 
 
 def test_area_fraction_texture_poisson(mi_variant):

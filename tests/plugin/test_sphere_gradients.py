@@ -16,9 +16,11 @@ With hard-disk or rsa centres ``S(q)`` and the cap's energies are cubic
 Hermite interpolations between F_a rows (continuously differentiable): ``x``
 sits 35 % into a row interval and ``h`` keeps ``x ± h`` inside it.
 
-``radius`` is no parameter of ``mi.traverse`` for spheres (the Mie rows
-belong to one radius), and ``albedo`` means nothing for a sphere: there is
-nothing to differentiate there, which the last test checks.
+``radius`` (``radius.value``, or a bitmap's ``radius.data``) sets the size
+parameter ``x = 2π r/λ`` of every wavelength: the rows are linear in x between
+them (the derivative jumps at a row), so the radius sits mid-row for every test
+wavelength and ``h`` keeps ``r ± h`` between the same rows.  ``albedo`` means
+nothing for a sphere: it is not exposed, which the second test checks.
 """
 import warnings
 
@@ -77,6 +79,56 @@ def _bitmap(first, lo, hi):
             "raw": True, "filter_type": "nearest"}
 
 
+def _loaded(base, pane, name, textured):
+    """(bsdf, its parameters, the key of ``name`` in them: a bitmap's ``.data``, else ``.value``)."""
+    import mitsuba as mi
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bsdf = mi.load_dict({**base, **({"substrate": "glass"} if pane else {})})
+    params = mi.traverse(bsdf)
+    key = f"{name}.data" if textured else f"{name}.value"
+    assert key in params
+    return bsdf, params, key
+
+
+def _setter(params, key, textured, lo, hi):
+    """``put(v)``: the parameter ``key`` set to ``v`` (a bitmap: its first texel, the others
+    ``lo``, ``hi``, ``lo``) and the scene updated."""
+    import mitsuba as mi
+
+    def put(v):
+        if textured:
+            i = dr.arange(mi.UInt32, 4)
+            data = dr.select(i == 0, v, dr.select(i == 2, mi.Float(hi), mi.Float(lo)))
+            params[key] = mi.TensorXf(data, shape=(2, 2, 1))
+        else:
+            params[key] = v
+        params.update()
+    return put
+
+
+def _assert_ad_matches(put, quantity, x, h, up, down, label):
+    """Reverse and forward derivatives of ``quantity()`` at ``x`` within 1 % of the central
+    difference ``(up - down) / 2h``, which must not vanish (the parameter matters)."""
+    import mitsuba as mi
+    fd = (up - down) / (2 * h)
+    xr = mi.Float(x)
+    dr.enable_grad(xr)
+    put(xr)
+    dr.backward(quantity())
+    rev = float(np.asarray(dr.grad(xr)).ravel()[0])
+    xf = mi.Float(x)
+    dr.enable_grad(xf)
+    put(xf)
+    y = quantity()
+    dr.forward(xf)
+    fwd = float(np.asarray(dr.grad(y)).ravel()[0])
+    label = (*label, rev, fwd, fd)
+    assert abs(fd) > 1e-2 * abs(up + down) * 0.5 / x, label
+    assert abs(rev - fd) < 0.01 * abs(fd), label
+    assert abs(fwd - fd) < 0.01 * abs(fd), label
+
+
 CASES = ([("poisson", tex, pane) for tex in (False, True) for pane in (False, True)]
          + [("hard-disk", tex, False) for tex in (False, True)] + [("rsa", False, True)])
 
@@ -89,53 +141,23 @@ def test_area_fraction_derivatives_match_central_differences(mi_variant, process
     x, h, lo, hi = (0.2, 0.002, 0.05, 0.35) if process == "poisson" else (0.2175, 0.001, 0.05, 0.35)
     base = {"type": "corona", "shape": "sphere", "radius": 2.0, "process": process,
             "area_fraction": _bitmap(x, lo, hi) if textured else (0.2 if process != "poisson" else x)}
-    if pane:
-        base["substrate"] = "glass"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        bsdf = mi.load_dict(base)
-    params = mi.traverse(bsdf)
-    key = "area_fraction.data" if textured else "area_fraction.value"
-    assert key in params
+    bsdf, params, key = _loaded(base, pane, "area_fraction", textured)
 
-    def put(v):
-        if textured:
-            i = dr.arange(mi.UInt32, 4)
-            data = dr.select(i == 0, v, dr.select(i == 2, mi.Float(hi), mi.Float(lo)))
-            params[key] = mi.TensorXf(data, shape=(2, 2, 1))
-        else:
-            params[key] = v
-        params.update()
+    put = _setter(params, key, textured, lo, hi)
 
-    for what in ("eval", "pdf", "weight"):
+    for what in ("eval", "pdf", "weight"):     # F_a matters for all three
         for theta in THETAS:
+            quantity = lambda: _quantity(bsdf, what, theta)
             put(mi.Float(x + h))
-            up = float(_quantity(bsdf, what, theta)[0])
+            up = float(quantity()[0])
             put(mi.Float(x - h))
-            down = float(_quantity(bsdf, what, theta)[0])
-            fd = (up - down) / (2 * h)
-            xr = mi.Float(x)
-            dr.enable_grad(xr)
-            put(xr)
-            y = _quantity(bsdf, what, theta)
-            dr.backward(y)
-            rev = float(np.asarray(dr.grad(xr)).ravel()[0])
-            xf = mi.Float(x)
-            dr.enable_grad(xf)
-            put(xf)
-            y = _quantity(bsdf, what, theta)
-            dr.forward(xf)
-            fwd = float(np.asarray(dr.grad(y)).ravel()[0])
-            label = (textured, pane, what, theta, rev, fwd, fd)
-            scale = abs(up + down) * 0.5 / x
-            assert abs(fd) > 1e-2 * scale, label          # F_a matters for all three
-            assert abs(rev - fd) < 0.01 * abs(fd), label
-            assert abs(fwd - fd) < 0.01 * abs(fd), label
+            down = float(quantity()[0])
+            _assert_ad_matches(put, quantity, x, h, up, down, (textured, pane, what, theta))
 
 
 def test_nothing_else_is_exposed(mi_variant):
-    # the radius and the albedo are not parameters of a sphere layer: the scene's parameters hold
-    # neither (a derivative would be detached, not 0); area_fraction is checked on update
+    # the albedo is no parameter of a sphere layer: the scene's parameters do not hold it (a
+    # derivative would be detached, not 0); area_fraction is checked on update
     import mitsuba as mi
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -143,9 +165,89 @@ def test_nothing_else_is_exposed(mi_variant):
                            "area_fraction": 0.3, "albedo": 0.5})
         poisson = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 2.0, "process": "poisson",
                                 "area_fraction": 0.3})
-    assert set(mi.traverse(hd).keys()) == {"area_fraction.value"}
-    assert set(mi.traverse(poisson).keys()) == {"area_fraction.value"}
+    assert set(mi.traverse(hd).keys()) == {"area_fraction.value", "radius.value"}
+    assert set(mi.traverse(poisson).keys()) == {"area_fraction.value", "radius.value"}
     params = mi.traverse(poisson)
     params["area_fraction.value"] = 1.5
     with pytest.raises(Exception, match=r"area_fraction=1.5 … 1.5 is out of range for shape='sphere'; allowed \(0, 1\)"):
         params.update()
+
+
+def _mid_row_radius(bsdf, near, h):
+    """A radius near ``near`` [µm] where every test wavelength's ``x = 2π r/λ`` sits between 20 % and
+    80 % of a row interval of the loaded layer's rows and ``r ± h`` stays in that interval: the
+    lookup is linear in x between rows (its derivative jumps at the rows), so a central difference
+    across a row would not be the derivative AD takes."""
+    xr = bsdf.material.rows["x"]
+    for r in near * (1.0 + np.linspace(0.0, 0.01, 2001)):
+        ok = True
+        for lam in LAMS:
+            x = 2 * np.pi * r / (lam * 1e-3)
+            j = np.searchsorted(xr, x, side="right") - 1
+            t = (x - xr[j]) / (xr[j + 1] - xr[j])
+            span = [np.searchsorted(xr, 2 * np.pi * rr / (lam * 1e-3), side="right") - 1 for rr in (r - h, r + h)]
+            ok &= 0.2 < t < 0.8 and span == [j, j]
+        if ok:
+            return float(np.float32(r))
+    raise AssertionError("no radius with every wavelength mid-row")
+
+
+def _samples(bsdf, theta, n=500):
+    """(directions, weights) of ``sample`` with the forward lobe alone (per sample)."""
+    import mitsuba as mi
+    wi, _ = _directions(theta)
+    rng = np.random.default_rng(7)
+    one = mi.BSDFContext()
+    one.type_mask = mi.BSDFFlags.GlossyTransmission
+    bs, w = bsdf.sample(one, _si(n, wi), mi.Float(rng.random(n).astype(np.float32)),
+                        mi.Point2f(rng.random((2, n)).astype(np.float32)))
+    return bs.wo, dr.sum(w)
+
+
+RADIUS_CASES = ([("poisson", tex, pane) for tex in (False, True) for pane in (False, True)]
+                + [("hard-disk", tex, pane) for tex in (False, True) for pane in (False, True)])
+
+
+@pytest.mark.parametrize("process,textured,pane", RADIUS_CASES, ids=lambda v: str(v))
+def test_radius_derivatives_match_central_differences(mi_variant, process, textured, pane):
+    # radius.value (uniform) or radius.data (a bitmap's texel under the shading point): x = 2π r/λ
+    # moves every wavelength along the rows (linear in x between them), the chord scale x_row/x of
+    # both rows and S(q r) with a hard core.  r sits mid-row for every wavelength (_mid_row_radius)
+    # and h = 1e-5 r keeps r ± h in those row intervals.  The sample weights are compared on the
+    # samples whose direction moves continuously between r ± h: a sample whose row (picked with
+    # probability ∝ t T_j+1) flips between them jumps and has no derivative there.
+    import mitsuba as mi
+    lo, hi = 1.97, 2.03                                     # the texture's other texels (water: within its span)
+    base = {"type": "corona", "shape": "sphere", "process": process, "area_fraction": 0.2,
+            "radius": _bitmap(2.0, lo, hi) if textured else 2.0}
+    bsdf, params, key = _loaded(base, pane, "radius", textured)
+    h = 2e-5
+    x = _mid_row_radius(bsdf, 2.0, h)
+
+    put = _setter(params, key, textured, lo, hi)
+
+    material = bsdf.material
+    for what in ("eval", "pdf", "weight"):
+        for theta in THETAS:
+            if what == "weight":
+                put(mi.Float(x + h))
+                wo_up, w_up = _samples(bsdf, theta)
+                put(mi.Float(x - h))
+                wo_down, w_down = _samples(bsdf, theta)
+                # a continuous sample's chord |wo + wi| scales as 1/r: it moves by about chord · 2h/r
+                wi = _directions(theta)[0]
+                chord = np.linalg.norm(np.asarray(wo_up) + wi[:, None], axis=0)
+                move = np.linalg.norm(np.asarray(wo_up) - np.asarray(wo_down), axis=0) / (chord * 2 * h / x)
+                keep = move < 3.0
+                assert keep.mean() > 0.8, np.sort(move)[::25]
+                mask = mi.Float(keep.astype(np.float32))
+                quantity = lambda: dr.sum(_samples(bsdf, theta)[1] * mask)
+                up, down = float(np.sum(np.asarray(w_up) * keep)), float(np.sum(np.asarray(w_down) * keep))
+            else:
+                quantity = lambda: _quantity(bsdf, what, theta)
+                put(mi.Float(x + h))
+                up = float(quantity()[0])
+                put(mi.Float(x - h))
+                down = float(quantity()[0])
+            _assert_ad_matches(put, quantity, x, h, up, down, (process, textured, pane, what, theta))
+    assert bsdf.material is material                          # no rebuild: r ± h inside the rows' radii

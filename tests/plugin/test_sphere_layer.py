@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from bsdf_checks import chi2_bsdf, interaction
+from bsdf_checks import assert_eval_matches, chi2_bsdf, interaction
 
 WAVELENGTHS = (450.0, 520.0, 600.0, 700.0)
 BASE = {"type": "corona", "shape": "sphere", "radius": 2.0, "area_fraction": 0.3, "process": "hard-disk"}
@@ -42,7 +42,6 @@ def _directions(wi, rng, n=2000):
 
 @pytest.mark.parametrize("side", ["front", "back"])
 def test_glass_eval_matches_numpy_reference(panes, side):
-    import mitsuba as mi
     bsdf = panes[side]
     m = bsdf.material
     assert m.substrate is not None and m.substrate.side == side
@@ -50,10 +49,7 @@ def test_glass_eval_matches_numpy_reference(panes, side):
     for deg in (0, 30, 60, 120, 160):            # > 90: light from the back (-z) side
         wi = np.array([np.sin(np.radians(deg)), 0.0, np.cos(np.radians(deg))])
         wo = _directions(wi, rng)
-        val = np.asarray(bsdf.eval(mi.BSDFContext(), interaction(len(wo), wi),
-                                   mi.Vector3f(wo.T.astype(np.float32))))
-        ref = np.stack([m.eval(wi, wo, lam) for lam in WAVELENGTHS])
-        assert np.max(np.abs(val - ref)) < 1e-4 * ref.max(), deg
+        val, ref, _ = assert_eval_matches(bsdf, m.eval, wi, wo, WAVELENGTHS, rtol=0.0, atol=1e-4, peak="all")
     # negative control: the pane changes the value (the layer alone is another BSDF)
     alone = np.stack([m._layer_eval(wi, wo, lam)[0] for lam in WAVELENGTHS])
     assert np.max(np.abs(val - alone)) > 1e-2 * ref.max()
@@ -136,8 +132,8 @@ def test_albedo_texture_is_unused(mi_variant):
     ({"process": "lattice-hex"}, r"process='lattice-hex' is out of range for shape='sphere' in the renderer; "
                                  r"allowed poisson, hard-disk, rsa, points \(the Bragg orders of spheres on a "
                                  r"lattice are evaluated by the numpy model"),
-    ({"radius": "tex"}, r"radius texture is out of range for shape='sphere'; allowed a float \(the Mie rows "
-                        r"belong to one radius"),
+    ({"radius": "tex"}, r"radius=1 … 3 is out of range for shape='sphere' with a dispersive ior \(water\): "
+                        r"one table of rows holds the index of one radius"),
     ({"substrate": "mirror"}, r"substrate=Mirror\(.*\) is out of range for shape='sphere'; allowed none or an "
                               r"incoherent glass pane"),
     ({"substrate": "glass", "substrate_thickness": 1000.0}, r"substrate=GlassPane\(.*\) is out of range"),
@@ -146,7 +142,7 @@ def test_refusals_are_one_line(mi_variant, extra, line):
     import mitsuba as mi
 
     from bsdf_checks import bitmap_texture
-    extra = {k: (bitmap_texture([[0.1, 0.2], [0.3, 0.2]]) if v == "tex" else v) for k, v in extra.items()}
+    extra = {k: (bitmap_texture([[1.0, 2.0], [3.0, 2.0]]) if v == "tex" else v) for k, v in extra.items()}
     with pytest.raises(Exception) as err:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -220,11 +216,13 @@ def test_area_fraction_texture_with_a_hard_core(mi_variant, process):
         si = interaction(len(wo), wi)
         si.uv = mi.Point2f(*uv)
         val = np.asarray(layer.eval(mi.BSDFContext(), si, mi.Vector3f(wo.T.astype(np.float32))))
-        m = material_from_parameters(shape="sphere", radius=2.0, process=process, area_fraction=fa)
+        m = _same_rows(layer, material_from_parameters(shape="sphere", radius=2.0, process=process,
+                                                       area_fraction=fa))
         ref = np.stack([m.eval(wi, wo, lam) for lam in WAVELENGTHS])
         on_row = np.min(np.abs(layer.fa_rows_np - fa)) < 1e-6
         assert np.max(np.abs(val - ref)) < (1e-4 if on_row else 2e-3) * ref.max(), (fa, on_row)
-        other = material_from_parameters(shape="sphere", radius=2.0, process=process, area_fraction=fa + 0.04)
+        other = _same_rows(layer, material_from_parameters(shape="sphere", radius=2.0, process=process,
+                                                           area_fraction=fa + 0.04))
         ref2 = np.stack([other.eval(wi, wo, lam) for lam in WAVELENGTHS])
         assert np.max(np.abs(val - ref2)) > 1e-2 * ref.max()
         n = 200_000
@@ -232,6 +230,12 @@ def test_area_fraction_texture_with_a_hard_core(mi_variant, process):
                              mi.Float(rng.random(n).astype(np.float32)),
                              mi.Point2f(rng.random((2, n)).astype(np.float32)))
         assert np.all(np.asarray(w).mean(axis=-1) <= 1.0 + 3e-3), fa
+
+
+def _same_rows(layer, m):
+    """The numpy layer ``m`` on rows in x over the plugin layer's radii (``radius_cover``)."""
+    from corona.model.mie.layer import SphereMaterial
+    return SphereMaterial(m.shape, m.process, substrate=m.substrate, radius_cover=layer.radius_cover)
 
 
 def _uv(n, wi, uv):

@@ -106,6 +106,7 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                              pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
                              read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
                              wavelength_mixture)
+from corona.mitsuba.common import pane_sample
 from corona.parameters import SPEC, material_from_parameters, parse_mixture, rst_table
 from corona.tables.lobe import row_slopes
 from corona.model.substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
@@ -875,13 +876,7 @@ class CoronaBSDFMixin:
         smooth = lobe_valid | pick_refl
         pick_delta = pick_coh
         if self.has_pane:
-            bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z),      # mirror of wi
-                              dr.select(pick_rlobe, wo_rlobe, bs.wo))
-            bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
-                                             dr.select(pick_rlobe, mi.UInt32(4), bs.sampled_component))
-            bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
-                                        dr.select(pick_rlobe, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
-                                                  bs.sampled_type))
+            pane_sample(bs, wi, pick_spec, pick_rlobe, wo_rlobe)
             smooth = smooth | rlobe_valid
             pick_delta = pick_coh | pick_spec
 

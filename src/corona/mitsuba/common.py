@@ -459,6 +459,20 @@ def pane_smooth_factors(coherent, r_i, r_o, first, t_i=None, t_o=None, front_i=N
     return transmitted, reflected, diffuse
 
 
+def pane_sample(bs, wi, pick_spec, pick_rlobe, wo_rlobe):
+    """The pane's two components over what ``bs`` (a ``mi.BSDFSample3f``) holds: 3, the specular
+    reflection (``wo`` the mirror image of ``wi``, ``DeltaReflection``) where ``pick_spec``, and 4,
+    the lobe in reflection (``wo_rlobe``, ``GlossyReflection``) where ``pick_rlobe``; ``bs.wo``,
+    ``bs.sampled_component`` and ``bs.sampled_type`` are set in place (and ``bs`` returned)."""
+    bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z), dr.select(pick_rlobe, wo_rlobe, bs.wo))
+    bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
+                                     dr.select(pick_rlobe, mi.UInt32(4), bs.sampled_component))
+    bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
+                                dr.select(pick_rlobe, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                          bs.sampled_type))
+    return bs
+
+
 def selection(energies, enabled):
     """Per-lane probabilities of components ∝ their energies, 0 where a component is disabled
     (``enabled`` a list of Python bools, e.g. ``ctx.is_enabled(flag, index)``); all 0 where none is left."""

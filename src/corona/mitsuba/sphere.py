@@ -50,9 +50,21 @@ of F_a :data:`FA_ROW_STEP` apart over the texture's range (a uniform value:
 ± :data:`FA_ROW_STEP` about it, re-centred when an update leaves them) and
 read as the cubic Hermite interpolation between two rows, slopes from the
 rows (:func:`corona.tables.lobe.row_slopes`), so ``∂/∂F_a`` is continuous;
-the sampler draws the Mie ``P`` and does not depend on ``S``.  ``radius``
-takes no texture: the Mie rows belong to one radius (``x = 2π r/λ`` together
-with the index at that λ).
+the sampler draws the Mie ``P`` and does not depend on ``S``.
+
+``radius`` takes a float or a texture, exposed to ``mi.traverse``
+(``radius.value`` or the texture's keys, differentiable): each lane reads the
+rows at ``x = 2π r(uv)/λ`` (:meth:`SphereBSDFMixin._size_parameter`), the
+rows covering the radii :attr:`radius_cover` (a texture's range; a uniform
+value ``r``: ``[r/f, r f]``, ``f`` :data:`RADIUS_HEADROOM` or the span a
+dispersive index allows, :func:`corona.model.mie.layer.radius_span`), so an
+update inside them changes no table and no kernel; one outside rebuilds the
+rows about the new radii (a new kernel).  ``S(q r)`` and the forward energies
+are tabulated in ``u = q r`` and x, so they follow the lane's radius.  The rows
+hold the index of one radius (the texture's geometric middle): exact for a
+constant index; a dispersive one (water) is read at ``λ r_ref/r``, and ranges
+where that is more than :data:`corona.model.mie.layer.RADIUS_INDEX_PHASE`
+off are refused.
 """
 from __future__ import annotations
 
@@ -64,19 +76,19 @@ from corona import tables
 from corona._validation import CoronaError
 from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, texture_range
 from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, layer_first, pane_delta_weights
-from corona.mitsuba.common import pane_reflectance, pane_smooth_factors, positive as _positive, selection
+from corona.mitsuba.common import pane_reflectance, pane_sample, pane_smooth_factors, positive as _positive, selection
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
 from corona.mitsuba.common import read_props as _read_props
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from corona.tables.lobe import row_slopes
-from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU
+from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
 
 __all__ = ["NEWTON_STEPS", "SphereBSDFMixin", "sphere_bsdf_class"]
 
-#: Why a sphere layer takes no radius texture (the one line of its refusal).
-NO_RADIUS_TEXTURE = ("the Mie rows belong to one radius: the pattern is a function of x = 2πr/λ and of the "
-                     "droplets' index at that λ, so another radius needs its own Mie table")
+#: A uniform radius's rows serve radii this factor below and above it (an optimiser's steps need no
+#: rebuild); a radius texture's rows serve its range.
+RADIUS_HEADROOM = 1.05
 #: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa).
 FA_ROW_STEP = 0.05
 
@@ -113,12 +125,7 @@ class SphereBSDFMixin:
         albedo_tex = textures.pop("albedo", None)
         if albedo_tex is not None:     # means nothing for a sphere: the one unused-parameter warning
             warn_unused(["albedo"], {**DEFAULTS, **params}, stacklevel=2)
-        radius_tex = textures.pop("radius", None)
-        if radius_tex is not None:
-            if radius_tex.is_spatially_varying():
-                raise CoronaError(f"radius texture is out of range for shape='sphere'; allowed a float "
-                                  f"({NO_RADIUS_TEXTURE})")
-            params["radius"] = SPEC["radius"].check(texture_range(radius_tex)[1])
+        self._radius_init(textures.pop("radius", None), params)
         fa_tex = textures.pop("area_fraction", None)
         self.fa_range = (0.0, 1.0)
         if fa_tex is not None and fa_tex.is_spatially_varying():
@@ -135,6 +142,8 @@ class SphereBSDFMixin:
         self.params = params
         self.fa_textured = fa_tex is not None
         self._setup(*(self.fa_range if self.fa_textured else (params.get("area_fraction", SPEC["area_fraction"].default),) * 2))
+        if self.radius_tex is None:
+            self.radius_tex = _uniform(self.params.get("radius", SPEC["radius"].default))
         self.fa_tex = fa_tex if fa_tex is not None else _uniform(self.fa)
         if not mi.is_spectral:
             self.channel_lambdas, self.channel_weights = _channel_response()
@@ -148,14 +157,71 @@ class SphereBSDFMixin:
             flags = flags | c
         self.m_flags = flags
 
+    def _radius_init(self, radius_tex, params):
+        """The radius texture (None: a uniform value, made after the tables) and the radii the rows serve."""
+        self.radius_textured = radius_tex is not None and radius_tex.is_spatially_varying()
+        if self.radius_textured:
+            self.radius_tex = radius_tex
+            self.radius_cover = self._radius_range()
+            lo, hi = self.radius_cover
+            params["radius"] = float(np.sqrt(lo * hi))     # the rows' index: that of the middle radius
+            return
+        if radius_tex is not None:                # a uniform texture is a value
+            params["radius"] = SPEC["radius"].check(texture_range(radius_tex)[1])
+        self.radius_tex = None
+        self.radius_cover = None                  # set with the tables (_material)
+
+    def _radius_range(self):
+        """Checked (lo, hi) [µm] of the radius texture: a bitmap's texel values (its filter stays between
+        them), else :func:`corona.mitsuba.common.texture_range`."""
+        lo, hi = texture_range(self.radius_tex)
+        if self.radius_tex.is_spatially_varying():
+            try:
+                data = np.asarray(dr.detach(mi.traverse(self.radius_tex)["data"]), dtype=np.float64).ravel()
+                lo, hi = float(np.min(data)), float(np.max(data))
+            except Exception:  # noqa: BLE001 - not a bitmap: the sampled range
+                pass
+        if lo is None or not (np.isfinite(lo) and np.isfinite(hi) and 0.0 < lo and hi <= SPHERE_RADIUS_MAX):
+            raise CoronaError(f"corona BSDF: radius={lo!r} … {hi!r} is out of range for shape='sphere'; "
+                              f"allowed (0, {SPHERE_RADIUS_MAX:g}] µm")
+        return float(lo), float(hi)
+
+    def _material(self, params):
+        """The numpy layer of ``params`` with rows serving :attr:`radius_cover`.  A uniform radius r
+        serves ``[r/f, r f]``, ``f`` :data:`RADIUS_HEADROOM` or less where a dispersive index would
+        be read too far from its wavelength (:func:`corona.model.mie.layer.radius_span`) or the
+        headroom would pass the tables' largest sizes."""
+        material = material_from_parameters(**params)
+        make = lambda cover: SphereMaterial(material.shape, material.process, substrate=material.substrate,
+                                            use_cache=material.use_cache, radius_cover=cover)
+        if self.radius_textured:
+            try:
+                return make(self.radius_cover)
+            except CoronaError as err:
+                raise CoronaError(f"corona BSDF: the radius texture: {err}") from None
+        if self.radius_cover is None:
+            r = float(material.sphere.radius)
+            f = radius_span(material.sphere, RADIUS_HEADROOM)
+            self.radius_cover = (r / f, r * f)
+        for cover in (self.radius_cover, (self.radius_cover[0], float(material.sphere.radius))):
+            try:
+                out = make(cover)
+                self.radius_cover = cover
+                return out
+            except CoronaError:
+                continue
+        r = float(material.sphere.radius)
+        self.radius_cover = (r, r)
+        return material
+
     def _setup(self, fa_lo, fa_hi):
-        """The tables of the layer, their F_a rows covering [fa_lo, fa_hi] (a hard core)."""
-        material = material_from_parameters(**self.params)
+        """The tables of the layer, their F_a rows covering [fa_lo, fa_hi] (a hard core) and their x rows
+        the radii of :attr:`radius_cover`."""
+        material = self._material(self.params)
         self.material = material
         rows = material.rows
         der = material._derived
         self.fa = float(material.area_fraction)
-        self.radius = float(material.sphere.radius)
         x = rows["x"]
         self.x0, self.n_rows = float(x[0]), int(x.size)
         self.x_rows = _array(mi.Float, x)
@@ -221,7 +287,7 @@ class SphereBSDFMixin:
             warnings.simplefilter("ignore")
             for fa in fas:
                 m = material if abs(fa - material.area_fraction) < 1e-12 else \
-                    material_from_parameters(**{**self.params, "area_fraction": float(fa)})
+                    self._material({**self.params, "area_fraction": float(fa)})
                 S.append(m.structure_table[1])
                 E.append(m._derived["e_f_mu"])
         S, E = np.array(S), np.array(E)
@@ -268,9 +334,18 @@ class SphereBSDFMixin:
         lams, weights = wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
         return lams, weights[0]
 
-    def _row(self, lam_nm):
+    def _size_parameter(self, lam_nm, radius):
+        """(λ [µm], ``x = 2π r/λ``) of one wavelength [nm] of the lane and its radius [µm] (within the
+        rows' radii: :attr:`radius_cover`)."""
         lam = dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
-        x = (2.0 * dr.pi * self.radius) / lam
+        return lam, (2.0 * dr.pi) * radius / lam
+
+    def _lane_radius(self, si, active):
+        """The lane's radius [µm]: the texture's (or the uniform value's), clipped to the rows' radii."""
+        return dr.clip(self.radius_tex.eval_1(si, active), self.radius_cover[0], self.radius_cover[1])
+
+    def _row(self, lam_nm, radius):
+        lam, x = self._size_parameter(lam_nm, radius)
         b = mi.UInt32(dr.clip(dr.floor((x - self.x0) / self.bin_dx), 0, self.x_bins - 1))
         j = _gather(mi.UInt32, self.row_guide, b)
         for _ in range(2):        # float32 rounding of the bin: at most one row up, checked twice
@@ -279,10 +354,10 @@ class SphereBSDFMixin:
         xj, xj1 = _gather(mi.Float, self.x_rows, j), _gather(mi.Float, self.x_rows, j + 1)
         return j, (x - xj) / (xj1 - xj), lam, x, xj, xj1
 
-    def _state(self, lam_nm, mu_i, active, fa, hw=None):
+    def _state(self, lam_nm, mu_i, active, fa, hw=None, radius=None):
         """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a, ``hw`` its
-        F_a rows' weights)."""
-        j, t, lam, x, xj, xj1 = self._row(lam_nm)
+        F_a rows' weights, ``radius`` its radius [µm])."""
+        j, t, lam, x, xj, xj1 = self._row(lam_nm, radius)
 
         if dr.is_array_v(mi.Float):
             a0 = dr.gather(mi.Vector4f, self.row_data, 2 * j, active)
@@ -327,7 +402,8 @@ class SphereBSDFMixin:
         if self.fa_textured:
             fa = dr.clip(fa, self.fa_range[0], self.fa_range[1])
         hw = self._fa_weights(fa)
-        states = [self._state(lam, mu_i, active, fa, hw) for lam in lams]
+        radius = self._lane_radius(si, active)
+        states = [self._state(lam, mu_i, active, fa, hw, radius) for lam in lams]
         return states, m
 
     # ------------------------------------------------------------------
@@ -443,7 +519,7 @@ class SphereBSDFMixin:
             P, P_lin = self._rows_at(self.P, st, s_any, active, offset)       # P_f or P_b
             Z = P
             if self.has_S:
-                S = self._structure((2.0 * dr.pi * self.radius) * dxy / st["lam"], st["hw"], a_f)
+                S = self._structure(st["x"] * dxy, st["hw"], a_f)      # u = q r = x |d|
                 C_f = self._rows_at(self.Cf, st, s_f, a_f)[0] if self.has_C else P
                 # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
                 Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
@@ -576,12 +652,7 @@ class SphereBSDFMixin:
         pick_delta = pick_coh
         if self.has_pane:
             wo_r = mi.Vector3f(wo_lobe.x, wo_lobe.y, -wo_lobe.z)
-            bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z), dr.select(pick_r, wo_r, bs.wo))
-            bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
-                                             dr.select(pick_r, mi.UInt32(4), bs.sampled_component))
-            bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
-                                        dr.select(pick_r, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
-                                                  bs.sampled_type))
+            pane_sample(bs, wi, pick_spec, pick_r, wo_r)
             smooth = smooth | pick_r
             pick_delta = pick_coh | pick_spec
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, (states, m))
@@ -598,8 +669,9 @@ class SphereBSDFMixin:
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
     def traverse(self, callback):
-        # area_fraction (a uniform texture's "area_fraction.value", or the texture's own keys), differentiable
+        # area_fraction and radius (a uniform texture's "….value", or the texture's own keys), differentiable
         callback.put("area_fraction", self.fa_tex, mi.ParamFlags.Differentiable)
+        callback.put("radius", self.radius_tex, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
         # new values: check them; rebuild the F_a rows only when they leave what the rows cover
@@ -609,9 +681,18 @@ class SphereBSDFMixin:
                               "shape='sphere'; allowed (0, 1)")
         if self.fa_textured:
             self.fa_range = (lo, hi)
-        if lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7:
+        r_lo, r_hi = self._radius_range()
+        radius_out = r_lo < self.radius_cover[0] * (1 - 1e-6) or r_hi > self.radius_cover[1] * (1 + 1e-6)
+        if radius_out:          # new rows in x about the new radii (a new kernel)
+            if self.radius_textured:
+                self.radius_cover = (r_lo, r_hi)
+                self.params["radius"] = float(np.sqrt(r_lo * r_hi))
+            else:
+                self.params["radius"] = r_hi
+                self.radius_cover = None
+        if radius_out or lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7:
             self.params["area_fraction"] = hi
-            self._setup(lo, hi)
+            self._setup(*(self.fa_range if self.fa_textured else (hi, hi)))
 
     def to_string(self):
         return f"CoronaSphereBSDF[{self.material!r}]"

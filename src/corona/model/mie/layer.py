@@ -65,6 +65,7 @@ total, so sampling is proportional to the tabulated ``P``.
 """
 from __future__ import annotations
 
+import copy
 import functools
 import math
 
@@ -151,10 +152,19 @@ LATTICE_PEAK_REACH = 5.0
 LATTICE_STEEP = 0.9
 #: Azimuths of the quadrature of a jittered lattice's diffuse part (1 - e^{-q²δ²}) P.
 LATTICE_DIFFUSE_PHI = 64
+#: Rows serving a range of radii (``radius_cover``) hold the index at ``λ = 2π r/x`` of one radius r: read
+#: at radius r' a dispersive index is that of ``λ r/r'``, a phase error ``2 x |Δm|`` on the rays through
+#: the droplet.  It is kept below this [rad]: about 1 % of the forward peak (water, 2 µm, measured in
+#: docs/layer.md#sphere-radius-textures); a constant index has none.
+RADIUS_INDEX_PHASE = 0.07
 
 
-def _grid(radius: float, radius_max: float, spread: float = 0.0):
+def _grid(radius: float, radius_max: float, spread: float = 0.0, cover=None):
     """(x rows, chord step ds, number of chord nodes) for spheres of mean radius ``radius`` [µm].
+
+    ``cover``: (r_lo, r_hi) [µm], the radii the rows serve (a radius texture): the rows run from
+    ``2π r_lo/830 nm`` to ``2π r_hi/360 nm`` and the chord grid resolves ``radius_max r_hi / radius``;
+    None: ``radius`` alone.
 
     One size: rows ``ROW_DLNX`` apart in ln x (at most ``ROW_DX_START`` in x), refined by
     :func:`_refine_rows`.  A size distribution of
@@ -163,7 +173,8 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0):
     ``√2 x_1 / x_0`` (a little past Θ = 90°): a row is read at the chord scaled by ``x / x_j``
     (see :func:`_scaled_blend`), up to ``√2 x_j+1 / x_j`` for the wavelengths above it."""
     lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
-    x_lo, x_hi = 2 * np.pi * radius / lam_hi, 2 * np.pi * radius / lam_lo
+    r_lo, r_hi = (radius, radius) if cover is None else cover
+    x_lo, x_hi = 2 * np.pi * r_lo / lam_hi, 2 * np.pi * r_hi / lam_lo
     if spread == 0.0:
         # ROW_DLNX apart in ln x up to x_b = ROW_DX_START / ROW_DLNX, ROW_DX_START apart above
         x_b = min(max(ROW_DX_START / ROW_DLNX, x_lo), x_hi)
@@ -178,11 +189,37 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0):
         row_dx = max(SIZE_ROW_DX, min(2.0, 0.25 * spread * x_lo))
         n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
         x_rows = np.linspace(x_lo, x_hi, n_rows)
-    x_top = 2 * np.pi * radius_max / lam_lo
+    x_top = 2 * np.pi * radius_max * (r_hi / radius) / lam_lo
     s_max = min(2.0, CHORD_MAX * x_rows[1] / x_rows[0] * (1.0 + 1e-9))
     chord_dx = CHORD_DX_SPREAD if spread >= SPREAD_COARSE_CHORD else CHORD_DX
     n_nodes = int(np.clip(math.ceil(s_max * x_top / chord_dx) + 1, MIN_NODES, MAX_NODES))
     return x_rows, s_max / (n_nodes - 1), n_nodes
+
+
+def index_phase_error(sphere: Sphere, r_lo: float, r_hi: float) -> float:
+    """Largest phase error ``2 x |m(λ r/r') - m(λ)|`` [rad] over 360–830 nm and ``r' ∈ {r_lo, r_hi}`` of
+    rows holding the index of ``sphere`` (radius r) read at radius r' (``x = 2π r'/λ``); 0 for a
+    constant index."""
+    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 95)
+    r = float(sphere.radius)
+    out = 0.0
+    for rp in (float(r_lo), float(r_hi)):
+        dm = np.abs(sphere.index(lam * r / rp) - sphere.index(lam))
+        out = max(out, float(np.max(2.0 * (2 * np.pi * rp / (lam * 1e-3)) * dm)))
+    return out
+
+
+def radius_span(sphere: Sphere, most: float) -> float:
+    """The largest factor ``f <= most`` with rows of ``sphere`` serving ``[r/f, r f]`` within
+    ``RADIUS_INDEX_PHASE`` (:func:`index_phase_error`; bisection)."""
+    r = float(sphere.radius)
+    if index_phase_error(sphere, r / most, r * most) <= RADIUS_INDEX_PHASE:
+        return float(most)
+    lo, hi = 1.0, float(most)
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if index_phase_error(sphere, r / mid, r * mid) <= RADIUS_INDEX_PHASE else (lo, mid)
+    return lo
 
 
 def _size_quadrature(sizes):
@@ -363,8 +400,12 @@ def _evaluate_rows(sphere, x, basis) -> dict:
     return out
 
 
-def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
+def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     """The Mie tables of a sphere (optionally a size distribution of it) over wavelength rows.
+
+    ``radius_cover``: (r_lo, r_hi) [µm], the rows reach the size parameters of those radii over
+    the wavelength range (a radius texture, :class:`SphereMaterial`); row x holds the sphere's
+    index at ``λ = 2π r / x`` (``r = sphere.radius``).
 
     One sphere: each row is Mie theory at its size parameter.  A size distribution: the rows
     share the evaluations of one fine grid of size parameters ``X`` (step ``SIZE_DX`` or finer,
@@ -392,7 +433,7 @@ def build_mie_rows(sphere: Sphere, sizes=None) -> dict:
         sizes, s_lo, s_hi = None, 1.0, 1.0
     # chord resolution for the radii that carry the light (mean + 3 std); the rare larger
     # droplets' forward peaks are narrower than the grid and get smoothed
-    x_rows, ds, K = _grid(r, r * min(s_hi, 1.0 + 3.0 * spread), spread)
+    x_rows, ds, K = _grid(r, r * min(s_hi, 1.0 + 3.0 * spread), spread, radius_cover)
     lam = 2 * np.pi * r / x_rows * 1e3                                    # nm
     chord = np.arange(K) * ds
     mu = 1.0 - 0.5 * chord * chord                                        # cos Θ of the forward nodes
@@ -550,6 +591,14 @@ class SphereMaterial:
     substrate : corona.GlassPane, optional
         The droplets sit on a thin pane (incoherent: no thickness), with the
         flat layer's weights (:meth:`eval`; docs/physics.md#the-layer-on-glass-substrateglass).
+    radius_cover : (float, float), optional
+        Radii [µm] ``(r_lo, r_hi)`` around the sphere's the rows serve (a radius texture or an
+        optimiser's steps in the plugin): rows from ``2π r_lo/830 nm`` to ``2π r_hi/360 nm``, the
+        chord grid fine enough for ``r_hi``; :meth:`at_radius` reads them at another radius.  Row x
+        holds the index at ``λ = 2π r/x`` of the sphere's own radius r, so at radius ``r'`` a
+        dispersive index is read at ``λ r/r'`` instead of λ: a cover whose phase error
+        (:func:`index_phase_error`) passes ``RADIUS_INDEX_PHASE`` is refused
+        (docs/layer.md#sphere-radius-textures).  None: the sphere's radius alone.
 
     Examples
     --------
@@ -572,7 +621,7 @@ class SphereMaterial:
     isotropic = True
 
     def __init__(self, shape, process: Process | None = None, mode: str = "particle",
-                 albedo: float = 0.0, use_cache: bool = True, substrate=None):
+                 albedo: float = 0.0, use_cache: bool = True, substrate=None, radius_cover=None):
         parts = sphere_parts(shape)
         if parts is None:
             raise CoronaError(f"shape={shape!r} is not a sphere (corona.Sphere)")
@@ -608,17 +657,34 @@ class SphereMaterial:
         self.process = process
         self.use_cache = bool(use_cache)
         self.area_fraction = process.layer_area_fraction(shape)
-        if self.sphere.radius > SPHERE_RADIUS_MAX:
-            raise CoronaError(f"radius={self.sphere.radius:g} is out of range for shape='sphere'; allowed "
+        r = float(self.sphere.radius)
+        if radius_cover is not None:
+            lo, hi = (float(v) for v in radius_cover)
+            if not (0.0 < lo <= r * (1 + 1e-9) and r <= hi * (1 + 1e-9) and math.isfinite(hi)):
+                raise CoronaError(f"radius_cover={radius_cover!r} is out of range for shape='sphere' with "
+                                  f"radius={r:g}; allowed (r_lo, r_hi) with 0 < r_lo <= {r:g} <= r_hi")
+            radius_cover = (min(lo, r), max(hi, r))
+            phase = index_phase_error(self.sphere, *radius_cover)
+            if phase > RADIUS_INDEX_PHASE:
+                f = radius_span(self.sphere, max(r / radius_cover[0], radius_cover[1] / r))
+                raise CoronaError(
+                    f"radius={radius_cover[0]:.4g} … {radius_cover[1]:.4g} is out of range for shape='sphere' "
+                    f"with a dispersive ior (water): one table of rows holds the index of one radius, "
+                    f"{phase:.2f} rad off at the ends (allowed {RADIUS_INDEX_PHASE:g}); allowed radii within "
+                    f"a factor {f:.4g} of {r:.4g} µm, or a constant ior for any range")
+        self.radius_cover = radius_cover
+        top_r = r if radius_cover is None else radius_cover[1]
+        if top_r > SPHERE_RADIUS_MAX:
+            raise CoronaError(f"radius={top_r:g} is out of range for shape='sphere'; allowed "
                               f"(0, {SPHERE_RADIUS_MAX:g}] µm (larger droplets: use shape='circle', "
                               "whose Fraunhofer corona theirs approaches)")
         if self.sizes is not None and self.sizes.spread > 0:
-            top = largest_sphere(self.sphere.radius, self.sizes.spread, self.sizes.distribution)
+            top = largest_sphere(top_r, self.sizes.spread, self.sizes.distribution)
             if top > SPHERE_SIZES_MAX:
-                allowed = largest_spread(self.sphere.radius, self.sizes.distribution)
+                allowed = largest_spread(top_r, self.sizes.distribution)
                 raise CoronaError(
                     f"size_spread={self.sizes.spread:g} is out of range for shape='sphere' with radius="
-                    f"{self.sphere.radius:g} µm: its largest droplets ({top:.3g} µm; {SIZE_TAIL:g} of the "
+                    f"{top_r:g} µm: its largest droplets ({top:.3g} µm; {SIZE_TAIL:g} of the "
                     f"scattered power beyond) pass {SPHERE_SIZES_MAX:g} µm, the Mie tables' range; allowed "
                     f"size_spread <= {allowed:.3g} ({self.sizes.distribution}) at this radius")
 
@@ -634,18 +700,39 @@ class SphereMaterial:
     # tables
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
-        return {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
-                "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_TOLERANCE, ROW_TEST_STRIDE],
-                "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
-                "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX],
-                "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+        key = {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
+               "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_TOLERANCE, ROW_TEST_STRIDE],
+               "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
+               "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX],
+               "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+        if self.radius_cover is not None:
+            key["radius_cover"] = list(self.radius_cover)
+        return key
 
     @functools.cached_property
     def rows(self) -> dict:
         """The Mie rows (:func:`build_mie_rows`, cached on disk), float64."""
-        arrays = tables.cached(self.table_params(), lambda: build_mie_rows(self.sphere, self.sizes),
+        arrays = tables.cached(self.table_params(),
+                               lambda: build_mie_rows(self.sphere, self.sizes, self.radius_cover),
                                use_cache=self.use_cache)
         return {k: np.asarray(v) for k, v in arrays.items()}
+
+    def at_radius(self, radius: float) -> "SphereMaterial":
+        """The layer with spheres of ``radius`` [µm] (within :attr:`radius_cover`) read from these rows,
+        as a radius texture's texel is: ``x = 2π radius/λ`` on the same rows, the same ``S(q r)`` table
+        in ``u = q r`` and the same forward energies in x (what the plugin evaluates there).
+
+        The Mie lobe of the new radius itself (:meth:`eval` with ``exact=True``) is Mie theory at
+        that radius and the index at λ."""
+        r = float(radius)
+        lo, hi = self.radius_cover if self.radius_cover is not None else (self.sphere.radius,) * 2
+        if not (lo * (1 - 1e-9) <= r <= hi * (1 + 1e-9)):
+            raise CoronaError(f"radius={r!r} is out of range for these sphere rows; allowed "
+                              f"[{lo:g}, {hi:g}] µm (radius_cover)")
+        _ = self.rows, self.structure_table, self._derived        # shared, computed once
+        other = copy.copy(self)
+        other.sphere = Sphere(r, ior=self.sphere.ior)
+        return other
 
     @functools.cached_property
     def structure_table(self):
@@ -653,7 +740,9 @@ class SphereMaterial:
         fixed lattice (its ``S`` is evaluated at the in-plane ``q`` itself: :meth:`_lobes`)."""
         if isinstance(self.process, Poisson) or self.lattice is not None:
             return None
-        u_max = tables.u_max_for(self.length_scale)
+        # in u = q r, radius-free for a hard core of the spheres' diameter; long enough for the cover's top
+        top = self.length_scale if self.radius_cover is None else self.radius_cover[1]
+        u_max = tables.u_max_for(top)
         n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
         du = u_max / (n - 1)
         u = np.arange(n) * du
