@@ -86,17 +86,21 @@ LOBE_PACKING_BYTES = 1 << 28
 _CENTRE = "centre"
 
 
-def _catmull_rom(rows):
-    """The Catmull–Rom intervals of chord rows ``rows`` (J, K), four floats each, as one Dr.Jit array:
-    interval i of row j is ``(p1, p2 - p1, c1, c2)`` with ``v(f) = p1 + f (c1 + f (c2 + f c3))``,
+def _catmull_rom(*lobes):
+    """The Catmull–Rom intervals of chord rows (each lobe (J, K)), four floats each, as one Dr.Jit
+    array, node-major (interval i of row j of lobe l at ``l J K + i J + j``: rows j and j+1 at one
+    chord share a cache line mostly); interval i of row j is ``(p1, p2 - p1, c1, c2)`` with ``v(f) = p1 + f (c1 + f (c2 + f c3))``,
     ``c1 = (p2 - p0) / 2``, ``c2 = (2 p0 - 5 p1 + 4 p2 - p3) / 2``, ``c3 = p2 - p1 - c1 - c2``
     (``p0 .. p3`` the nodes i-1 .. i+2, an end node repeated past the row's ends); the linear
     value is ``p1 + f (p2 - p1)``.  Interval K-1 (past the last node) is the last node, constant."""
-    P = np.asarray(rows, dtype=np.float64)
-    pad = np.concatenate([P[:, :1], P, P[:, -1:], P[:, -1:]], axis=1)   # node -1, 0 .. K-1, K, K+1
-    p0, p1, p2, p3 = pad[:, :-3], pad[:, 1:-2], pad[:, 2:-1], pad[:, 3:]
-    out = np.stack([p1, p2 - p1, 0.5 * (p2 - p0), 0.5 * (2 * p0 - 5 * p1 + 4 * p2 - p3)], axis=-1)
-    return _array(mi.Float, out.ravel())
+    out = []
+    for rows in lobes:
+        P = np.asarray(rows, dtype=np.float64)
+        pad = np.concatenate([P[:, :1], P, P[:, -1:], P[:, -1:]], axis=1)   # node -1, 0 .. K-1, K, K+1
+        p0, p1, p2, p3 = pad[:, :-3], pad[:, 1:-2], pad[:, 2:-1], pad[:, 3:]
+        c = np.stack([p1, p2 - p1, 0.5 * (p2 - p0), 0.5 * (2 * p0 - 5 * p1 + 4 * p2 - p3)], axis=-1)
+        out.append(np.swapaxes(c, 0, 1).ravel())
+    return _array(mi.Float, np.concatenate(out))
 
 
 def _corners(e):
@@ -200,7 +204,7 @@ class SphereBSDFMixin:
         self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
         self.back_offset = int(rows["P_f"].size)
         # both lobes' Catmull–Rom intervals, one Vector4f each (where the memory allows)
-        self.P_spline = _catmull_rom(np.concatenate([rows["P_f"], rows["P_b"]])) if self._lobe_packing(rows) else None
+        self.P_spline = _catmull_rom(rows["P_f"], rows["P_b"]) if self._lobe_packing(rows) else None
         # the radial densities 2π s P(s) of both lobes' rows in one guided table: forward rows 0 .. J-1,
         # backward rows J .. 2J-1 (corona.mitsuba.common.guided_cdfs)
         ds = self.ds
@@ -231,7 +235,7 @@ class SphereBSDFMixin:
         if not self.has_S:
             self.n_fa = 1
             self.Ef = _array(mi.Float, material._derived["e_f_mu"].ravel())
-            self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material._derived["e_f_mu"]).ravel()), False
+            self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material._derived["e_f_mu"]).ravel()), None
             self.fa_cover = (0.0, 1.0)
             return
         top = material.process.area_fraction_limit(material.shape)
@@ -272,8 +276,10 @@ class SphereBSDFMixin:
         s_at, ds_at = hermite_rows(fas, S, fa)
         self.S_centre = _array(mi.Float, np.stack([s_at[:-1], s_at[1:], ds_at[:-1], ds_at[1:]], axis=-1).ravel())
         e_at, de_at = hermite_rows(fas, E, fa)
-        self.Ef_corners = _array(mi.Float, np.stack([_corners(e_at), _corners(de_at)], axis=-2).ravel())
-        self.Ef_slopes, self.fa_centred = True, True
+        # the slopes apart: a render without derivatives reads only the values
+        self.Ef_corners = _array(mi.Float, _corners(e_at).ravel())
+        self.Ef_slopes = _array(mi.Float, _corners(de_at).ravel())
+        self.fa_centred = True
 
     def _packed(self, fas, rows):
         """Rows in F_a packed for one Vector4f gather per node: (y_k, Δ y'_k, y_k+1, Δ y'_k+1) of each
@@ -314,8 +320,9 @@ class SphereBSDFMixin:
         return lams, weights[0]
 
     def _row(self, lam_nm, active=True):
-        """Row j of the lane's x (the row at or below it), the weight t of row j+1, λ [µm], x, x_j, x_j+1,
-        and the row interval's packed scalars ``(T_b j, T_b j+1, x_j, x_j+1)``, ``(1/x_j, 1/x_j+1, 1/(x_j+1 - x_j), 0)``."""
+        """Row j of the lane's x (the row at or below it), the weight t of row j+1, λ [µm], x, x_j,
+        x_j+1, and two of the interval's packed Vector4f: ``(T_b j, T_b j+1, x_j, x_j+1)`` and
+        ``(1/x_j, 1/x_j+1, 1/(x_j+1 - x_j), 0)``."""
         lam = dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
         x = (2.0 * dr.pi * self.radius) / lam
         b = mi.UInt32(dr.clip(dr.floor((x - self.x0) * (1.0 / self.bin_dx)), 0, self.x_bins - 1))
@@ -357,10 +364,9 @@ class SphereBSDFMixin:
         f = dr.clip(g - mi.Float(b), 0.0, 1.0)
         if hw is None or hw[0] is _CENTRE:
             k = st_j * (n - 1) + b
-            e = gather4(self.Ef_corners, 2 * k if self.Ef_slopes else k, active)
+            e = gather4(self.Ef_corners, k, active)
             if hw is not None and hw[1] is not None:        # the slope in F_a, where it has a gradient
-                de = gather4(self.Ef_corners, 2 * k + 1, active)
-                e = dr.fma(de, hw[1], e)
+                e = dr.fma(gather4(self.Ef_slopes, k, active), hw[1], e)
             return dr.lerp(dr.lerp(e.x, e.y, f), dr.lerp(e.z, e.w, f), t)
         k = st_j * n + b
         stride = self.n_rows * n
@@ -442,8 +448,8 @@ class SphereBSDFMixin:
             inside = active & (g <= K - 1)
             k = row * K + i + offset
             scale = wgt * (r * r)
-            if spline is not None:        # one Vector4f: (p1, p2 - p1, c1, c2)
-                q = gather4(spline, k, inside)
+            if spline is not None:        # one Vector4f: (p1, p2 - p1, c1, c2), node-major
+                q = gather4(spline, i * self.n_rows + row + offset, inside)
                 v = dr.fma(f, dr.fma(f, dr.fma(f, q.y - q.z - q.w, q.w), q.z), q.x)
                 cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
                 lin += dr.select(inside, dr.maximum(dr.fma(f, q.y, q.x), 0.0) * scale, 0.0)
@@ -481,8 +487,8 @@ class SphereBSDFMixin:
         table_row = dr.select(forward, row, row + self.n_rows)
         idx, c0, c1 = guided_search(self.cdf, self.guide, self.G, self.n_bins, self.steps, table_row, xi, active)
         k = row * self.K + idx + dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
-        if self.P_spline is not None:
-            q = gather4(self.P_spline, k, active)
+        if self.P_spline is not None:   # node-major (:func:`_catmull_rom`)
+            q = gather4(self.P_spline, idx * self.n_rows + row + (k - row * self.K - idx), active)
             a, b = q.x, q.y
         else:
             a = _gather(mi.Float, self.P, k, active)
