@@ -20,6 +20,7 @@ import numpy as np
 from corona import tables
 from corona._validation import CoronaError
 from corona.parameters import SPEC
+from corona.tables.lobe import row_slopes
 
 #: Wavelengths per RGB / mono channel (equal-weight quantiles of its response).
 N_RESPONSE = 8
@@ -211,7 +212,6 @@ def hermite_rows(x, rows, at):
 
     ``at`` outside ``[x[0], x[-1]]`` is clamped to the nearer end (derivative there: the end row's).
     """
-    from corona.tables.lobe import row_slopes
     x = np.asarray(x, dtype=np.float64)
     rows = np.asarray(rows, dtype=np.float64)
     if x.size < 2:

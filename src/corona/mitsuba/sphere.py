@@ -89,8 +89,8 @@ _CENTRE = "centre"
 def _catmull_rom(*lobes):
     """The Catmull–Rom intervals of chord rows (each lobe (J, K)), four floats each, as one Dr.Jit
     array, node-major (interval i of row j of lobe l at ``l J K + i J + j``: rows j and j+1 at one
-    chord share a cache line mostly); interval i of row j is ``(p1, p2 - p1, c1, c2)`` with ``v(f) = p1 + f (c1 + f (c2 + f c3))``,
-    ``c1 = (p2 - p0) / 2``, ``c2 = (2 p0 - 5 p1 + 4 p2 - p3) / 2``, ``c3 = p2 - p1 - c1 - c2``
+    chord share a cache line mostly).  Interval i of row j is ``(p1, p2 - p1, c1, c2)`` with
+    ``v(f) = p1 + f (c1 + f (c2 + f c3))``, ``c1 = (p2 - p0) / 2``, ``c2 = (2 p0 - 5 p1 + 4 p2 - p3) / 2``, ``c3 = p2 - p1 - c1 - c2``
     (``p0 .. p3`` the nodes i-1 .. i+2, an end node repeated past the row's ends); the linear
     value is ``p1 + f (p2 - p1)``.  Interval K-1 (past the last node) is the last node, constant."""
     out = []
