@@ -20,6 +20,7 @@ import numpy as np
 from corona import tables
 from corona._validation import CoronaError
 from corona.parameters import SPEC
+from corona.tables.lobe import row_slopes
 
 #: Wavelengths per RGB / mono channel (equal-weight quantiles of its response).
 N_RESPONSE = 8
@@ -203,6 +204,27 @@ def gather4(source, index, active=True):
         return mi.Vector4f(0.0)
     k = 4 * int(index)
     return mi.Vector4f(*[float(source[k + c]) for c in range(4)])
+
+
+def hermite_rows(x, rows, at):
+    """Cubic Hermite interpolation of ``rows`` (n, ...) over ``x`` (n,) at ``at`` (numpy, float64),
+    the tangents :func:`corona.tables.lobe.row_slopes`: (value, derivative in x) at ``at``.
+
+    ``at`` outside ``[x[0], x[-1]]`` is clamped to the nearer end (derivative there: the end row's).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    rows = np.asarray(rows, dtype=np.float64)
+    if x.size < 2:
+        return rows[0], np.zeros_like(rows[0])
+    j = int(np.clip(np.searchsorted(x, at, side="right") - 1, 0, x.size - 2))
+    h = x[j + 1] - x[j]
+    t = float(np.clip((at - x[j]) / h, 0.0, 1.0))
+    m = row_slopes(x, rows)
+    a, b, ma, mb = rows[j], rows[j + 1], m[j] * h, m[j + 1] * h
+    t2, t3 = t * t, t * t * t
+    v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * mb
+    dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * ma + (6 * t - 6 * t2) * b + (3 * t2 - 2 * t) * mb) / h
+    return v, dv
 
 
 def positive(x):

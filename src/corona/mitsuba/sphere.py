@@ -79,7 +79,7 @@ from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin,
 from corona.mitsuba.common import pane_reflectance, pane_sample, pane_smooth_factors, positive as _positive, selection
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
-from corona.mitsuba.common import read_props as _read_props
+from corona.mitsuba.common import hermite_rows, read_props as _read_props
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from corona.tables.lobe import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
@@ -91,6 +91,35 @@ __all__ = ["NEWTON_STEPS", "SphereBSDFMixin", "sphere_bsdf_class"]
 RADIUS_HEADROOM = 1.05
 #: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa).
 FA_ROW_STEP = 0.05
+#: The most memory [bytes] the lobes' rows take as packed Catmull–Rom intervals (four floats a node:
+#: one Vector4f gather reads a row's interval; beyond it, four scalar gathers read the plain rows).
+LOBE_PACKING_BYTES = 1 << 28
+#: Marks the F_a weights of a layer with one F_a (:meth:`SphereBSDFMixin._fa_weights`).
+_CENTRE = "centre"
+
+
+def _catmull_rom(*lobes):
+    """The Catmull–Rom intervals of chord rows (each lobe (J, K)), four floats each, as one Dr.Jit
+    array, node-major (interval i of row j of lobe l at ``l J K + i J + j``: rows j and j+1 at one
+    chord share a cache line mostly).  Interval i of row j is ``(p1, p2 - p1, c1, c2)`` with
+    ``v(f) = p1 + f (c1 + f (c2 + f c3))``, ``c1 = (p2 - p0) / 2``, ``c2 = (2 p0 - 5 p1 + 4 p2 - p3) / 2``, ``c3 = p2 - p1 - c1 - c2``
+    (``p0 .. p3`` the nodes i-1 .. i+2, an end node repeated past the row's ends); the linear
+    value is ``p1 + f (p2 - p1)``.  Interval K-1 (past the last node) is the last node, constant."""
+    out = []
+    for rows in lobes:
+        P = np.asarray(rows, dtype=np.float64)
+        pad = np.concatenate([P[:, :1], P, P[:, -1:], P[:, -1:]], axis=1)   # node -1, 0 .. K-1, K, K+1
+        p0, p1, p2, p3 = pad[:, :-3], pad[:, 1:-2], pad[:, 2:-1], pad[:, 3:]
+        c = np.stack([p1, p2 - p1, 0.5 * (p2 - p0), 0.5 * (2 * p0 - 5 * p1 + 4 * p2 - p3)], axis=-1)
+        out.append(np.swapaxes(c, 0, 1).ravel())
+    return _array(mi.Float, np.concatenate(out))
+
+
+def _corners(e):
+    """The four corners ``(e[j, b], e[j, b+1], e[j+1, b], e[j+1, b+1])`` of each cell of a table
+    ``e`` (rows j of x, columns b of μ), cell by cell: one Vector4f gather reads a bilinear cell."""
+    e = np.asarray(e, dtype=np.float64)
+    return np.stack([e[:-1, :-1], e[:-1, 1:], e[1:, :-1], e[1:, 1:]], axis=-1)
 
 
 def _guided_rows(material, rows) -> dict:
@@ -231,7 +260,14 @@ class SphereBSDFMixin:
         n_bins = int(np.ceil((x[-1] - x[0]) / self.bin_dx)) + 2
         edges = x[0] + np.arange(n_bins) * self.bin_dx
         self.x_bins = n_bins
-        self.row_guide = _array(mi.UInt32, np.clip(np.searchsorted(x, edges, side="right") - 1, 0, x.size - 2))
+        guide = np.clip(np.searchsorted(x, edges, side="right") - 1, 0, x.size - 2)
+        self.row_guide = _array(mi.UInt32, guide)
+        # the guide packed for one Vector4f gather a bin: (row as a float, x of the next two rows, 0),
+        # a next row's x infinite where it is the last row (the row below x is at most the second last)
+        x_up = np.concatenate([x, [np.inf, np.inf]])
+        x_up[x.size - 1:] = np.inf
+        self.row_guide4 = _array(mi.Float, np.stack([guide, x_up[guide + 1], x_up[guide + 2],
+                                                     np.zeros(guide.size)], axis=-1).ravel())
         self.ds = float(rows["ds"])
         # the largest chord a lobe's sampler draws: a row's last node scaled by x_j+1 / x_j
         self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(np.max(x[1:] / x[:-1])) * (1 + 1e-6))
@@ -239,18 +275,24 @@ class SphereBSDFMixin:
         self.has_C = bool(rows["C_f"].size)
         if self.has_C:
             self.Cf = _array(mi.Float, rows["C_f"].ravel())
+            self.Cf_spline = _catmull_rom(rows["C_f"]) if self._lobe_packing(rows) else None
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
         self._setup_area_fraction_rows(material, fa_lo, fa_hi)
-        # per-row scalars packed 8 to a row, gathered as two Vector4f:
-        # (Re s0, Im s0, e_f, e_b), (T_f, T_b, 0, 0)
-        packed = np.zeros((x.size, 8))
-        packed[:, 0], packed[:, 1] = rows["s0"][:, 0], rows["s0"][:, 1]
-        packed[:, 2], packed[:, 3] = der["e_f"], der["e_b"]
-        packed[:, 4], packed[:, 5] = der["T_f"], der["T_b"]
+        # per-row scalars of both rows of an interval j, j+1 packed 16 to the interval (one 64-byte
+        # cache line), gathered as four Vector4f: (Re s0, Im s0) of j, j+1; e_b and T_f of j, j+1;
+        # T_b and x of j, j+1; 1 / x of j, j+1 and 1 / (x_j+1 - x_j), 0
+        ends = lambda v: np.stack([v[:-1], v[1:]], axis=-1)
+        packed = np.zeros((max(x.size - 1, 1), 16))
+        packed[:, 0:4:2], packed[:, 1:4:2] = ends(rows["s0"][:, 0]), ends(rows["s0"][:, 1])
+        packed[:, 4:6], packed[:, 6:8] = ends(der["e_b"]), ends(der["T_f"])
+        packed[:, 8:10], packed[:, 10:12] = ends(der["T_b"]), ends(x)
+        packed[:, 12:14], packed[:, 14] = ends(1.0 / x), 1.0 / np.diff(x)
         self.row_data = _array(mi.Float, packed.ravel())
         # both lobes in one array: forward rows, then backward rows
         self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
         self.back_offset = int(rows["P_f"].size)
+        # both lobes' Catmull–Rom intervals, one Vector4f each (where the memory allows)
+        self.P_spline = _catmull_rom(rows["P_f"], rows["P_b"]) if self._lobe_packing(rows) else None
         # the radial densities 2π s P(s) of both lobes' rows in one guided table: forward rows 0 .. J-1,
         # backward rows J .. 2J-1 (corona.mitsuba.common.guided_cdfs)
         g = _guided_rows(material, rows)
@@ -263,14 +305,23 @@ class SphereBSDFMixin:
             self.eta = float(pane.ior)
             self.layer_on_front = pane.side == "front"
 
+    @staticmethod
+    def _lobe_packing(rows):
+        """Whether the lobes' rows are read as packed Catmull–Rom intervals (:func:`_catmull_rom`):
+        while the packed arrays (four times the rows) stay within :data:`LOBE_PACKING_BYTES`."""
+        n = rows["P_f"].size + rows["P_b"].size + rows["C_f"].size
+        return 16 * n <= LOBE_PACKING_BYTES
+
     def _setup_area_fraction_rows(self, material, fa_lo, fa_hi):
         """``S(u)`` and the forward energies ``e_f(x_j, μ)`` in rows of F_a (a hard core) with their
         slopes in F_a, or the one F_a-independent energy table (Poisson)."""
         st = material.structure_table
         self.has_S = st is not None
+        self.fa_centred = False
         if not self.has_S:
             self.n_fa = 1
             self.Ef = _array(mi.Float, material._derived["e_f_mu"].ravel())
+            self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material._derived["e_f_mu"]).ravel()), None
             self.fa_cover = (0.0, 1.0)
             return
         top = material.process.area_fraction_limit(material.shape)
@@ -297,6 +348,24 @@ class SphereBSDFMixin:
         self.fa_rows_np = fas
         self.S = self._packed(fas, S)
         self.Ef = self._packed(fas, E)
+        if not self.fa_textured:      # one F_a: its rows at that value (:meth:`_centre_area_fraction`)
+            self.fa_window = (fas, S, E)
+            self._centre_area_fraction(hi)
+
+    def _centre_area_fraction(self, fa):
+        """The layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the
+        cubic Hermite between the F_a rows, :func:`corona.mitsuba.common.hermite_rows`), read as
+        value + slope × (F_a - ``fa_centre``) so that ``∂/∂F_a`` is the rows' and an update
+        (:meth:`parameters_changed`) re-centres them without recompiling."""
+        fas, S, E = self.fa_window
+        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
+        s_at, ds_at = hermite_rows(fas, S, fa)
+        self.S_centre = _array(mi.Float, np.stack([s_at[:-1], s_at[1:], ds_at[:-1], ds_at[1:]], axis=-1).ravel())
+        e_at, de_at = hermite_rows(fas, E, fa)
+        # the slopes apart: a render without derivatives reads only the values
+        self.Ef_corners = _array(mi.Float, _corners(e_at).ravel())
+        self.Ef_slopes = _array(mi.Float, _corners(de_at).ravel())
+        self.fa_centred = True
 
     def _packed(self, fas, rows):
         """Rows in F_a packed for one Vector4f gather per node: (y_k, Δ y'_k, y_k+1, Δ y'_k+1) of each
@@ -310,6 +379,8 @@ class SphereBSDFMixin:
         between the F_a rows (the slopes stored times the row step)."""
         if self.n_fa == 1:
             return None
+        if self.fa_centred:   # ("centre", F_a - F_a,centre where F_a has a gradient, else None)
+            return _CENTRE, (fa - self.fa_centre if dr.grad_enabled(fa) else None)
         g = dr.clip((fa - self.fa0) / self.dfa, 0.0, self.n_fa - 1.0)
         k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
         t = g - mi.Float(k)
@@ -344,49 +415,54 @@ class SphereBSDFMixin:
         """The lane's radius [µm]: the texture's (or the uniform value's), clipped to the rows' radii."""
         return dr.clip(self.radius_tex.eval_1(si, active), self.radius_cover[0], self.radius_cover[1])
 
-    def _row(self, lam_nm, radius):
+    def _row(self, lam_nm, radius, active=True):
+        """Row j of the lane's x (the row at or below it), the weight t of row j+1, λ [µm], x, x_j,
+        x_j+1, and two of the interval's packed Vector4f: ``(T_b j, T_b j+1, x_j, x_j+1)`` and
+        ``(1/x_j, 1/x_j+1, 1/(x_j+1 - x_j), 0)``."""
         lam, x = self._size_parameter(lam_nm, radius)
-        b = mi.UInt32(dr.clip(dr.floor((x - self.x0) / self.bin_dx), 0, self.x_bins - 1))
-        j = _gather(mi.UInt32, self.row_guide, b)
-        for _ in range(2):        # float32 rounding of the bin: at most one row up, checked twice
-            up = (j + 1 < self.n_rows - 1) & (x >= _gather(mi.Float, self.x_rows, j + 1))
-            j = dr.select(up, j + 1, j)
-        xj, xj1 = _gather(mi.Float, self.x_rows, j), _gather(mi.Float, self.x_rows, j + 1)
-        return j, (x - xj) / (xj1 - xj), lam, x, xj, xj1
+        b = mi.UInt32(dr.clip(dr.floor((x - self.x0) * (1.0 / self.bin_dx)), 0, self.x_bins - 1))
+        # float32 rounding of the bin: at most two rows up (the guide holds their x)
+        g = gather4(self.row_guide4, b, active)
+        one, zero = mi.UInt32(1), mi.UInt32(0)
+        j = mi.UInt32(g.x) + dr.select(x >= g.y, one, zero) + dr.select(x >= g.z, one, zero)
+        c = gather4(self.row_data, 4 * j + 2, active)
+        r = gather4(self.row_data, 4 * j + 3, active)
+        return j, (x - c.z) * r.z, lam, x, c.z, c.w, (c, r)
 
     def _state(self, lam_nm, mu_i, active, fa, hw=None, radius=None):
         """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a, ``hw`` its
-        F_a rows' weights, ``radius`` its radius [µm])."""
-        j, t, lam, x, xj, xj1 = self._row(lam_nm, radius)
-
-        if dr.is_array_v(mi.Float):
-            a0 = dr.gather(mi.Vector4f, self.row_data, 2 * j, active)
-            a1 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 2, active)
-            b0 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 1, active)
-            b1 = dr.gather(mi.Vector4f, self.row_data, 2 * j + 3, active)
-        else:   # scalar variants
-            row = lambda k: mi.Vector4f(*[float(self.row_data[4 * k + c]) for c in range(4)])
-            a0, a1, b0, b1 = row(2 * j), row(2 * j + 2), row(2 * j + 1), row(2 * j + 3)
-        a = dr.lerp(a0, a1, t)
+        F_a rows' weights, :meth:`_fa_weights`; ``radius`` its radius [µm])."""
+        j, t, lam, x, xj, xj1, (c, r) = self._row(lam_nm, radius, active)
+        a = gather4(self.row_data, 4 * j, active)           # (Re s0, Im s0) of rows j, j+1
+        e = gather4(self.row_data, 4 * j + 1, active)       # (e_b j, e_b j+1, T_f j, T_f j+1)
         fs = dr.minimum(fa / dr.maximum(mu_i, 1e-12), 1.0)
-        re = 1.0 - fs * a.x
-        im = fs * a.y
+        re = 1.0 - fs * dr.lerp(a.x, a.z, t)
+        im = fs * dr.lerp(a.y, a.w, t)
         coherent = dr.minimum(dr.fma(re, re, im * im), 1.0)
-        ef, eb = self._forward(j, t, mu_i, active, hw), a.w
+        ef, eb = self._forward(j, t, mu_i, active, hw), dr.lerp(e.x, e.y, t)
         scattered = fs * (ef + eb) * ENERGY_MARGIN
         w = dr.minimum(1.0, dr.maximum(1.0 - coherent, 0.0) / dr.maximum(scattered, 1e-30))
-        Tf0, Tf1, Tb0, Tb1 = b0.x, b1.x, b0.y, b1.y
-        return dict(hw=hw, j=j, t=t, lam=lam, x=x, xj=xj, xj1=xj1, fs=fs, coherent=coherent, w=w,
+        Tf0, Tf1, Tb0, Tb1 = e.z, e.w, c.x, c.y
+        return dict(hw=hw, j=j, t=t, lam=lam, x=x, xj=xj, xj1=xj1, rj=x * r.x, rj1=x * r.y,
+                    fs=fs, coherent=coherent, w=w,
                     e_f=fs * w * ef, e_b=fs * w * eb,
                     Tf=dr.lerp(Tf0, Tf1, t), Tb=dr.lerp(Tb0, Tb1, t), Tf1=Tf1, Tb1=Tb1, Tf0=Tf0, Tb0=Tb0)
 
     def _forward(self, st_j, t, mu_i, active, hw=None):
         """The forward lobe's energy e_f at the row (j, t), ``mu_i`` (SphereMaterial._forward) and the
-        lane's F_a (``hw``)."""
+        lane's F_a (``hw``, :meth:`_fa_weights`): bilinear in (x row, μ) from the four corners packed
+        as one Vector4f, at the layer's one F_a (value + slope × (F_a - F_a,centre)) or cubic
+        Hermite between rows of F_a (a texture)."""
         n = len(INCIDENCE_MU)
         g = (1.0 - dr.clip(mu_i, 0.0, 1.0)) * (n - 1)
         b = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), n - 2)
         f = dr.clip(g - mi.Float(b), 0.0, 1.0)
+        if hw is None or hw[0] is _CENTRE:
+            k = st_j * (n - 1) + b
+            e = gather4(self.Ef_corners, k, active)
+            if hw is not None and hw[1] is not None:        # the slope in F_a, where it has a gradient
+                e = dr.fma(gather4(self.Ef_slopes, k, active), hw[1], e)
+            return dr.lerp(dr.lerp(e.x, e.y, f), dr.lerp(e.z, e.w, f), t)
         k = st_j * n + b
         stride = self.n_rows * n
         e00 = self._hermite(self.Ef, stride, k, hw, active)
@@ -459,44 +535,63 @@ class SphereBSDFMixin:
         density up to its total)."""
         cub, lin = mi.Float(0.0), mi.Float(0.0)
         K = self.K
-        for d, wgt, x_row in ((0, 1.0 - st["t"], st["xj"]), (1, st["t"], st["xj1"])):
-            row = st["j"] + d
-            c = x_row / st["x"]
-            g = s / (c * self.ds)
+        spline = self.P_spline if arr is self.P else (self.Cf_spline if self.has_C and arr is self.Cf else None)
+        for d, wgt, r in ((0, 1.0 - st["t"], st["rj"]), (1, st["t"], st["rj1"])):
+            row = st["j"] + d              # read at the chord s x / x_row (r = x / x_row)
+            g = s * (r * (1.0 / self.ds))
             i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
             f = dr.clip(g - mi.Float(i), 0.0, 1.0)
             inside = active & (g <= K - 1)
             k = row * K + i + offset
+            scale = wgt * (r * r)
+            if spline is not None:        # one Vector4f: (p1, p2 - p1, c1, c2), node-major
+                q = gather4(spline, i * self.n_rows + row + offset, inside)
+                v = dr.fma(f, dr.fma(f, dr.fma(f, q.y - q.z - q.w, q.w), q.z), q.x)
+                cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
+                lin += dr.select(inside, dr.maximum(dr.fma(f, q.y, q.x), 0.0) * scale, 0.0)
+                continue
             p1 = _gather(mi.Float, arr, k, inside)
             p2 = _gather(mi.Float, arr, k + 1, inside)
             p0 = dr.select(i > 0, _gather(mi.Float, arr, k - 1, inside & (i > 0)), p1)
             p3 = dr.select(i + 2 < K, _gather(mi.Float, arr, k + 2, inside & (i + 2 < K)), p2)
             v = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3
                                                + f * (3.0 * (p1 - p2) + p3 - p0)))
-            scale = wgt / (c * c)
             cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
             lin += dr.select(inside, dr.maximum(dr.lerp(p1, p2, f), 0.0) * scale, 0.0)
         return cub, lin
 
     def _structure(self, u, hw, active):
         """``S`` at ``u = q r``: linear in u, the cubic Hermite in F_a between its rows; 1 beyond."""
-        x = u / self.S_du
+        x = u * (1.0 / self.S_du)
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
         f = dr.clip(x - mi.Float(i), 0.0, 1.0)
         inside = active & (x <= self.S_n - 1)
+        if hw[0] is _CENTRE:       # (S_i, S_i+1, their slopes in F_a) at the layer's one F_a
+            v4 = gather4(self.S_centre, i, inside)
+            v = dr.lerp(v4.x, v4.y, f)
+            if hw[1] is not None:
+                v = dr.fma(dr.lerp(v4.z, v4.w, f), hw[1], v)
+            return dr.select(inside, v, 1.0)
         v = dr.lerp(self._hermite(self.S, self.S_n, i, hw, inside),
                     self._hermite(self.S, self.S_n, i + 1, hw, inside), f)
         return dr.select(inside, v, 1.0)
 
-    def _sample_chord(self, xi, row, forward, active):
+    def _sample_chord(self, xi, row, forward, active, total=None):
         """Invert the normalised CDF of a row of the forward or backward table (radial density 2π s P):
-        :func:`guided_search` for the bin, :func:`invert_radial_bin` inside it."""
+        :func:`guided_search` for the bin, :func:`invert_radial_bin` inside it (``total``: the row's
+        total of the lobe, gathered where not given)."""
         table_row = dr.select(forward, row, row + self.n_rows)
         idx, c0, c1 = guided_search(self.cdf, self.guide, self.G, self.n_bins, self.steps, table_row, xi, active)
         k = row * self.K + idx + dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
-        a = _gather(mi.Float, self.P, k, active)
-        b = _gather(mi.Float, self.P, k + 1, active) - a
-        total = dr.select(forward, _gather(mi.Float, self.Tf, row, active), _gather(mi.Float, self.Tb, row, active))
+        if self.P_spline is not None:   # node-major (:func:`_catmull_rom`)
+            q = gather4(self.P_spline, idx * self.n_rows + row + (k - row * self.K - idx), active)
+            a, b = q.x, q.y
+        else:
+            a = _gather(mi.Float, self.P, k, active)
+            b = _gather(mi.Float, self.P, k + 1, active) - a
+        if total is None:
+            total = dr.select(forward, _gather(mi.Float, self.Tf, row, active),
+                              _gather(mi.Float, self.Tb, row, active))
         s0 = mi.Float(idx) * self.ds
         return s0 + invert_radial_bin(xi - c0, c0, c1, s0, self.ds, a, b, total) * self.ds
 
@@ -519,7 +614,7 @@ class SphereBSDFMixin:
             P, P_lin = self._rows_at(self.P, st, s_any, active, offset)       # P_f or P_b
             Z = P
             if self.has_S:
-                S = self._structure(st["x"] * dxy, st["hw"], a_f)      # u = q r = x |d|
+                S = self._structure(st["x"] * dxy, st["hw"], a_f)      # u = q r = x |wo + wi|_xy
                 C_f = self._rows_at(self.Cf, st, s_f, a_f)[0] if self.has_C else P
                 # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
                 Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
@@ -623,19 +718,26 @@ class SphereBSDFMixin:
             # the lobe's share of sample1 picks the hero wavelength, what is left of it the row
             n = len(states)
             pick, _, rest = pick_wavelength(s, [st["x"] for st in states])
-            j, p_next, x = states[-1]["j"], mi.Float(0.0), states[-1]["x"]
-            for q in range(n - 1, -1, -1):
-                st = states[q]
-                x = dr.select(pick == q, st["x"], x)
-                T0 = dr.select(lobe_f, st["Tf0"], st["Tb0"])
-                T1 = dr.select(lobe_f, st["Tf1"], st["Tb1"])
-                pn = st["t"] * T1 / dr.maximum(dr.lerp(T0, T1, st["t"]), 1e-30)
-                j = dr.select(pick == q, st["j"], j)
-                p_next = dr.select(pick == q, pn, p_next)
-            row = dr.select(rest < p_next, j + 1, j)
-            chord = self._sample_chord(sample2.x, row, lobe_f, lobe_any)
+            # the picked wavelength's row interval, its lobe's totals at both rows, their x
+            j, x, T0, T1, t = (states[-1][k] for k in ("j", "x", "Tf0", "Tf1", "t"))
+            xj, xj1 = states[-1]["xj"], states[-1]["xj1"]
+            for q in range(n - 2, -1, -1):
+                st, here = states[q], pick == q
+                j, x, t = dr.select(here, st["j"], j), dr.select(here, st["x"], x), dr.select(here, st["t"], t)
+                xj, xj1 = dr.select(here, st["xj"], xj), dr.select(here, st["xj1"], xj1)
+                T0, T1 = dr.select(here, st["Tf0"], T0), dr.select(here, st["Tf1"], T1)
+            last = states[-1]
+            Tb0, Tb1 = last["Tb0"], last["Tb1"]
+            for q in range(n - 2, -1, -1):
+                here = pick == q
+                Tb0, Tb1 = dr.select(here, states[q]["Tb0"], Tb0), dr.select(here, states[q]["Tb1"], Tb1)
+            T0, T1 = dr.select(lobe_f, T0, Tb0), dr.select(lobe_f, T1, Tb1)
+            p_next = t * T1 / dr.maximum(dr.lerp(T0, T1, t), 1e-30)
+            up = rest < p_next
+            row = dr.select(up, j + 1, j)
+            chord = self._sample_chord(sample2.x, row, lobe_f, lobe_any, dr.select(up, T1, T0))
             # the row's chord scaled to the lane's x: rings at a fixed x·s
-            chord = dr.minimum(chord * _gather(mi.Float, self.x_rows, row, lobe_any) / x, 2.0)
+            chord = dr.minimum(chord * dr.select(up, xj1, xj) / x, 2.0)
             cos_t = 1.0 - 0.5 * chord * chord
             sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
             sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)
@@ -693,6 +795,8 @@ class SphereBSDFMixin:
         if radius_out or lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7:
             self.params["area_fraction"] = hi
             self._setup(*(self.fa_range if self.fa_textured else (hi, hi)))
+        elif self.fa_centred:
+            self._centre_area_fraction(hi)
 
     def to_string(self):
         return f"CoronaSphereBSDF[{self.material!r}]"

@@ -1,0 +1,84 @@
+"""Render cost of this checkout against an earlier revision, interleaved in one run.
+
+``bench_render.py``'s children (one scene a process, an empty Dr.Jit kernel
+cache, the first render's JIT compile from the kernel history, then timed
+renders) run for the BSDFs named by ``--bsdfs`` from both source trees in
+turn: the revision ``--base`` (``git archive`` into a temporary folder) and this
+checkout; ``corona`` and ``roughdielectric`` from this checkout are the
+references.  Interleaving the two trees round by round lets load on a shared
+machine hit both alike, so the ratios (render medians and minima over
+``corona``, JIT compile over ``roughdielectric``) compare the revisions.
+
+    python benchmarks/bench_render_ab.py --base REV [--bsdfs corona-mie] [--rounds 2] [--repeats 2]
+        [--res 128] [--spp 64] [--variant llvm_ad_spectral]
+
+writes benchmarks/results/<name>.json (default ``render_ab``).  No timing is asserted anywhere.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+
+
+def child(root: str, name: str, args) -> dict:
+    """One ``bench_render.py --child`` process of the tree ``root`` (its own ``src`` first on the path)."""
+    with tempfile.TemporaryDirectory() as home:
+        env = {**os.environ, "HOME": home, "PYTHONPATH": os.path.join(root, "src")}
+        out = subprocess.run([sys.executable, os.path.join(root, "benchmarks", "bench_render.py"), "--child", name,
+                              "--res", str(args.res), "--spp", str(args.spp), "--repeats", str(args.repeats),
+                              "--variant", args.variant], env=env, check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--base", required=True, help="the git revision to compare with")
+    ap.add_argument("--bsdfs", nargs="*", default=["corona-mie"], help="bench_render.py's BSDF names")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--variant", default="llvm_ad_spectral")
+    ap.add_argument("--name", default="render_ab")
+    args = ap.parse_args()
+    from common import write
+    with tempfile.TemporaryDirectory() as base:
+        archive = subprocess.run(["git", "-C", ROOT, "archive", args.base, "src", "benchmarks", "scenes"],
+                                 check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", base], input=archive, check=True)
+        load_start = os.getloadavg()[0]
+        plan = [(f"{n} (base)", base, n) for n in args.bsdfs] + [(n, ROOT, n) for n in args.bsdfs]
+        plan += [(n, ROOT, n) for n in ("corona", "roughdielectric") if n not in args.bsdfs]
+        runs: dict = {}
+        for r in range(args.rounds):
+            for label, root, name in plan:
+                runs.setdefault(label, []).append(child(root, name, args))
+                print(f"round {r + 1}/{args.rounds} {label:24s} {runs[label][-1]['times_s']}", flush=True)
+    results = {}
+    for label, rs in runs.items():
+        times = [t for x in rs for t in x["times_s"]]
+        results[label] = {"median_s": statistics.median(times), "min_s": min(times), "times_s": times,
+                          "jit_compile_s": statistics.median(x["jit_compile_s"] for x in rs)}
+    for label, res in results.items():
+        res["render_over_corona"] = res["median_s"] / results["corona"]["median_s"]
+        res["render_over_corona_minima"] = res["min_s"] / results["corona"]["min_s"]
+        res["jit_over_roughdielectric"] = res["jit_compile_s"] / results["roughdielectric"]["jit_compile_s"]
+        print(f"{label:24s} median {res['median_s']:7.3f} s  / corona {res['render_over_corona']:.3f} "
+              f"(minima {res['render_over_corona_minima']:.3f})  JIT {res['jit_compile_s']:6.3f} s "
+              f"/ roughdielectric {res['jit_over_roughdielectric']:.3f}")
+    write(args.name, {"base": args.base, "scene": "street_light_scene", "resolution": args.res, "spp": args.spp,
+                      "rounds": args.rounds, "repeats": args.repeats, "variant": args.variant, "results": results,
+                      "load_average_1min": {"start": load_start, "end": os.getloadavg()[0]}})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""The sphere layer's packed tables read what the plain ones do, and an update re-uses the kernel.
+
+The plugin reads its lobes' rows as packed Catmull–Rom intervals (one Vector4f a
+row) while the packed arrays fit ``LOBE_PACKING_BYTES``, else the plain rows
+with four scalar gathers; a layer with one area fraction reads ``S`` and the
+forward energies centred on that value (value + slope) instead of the cubic
+Hermite between its F_a rows.  Both pairs are compared here on the same
+directions (eval, pdf, and the sample weights and pdfs of the same samples),
+and an update of the area fraction inside the rows must neither change the
+traced kernel (a kernel-cache hit) nor the agreement.
+"""
+import warnings
+
+import drjit as dr
+import numpy as np
+import pytest
+
+from bsdf_checks import interaction
+
+LAYERS = {
+    "hard-disk": {"type": "corona", "shape": "sphere", "radius": 2.0, "area_fraction": 0.3,
+                  "process": "hard-disk"},
+    "spread": {"type": "corona", "shape": "sphere", "radius": 1.5, "area_fraction": 0.2,
+               "process": "hard-disk", "size_spread": 0.1},
+    "poisson": {"type": "corona", "shape": "sphere", "radius": 5.0, "area_fraction": 0.05,
+                "process": "poisson"},
+}
+
+
+def _load(props):
+    import mitsuba as mi
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return mi.load_dict(props)
+
+
+def _directions(wi, n=3000, seed=4):
+    """Random directions plus many near the forward (-wi) and backward (wi) peaks and 90° from them."""
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(n, 3))
+    fwd = -wi + rng.normal(0.0, 0.05, (n, 3))
+    back = wi + rng.normal(0.0, 0.3, (n, 3))
+    out = np.concatenate([v, fwd, back])
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+def _figures(bsdf, deg, n_samples=4000):
+    import mitsuba as mi
+    wi = np.array([np.sin(np.radians(deg)), 0.0, np.cos(np.radians(deg))])
+    wo = _directions(wi)
+    ctx = mi.BSDFContext()
+    si = interaction(len(wo), wi)
+    v, p = bsdf.eval_pdf(ctx, si, mi.Vector3f(wo.T.astype(np.float32)))
+    rng = np.random.default_rng(5)
+    si_s = interaction(n_samples, wi)
+    bs, w = bsdf.sample(ctx, si_s, mi.Float(rng.random(n_samples).astype(np.float32)),
+                        mi.Point2f(rng.random((2, n_samples)).astype(np.float32)))
+    return [np.asarray(x, dtype=np.float64) for x in (v, p, w, bs.pdf, bs.wo)]
+
+
+def _assert_close(a, b, what):
+    for x, y, name in zip(a, b, ("eval", "pdf", "sample weight", "sample pdf", "sampled wo")):
+        assert np.all(np.isfinite(x)) and np.all(np.isfinite(y)), (what, name)
+        scale = max(float(np.max(np.abs(y))), 1e-12)
+        err = float(np.max(np.abs(x - y)))
+        assert err <= 2e-5 * scale, f"{what}: {name} differs by {err:.3g} (scale {scale:.3g})"
+
+
+@pytest.mark.parametrize("name", list(LAYERS))
+def test_packed_lobe_rows_read_the_plain_rows(mi_variant, monkeypatch, name):
+    import mitsuba as mi
+    if not dr.is_array_v(mi.Float):
+        pytest.skip("the vectorised variants pack the rows")
+    from corona.mitsuba import sphere
+    packed = _load(LAYERS[name])
+    assert packed.P_spline is not None
+    monkeypatch.setattr(sphere, "LOBE_PACKING_BYTES", 0)
+    plain = _load(LAYERS[name])
+    assert plain.P_spline is None
+    for deg in (0.0, 35.0, 75.0):
+        _assert_close(_figures(packed, deg), _figures(plain, deg), f"{name} at {deg}°")
+    # a negative control: a lobe row shifted by one node is seen
+    rows = packed.material.rows
+    shifted = np.roll(np.concatenate([rows["P_f"], rows["P_b"]]), 1, axis=1)
+    plain.P = sphere._array(mi.Float, shifted.ravel())
+    with pytest.raises(AssertionError):
+        _assert_close(_figures(packed, 0.0), _figures(plain, 0.0), "shifted")
+
+
+def test_one_area_fraction_centred_matches_the_rows_and_updates_without_recompiling(mi_variant):
+    import mitsuba as mi
+    if not dr.is_array_v(mi.Float):
+        pytest.skip("kernels: vectorised variants")
+    bsdf = _load(LAYERS["hard-disk"])
+    assert bsdf.fa_centred
+    # the Hermite between the F_a rows (as for a texture) at the same value
+    rows_only = _load(LAYERS["hard-disk"])
+    rows_only.fa_centred = False
+    _assert_close(_figures(bsdf, 20.0), _figures(rows_only, 20.0), "centred vs rows")
+    params = mi.traverse(bsdf)
+    key = "area_fraction.value"
+    _figures(bsdf, 20.0)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        params[key] = 0.32                     # inside the rows (0.25 .. 0.35): no rebuild
+        params.update()
+        moved = _figures(bsdf, 20.0)
+        history = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert bsdf.fa_cover[0] < 0.32 < bsdf.fa_cover[1]
+    assert history and all(k.get("cache_hit") for k in history), \
+        [(k.get("cache_hit"), k.get("operation_count")) for k in history]
+    # the same update of the layer that reads the Hermite between its F_a rows
+    p2 = mi.traverse(rows_only)
+    p2[key] = 0.32
+    p2.update()
+    _assert_close(moved, _figures(rows_only, 20.0), "centred vs rows after an update")
