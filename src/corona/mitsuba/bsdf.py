@@ -99,6 +99,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from corona import tables
 from corona._validation import CoronaError, CoronaWarning
 from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_curves, channel_response,
                              fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
@@ -117,6 +118,9 @@ __doc__ = __doc__.replace("{table}", rst_table())
 
 #: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
 FA_WINDOW = 0.1
+#: Nodes of an RGB / mono channel table (in ``s = L |d|``) per node of the lobe's table in ``u``
+#: at the shortest response wavelength (:func:`_channel_tables`).
+CHANNEL_OVERSAMPLE = 2
 __all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
 
 
@@ -135,6 +139,30 @@ def _pack_rows(rows, slopes=None):
     slopes = np.zeros_like(rows) if slopes is None else np.asarray(slopes, dtype=np.float64)
     packed = np.stack([rows[:, :-1], rows[:, 1:], slopes[:, :-1], slopes[:, 1:]], axis=-1)
     return _array(mi.Float, packed.ravel())
+
+
+def _channel_tables(v, dv, du, lams_nm, weights):
+    """A radial row ``v(u)`` (linear in ``u``, nodes ``du`` apart, 0 beyond) and its slope ``dv`` in
+    F_a as one table per RGB / mono channel in ``s = L |d|`` [µm]:
+    ``g_c(s) = Σ_q w_cq λ_q⁻² v(2π s / λ_q)`` over the channel's response wavelengths ``λ_q``
+    [µm] (``lams_nm`` (channels, N) [nm], weights ``w_cq``: :func:`corona.mitsuba.common.channel_response`),
+    so that a channel's lobe is ``F_a L² g_c(L |d|)`` (the mean of ``F_a (L/λ)² v(2π L |d| / λ)``
+    over its wavelengths) at the cost of one lookup.  Nodes ``ds = du λ_min / (2π CHANNEL_OVERSAMPLE)``
+    apart (a finer step in ``u`` than the row's at every wavelength) up to the row's reach at
+    ``λ_max``.  Returns ``(ds, g, dg)``, ``g`` and ``dg`` (channels, n_s), float64."""
+    lam = np.clip(np.asarray(lams_nm, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+    w = np.asarray(weights, dtype=np.float64)
+    ds = du * float(lam.min()) / (2.0 * np.pi * CHANNEL_OVERSAMPLE)
+    u_grid = np.arange(v.size) * du
+    n_s = int(np.ceil(u_grid[-1] * float(lam.max()) / (2.0 * np.pi * ds))) + 2
+    s = np.arange(n_s) * ds
+    g, dg = np.zeros((lam.shape[0], n_s)), np.zeros((lam.shape[0], n_s))
+    for c in range(lam.shape[0]):
+        for lq, wq in zip(lam[c], w[c]):
+            u = (2.0 * np.pi / lq) * s
+            g[c] += wq / lq**2 * np.interp(u, u_grid, v, right=0.0)
+            dg[c] += wq / lq**2 * np.interp(u, u_grid, dv, right=0.0)
+    return ds, g, dg
 
 
 def _hermite(x, rows, at):
@@ -325,6 +353,11 @@ class CoronaBSDFMixin:
         # re-centred by parameters_changed), plus its slope in F_a (module docstring)
         self.centred = (process.varying_area_fraction and len(fas) > 1
                         and not self.fa_tex.is_spatially_varying())
+        # RGB / mono, one radial row, no fringes of a coherent pane: a table per channel in s = L |d|
+        # (_channel_tables) instead of the row at each of the channels' wavelengths
+        pane = material.substrate
+        self.channel_tables_on = (not mi.is_spectral and material.isotropic and (self.centred or len(fas) == 1)
+                                  and not (pane is not None and pane.coherent))
         if self.centred:
             if material.isotropic:
                 self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
@@ -363,6 +396,8 @@ class CoronaBSDFMixin:
             # ∂v/∂F_a of each row (Hermite in F_a between rows)
             self.packed = _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None)
             self._set_cdf([t.cdf for t in tabs])
+            if self.channel_tables_on:
+                self._set_channel_tables(rows[0], np.zeros_like(rows[0]), self.du)
         else:
             # the lobe as exact as the model (analytic form factors or cubic form-factor
             # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
@@ -405,6 +440,31 @@ class CoronaBSDFMixin:
         self.packed = _pack_rows(v[None], dv[None])
         self.totals = _array(mi.Float, [row.total])
         self.total_slopes = _array(mi.Float, [slope_total])
+        if self.channel_tables_on:
+            self._set_channel_tables(v, dv, du)
+        else:
+            self._set_cdf([row.cdf])
+
+    def _set_channel_tables(self, v, dv, du):
+        """The RGB / mono channel tables of the one radial row ``v`` (slope ``dv`` in F_a):
+        :func:`_channel_tables`, one packet per bin and channel, ``(g(i), g(i + 1), ∂g(i), ∂g(i + 1))``;
+        sampled (and its pdf) from their sum over channels ``G(s)``: its CDF, its packets and
+        ``(∫G d²s, ∫∂G d²s)``."""
+        from corona.tables import RadialTable
+        lam, w = channel_response()
+        ds, g, dg = _channel_tables(v, dv, du, lam, w)
+        nc, n_s = g.shape
+        self.channel_ds, self.channel_n, self.channel_count = float(ds), int(n_s), int(nc)
+        packets = np.stack([g[:, :-1], g[:, 1:], dg[:, :-1], dg[:, 1:]], axis=-1)     # (nc, n_s - 1, 4)
+        self.channel_packed = _array(mi.Float, packets.transpose(1, 0, 2).ravel())     # bin-major
+        total_g = g.sum(axis=0)
+        row = RadialTable(ds, np.maximum(total_g, 0.0))
+        slope_g = dg.sum(axis=0)
+        s0 = np.arange(n_s - 1) * ds
+        lo, step = slope_g[:-1], slope_g[1:] - slope_g[:-1]
+        slope_total = float(np.sum(2 * np.pi * ds * (s0 * lo + (s0 * step + ds * lo) / 2 + ds * step / 3)))
+        self.channel_sample_packed = _pack_rows(total_g[None])
+        self.channel_totals = _array(mi.Float, [row.total, slope_total])
         self._set_cdf([row.cdf])
 
     def _mixture_at(self, radius):
@@ -530,12 +590,16 @@ class CoronaBSDFMixin:
         idx, c0, c1 = guided_search(self.cdf, self.guide, self.guide_size, self.n_bins,
                                     self.search_steps, row, target, active)
         # radial: density 2π u v_lin(u) in the bin; its CDF a cubic, solved by safeguarded Newton
-        du = self.du
+        # (channel tables: s and G(s) in place of u and v)
+        if self.channel_tables_on:
+            du, n, packed, totals = self.channel_ds, self.channel_n, self.channel_sample_packed, self.channel_totals
+        else:
+            du, n, packed, totals = self.du, self.n, self.packed, self.totals
         u0 = mi.Float(idx) * du
-        q = gather4(self.packed, row * (self.n - 1) + idx, active)    # (bins of the CDF = of the rows)
+        q = gather4(packed, row * (n - 1) + idx, active)    # (bins of the CDF = of the rows)
         a = q.x
         b = q.y - a
-        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, self.totals, row, active))
+        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, totals, row, active))
         r = u0 + t * du
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
         return mi.Vector2f(r * cos_phi, r * sin_phi)
@@ -545,6 +609,8 @@ class CoronaBSDFMixin:
         with ``modulation(q, λ)`` also the lobe with each wavelength's value times that factor."""
         dx = wo.x + wi.x
         dy = wo.y + wi.y
+        if self.channel_tables_on:
+            return self._channel_lobe_and_pdf(layer, dx, dy, active)
         lams, mix = self._wavelength_mixture(wavelengths)
         j, t, L = layer["j"], layer["t"], layer["L"]
         interpolate = self.n_rows > 1
@@ -577,6 +643,34 @@ class CoronaBSDFMixin:
             return self._fold(values), pdf
         return self._fold(values), pdf, self._fold([v * modulation(q, lam_nm)
                                                      for q, (v, lam_nm) in enumerate(zip(values, lams))])
+
+    def _channel_lobe_and_pdf(self, layer, dx, dy, active):
+        """:meth:`_lobe_and_pdf` from the channel tables (:meth:`_set_channel_tables`): channel ``c``'s
+        lobe ``F_a L² g_c(s)`` at ``s = L |d|`` (plus ``ΔF_a ∂g_c`` for a centred layer: 0 in value), and
+        the d-space pdf of sampling ``s`` from ``G = Σ_c g_c``: ``L² G(s) / ∫G d²s``."""
+        L = layer["L"]
+        # (the 1e-24 keeps the gradient of |d| finite at d = 0)
+        x = dr.sqrt(dr.fma(dx, dx, dr.fma(dy, dy, 1e-24))) * L * (1.0 / self.channel_ds)
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.channel_n - 2)
+        t = x - mi.Float(i)
+        inside = active & (x <= self.channel_n - 1)
+        dfa = layer["fa"] - self.fa_centre if self.centred else None
+        nc = self.channel_count
+        scale = layer["weight"] * dr.square(L)
+        chans, g_sum = [], mi.Float(0.0)
+        for c in range(nc):
+            q = gather4(self.channel_packed, i * nc + c, inside)
+            g = dr.lerp(q.x, q.y, t)
+            if dfa is not None:
+                g = dr.fma(dfa, dr.lerp(q.z, q.w, t), g)
+            g = dr.select(inside, dr.maximum(g, 0.0), 0.0)
+            g_sum += g
+            chans.append(scale * g)
+        energy = _gather(mi.Float, self.channel_totals, mi.UInt32(0), active)
+        if dfa is not None:
+            energy = dr.fma(dfa, _gather(mi.Float, self.channel_totals, mi.UInt32(1), active), energy)
+        pdf = dr.square(L) * g_sum / dr.maximum(energy, 1e-30)
+        return (mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)), pdf
 
     def _fold(self, values):
         """The Spectrum of per-wavelength values: spectral as is, RGB/mono each channel's mean."""
@@ -847,13 +941,16 @@ class CoronaBSDFMixin:
             if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
                 s = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s)
                 pick_any_lobe = pick_lobe | pick_rlobe
-            pick, hero, rest = pick_wavelength(s, lams)
-            lam = lambda_um(hero)
             row = layer["j"]
-            if self.n_rows > 1 and self.isotropic:
-                row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
-            u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
-            d = u * (lam / (2.0 * dr.pi * layer["L"]))
+            if self.channel_tables_on:   # s = L |d| from the channels' sum (one row)
+                d = self._sample_u(sample2, row, layer["fa"], pick_any_lobe) / layer["L"]
+            else:
+                pick, hero, rest = pick_wavelength(s, lams)
+                lam = lambda_um(hero)
+                if self.n_rows > 1 and self.isotropic:
+                    row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
+                u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
+                d = u * (lam / (2.0 * dr.pi * layer["L"]))
             ox = d.x - wi.x
             oy = d.y - wi.y
             r2 = dr.fma(ox, ox, oy * oy)
