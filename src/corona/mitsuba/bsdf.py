@@ -612,37 +612,86 @@ class CoronaBSDFMixin:
         if self.channel_tables_on:
             return self._channel_lobe_and_pdf(layer, dx, dy, active)
         lams, mix = self._wavelength_mixture(wavelengths)
-        j, t, L = layer["j"], layer["t"], layer["L"]
-        interpolate = self.n_rows > 1
+        if not mi.is_spectral and dr.is_array_v(mi.Float) and not self._differentiated(layer, dx, dy):
+            return self._looped_lobe_and_pdf(layer, dx, dy, active, modulation)
         values = []
         pdf = mi.Float(0.0)
         for lam_nm, m in zip(lams, mix):
-            lam = lambda_um(lam_nm)
-            k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
-            ux, uy = dx * k, dy * k
-            if self.isotropic:                         # each row is sampled exactly ∝ v
-                if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
-                    v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
-                    p_u = v / dr.maximum(layer["energy"], 1e-30)
-                else:
-                    v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
-                                                         layer["hermite"])
-                    p_u = v / dr.maximum(layer["total"], 1e-30)
-                if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
-                    p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
-                    v = v_mid
-            else:                                      # the exact density of the kernel's sampling table
-                srow = None if layer["hermite"] is None else (j, *layer["hermite"])
-                dfa = layer["fa"] - self.fa_centre if self.centred else None
-                v = self.kernel.value(ux, uy, active, srow, dfa)
-                p_u = self.kernel.pdf(ux, uy, active)
-            values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
-            # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
-            pdf += m * p_u * dr.square(k)
+            value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
+            values.append(value)
+            pdf += m * p_d
         if modulation is None:
             return self._fold(values), pdf
         return self._fold(values), pdf, self._fold([v * modulation(q, lam_nm)
                                                      for q, (v, lam_nm) in enumerate(zip(values, lams))])
+
+    def _lobe_at(self, layer, dx, dy, lam_nm, active):
+        """One wavelength's lobe ``F_a (L/λ)² v(u)`` at ``d = (dx, dy)`` and its d-space pdf ``p_u k²``."""
+        j, t, L = layer["j"], layer["t"], layer["L"]
+        interpolate = self.n_rows > 1
+        lam = lambda_um(lam_nm)
+        k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
+        ux, uy = dx * k, dy * k
+        if self.isotropic:                         # each row is sampled exactly ∝ v
+            if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
+                v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
+                p_u = v / dr.maximum(layer["energy"], 1e-30)
+            else:
+                v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
+                                                     layer["hermite"])
+                p_u = v / dr.maximum(layer["total"], 1e-30)
+            if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
+                p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
+                v = v_mid
+        else:                                      # the exact density of the kernel's sampling table
+            srow = None if layer["hermite"] is None else (j, *layer["hermite"])
+            dfa = layer["fa"] - self.fa_centre if self.centred else None
+            v = self.kernel.value(ux, uy, active, srow, dfa)
+            p_u = self.kernel.pdf(ux, uy, active)
+        # F_a (L/λ)² v; p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
+        return layer["weight"] * dr.square(L / lam) * v, p_u * dr.square(k)
+
+    @staticmethod
+    def _differentiated(layer, dx, dy):
+        """True where a derivative flows through the lobe (Dr.Jit's reverse mode of a symbolic loop
+        needs a bound on its iterations: the wavelengths are unrolled then)."""
+        return any(dr.grad_enabled(x) for x in (dx, dy, *(v for v in layer.values() if v is not None
+                                                           and not isinstance(v, tuple))))
+
+    def _looped_lobe_and_pdf(self, layer, dx, dy, active, modulation=None):
+        """:meth:`_lobe_and_pdf` of an RGB / mono variant as one symbolic Dr.Jit loop over the
+        channels' response wavelengths (a traced body instead of ``3 N_RESPONSE`` unrolled
+        copies: the kernel compiles in a fraction of the time); the same sums."""
+        lam_all = np.asarray(self.channel_lambdas, dtype=np.float64)
+        nc, per = lam_all.shape
+        if getattr(self, "_loop_arrays", None) is None:
+            self._loop_arrays = (_array(mi.Float, lam_all.ravel()),
+                                 _array(mi.Float, np.asarray(self.channel_weights, dtype=np.float64).ravel()))
+        lam_arr, w_arr = self._loop_arrays
+        n = nc * per
+        zero = dr.zeros(mi.Float, dr.width(dx))
+        with_mod = modulation is not None
+
+        def body(q, chans, mods, pdf):
+            lam_nm = _gather(mi.Float, lam_arr, q)
+            w = _gather(mi.Float, w_arr, q)
+            value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
+            pdf = dr.fma(1.0 / n, p_d, pdf)
+            c = q // per
+            factor = modulation(q, lam_nm) if with_mod else None
+            chans = [dr.select(c == i, dr.fma(w, value, a), a) for i, a in enumerate(chans)]
+            if with_mod:
+                mods = [dr.select(c == i, dr.fma(w, value * factor, a), a) for i, a in enumerate(mods)]
+            return q + 1, chans, mods, pdf
+
+        q0 = dr.zeros(mi.UInt32, dr.width(dx))
+        state = (q0, [mi.Float(zero) for _ in range(nc)], [mi.Float(zero) for _ in range(nc if with_mod else 0)],
+                 mi.Float(zero))
+        _, chans, mods, pdf = dr.while_loop(state, lambda q, *_: q < n, body, label="corona wavelengths")
+        spec = (lambda xs: mi.Spectrum(xs[0]) if nc == 1 else mi.Spectrum(xs))
+        if not with_mod:
+            return spec(chans), pdf
+        return spec(chans), pdf, spec(mods)
 
     def _channel_lobe_and_pdf(self, layer, dx, dy, active):
         """:meth:`_lobe_and_pdf` from the channel tables (:meth:`_set_channel_tables`): channel ``c``'s
@@ -721,6 +770,7 @@ class CoronaBSDFMixin:
         if not mi.is_spectral:   # each response wavelength stands for its quantile bin: its fringe table
             sigma, env = _channel_envelopes(bool(mi.is_monochromatic))
             self.bin_sigma = sigma.ravel()
+            self.bin_sigma_table = _array(mi.Float, self.bin_sigma)
             env = env.reshape(-1, env.shape[-1])
             self.env_n = env.shape[-1]
             self.env_re = _array(mi.Float, env.real.ravel())
@@ -784,7 +834,9 @@ class CoronaBSDFMixin:
             else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
                 qv = mi.Float(0.0)
                 xk = mi.Float(1.0)
-                s1, c1 = dr.sincos(2.0 * dr.pi * float(self.bin_sigma[q]) * dr.abs(delta))
+                sigma = (float(self.bin_sigma[q]) if isinstance(q, int)       # (q traced: a symbolic loop's)
+                         else _gather(mi.Float, self.bin_sigma_table, q))
+                s1, c1 = dr.sincos(2.0 * dr.pi * sigma * dr.abs(delta))
                 sk, ck = s1, c1
                 for k in range(1, RGB_ORDERS + 1):   # e^{ikφ} by recurrence: one sincos a bin
                     qv += xk * self._bin_average_cos(q, index[k - 1], (sk, ck))
