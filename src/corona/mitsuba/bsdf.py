@@ -612,8 +612,11 @@ class CoronaBSDFMixin:
         if self.channel_tables_on:
             return self._channel_lobe_and_pdf(layer, dx, dy, active)
         lams, mix = self._wavelength_mixture(wavelengths)
-        if not mi.is_spectral and dr.is_array_v(mi.Float) and not self._differentiated(layer, dx, dy):
-            return self._looped_lobe_and_pdf(layer, dx, dy, active, modulation)
+        # a loop where the wavelengths are many (RGB / mono) or each costs many operations (the
+        # anisotropic kernels): compile time; the spectral radial rows stay unrolled (a few operations)
+        if (dr.is_array_v(mi.Float) and (not mi.is_spectral or not self.isotropic)
+                and not self._differentiated(layer, dx, dy)):
+            return self._looped_lobe_and_pdf(layer, dx, dy, active, modulation, lams)
         values = []
         pdf = mi.Float(0.0)
         for lam_nm, m in zip(lams, mix):
@@ -658,23 +661,35 @@ class CoronaBSDFMixin:
         return any(dr.grad_enabled(x) for x in (dx, dy, *(v for v in layer.values() if v is not None
                                                            and not isinstance(v, tuple))))
 
-    def _looped_lobe_and_pdf(self, layer, dx, dy, active, modulation=None):
-        """:meth:`_lobe_and_pdf` of an RGB / mono variant as one symbolic Dr.Jit loop over the
-        channels' response wavelengths (a traced body instead of ``3 N_RESPONSE`` unrolled
-        copies: the kernel compiles in a fraction of the time); the same sums."""
-        lam_all = np.asarray(self.channel_lambdas, dtype=np.float64)
-        nc, per = lam_all.shape
-        if getattr(self, "_loop_arrays", None) is None:
-            self._loop_arrays = (_array(mi.Float, lam_all.ravel()),
-                                 _array(mi.Float, np.asarray(self.channel_weights, dtype=np.float64).ravel()))
-        lam_arr, w_arr = self._loop_arrays
+    def _looped_lobe_and_pdf(self, layer, dx, dy, active, modulation=None, lams=None):
+        """:meth:`_lobe_and_pdf` as one symbolic Dr.Jit loop over the wavelengths (``lams``, the
+        lane's in spectral variants; the channels' response wavelengths in RGB / mono): a traced
+        body instead of one unrolled copy per wavelength, so the kernel compiles in a fraction of
+        the time; the same sums."""
+        if mi.is_spectral:
+            nc, per = len(lams), 1
+
+            def wavelength(q):
+                lam = lams[-1]
+                for k in range(nc - 2, -1, -1):
+                    lam = dr.select(q == k, lams[k], lam)
+                return lam, 1.0
+        else:
+            lam_all = np.asarray(self.channel_lambdas, dtype=np.float64)
+            nc, per = lam_all.shape
+            if getattr(self, "_loop_arrays", None) is None:
+                self._loop_arrays = (_array(mi.Float, lam_all.ravel()),
+                                     _array(mi.Float, np.asarray(self.channel_weights, dtype=np.float64).ravel()))
+            lam_arr, w_arr = self._loop_arrays
+
+            def wavelength(q):
+                return _gather(mi.Float, lam_arr, q), _gather(mi.Float, w_arr, q)
         n = nc * per
         zero = dr.zeros(mi.Float, dr.width(dx))
         with_mod = modulation is not None
 
         def body(q, chans, mods, pdf):
-            lam_nm = _gather(mi.Float, lam_arr, q)
-            w = _gather(mi.Float, w_arr, q)
+            lam_nm, w = wavelength(q)
             value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
             pdf = dr.fma(1.0 / n, p_d, pdf)
             c = q // per
