@@ -389,6 +389,16 @@ class CoronaBSDFMixin:
         # derivative in F_a continuous, the derivative second-order accurate in the rows' spacing)
         self.totals = _array(mi.Float, totals)
         self.total_slopes = _array(mi.Float, row_slopes(fas, totals))
+        self.row_scalars = None
+        if self.n_rows > 1 and dr.is_array_v(mi.Float):
+            # what _layer reads of rows j, j + 1, j + 2 (F_a, energy, its slope) in one wide packet
+            # gather a lane: 16 floats a row j <= n_rows - 2
+            jj = np.arange(self.n_rows - 1)[:, None] + np.arange(3)[None, :]
+            jj = np.minimum(jj, self.n_rows - 1)
+            block = np.zeros((self.n_rows - 1, 16))
+            for c, x in enumerate((fas, np.asarray(totals, dtype=np.float64), row_slopes(fas, totals))):
+                block[:, 3 * c:3 * c + 3] = np.asarray(x, dtype=np.float64)[jj]
+            self.row_scalars = _array(mi.Float, block.ravel())
         if self.isotropic:
             self.du = float(tabs[0].du)
             self.n = int(tabs[0].values.size)
@@ -519,25 +529,34 @@ class CoronaBSDFMixin:
                 up = (_gather(mi.Float, self.fa_rows, j + 1, active) <= fa) & (j < self.n_rows - 2)
                 j = dr.select(up, j + 1, j)
             # the last step reads the three rows at once (no gather waits for another)
-            f0 = _gather(mi.Float, self.fa_rows, j, active)
-            f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
-            f2 = _gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
-            up = (f1 <= fa) & (j < self.n_rows - 2)
+            if self.row_scalars is not None:      # one wide packet: F_a, energies, slopes of j .. j + 2
+                r = dr.gather(mi.ArrayXf, self.row_scalars, j, active, shape=(16, dr.width(j)))
+                f0, f1, f2 = r[0], r[1], r[2]
+                up = (f1 <= fa) & (j < self.n_rows - 2)
+                total, total_next = dr.select(up, r[4], r[3]), dr.select(up, r[5], r[4])
+                slope, slope_next = dr.select(up, r[7], r[6]), dr.select(up, r[8], r[7])
+            else:
+                f0 = _gather(mi.Float, self.fa_rows, j, active)
+                f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
+                f2 = _gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
+                up = (f1 <= fa) & (j < self.n_rows - 2)
             j = dr.select(up, j + 1, j)
             f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
+            if self.row_scalars is None:
+                total = _gather(mi.Float, self.totals, j, active)
+                total_next = _gather(mi.Float, self.totals, j + 1, active)
+                slope = _gather(mi.Float, self.total_slopes, j, active)
+                slope_next = _gather(mi.Float, self.total_slopes, j + 1, active)
             # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
             # the derivative at a row is the next interval's slope, not zero
             h = dr.maximum(f1 - f0, 1e-12)
             t = (fa - f0) / h
-            total = _gather(mi.Float, self.totals, j, active)
-            total_next = _gather(mi.Float, self.totals, j + 1, active)
             # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
             t2 = dr.square(t)
             t3 = t2 * t
             hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
             energy = (hermite[0] * total + hermite[2] * total_next
-                      + hermite[1] * _gather(mi.Float, self.total_slopes, j, active)
-                      + hermite[3] * _gather(mi.Float, self.total_slopes, j + 1, active))
+                      + hermite[1] * slope + hermite[3] * slope_next)
         held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
         plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
         coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
