@@ -83,7 +83,10 @@ the component-selection random number), draws ``d`` for it, and returns the
 pdf averaged over all the lane's wavelengths (a one-sample balance-heuristic
 mixture, hence unbiased).  RGB and mono variants evaluate each channel as the lobe averaged
 over that channel's spectral response (CIE 1931 → linear sRGB, negative lobes
-clipped; luminance ȳ for mono), using ``N_RESPONSE`` wavelengths per channel.
+clipped; luminance ȳ for mono), using ``N_RESPONSE`` wavelengths per channel: a uniform
+radial layer (no coherent pane) from one table per channel in ``s = L |d|`` holding that mean
+(:func:`_channel_tables`), sampled from their sum; the others as one symbolic Dr.Jit loop over
+the wavelengths (unrolled where a derivative flows through the lobe).
 
 Wavelengths are clamped to [360, 830] nm (the range the tables cover); a zero
 wavelength (as in a zero-initialised interaction) is clamped too, so no NaN.
