@@ -75,8 +75,8 @@ def inputs(dr, mi, np, n=N, seed=1):
     si.uv = mi.Point2f(np.stack([(lane % side + 0.5) / side, (lane // side % side + 0.5) / side]).astype(np.float32))
     si.n = mi.Normal3f(0, 0, 1)
     si.sh_frame = mi.Frame3f(si.n)
-    si.wavelengths = mi.Spectrum(rng.uniform(360, 830, (4, n)).astype(np.float32)) if mi.is_spectral \
-        else mi.Spectrum(0.0)
+    if mi.is_spectral:   # (RGB / mono: no wavelengths; dr.zeros left them empty)
+        si.wavelengths = mi.Spectrum(rng.uniform(360, 830, (4, n)).astype(np.float32))
     s1 = mi.Float(rng.random(n).astype(np.float32))
     s2 = mi.Point2f(rng.random((2, n)).astype(np.float32))
     dr.eval(si, wo, s1, s2)

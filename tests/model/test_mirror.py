@@ -6,6 +6,7 @@ solved by root finding; Stokes' sums of the internal bounces; a brute-force wave
 corona.reference.quetelet); the CIE channel averages on a fine wavelength grid; Babinet's
 principle and the diffuse energy F_a (1 - F_a) of a binary screen; mitsuba.chi2.
 """
+import drjit as dr
 import numpy as np
 import pytest
 from scipy.optimize import brentq
@@ -464,6 +465,55 @@ def test_sample_weight_is_eval_over_pdf_and_furnace(mi_variant):
         e, p = bsdf.eval_pdf(mi.BSDFContext(), si, bs.wo)
         ok = (comp == 4) & (np.array(p) > 0)
         np.testing.assert_allclose(w[ok], np.array(e)[0][ok] / np.array(p)[ok], rtol=1e-4)
+
+
+def test_vectorised_rgb_fringes_equal_the_scalar_variant(mi_variant):
+    """The vectorised RGB plugin (its response wavelengths a symbolic Dr.Jit loop) gives the
+    mirror's eval, pdf and sampled weights of the scalar variant (one Python loop over them,
+    checked against the fine-grid channel averages in test_rgb_channels_average_the_fringes),
+    and of itself where a derivative flows (the loop unrolled then)."""
+    variant = "llvm_ad_rgb"
+    import mitsuba as mi
+    params = {**MIRROR, "radius": 3.0, "area_fraction": 0.2, "substrate_thickness": 1000.0,
+              "mirror_reflectance": "gold", "albedo": 0.3}
+    theta = np.linspace(0.3, 12.0, 24)
+    wi = (np.sin(np.radians(10.0)), 0.0, np.cos(np.radians(10.0)))
+    wo = _wo(theta, 30.0)
+    rng = np.random.default_rng(3)
+    s1, s2 = rng.random(theta.size), rng.random((theta.size, 2))
+    out = {}
+    try:
+        for v in (variant, variant.replace("llvm_ad", "scalar")):
+            mi.set_variant(v)
+            corona.register()
+            bsdf = mi.load_dict({"type": "corona", **params})
+            ctx = mi.BSDFContext()
+            if v.startswith("llvm"):
+                si = interaction(theta.size, wi)
+                wo_v = mi.Vector3f(*[mi.Float(c) for c in wo.T])
+                e, p = bsdf.eval_pdf(ctx, si, wo_v)
+                bs, w = bsdf.sample(ctx, si, mi.Float(s1), mi.Point2f(*[mi.Float(c) for c in s2.T]))
+                out[v] = [np.array(e).T, np.array(p), np.array(w).T, np.array(bs.pdf)]
+                dr.enable_grad(wo_v)
+                e, p = bsdf.eval_pdf(ctx, si, wo_v)
+                unrolled = [np.array(dr.detach(e)).T, np.array(dr.detach(p))]
+            else:
+                rows = []
+                for k in range(theta.size):
+                    si = mi.SurfaceInteraction3f()
+                    si.wi = mi.Vector3f(*wi)
+                    e, p = bsdf.eval_pdf(ctx, si, mi.Vector3f(*wo[k]))
+                    bs, w = bsdf.sample(ctx, si, float(s1[k]), mi.Point2f(*s2[k]))
+                    rows.append([np.array(e).ravel(), float(p), np.array(w).ravel(), float(bs.pdf)])
+                out[v] = [np.array([r[i] for r in rows]) for i in range(4)]
+    finally:
+        mi.set_variant(mi_variant)
+    vec, ref = out.values()
+    for a, b in zip(unrolled, vec[:2]):
+        np.testing.assert_allclose(a, b, rtol=2e-5, atol=2e-6 * np.max(np.abs(b)))
+    for a, b in zip(vec, ref):
+        assert np.max(np.abs(b)) > 0
+        np.testing.assert_allclose(a.reshape(b.shape), b, rtol=2e-5, atol=2e-6 * np.max(np.abs(b)))
 
 
 # --- the silvering's spectrum ---------------------------------------------------------------------

@@ -309,6 +309,52 @@ def test_other_variants_agree_with_reference(mi_variant, variant):
         mi.set_variant(mi_variant)
 
 
+@pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_mono"])
+@pytest.mark.parametrize("params", [
+    {"process": "hard-disk", "radius": 0.4, "area_fraction": 0.4, "mode": "particle"},   # one row at F_a
+    {**CIRCLE_POISSON, "albedo": 0.5, "substrate": "glass"},                               # one row, a pane
+])
+def test_channel_tables_agree_with_the_model_and_sample_their_pdf(mi_variant, variant, params):
+    """RGB / mono evaluate a uniform radial layer from one table per channel (the mean over the
+    channel's response wavelengths, precomputed in s = L |d|): across the lobe each channel is
+    the mean of the model's lobe over the N_RESPONSE quantile wavelengths of Mitsuba's own
+    colorimetry (where it is above 1e-3 of its peak), and sampling follows its pdf (chi-square)."""
+    import mitsuba as mi
+    from corona.mitsuba.bsdf import N_RESPONSE
+    m = material_from_parameters(**{k: v for k, v in params.items() if k not in ("substrate",)})
+    try:
+        mi.set_variant(variant)
+        corona.register()
+        bsdf = mi.load_dict({"type": "corona", **params})
+        assert bsdf.channel_tables_on
+        # directions across the lobe (|d| to 0.9: past the Airy disk's first zero), normal incidence
+        dx = np.linspace(0.005, 0.87, 160)      # (d = 0: the coherent beam's own direction)
+        dy = 0.25 * dx
+        wo_np = np.stack([dx, dy, -np.sqrt(1 - dx**2 - dy**2)], 1)
+        si = interaction(len(dx), (0.0, 0.0, 1.0))
+        wo = mi.Vector3f(*[mi.Float(c.astype(np.float32)) for c in wo_np.T])
+        val = np.array(bsdf.eval(smooth_context(), si, wo)).reshape(-1, len(dx))
+        lam, resp = mitsuba_channel_responses(mi.is_monochromatic)
+        want = []
+        for r in resp:
+            ls = quantile_wavelengths(lam, r, N_RESPONSE)
+            lobe = np.array([m.lobe(wo_np[:, :2], np.full(len(dx), x)) for x in ls]).mean(0)
+            want.append(lobe * np.abs(wo_np[:, 2]))
+        want = np.array(want)
+        if "substrate" in params:    # the pane's T'(θo) on the lobe in transmission
+            r = np.array([float(np.array(mi.fresnel(mi.Float(float(c)), 1.52)[0])[0]) for c in np.abs(wo_np[:, 2])])
+            want = want * (1 - 2 * r / (1 + r))
+        big = want > 1e-3 * want.max()
+        np.testing.assert_allclose(val[big], want[big], rtol=2e-2)
+        rel = np.abs(val[big] - want[big]) / want[big]
+        assert np.sqrt(np.mean(rel**2)) < 2e-3
+        for theta in (0, 60):
+            ok, test = chi2_test(params, theta, smooth_context())
+            assert ok, test.messages
+    finally:
+        mi.set_variant(mi_variant)
+
+
 def test_traverse_albedo(mi_variant):
     import mitsuba as mi
     bsdf = mi.load_dict({"type": "corona", **CIRCLE_POISSON, "albedo": 0.0})

@@ -83,7 +83,10 @@ the component-selection random number), draws ``d`` for it, and returns the
 pdf averaged over all the lane's wavelengths (a one-sample balance-heuristic
 mixture, hence unbiased).  RGB and mono variants evaluate each channel as the lobe averaged
 over that channel's spectral response (CIE 1931 → linear sRGB, negative lobes
-clipped; luminance ȳ for mono), using ``N_RESPONSE`` wavelengths per channel.
+clipped; luminance ȳ for mono), using ``N_RESPONSE`` wavelengths per channel: a uniform
+radial layer (no coherent pane) from one table per channel in ``s = L |d|`` holding that mean
+(:func:`_channel_tables`), sampled from their sum; the others as one symbolic Dr.Jit loop over
+the wavelengths (unrolled where a derivative flows through the lobe).
 
 Wavelengths are clamped to [360, 830] nm (the range the tables cover); a zero
 wavelength (as in a zero-initialised interaction) is clamped too, so no NaN.
@@ -99,6 +102,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from corona import tables
 from corona._validation import CoronaError, CoronaWarning
 from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_curves, channel_response,
                              fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
@@ -118,6 +122,9 @@ __doc__ = __doc__.replace("{table}", rst_table())
 
 #: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
 FA_WINDOW = 0.1
+#: Nodes of an RGB / mono channel table (in ``s = L |d|``) per node of the lobe's table in ``u``
+#: at the shortest response wavelength (:func:`_channel_tables`).
+CHANNEL_OVERSAMPLE = 2
 __all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
 
 
@@ -136,6 +143,30 @@ def _pack_rows(rows, slopes=None):
     slopes = np.zeros_like(rows) if slopes is None else np.asarray(slopes, dtype=np.float64)
     packed = np.stack([rows[:, :-1], rows[:, 1:], slopes[:, :-1], slopes[:, 1:]], axis=-1)
     return _array(mi.Float, packed.ravel())
+
+
+def _channel_tables(v, dv, du, lams_nm, weights):
+    """A radial row ``v(u)`` (linear in ``u``, nodes ``du`` apart, 0 beyond) and its slope ``dv`` in
+    F_a as one table per RGB / mono channel in ``s = L |d|`` [µm]:
+    ``g_c(s) = Σ_q w_cq λ_q⁻² v(2π s / λ_q)`` over the channel's response wavelengths ``λ_q``
+    [µm] (``lams_nm`` (channels, N) [nm], weights ``w_cq``: :func:`corona.mitsuba.common.channel_response`),
+    so that a channel's lobe is ``F_a L² g_c(L |d|)`` (the mean of ``F_a (L/λ)² v(2π L |d| / λ)``
+    over its wavelengths) at the cost of one lookup.  Nodes ``ds = du λ_min / (2π CHANNEL_OVERSAMPLE)``
+    apart (a finer step in ``u`` than the row's at every wavelength) up to the row's reach at
+    ``λ_max``.  Returns ``(ds, g, dg)``, ``g`` and ``dg`` (channels, n_s), float64."""
+    lam = np.clip(np.asarray(lams_nm, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+    w = np.asarray(weights, dtype=np.float64)
+    ds = du * float(lam.min()) / (2.0 * np.pi * CHANNEL_OVERSAMPLE)
+    u_grid = np.arange(v.size) * du
+    n_s = int(np.ceil(u_grid[-1] * float(lam.max()) / (2.0 * np.pi * ds))) + 2
+    s = np.arange(n_s) * ds
+    g, dg = np.zeros((lam.shape[0], n_s)), np.zeros((lam.shape[0], n_s))
+    for c in range(lam.shape[0]):
+        for lq, wq in zip(lam[c], w[c]):
+            u = (2.0 * np.pi / lq) * s
+            g[c] += wq / lq**2 * np.interp(u, u_grid, v, right=0.0)
+            dg[c] += wq / lq**2 * np.interp(u, u_grid, dv, right=0.0)
+    return ds, g, dg
 
 
 def _hermite(x, rows, at):
@@ -326,6 +357,11 @@ class CoronaBSDFMixin:
         # re-centred by parameters_changed), plus its slope in F_a (module docstring)
         self.centred = (process.varying_area_fraction and len(fas) > 1
                         and not self.fa_tex.is_spatially_varying())
+        # RGB / mono, one radial row, no fringes of a coherent pane: a table per channel in s = L |d|
+        # (_channel_tables) instead of the row at each of the channels' wavelengths
+        pane = material.substrate
+        self.channel_tables_on = (not mi.is_spectral and material.isotropic and (self.centred or len(fas) == 1)
+                                  and not (pane is not None and pane.coherent))
         if self.centred:
             if material.isotropic:
                 self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
@@ -357,6 +393,16 @@ class CoronaBSDFMixin:
         # derivative in F_a continuous, the derivative second-order accurate in the rows' spacing)
         self.totals = _array(mi.Float, totals)
         self.total_slopes = _array(mi.Float, row_slopes(fas, totals))
+        self.row_scalars = None
+        if self.n_rows > 1 and dr.is_array_v(mi.Float):
+            # what _layer reads of rows j, j + 1, j + 2 (F_a, energy, its slope) in one wide packet
+            # gather a lane: 16 floats a row j <= n_rows - 2
+            jj = np.arange(self.n_rows - 1)[:, None] + np.arange(3)[None, :]
+            jj = np.minimum(jj, self.n_rows - 1)
+            block = np.zeros((self.n_rows - 1, 16))
+            for c, x in enumerate((fas, np.asarray(totals, dtype=np.float64), row_slopes(fas, totals))):
+                block[:, 3 * c:3 * c + 3] = np.asarray(x, dtype=np.float64)[jj]
+            self.row_scalars = _array(mi.Float, block.ravel())
         if self.isotropic:
             self.du = float(tabs[0].du)
             self.n = int(tabs[0].values.size)
@@ -364,6 +410,8 @@ class CoronaBSDFMixin:
             # ∂v/∂F_a of each row (Hermite in F_a between rows)
             self.packed = _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None)
             self._set_cdf([t.cdf for t in tabs])
+            if self.channel_tables_on:
+                self._set_channel_tables(rows[0], np.zeros_like(rows[0]), self.du)
         else:
             # the lobe as exact as the model (analytic form factors or cubic form-factor
             # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
@@ -406,6 +454,31 @@ class CoronaBSDFMixin:
         self.packed = _pack_rows(v[None], dv[None])
         self.totals = _array(mi.Float, [row.total])
         self.total_slopes = _array(mi.Float, [slope_total])
+        if self.channel_tables_on:
+            self._set_channel_tables(v, dv, du)
+        else:
+            self._set_cdf([row.cdf])
+
+    def _set_channel_tables(self, v, dv, du):
+        """The RGB / mono channel tables of the one radial row ``v`` (slope ``dv`` in F_a):
+        :func:`_channel_tables`, one packet per bin and channel, ``(g(i), g(i + 1), ∂g(i), ∂g(i + 1))``;
+        sampled (and its pdf) from their sum over channels ``G(s)``: its CDF, its packets and
+        ``(∫G d²s, ∫∂G d²s)``."""
+        from corona.tables import RadialTable
+        lam, w = channel_response()
+        ds, g, dg = _channel_tables(v, dv, du, lam, w)
+        nc, n_s = g.shape
+        self.channel_ds, self.channel_n, self.channel_count = float(ds), int(n_s), int(nc)
+        packets = np.stack([g[:, :-1], g[:, 1:], dg[:, :-1], dg[:, 1:]], axis=-1)     # (nc, n_s - 1, 4)
+        self.channel_packed = _array(mi.Float, packets.transpose(1, 0, 2).ravel())     # bin-major
+        total_g = g.sum(axis=0)
+        row = RadialTable(ds, np.maximum(total_g, 0.0))
+        slope_g = dg.sum(axis=0)
+        s0 = np.arange(n_s - 1) * ds
+        lo, step = slope_g[:-1], slope_g[1:] - slope_g[:-1]
+        slope_total = float(np.sum(2 * np.pi * ds * (s0 * lo + (s0 * step + ds * lo) / 2 + ds * step / 3)))
+        self.channel_sample_packed = _pack_rows(total_g[None])
+        self.channel_totals = _array(mi.Float, [row.total, slope_total])
         self._set_cdf([row.cdf])
 
     def _mixture_at(self, radius):
@@ -460,25 +533,34 @@ class CoronaBSDFMixin:
                 up = (_gather(mi.Float, self.fa_rows, j + 1, active) <= fa) & (j < self.n_rows - 2)
                 j = dr.select(up, j + 1, j)
             # the last step reads the three rows at once (no gather waits for another)
-            f0 = _gather(mi.Float, self.fa_rows, j, active)
-            f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
-            f2 = _gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
-            up = (f1 <= fa) & (j < self.n_rows - 2)
+            if self.row_scalars is not None:      # one wide packet: F_a, energies, slopes of j .. j + 2
+                r = dr.gather(mi.ArrayXf, self.row_scalars, j, active, shape=(16, dr.width(j)))
+                f0, f1, f2 = r[0], r[1], r[2]
+                up = (f1 <= fa) & (j < self.n_rows - 2)
+                total, total_next = dr.select(up, r[4], r[3]), dr.select(up, r[5], r[4])
+                slope, slope_next = dr.select(up, r[7], r[6]), dr.select(up, r[8], r[7])
+            else:
+                f0 = _gather(mi.Float, self.fa_rows, j, active)
+                f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
+                f2 = _gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
+                up = (f1 <= fa) & (j < self.n_rows - 2)
             j = dr.select(up, j + 1, j)
             f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
+            if self.row_scalars is None:
+                total = _gather(mi.Float, self.totals, j, active)
+                total_next = _gather(mi.Float, self.totals, j + 1, active)
+                slope = _gather(mi.Float, self.total_slopes, j, active)
+                slope_next = _gather(mi.Float, self.total_slopes, j + 1, active)
             # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
             # the derivative at a row is the next interval's slope, not zero
             h = dr.maximum(f1 - f0, 1e-12)
             t = (fa - f0) / h
-            total = _gather(mi.Float, self.totals, j, active)
-            total_next = _gather(mi.Float, self.totals, j + 1, active)
             # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
             t2 = dr.square(t)
             t3 = t2 * t
             hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
             energy = (hermite[0] * total + hermite[2] * total_next
-                      + hermite[1] * _gather(mi.Float, self.total_slopes, j, active)
-                      + hermite[3] * _gather(mi.Float, self.total_slopes, j + 1, active))
+                      + hermite[1] * slope + hermite[3] * slope_next)
         held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
         plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
         coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
@@ -531,12 +613,16 @@ class CoronaBSDFMixin:
         idx, c0, c1 = guided_search(self.cdf, self.guide, self.guide_size, self.n_bins,
                                     self.search_steps, row, target, active)
         # radial: density 2π u v_lin(u) in the bin; its CDF a cubic, solved by safeguarded Newton
-        du = self.du
+        # (channel tables: s and G(s) in place of u and v)
+        if self.channel_tables_on:
+            du, n, packed, totals = self.channel_ds, self.channel_n, self.channel_sample_packed, self.channel_totals
+        else:
+            du, n, packed, totals = self.du, self.n, self.packed, self.totals
         u0 = mi.Float(idx) * du
-        q = gather4(self.packed, row * (self.n - 1) + idx, active)    # (bins of the CDF = of the rows)
+        q = gather4(packed, row * (n - 1) + idx, active)    # (bins of the CDF = of the rows)
         a = q.x
         b = q.y - a
-        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, self.totals, row, active))
+        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, totals, row, active))
         r = u0 + t * du
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
         return mi.Vector2f(r * cos_phi, r * sin_phi)
@@ -546,38 +632,132 @@ class CoronaBSDFMixin:
         with ``modulation(q, λ)`` also the lobe with each wavelength's value times that factor."""
         dx = wo.x + wi.x
         dy = wo.y + wi.y
+        if self.channel_tables_on:
+            return self._channel_lobe_and_pdf(layer, dx, dy, active)
         lams, mix = self._wavelength_mixture(wavelengths)
-        j, t, L = layer["j"], layer["t"], layer["L"]
-        interpolate = self.n_rows > 1
+        # a loop where the wavelengths are many (RGB / mono) or each costs many operations (the
+        # anisotropic kernels): compile time; the spectral radial rows stay unrolled (a few operations)
+        if (dr.is_array_v(mi.Float) and (not mi.is_spectral or not self.isotropic)
+                and not self._differentiated(layer, dx, dy)):
+            return self._looped_lobe_and_pdf(layer, dx, dy, active, modulation, lams)
         values = []
         pdf = mi.Float(0.0)
         for lam_nm, m in zip(lams, mix):
-            lam = lambda_um(lam_nm)
-            k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
-            ux, uy = dx * k, dy * k
-            if self.isotropic:                         # each row is sampled exactly ∝ v
-                if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
-                    v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
-                    p_u = v / dr.maximum(layer["energy"], 1e-30)
-                else:
-                    v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
-                                                         layer["hermite"])
-                    p_u = v / dr.maximum(layer["total"], 1e-30)
-                if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
-                    p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
-                    v = v_mid
-            else:                                      # the exact density of the kernel's sampling table
-                srow = None if layer["hermite"] is None else (j, *layer["hermite"])
-                dfa = layer["fa"] - self.fa_centre if self.centred else None
-                v = self.kernel.value(ux, uy, active, srow, dfa)
-                p_u = self.kernel.pdf(ux, uy, active)
-            values.append(layer["weight"] * dr.square(L / lam) * v)   # F_a (L/λ)² v
-            # p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
-            pdf += m * p_u * dr.square(k)
+            value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
+            values.append(value)
+            pdf += m * p_d
         if modulation is None:
             return self._fold(values), pdf
         return self._fold(values), pdf, self._fold([v * modulation(q, lam_nm)
                                                      for q, (v, lam_nm) in enumerate(zip(values, lams))])
+
+    def _lobe_at(self, layer, dx, dy, lam_nm, active):
+        """One wavelength's lobe ``F_a (L/λ)² v(u)`` at ``d = (dx, dy)`` and its d-space pdf ``p_u k²``."""
+        j, t, L = layer["j"], layer["t"], layer["L"]
+        interpolate = self.n_rows > 1
+        lam = lambda_um(lam_nm)
+        k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
+        ux, uy = dx * k, dy * k
+        if self.isotropic:                         # each row is sampled exactly ∝ v
+            if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
+                v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
+                p_u = v / dr.maximum(layer["energy"], 1e-30)
+            else:
+                v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
+                                                     layer["hermite"])
+                p_u = v / dr.maximum(layer["total"], 1e-30)
+            if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
+                p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
+                v = v_mid
+        else:                                      # the exact density of the kernel's sampling table
+            srow = None if layer["hermite"] is None else (j, *layer["hermite"])
+            dfa = layer["fa"] - self.fa_centre if self.centred else None
+            v = self.kernel.value(ux, uy, active, srow, dfa)
+            p_u = self.kernel.pdf(ux, uy, active)
+        # F_a (L/λ)² v; p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
+        return layer["weight"] * dr.square(L / lam) * v, p_u * dr.square(k)
+
+    @staticmethod
+    def _differentiated(layer, dx, dy):
+        """True where a derivative flows through the lobe (Dr.Jit's reverse mode of a symbolic loop
+        needs a bound on its iterations: the wavelengths are unrolled then)."""
+        return any(dr.grad_enabled(x) for x in (dx, dy, *(v for v in layer.values() if v is not None
+                                                           and not isinstance(v, tuple))))
+
+    def _looped_lobe_and_pdf(self, layer, dx, dy, active, modulation=None, lams=None):
+        """:meth:`_lobe_and_pdf` as one symbolic Dr.Jit loop over the wavelengths (``lams``, the
+        lane's in spectral variants; the channels' response wavelengths in RGB / mono): a traced
+        body instead of one unrolled copy per wavelength, so the kernel compiles in a fraction of
+        the time; the same sums."""
+        if mi.is_spectral:
+            nc, per = len(lams), 1
+
+            def wavelength(q):
+                lam = lams[-1]
+                for k in range(nc - 2, -1, -1):
+                    lam = dr.select(q == k, lams[k], lam)
+                return lam, 1.0
+        else:
+            lam_all = np.asarray(self.channel_lambdas, dtype=np.float64)
+            nc, per = lam_all.shape
+            if getattr(self, "_loop_arrays", None) is None:
+                self._loop_arrays = (_array(mi.Float, lam_all.ravel()),
+                                     _array(mi.Float, np.asarray(self.channel_weights, dtype=np.float64).ravel()))
+            lam_arr, w_arr = self._loop_arrays
+
+            def wavelength(q):
+                return _gather(mi.Float, lam_arr, q), _gather(mi.Float, w_arr, q)
+        n = nc * per
+        zero = dr.zeros(mi.Float, dr.width(dx))
+        with_mod = modulation is not None
+
+        def body(q, chans, mods, pdf):
+            lam_nm, w = wavelength(q)
+            value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
+            pdf = dr.fma(1.0 / n, p_d, pdf)
+            c = q // per
+            factor = modulation(q, lam_nm) if with_mod else None
+            chans = [dr.select(c == i, dr.fma(w, value, a), a) for i, a in enumerate(chans)]
+            if with_mod:
+                mods = [dr.select(c == i, dr.fma(w, value * factor, a), a) for i, a in enumerate(mods)]
+            return q + 1, chans, mods, pdf
+
+        q0 = dr.zeros(mi.UInt32, dr.width(dx))
+        state = (q0, [mi.Float(zero) for _ in range(nc)], [mi.Float(zero) for _ in range(nc if with_mod else 0)],
+                 mi.Float(zero))
+        _, chans, mods, pdf = dr.while_loop(state, lambda q, *_: q < n, body, label="corona wavelengths")
+        spec = (lambda xs: mi.Spectrum(xs[0]) if nc == 1 else mi.Spectrum(xs))
+        if not with_mod:
+            return spec(chans), pdf
+        return spec(chans), pdf, spec(mods)
+
+    def _channel_lobe_and_pdf(self, layer, dx, dy, active):
+        """:meth:`_lobe_and_pdf` from the channel tables (:meth:`_set_channel_tables`): channel ``c``'s
+        lobe ``F_a L² g_c(s)`` at ``s = L |d|`` (plus ``ΔF_a ∂g_c`` for a centred layer: 0 in value), and
+        the d-space pdf of sampling ``s`` from ``G = Σ_c g_c``: ``L² G(s) / ∫G d²s``."""
+        L = layer["L"]
+        # (the 1e-24 keeps the gradient of |d| finite at d = 0)
+        x = dr.sqrt(dr.fma(dx, dx, dr.fma(dy, dy, 1e-24))) * L * (1.0 / self.channel_ds)
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.channel_n - 2)
+        t = x - mi.Float(i)
+        inside = active & (x <= self.channel_n - 1)
+        dfa = layer["fa"] - self.fa_centre if self.centred else None
+        nc = self.channel_count
+        scale = layer["weight"] * dr.square(L)
+        chans, g_sum = [], mi.Float(0.0)
+        for c in range(nc):
+            q = gather4(self.channel_packed, i * nc + c, inside)
+            g = dr.lerp(q.x, q.y, t)
+            if dfa is not None:
+                g = dr.fma(dfa, dr.lerp(q.z, q.w, t), g)
+            g = dr.select(inside, dr.maximum(g, 0.0), 0.0)
+            g_sum += g
+            chans.append(scale * g)
+        energy = _gather(mi.Float, self.channel_totals, mi.UInt32(0), active)
+        if dfa is not None:
+            energy = dr.fma(dfa, _gather(mi.Float, self.channel_totals, mi.UInt32(1), active), energy)
+        pdf = dr.square(L) * g_sum / dr.maximum(energy, 1e-30)
+        return (mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)), pdf
 
     def _fold(self, values):
         """The Spectrum of per-wavelength values: spectral as is, RGB/mono each channel's mean."""
@@ -628,6 +808,7 @@ class CoronaBSDFMixin:
         if not mi.is_spectral:   # each response wavelength stands for its quantile bin: its fringe table
             sigma, env = _channel_envelopes(bool(mi.is_monochromatic))
             self.bin_sigma = sigma.ravel()
+            self.bin_sigma_table = _array(mi.Float, self.bin_sigma)
             env = env.reshape(-1, env.shape[-1])
             self.env_n = env.shape[-1]
             self.env_re = _array(mi.Float, env.real.ravel())
@@ -691,7 +872,9 @@ class CoronaBSDFMixin:
             else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
                 qv = mi.Float(0.0)
                 xk = mi.Float(1.0)
-                s1, c1 = dr.sincos(2.0 * dr.pi * float(self.bin_sigma[q]) * dr.abs(delta))
+                sigma = (float(self.bin_sigma[q]) if isinstance(q, int)       # (q traced: a symbolic loop's)
+                         else _gather(mi.Float, self.bin_sigma_table, q))
+                s1, c1 = dr.sincos(2.0 * dr.pi * sigma * dr.abs(delta))
                 sk, ck = s1, c1
                 for k in range(1, RGB_ORDERS + 1):   # e^{ikφ} by recurrence: one sincos a bin
                     qv += xk * self._bin_average_cos(q, index[k - 1], (sk, ck))
@@ -848,13 +1031,16 @@ class CoronaBSDFMixin:
             if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
                 s = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s)
                 pick_any_lobe = pick_lobe | pick_rlobe
-            pick, hero, rest = pick_wavelength(s, lams)
-            lam = lambda_um(hero)
             row = layer["j"]
-            if self.n_rows > 1 and self.isotropic:
-                row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
-            u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
-            d = u * (lam / (2.0 * dr.pi * layer["L"]))
+            if self.channel_tables_on:   # s = L |d| from the channels' sum (one row)
+                d = self._sample_u(sample2, row, layer["fa"], pick_any_lobe) / layer["L"]
+            else:
+                pick, hero, rest = pick_wavelength(s, lams)
+                lam = lambda_um(hero)
+                if self.n_rows > 1 and self.isotropic:
+                    row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
+                u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
+                d = u * (lam / (2.0 * dr.pi * layer["L"]))
             ox = d.x - wi.x
             oy = d.y - wi.y
             r2 = dr.fma(ox, ox, oy * oy)
