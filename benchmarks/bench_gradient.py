@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -97,7 +96,7 @@ def main():
     if args.child:
         print(json.dumps(child(args)))
         return
-    from common import write
+    from common import summarise, write
     load_start = os.getloadavg()[0]
     runs = {(n, m): [] for m in MODES for n in BSDFS}
     for r in range(args.rounds):
@@ -106,10 +105,7 @@ def main():
             print(f"round {r + 1}/{args.rounds} {mode:8s} {name:16s} {runs[name, mode][-1]['times_s']}", flush=True)
     results = {}
     for (name, mode), rs in runs.items():
-        times = [t for x in rs for t in x["times_s"]]
-        results[f"{mode} {name}"] = {"median_s": statistics.median(times), "min_s": min(times), "times_s": times,
-                                     "jit_compile_s": statistics.median(x["jit_compile_s"] for x in rs),
-                                     "first_s": statistics.median(x["first_s"] for x in rs),
+        results[f"{mode} {name}"] = {**summarise(rs, "jit_compile_s", "first_s"),
                                      "gradient": rs[0]["gradient"], "variant": MODES[mode]}
     ratios = {}
     for mode in MODES:

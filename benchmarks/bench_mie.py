@@ -115,7 +115,7 @@ def main():
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--variant", default="llvm_ad_spectral")
     args = ap.parse_args()
-    from common import write
+    from common import summarise, write
     builds = build_times(args.repeats)
     # warm the on-disk cache so that the render processes time rendering, not the build
     import corona
@@ -132,9 +132,7 @@ def main():
             print(f"round {r + 1}/{args.rounds} {name:8s} {runs[name][-1]['times_s']}", flush=True)
     render = {}
     for name, rs in runs.items():
-        times = [t for x in rs for t in x["times_s"]]
-        render[name] = {"median_s": statistics.median(times), "min_s": min(times), "times_s": times,
-                        "jit_compile_s": statistics.median(x["jit_compile_s"] for x in rs)}
+        render[name] = summarise(rs, "jit_compile_s")
     ratio = render["sphere"]["median_s"] / render["opaque"]["median_s"]
     ratio_min = render["sphere"]["min_s"] / render["opaque"]["min_s"]
     print(f"sphere / opaque = {ratio:.3f} (medians), {ratio_min:.3f} (minima); goal <= 1.3")

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -126,7 +125,7 @@ def main():
         print(json.dumps(child(args)))
         return
 
-    from common import write
+    from common import summarise, write
     load_start = os.getloadavg()[0]
     names = [n for n in BSDFS if n in args.bsdfs or n == "roughdielectric"
              or (n == "corona" and "corona-mie" in args.bsdfs)]
@@ -137,10 +136,7 @@ def main():
             print(f"round {r + 1}/{args.rounds} {name:16s} {runs[name][-1]['times_s']}", flush=True)
     results = {}
     for name, rs in runs.items():
-        times = [t for r in rs for t in r["times_s"]]
-        results[name] = {"median_s": statistics.median(times), "min_s": min(times), "times_s": times,
-                         "first_render_s": statistics.median(r["first_render_s"] for r in rs),
-                         "jit_compile_s": statistics.median(r["jit_compile_s"] for r in rs)}
+        results[name] = summarise(rs, "first_render_s", "jit_compile_s")
     ref = results["roughdielectric"]["median_s"]
     for name, res in results.items():
         res["ratio_to_roughdielectric"] = res["median_s"] / ref

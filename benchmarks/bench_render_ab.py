@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -50,7 +49,7 @@ def main():
     ap.add_argument("--variant", default="llvm_ad_spectral")
     ap.add_argument("--name", default="render_ab")
     args = ap.parse_args()
-    from common import write
+    from common import summarise, write
     with tempfile.TemporaryDirectory() as base:
         archive = subprocess.run(["git", "-C", ROOT, "archive", args.base, "src", "benchmarks", "scenes"],
                                  check=True, capture_output=True).stdout
@@ -65,9 +64,7 @@ def main():
                 print(f"round {r + 1}/{args.rounds} {label:24s} {runs[label][-1]['times_s']}", flush=True)
     results = {}
     for label, rs in runs.items():
-        times = [t for x in rs for t in x["times_s"]]
-        results[label] = {"median_s": statistics.median(times), "min_s": min(times), "times_s": times,
-                          "jit_compile_s": statistics.median(x["jit_compile_s"] for x in rs)}
+        results[label] = summarise(rs, "jit_compile_s")
     for label, res in results.items():
         res["render_over_corona"] = res["median_s"] / results["corona"]["median_s"]
         res["render_over_corona_minima"] = res["min_s"] / results["corona"]["min_s"]

@@ -1,10 +1,11 @@
-"""Shared helpers of the benchmark scripts: machine description and JSON output."""
+"""Shared helpers of the benchmark scripts: machine description, run summaries and JSON output."""
 from __future__ import annotations
 
 import datetime
 import json
 import os
 import platform
+import statistics
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -39,3 +40,12 @@ def write(name: str, payload: dict) -> str:
         json.dump({"machine": machine(), **payload}, f, indent=2)
     print(f"wrote {path}")
     return path
+
+
+def summarise(rounds, *medians: str) -> dict:
+    """One entry's summary over its rounds (each a dict with ``times_s``, a list of seconds):
+    the median, minimum and every time, and the median over the rounds of each key in ``medians``."""
+    times = [t for r in rounds for t in r["times_s"]]
+    out = {"median_s": statistics.median(times), "min_s": min(times), "times_s": times}
+    out.update({key: statistics.median(r[key] for r in rounds) for key in medians})
+    return out
