@@ -110,7 +110,7 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                              pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
                              read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
                              wavelength_mixture)
-from corona.mitsuba.common import pane_sample
+from corona.mitsuba.common import hermite_rows, pane_sample
 from corona.parameters import SPEC, material_from_parameters, parse_mixture, rst_table
 from corona.tables.lobe import row_slopes
 from corona.model.substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
@@ -167,21 +167,6 @@ def _channel_tables(v, dv, du, lams_nm, weights):
             g[c] += wq / lq**2 * np.interp(u, u_grid, v, right=0.0)
             dg[c] += wq / lq**2 * np.interp(u, u_grid, dv, right=0.0)
     return ds, g, dg
-
-
-def _hermite(x, rows, at):
-    """Cubic Hermite interpolation of ``rows`` (n, ...) over ``x`` (n,) at ``at``, with the slopes of
-    :func:`corona.tables.lobe.row_slopes`: (value, derivative in x), float64."""
-    j = int(np.clip(np.searchsorted(x, at, side="right") - 1, 0, x.size - 2))
-    h = x[j + 1] - x[j]
-    t = (at - x[j]) / h
-    m = row_slopes(x, rows)
-    a, b, ma, mb = rows[j], rows[j + 1], m[j], m[j + 1]
-    t2, t3 = t * t, t * t * t
-    v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * h * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * h * mb
-    dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * h * ma + (6 * t - 6 * t2) * b
-          + (3 * t2 - 2 * t) * h * mb) / h
-    return v, dv
 
 
 class CoronaBSDFMixin:
@@ -436,14 +421,14 @@ class CoronaBSDFMixin:
         self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
         if not self.isotropic:    # rows of S - 1 and of the energy
             fas, s_rows, totals = self._window
-            s1, ds1 = _hermite(fas, s_rows, fa)
-            tot, dtot = _hermite(fas, totals[:, None], fa)
+            s1, ds1 = hermite_rows(fas, s_rows, fa)
+            tot, dtot = hermite_rows(fas, totals[:, None], fa)
             self.kernel.set_structure_centre(s1, ds1)
             self.totals = _array(mi.Float, tot)
             self.total_slopes = _array(mi.Float, dtot)
             return
         fas, rows, du = self._window
-        v, dv = _hermite(fas, rows, fa)
+        v, dv = hermite_rows(fas, rows, fa)
         v = np.maximum(v, 0.0)
         row = RadialTable(du, v)
         # ∫ dv/dF_a d²u of the linear-in-u slope (RadialTable clamps its values at 0: not for a slope)
