@@ -406,10 +406,15 @@ def pick_wavelength(s, lams):
     n = len(lams)
     s = dr.clip(s, 0.0, 0.99999994) * n
     pick = dr.minimum(mi.UInt32(s), n - 1)
-    lam = lams[-1]
-    for q in range(n - 2, -1, -1):
-        lam = dr.select(pick == q, lams[q], lam)
-    return pick, lam, s - mi.Float(pick)
+    return pick, picked(pick, lams), s - mi.Float(pick)
+
+
+def picked(pick, values):
+    """``values[pick]`` per lane (Dr.Jit): ``pick`` a UInt32 index into the list ``values``."""
+    v = values[-1]
+    for q in range(len(values) - 2, -1, -1):
+        v = dr.select(pick == q, values[q], v)
+    return v
 
 
 def fold_spectrum(values, channel_lambdas=None, channel_weights=None):

@@ -74,7 +74,7 @@ import numpy as np
 
 from corona import tables
 from corona._validation import CoronaError
-from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, texture_range
+from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, picked, texture_range
 from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, layer_first, pane_delta_weights
 from corona.mitsuba.common import pane_reflectance, pane_sample, pane_smooth_factors, positive as _positive, selection
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
@@ -253,15 +253,13 @@ class SphereBSDFMixin:
         self.fa = float(material.area_fraction)
         x = rows["x"]
         self.x0, self.n_rows = float(x[0]), int(x.size)
-        self.x_rows = _array(mi.Float, x)
         # rows are not evenly spaced: a guide of bins half the smallest row step wide names the
-        # row at or below each bin's start; one step up at most finds the row below x
+        # row at or below each bin's start; at most two steps up find the row below x
         self.bin_dx = 0.5 * float(np.min(np.diff(x)))
         n_bins = int(np.ceil((x[-1] - x[0]) / self.bin_dx)) + 2
         edges = x[0] + np.arange(n_bins) * self.bin_dx
         self.x_bins = n_bins
         guide = np.clip(np.searchsorted(x, edges, side="right") - 1, 0, x.size - 2)
-        self.row_guide = _array(mi.UInt32, guide)
         # the guide packed for one Vector4f gather a bin: (row as a float, x of the next two rows, 0),
         # a next row's x infinite where it is the last row (the row below x is at most the second last)
         x_up = np.concatenate([x, [np.inf, np.inf]])
@@ -716,22 +714,11 @@ class SphereBSDFMixin:
             wo_lobe = mi.warp.square_to_uniform_sphere(sample2)
         else:
             # the lobe's share of sample1 picks the hero wavelength, what is left of it the row
-            n = len(states)
-            pick, _, rest = pick_wavelength(s, [st["x"] for st in states])
+            pick, x, rest = pick_wavelength(s, [st["x"] for st in states])
             # the picked wavelength's row interval, its lobe's totals at both rows, their x
-            j, x, T0, T1, t = (states[-1][k] for k in ("j", "x", "Tf0", "Tf1", "t"))
-            xj, xj1 = states[-1]["xj"], states[-1]["xj1"]
-            for q in range(n - 2, -1, -1):
-                st, here = states[q], pick == q
-                j, x, t = dr.select(here, st["j"], j), dr.select(here, st["x"], x), dr.select(here, st["t"], t)
-                xj, xj1 = dr.select(here, st["xj"], xj), dr.select(here, st["xj1"], xj1)
-                T0, T1 = dr.select(here, st["Tf0"], T0), dr.select(here, st["Tf1"], T1)
-            last = states[-1]
-            Tb0, Tb1 = last["Tb0"], last["Tb1"]
-            for q in range(n - 2, -1, -1):
-                here = pick == q
-                Tb0, Tb1 = dr.select(here, states[q]["Tb0"], Tb0), dr.select(here, states[q]["Tb1"], Tb1)
-            T0, T1 = dr.select(lobe_f, T0, Tb0), dr.select(lobe_f, T1, Tb1)
+            j, t, xj, xj1, Tf0, Tf1, Tb0, Tb1 = (picked(pick, [st[k] for st in states])
+                                                 for k in ("j", "t", "xj", "xj1", "Tf0", "Tf1", "Tb0", "Tb1"))
+            T0, T1 = dr.select(lobe_f, Tf0, Tb0), dr.select(lobe_f, Tf1, Tb1)
             p_next = t * T1 / dr.maximum(dr.lerp(T0, T1, t), 1e-30)
             up = rest < p_next
             row = dr.select(up, j + 1, j)
