@@ -382,6 +382,15 @@ def lobe_rgb(m, d: np.ndarray, spectrum: np.ndarray, lams: np.ndarray) -> np.nda
         return np.concatenate([top, top[:n - rows][::-1, ::-1]])
     to_rgb = spectrum_to_linear_srgb(np.diag(spectrum), lams)                 # (nλ, 3)
     if m.render_kind == "table":    # the bilinear table itself: every wavelength in one pass
+        if (d.ndim == 3 and d.shape[1] > 1 and _mirrored_x(m)
+                and np.allclose(d[:, ::-1, 0], -d[..., 0], rtol=1e-12, atol=0.0)
+                and np.allclose(d[:, ::-1, 1], d[..., 1], rtol=1e-12, atol=0.0)):
+            # a lobe even in u_x too (a square lattice of upright squares, the voile): the right
+            # columns are the left ones mirrored
+            n = d.shape[1]
+            cols = (n + 1) // 2
+            left = lobe_rgb(m, d[:, :cols], spectrum, lams)
+            return np.concatenate([left, left[:, :n - cols][:, ::-1]], axis=1)
         lam_um = lams * 1e-3
         v = m.render_lobe.table.eval_scaled(d, 2 * np.pi * R / lam_um)          # (..., nλ)
         return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
@@ -392,6 +401,25 @@ def lobe_rgb(m, d: np.ndarray, spectrum: np.ndarray, lams: np.ndarray) -> np.nda
     else:
         v = np.stack([rl.eval(d * (2 * np.pi * R / lam)) for lam in lam_um], -1)  # (..., nλ)
     return v @ (w * (R / lam_um)[:, None] ** 2 * to_rgb)
+
+
+_mirror_checks: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # material -> bool
+
+
+def _mirrored_x(m) -> bool:
+    """Whether the 2-D table of ``m`` (:class:`corona.tables.GridTable`, no warp) is even in
+    ``u_x``, ``v(-u_x, u_y) = v(u_x, u_y)`` to 1e-12 of its peak (its vertices are symmetric
+    about 0), checked once per material."""
+    with _profiles_lock:
+        known = _mirror_checks.get(m)
+    if known is None:
+        table = m.render_lobe.table
+        v = table.values
+        known = bool(table.warp == 0 and v.size and np.allclose(v, v[:, ::-1], rtol=0.0,
+                                                                 atol=1e-12 * float(np.abs(v).max())))
+        with _profiles_lock:
+            _mirror_checks[m] = known
+    return known
 
 
 def _disk_terms_lobe(rl, d: np.ndarray, k: np.ndarray) -> np.ndarray:
