@@ -266,18 +266,26 @@ def guided_cdfs(cdfs) -> dict:
     n_rows, n_bins = C.shape[0], C.shape[1] - 1
     G = int(min(max(n_bins, 16), 1 << 16))
     marks = (np.arange(G + 1) / G).astype(np.float32)
-    total = np.where(C[:, -1] > 0, C[:, -1], 1.0)
-    cdf32 = (C / total[:, None]).astype(np.float32)
+    cdf32 = np.empty(C.shape, dtype=np.float32)
+    guide = np.empty((n_rows, G + 1), dtype=np.int64)
     # every row's search at once: guide[j] + 1 counts a row's CDF values <= marks[j]; a value c counts
     # for the marks from pos(c) = searchsorted(marks, c) on, so the counts are the cumulated
     # histogram of those positions.  pos(c) is ceil(c G) up to the marks' float32 rounding: one
-    # step down or up where the neighbouring mark says so makes it exact
-    pos = np.minimum(np.ceil(cdf32 * np.float64(G)).astype(np.int64), G + 1)
-    pos -= (pos > 0) & (marks[np.maximum(pos - 1, 0)] >= cdf32)
-    pos += (pos <= G) & (marks[np.minimum(pos, G)] < cdf32)
-    pos += (np.arange(n_rows, dtype=pos.dtype) * (G + 2))[:, None]
-    hist = np.bincount(pos.ravel(), minlength=n_rows * (G + 2)).reshape(n_rows, G + 2)
-    guide = np.cumsum(hist[:, :G + 1], axis=1) - 1
+    # step down or up where the neighbouring mark says so makes it exact.  In blocks of rows
+    # that stay in the caches.
+    step = max(1, (1 << 18) // (n_bins + 1))
+    for a in range(0, n_rows, step):
+        b = min(a + step, n_rows)
+        total = np.where(C[a:b, -1] > 0, C[a:b, -1], 1.0)
+        c32 = cdf32[a:b]
+        np.divide(C[a:b], total[:, None], out=c32, casting="same_kind")
+        pos = np.minimum(np.ceil(c32 * np.float64(G)).astype(np.int64), G + 1)
+        pos -= (pos > 0) & (marks[np.maximum(pos - 1, 0)] >= c32)
+        pos += (pos <= G) & (marks[np.minimum(pos, G)] < c32)
+        pos += (np.arange(b - a, dtype=np.int64) * (G + 2))[:, None]
+        hist = np.bincount(pos.ravel(), minlength=(b - a) * (G + 2)).reshape(b - a, G + 2)
+        np.cumsum(hist[:, :G + 1], axis=1, out=guide[a:b])
+    guide -= 1
     guide = np.clip(guide, 0, n_bins - 1)
     width = int(np.max(guide[:, 1:] - guide[:, :-1])) + 1 if G > 0 else 1
     return dict(cdf=cdf32.ravel(), guide=guide.ravel(), G=G, n_bins=n_bins,

@@ -632,7 +632,8 @@ class SphereBSDFMixin:
         offset_other = dr.select(forward, mi.UInt32(self.back_offset), mi.UInt32(0))
         near = active & (s_other < self.reach)     # the sliver past 90° that a lobe's sampler reaches
         values, dens = [], []
-        for st in states:
+        Q = self._other_lobe(states, s_other, near, offset_other) if with_pdf and self.sampling != "cosine" else None
+        for k, st in enumerate(states):
             P, P_lin = self._rows_at("P", st, s_any, active, offset)       # P_f or P_b
             Z = P
             if self.has_S:
@@ -643,10 +644,32 @@ class SphereBSDFMixin:
             values.append(dr.select(active & on, Z, 0.0))
             if not with_pdf or self.sampling == "cosine":
                 continue
-            Q_lin = self._rows_at("P", st, s_other, near, offset_other)[1]
+            Q_lin = Q[k]
             dens.append((dr.select(forward, P_lin, Q_lin) / dr.maximum(st["Tf"], 1e-30),
                          dr.select(forward, Q_lin, P_lin) / dr.maximum(st["Tb"], 1e-30)))
         return values, dens
+
+    def _other_lobe(self, states, s_other, near, offset_other):
+        """Per wavelength the other lobe's linear rows at ``s_other`` (the sampler's density of the lobe
+        that ``wo`` is not in), nonzero only in the sliver past 90° its sampler reaches (``near``).  One
+        conditional for all wavelengths: a packet of lanes none of which is ``near`` (nearly all)
+        skips the reads."""
+        keys = ("j", "t", "rj", "rj1")
+        flat = tuple(st[k] for st in states for k in keys)
+        n = len(states)
+
+        def reads(s_o, near_, off, *flat):
+            out = []
+            for i in range(n):
+                st = dict(zip(keys, flat[4 * i:4 * i + 4]))
+                out.append(self._rows_at("P", st, s_o, near_, off)[1])
+            return tuple(out)
+
+        def zeros(s_o, near_, off, *flat):
+            return tuple(dr.zeros(mi.Float, dr.width(s_o)) for _ in range(n))
+        if not dr.is_array_v(mi.Float):        # scalar variants: a Python branch
+            return reads(s_other, near, offset_other, *flat) if near else (mi.Float(0.0),) * n
+        return dr.if_stmt((s_other, near, offset_other) + flat, near, reads, zeros, label="corona other lobe")
 
     @staticmethod
     def _mix(dens, m, p_f, p_b):
