@@ -15,7 +15,12 @@ Variants of the inputs show what the time is spent on: ``--wavelengths`` ``rando
 the same instructions) or ``550-literal`` (a Dr.Jit literal: the kernel is constant-folded,
 which is not a memory effect).
 
-    python benchmarks/bench_sphere_kernel.py [--base REV] [--rounds 5] [--name sphere_kernel]
+With ``--render RES`` it renders ``bench_render.py``'s street-light scene with its
+``corona-mie`` layer instead (RES², 64 spp, path), built once from each module in this one
+process, the two scenes in turn (the order swapped every round), and reports the renders'
+wall time, the process's CPU time and the render kernels' run time (kernel history).
+
+    python benchmarks/bench_sphere_kernel.py [--base REV] [--rounds 5] [--render RES] [--name sphere_kernel]
 
 writes benchmarks/results/<name>.json.  No timing is asserted anywhere.
 """
@@ -48,8 +53,11 @@ def main():
     ap.add_argument("--base", default="HEAD", help="the git revision to compare with")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--wavelengths", default="random", choices=["random", "550-array", "550-literal"])
+    ap.add_argument("--render", type=int, default=0, help="render RES² instead of the BSDF alone")
     ap.add_argument("--name", default="sphere_kernel")
     args = ap.parse_args()
+    if args.render:
+        return render(args)
     import corona
     import drjit as dr
     import mitsuba as mi
@@ -122,6 +130,72 @@ def main():
                       "load_average_1min": os.getloadavg()[0], "results": res, "ratios": ratios, "same": same,
                       "note": "run_ms: Dr.Jit kernel history execution time of the method's kernels, after a "
                               "warm-up call, interleaved rounds; operations: Dr.Jit IR operations per lane"})
+
+
+def render(args):
+    """The street-light scene with each module's sphere layer, rendered in turn in this process."""
+    import time
+    import corona  # noqa: F401  (sets up libLLVM first)
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+    from corona.apps.render import setup_variant
+    setup_variant("llvm_ad_spectral")
+    import bench_render as br
+    from common import write
+    from corona.apps.scenes import street_light_scene
+    from corona.mitsuba import sphere as this
+    from corona.mitsuba.common import variant_class
+    layer = br.BSDFS["corona-mie"]
+
+    def scene(mod):
+        cls = variant_class(mod.SphereBSDFMixin, "BSDF", f"CoronaSphereBSDF_{id(mod)}")
+        props = mi.Properties("corona")
+        for k, v in layer.items():
+            if k != "type":
+                props[k] = v
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            bsdf = cls(props)
+        d = street_light_scene(resolution=args.render, bsdf=layer)
+
+        def swap(node):   # the instance where the scene's corona BSDF was
+            for k, v in node.items():
+                if isinstance(v, dict):
+                    if v.get("type") == "corona":
+                        node[k] = bsdf
+                    else:
+                        swap(v)
+        swap(d)
+        return mi.load_dict(d)
+    scenes = {"base": scene(_module_at(args.base)), "this": scene(this)}
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+
+    def once(sc, seed):
+        dr.kernel_history()
+        c0, t0 = time.process_time(), time.perf_counter()
+        img = mi.render(sc, spp=64, seed=seed)
+        dr.eval(img)
+        dr.sync_thread()
+        h = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+        return {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+                "kernel_s": sum(k.get("execution_time", 0) for k in h) * 1e-3}
+    for sc in scenes.values():
+        once(sc, 0)                 # compile
+    runs = {k: [] for k in scenes}
+    load0 = os.getloadavg()[0]
+    for rnd in range(args.rounds):
+        order = list(scenes) if rnd % 2 == 0 else list(reversed(list(scenes)))
+        for k in order:
+            runs[k].append(once(scenes[k], rnd + 1))
+    summary = {k: {f: {"median": float(np.median([r[f] for r in v])), "min": float(min(r[f] for r in v))}
+                   for f in ("wall_s", "cpu_s", "kernel_s")} for k, v in runs.items()}
+    ratios = {f: {q: summary["this"][f][q] / summary["base"][f][q] for q in ("median", "min")}
+              for f in ("wall_s", "cpu_s", "kernel_s")}
+    for f, q in ratios.items():
+        print(f"{f}: this / base {q['median']:.3f} (minima {q['min']:.3f})")
+    write(args.name, {"base": args.base, "render": args.render, "spp": 64, "layer": layer, "runs": runs,
+                      "summary": summary, "ratios": ratios, "load_average_1min": [load0, os.getloadavg()[0]]})
 
 
 if __name__ == "__main__":
