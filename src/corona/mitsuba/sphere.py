@@ -92,7 +92,8 @@ RADIUS_HEADROOM = 1.05
 #: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa).
 FA_ROW_STEP = 0.05
 #: The most memory [bytes] the lobes' rows take as packed Catmull–Rom intervals (four floats a node:
-#: one Vector4f gather reads a row's interval; beyond it, four scalar gathers read the plain rows).
+#: one Vector4f gather reads a row's interval; beyond it the plain rows are held instead, read by
+#: four scalar gathers).  One of the two is allocated.
 LOBE_PACKING_BYTES = 1 << 28
 #: Marks the F_a weights of a layer with one F_a (:meth:`SphereBSDFMixin._fa_weights`).
 _CENTRE = "centre"
