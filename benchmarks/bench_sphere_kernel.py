@@ -48,6 +48,20 @@ def _module_at(rev: str):
     return mod
 
 
+def _bsdf(mod, layer: dict):
+    """The sphere BSDF of ``layer`` (a ``corona`` dict) built by the module ``mod``'s mixin."""
+    import mitsuba as mi
+    from corona.mitsuba.common import variant_class
+    cls = variant_class(mod.SphereBSDFMixin, "BSDF", f"CoronaSphereBSDF_{id(mod)}")
+    props = mi.Properties("corona")
+    for k, v in layer.items():
+        if k != "type":
+            props[k] = v
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return cls(props)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--base", default="HEAD", help="the git revision to compare with")
@@ -67,7 +81,6 @@ def main():
     import bench_kernels as bk
     from common import write
     from corona.mitsuba import sphere as this
-    from corona.mitsuba.common import variant_class
     n = 1 << 18
     si, wo, s1, s2 = bk.inputs(dr, mi, np, n=n)
     if args.wavelengths != "random":
@@ -77,16 +90,7 @@ def main():
         dr.eval(si)
     layer = bk.LAYERS["Mie spheres"]
 
-    def make(mod):
-        cls = variant_class(mod.SphereBSDFMixin, "BSDF", f"CoronaSphereBSDF_{id(mod)}")
-        props = mi.Properties("corona")
-        for k, v in layer.items():
-            if k != "type":
-                props[k] = v
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return cls(props)
-    bsdfs = {"base": make(_module_at(args.base)), "this": make(this)}
+    bsdfs = {"base": _bsdf(_module_at(args.base), layer), "this": _bsdf(this, layer)}
     ctx = mi.BSDFContext()
     dr.set_flag(dr.JitFlag.KernelHistory, True)
 
@@ -145,18 +149,10 @@ def render(args):
     from common import write
     from corona.apps.scenes import street_light_scene
     from corona.mitsuba import sphere as this
-    from corona.mitsuba.common import variant_class
     layer = br.BSDFS["corona-mie"]
 
     def scene(mod):
-        cls = variant_class(mod.SphereBSDFMixin, "BSDF", f"CoronaSphereBSDF_{id(mod)}")
-        props = mi.Properties("corona")
-        for k, v in layer.items():
-            if k != "type":
-                props[k] = v
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            bsdf = cls(props)
+        bsdf = _bsdf(mod, layer)
         d = street_light_scene(resolution=args.render, bsdf=layer)
 
         def swap(node):   # the instance where the scene's corona BSDF was
