@@ -117,3 +117,63 @@ def test_one_area_fraction_centred_matches_the_rows_and_updates_without_recompil
     p2[key] = 0.32
     p2.update()
     _assert_close(moved, _figures(rows_only, 20.0), "centred vs rows after an update")
+
+
+def test_guide_tables_are_the_last_bin_at_or_below_each_mark(mi_variant):
+    """:func:`corona.mitsuba.common.guided_cdfs` (all rows at once) against its definition, row by row:
+    ``guide[j]`` is the last bin whose normalised float32 CDF is <= ``float32(j / G)`` (clipped to
+    the bins), on rows with empty stretches, a zero row, a row of denormal-small values and random
+    peaked rows."""
+    from corona import tables
+    from corona.mitsuba.common import guided_cdfs
+    rng = np.random.default_rng(7)
+    for n in (3, 17, 200, 833):
+        v = rng.random((12, n)) ** 8
+        v[1] = 0.0
+        v[2, n // 2:] = 0.0
+        v[3] = 1e-38
+        v[4, :n // 3] = 0.0
+        cdfs = tables.radial_cdfs(0.01, v)
+        g = guided_cdfs(cdfs)
+        G, n_bins = g["G"], g["n_bins"]
+        assert n_bins == n - 1
+        marks = (np.arange(G + 1) / G).astype(np.float32)
+        guide = g["guide"].reshape(len(v), G + 1)
+        cdf = g["cdf"].reshape(len(v), n)
+        width = 1
+        for row, c64 in enumerate(cdfs):
+            c32 = (c64 / (c64[-1] if c64[-1] > 0 else 1.0)).astype(np.float32)
+            assert np.array_equal(cdf[row], c32)
+            for j, mark in enumerate(marks):
+                below = np.nonzero(c32 <= mark)[0]
+                want = min(max(int(below[-1]) if below.size else 0, 0), n_bins - 1)
+                assert guide[row, j] == want, (n, row, j)
+            width = max(width, int(np.max(np.diff(guide[row]))) + 1)
+        assert g["steps"] == max(1, int(np.ceil(np.log2(width + 1))))
+
+
+def test_catmull_rom_intervals_are_the_cubic_through_the_rows(mi_variant):
+    """The packed intervals (:func:`corona.mitsuba.sphere._catmull_rom`), node-major, against the
+    Catmull–Rom cubic written out from four nodes (end nodes repeated): its value at the nodes and
+    at the interval's middle, for two lobes of different widths."""
+    from corona.mitsuba import sphere
+    rng = np.random.default_rng(3)
+    lobes = [rng.random((5, 9)) * 10.0, rng.random((5, 9))]
+    packed = np.asarray(sphere._catmull_rom(*lobes), dtype=np.float64).reshape(-1, 4)
+    start = 0
+    for rows in lobes:
+        J, K = rows.shape
+        q = packed[start:start + rows.size].reshape(K, J, 4)
+        for j in range(J):
+            P = rows[j]
+            for i in range(K):
+                p0, p1 = P[max(i - 1, 0)], P[i]
+                p2, p3 = P[min(i + 1, K - 1)], P[min(i + 2, K - 1)]
+                a, d, c1, c2 = q[i, j]
+                c3 = d - c1 - c2
+                cubic = lambda f: a + f * (c1 + f * (c2 + f * c3))
+                ref = lambda f: 0.5 * ((2 * p1) + (-p0 + p2) * f + (2 * p0 - 5 * p1 + 4 * p2 - p3) * f * f
+                                       + (-p0 + 3 * p1 - 3 * p2 + p3) * f ** 3)
+                for f in (0.0, 0.5, 1.0):
+                    assert abs(cubic(f) - ref(f)) <= 1e-5 * max(1.0, abs(ref(f))), (j, i, f)
+        start += rows.size

@@ -260,19 +260,36 @@ def guided_cdfs(cdfs) -> dict:
         bins ``guide[j] .. guide[j+1]``; :func:`guided_search` then finds the bin
         in ``steps`` bisection steps.
     """
-    n_bins = cdfs[0].size - 1
+    C = np.asarray(cdfs, dtype=np.float64)
+    if C.ndim == 1:
+        C = C[None, :]
+    n_rows, n_bins = C.shape[0], C.shape[1] - 1
     G = int(min(max(n_bins, 16), 1 << 16))
     marks = (np.arange(G + 1) / G).astype(np.float32)
-    cdf_all, guide_all, width = [], [], 1
-    for cdf64 in cdfs:
-        total = cdf64[-1] if cdf64[-1] > 0 else 1.0
-        cdf32 = (np.asarray(cdf64, dtype=np.float64) / total).astype(np.float32)
-        guide = np.clip(np.searchsorted(cdf32, marks, side="right") - 1, 0, n_bins - 1)
-        width = max(width, int(np.max(guide[1:] - guide[:-1])) + 1)
-        cdf_all.append(cdf32)
-        guide_all.append(guide)
-    return dict(cdf=np.concatenate(cdf_all), guide=np.concatenate(guide_all), G=G, n_bins=n_bins,
-                steps=max(1, int(np.ceil(np.log2(width + 1)))))
+    cdf32 = np.empty(C.shape, dtype=np.float32)
+    guide = np.empty((n_rows, G + 1), dtype=np.int64)
+    # every row's search at once: guide[j] + 1 counts a row's CDF values <= marks[j]; a value c counts
+    # for the marks from pos(c) = searchsorted(marks, c) on, so the counts are the cumulated
+    # histogram of those positions.  pos(c) is ceil(c G) up to the marks' float32 rounding: one
+    # step down or up where the neighbouring mark says so makes it exact.  In blocks of rows
+    # that stay in the caches.
+    step = max(1, (1 << 18) // (n_bins + 1))
+    for a in range(0, n_rows, step):
+        b = min(a + step, n_rows)
+        total = np.where(C[a:b, -1] > 0, C[a:b, -1], 1.0)
+        c32 = cdf32[a:b]
+        np.divide(C[a:b], total[:, None], out=c32, casting="same_kind")
+        pos = np.minimum(np.ceil(c32 * np.float64(G)).astype(np.int64), G + 1)
+        pos -= (pos > 0) & (marks[np.maximum(pos - 1, 0)] >= c32)
+        pos += (pos <= G) & (marks[np.minimum(pos, G)] < c32)
+        pos += (np.arange(b - a, dtype=np.int64) * (G + 2))[:, None]
+        hist = np.bincount(pos.ravel(), minlength=(b - a) * (G + 2)).reshape(b - a, G + 2)
+        np.cumsum(hist[:, :G + 1], axis=1, out=guide[a:b])
+    guide -= 1
+    guide = np.clip(guide, 0, n_bins - 1)
+    width = int(np.max(guide[:, 1:] - guide[:, :-1])) + 1 if G > 0 else 1
+    return dict(cdf=cdf32.ravel(), guide=guide.ravel(), G=G, n_bins=n_bins,
+                steps=max(1, int(np.ceil(np.log2(max(width, 1) + 1)))))
 
 
 def guided_search(cdf, guide, G, n_bins, steps, row, xi, active, guide_offset=0, cdf_offset=0):

@@ -92,7 +92,8 @@ RADIUS_HEADROOM = 1.05
 #: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa).
 FA_ROW_STEP = 0.05
 #: The most memory [bytes] the lobes' rows take as packed Catmull–Rom intervals (four floats a node:
-#: one Vector4f gather reads a row's interval; beyond it, four scalar gathers read the plain rows).
+#: one Vector4f gather reads a row's interval; beyond it the plain rows are held instead, read by
+#: four scalar gathers).  One of the two is allocated.
 LOBE_PACKING_BYTES = 1 << 28
 #: Marks the F_a weights of a layer with one F_a (:meth:`SphereBSDFMixin._fa_weights`).
 _CENTRE = "centre"
@@ -104,15 +105,31 @@ def _catmull_rom(*lobes):
     chord share a cache line mostly).  Interval i of row j is ``(p1, p2 - p1, c1, c2)`` with
     ``v(f) = p1 + f (c1 + f (c2 + f c3))``, ``c1 = (p2 - p0) / 2``, ``c2 = (2 p0 - 5 p1 + 4 p2 - p3) / 2``, ``c3 = p2 - p1 - c1 - c2``
     (``p0 .. p3`` the nodes i-1 .. i+2, an end node repeated past the row's ends); the linear
-    value is ``p1 + f (p2 - p1)``.  Interval K-1 (past the last node) is the last node, constant."""
-    out = []
+    value is ``p1 + f (p2 - p1)``.  Interval K-1 (past the last node) starts at the last node.
+
+    Built in float64 from slices of the node-major rows (the padded nodes as views), written
+    straight into the float32 result."""
+    lobes = [np.asarray(rows, dtype=np.float64) for rows in lobes]
+    out = np.empty((sum(rows.size for rows in lobes), 4), dtype=np.float32)
+    start = 0
     for rows in lobes:
-        P = np.asarray(rows, dtype=np.float64)
-        pad = np.concatenate([P[:, :1], P, P[:, -1:], P[:, -1:]], axis=1)   # node -1, 0 .. K-1, K, K+1
-        p0, p1, p2, p3 = pad[:, :-3], pad[:, 1:-2], pad[:, 2:-1], pad[:, 3:]
-        c = np.stack([p1, p2 - p1, 0.5 * (p2 - p0), 0.5 * (2 * p0 - 5 * p1 + 4 * p2 - p3)], axis=-1)
-        out.append(np.swapaxes(c, 0, 1).ravel())
-    return _array(mi.Float, np.concatenate(out))
+        J, K = rows.shape
+        # node-major rows padded by an end node before and two after: node i-1 .. i+2 as slices
+        T = np.empty((K + 3, J))
+        T[1:K + 1] = rows.T
+        T[0], T[K + 1], T[K + 2] = T[1], T[K], T[K]
+        o = out[start:start + rows.size].reshape(K, J, 4)
+        step = max(1, (1 << 15) // J)                        # node blocks that stay in the caches
+        for a in range(0, K, step):
+            b = min(a + step, K)
+            p0, p1, p2, p3 = T[a:b], T[a + 1:b + 1], T[a + 2:b + 2], T[a + 3:b + 3]
+            ob = o[a:b]
+            ob[..., 0] = p1
+            ob[..., 1] = p2 - p1
+            ob[..., 2] = 0.5 * (p2 - p0)
+            ob[..., 3] = 0.5 * (2 * p0 - 5 * p1 + 4 * p2 - p3)
+        start += rows.size
+    return _array(mi.Float, out.ravel())
 
 
 def _corners(e):
@@ -131,7 +148,7 @@ def _guided_rows(material, rows) -> dict:
 
     def make():
         cdfs = tables.radial_cdfs(ds, np.concatenate([rows["P_f"], rows["P_b"]]))
-        g = {k: np.asarray(v) for k, v in guided_cdfs(list(cdfs)).items()}
+        g = {k: np.asarray(v) for k, v in guided_cdfs(cdfs).items()}
         g["guide"] = g["guide"].astype(np.uint32)            # as the plugin holds it (half the bytes)
         return g
     key = {**material.table_params(), "guided_rows": tables.code_key(guided_cdfs, tables.radial_cdfs, make)}
@@ -271,9 +288,13 @@ class SphereBSDFMixin:
         self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(np.max(x[1:] / x[:-1])) * (1 + 1e-6))
         self.K = int(rows["P_f"].shape[1])
         self.has_C = bool(rows["C_f"].size)
+        # the lobes' rows: packed Catmull–Rom intervals where the memory allows, else the plain rows
+        # (one of the two is allocated, the other is None)
+        packing = self._lobe_packing(rows)
+        self.Cf = self.Cf_spline = None
         if self.has_C:
-            self.Cf = _array(mi.Float, rows["C_f"].ravel())
-            self.Cf_spline = _catmull_rom(rows["C_f"]) if self._lobe_packing(rows) else None
+            self.Cf_spline = _catmull_rom(rows["C_f"]) if packing else None
+            self.Cf = None if packing else _array(mi.Float, rows["C_f"].ravel())
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
         self._setup_area_fraction_rows(material, fa_lo, fa_hi)
         # per-row scalars of both rows of an interval j, j+1 packed 16 to the interval (one 64-byte
@@ -286,11 +307,11 @@ class SphereBSDFMixin:
         packed[:, 8:10], packed[:, 10:12] = ends(der["T_b"]), ends(x)
         packed[:, 12:14], packed[:, 14] = ends(1.0 / x), 1.0 / np.diff(x)
         self.row_data = _array(mi.Float, packed.ravel())
-        # both lobes in one array: forward rows, then backward rows
-        self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
+        # both lobes in one array: forward rows, then backward rows; as Catmull–Rom intervals, one
+        # Vector4f each (where the memory allows), else plain
         self.back_offset = int(rows["P_f"].size)
-        # both lobes' Catmull–Rom intervals, one Vector4f each (where the memory allows)
-        self.P_spline = _catmull_rom(rows["P_f"], rows["P_b"]) if self._lobe_packing(rows) else None
+        self.P_spline = _catmull_rom(rows["P_f"], rows["P_b"]) if packing else None
+        self.P = None if packing else _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
         # the radial densities 2π s P(s) of both lobes' rows in one guided table: forward rows 0 .. J-1,
         # backward rows J .. 2J-1 (corona.mitsuba.common.guided_cdfs)
         g = _guided_rows(material, rows)
@@ -337,6 +358,8 @@ class SphereBSDFMixin:
             for fa in fas:
                 m = material if abs(fa - material.area_fraction) < 1e-12 else \
                     self._material({**self.params, "area_fraction": float(fa)})
+                if m is not material and m.table_params() == material.table_params():
+                    m.__dict__.setdefault("rows", material.rows)   # the same Mie rows: not read again
                 S.append(m.structure_table[1])
                 E.append(m._derived["e_f_mu"])
         S, E = np.array(S), np.array(E)
@@ -527,13 +550,15 @@ class SphereBSDFMixin:
     # ------------------------------------------------------------------
     # tables
     # ------------------------------------------------------------------
-    def _rows_at(self, arr, st, s, active, offset=0):
-        """Rows j, j+1 (weight t) of a chord table, each read at its chord scaled by ``x / x_row``
-        (corona.model.mie.layer._scaled_blend): (Catmull–Rom value, linear value, the sampler's
-        density up to its total)."""
+    def _rows_at(self, lobe, st, s, active, offset=0):
+        """Rows j, j+1 (weight t) of the chord table ``lobe`` (``"P"``: both lobes' P, ``"Cf"``: the
+        forward C), each read at its chord scaled by ``x / x_row`` (corona.model.mie.layer._scaled_blend):
+        (Catmull–Rom value, linear value: the sampler's density up to its total).  The packed
+        intervals ``<lobe>_spline`` where they exist, else the plain rows ``<lobe>``."""
         cub, lin = mi.Float(0.0), mi.Float(0.0)
         K = self.K
-        spline = self.P_spline if arr is self.P else (self.Cf_spline if self.has_C and arr is self.Cf else None)
+        spline = getattr(self, lobe + "_spline")
+        arr = getattr(self, lobe)
         for d, wgt, r in ((0, 1.0 - st["t"], st["rj"]), (1, st["t"], st["rj1"])):
             row = st["j"] + d              # read at the chord s x / x_row (r = x / x_row)
             g = s * (r * (1.0 / self.ds))
@@ -608,21 +633,44 @@ class SphereBSDFMixin:
         offset_other = dr.select(forward, mi.UInt32(self.back_offset), mi.UInt32(0))
         near = active & (s_other < self.reach)     # the sliver past 90° that a lobe's sampler reaches
         values, dens = [], []
-        for st in states:
-            P, P_lin = self._rows_at(self.P, st, s_any, active, offset)       # P_f or P_b
+        Q = self._other_lobe(states, s_other, near, offset_other) if with_pdf and self.sampling != "cosine" else None
+        for k, st in enumerate(states):
+            P, P_lin = self._rows_at("P", st, s_any, active, offset)       # P_f or P_b
             Z = P
             if self.has_S:
                 S = self._structure(st["x"] * dxy, st["hw"], a_f)      # u = q r = x |wo + wi|_xy
-                C_f = self._rows_at(self.Cf, st, s_f, a_f)[0] if self.has_C else P
+                C_f = self._rows_at("Cf", st, s_f, a_f)[0] if self.has_C else P
                 # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
                 Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
             values.append(dr.select(active & on, Z, 0.0))
             if not with_pdf or self.sampling == "cosine":
                 continue
-            Q_lin = self._rows_at(self.P, st, s_other, near, offset_other)[1]
+            Q_lin = Q[k]
             dens.append((dr.select(forward, P_lin, Q_lin) / dr.maximum(st["Tf"], 1e-30),
                          dr.select(forward, Q_lin, P_lin) / dr.maximum(st["Tb"], 1e-30)))
         return values, dens
+
+    def _other_lobe(self, states, s_other, near, offset_other):
+        """Per wavelength the other lobe's linear rows at ``s_other`` (the sampler's density of the lobe
+        that ``wo`` is not in), nonzero only in the sliver past 90° its sampler reaches (``near``).  One
+        conditional for all wavelengths: a packet of lanes none of which is ``near`` (nearly all)
+        skips the reads."""
+        keys = ("j", "t", "rj", "rj1")
+        flat = tuple(st[k] for st in states for k in keys)
+        n = len(states)
+
+        def reads(s_o, near_, off, *flat):
+            out = []
+            for i in range(n):
+                st = dict(zip(keys, flat[4 * i:4 * i + 4]))
+                out.append(self._rows_at("P", st, s_o, near_, off)[1])
+            return tuple(out)
+
+        def zeros(s_o, near_, off, *flat):
+            return tuple(dr.zeros(mi.Float, dr.width(s_o)) for _ in range(n))
+        if not dr.is_array_v(mi.Float):        # scalar variants: a Python branch
+            return reads(s_other, near, offset_other, *flat) if near else (mi.Float(0.0),) * n
+        return dr.if_stmt((s_other, near, offset_other) + flat, near, reads, zeros, label="corona other lobe")
 
     @staticmethod
     def _mix(dens, m, p_f, p_b):
