@@ -33,7 +33,7 @@ REFERENCE_IMPORTERS = {
 #: corona.reference beside the runtime, above the tables (it may use the model and the
 #: tables, never the plugin or the applications, and nothing below it imports it).
 TIERS = (
-    ("shared", ("corona._validation", "corona._environment", "corona._moved", "corona.color")),
+    ("shared", ("corona._validation", "corona._environment", "corona._executor", "corona._moved", "corona.color")),
     ("model", ("corona.model",)),
     ("tables", ("corona.tables",)),
     ("spec", ("corona.parameters",)),
