@@ -10,10 +10,10 @@ import warnings
 
 import numpy as np
 
-from corona.tables import lobe as rlobe
-from corona import tables
 from corona._validation import CoronaError, CoronaWarning, check_choice, check_finite_array, check_range
 from corona.model.layer import decoupled_lobe
+from corona.model import render_lobe as rlobe
+from corona.model import tabulated
 from corona.model.processes import Poisson, Process
 from corona.model.shapes import Shape
 from corona.model.substrate import GlassPane, double_pass_visibility, interference_integral
@@ -26,8 +26,8 @@ MODES = ("aperture", "particle")
 #: loses accuracy there, but the model stays computable.
 SMALL_RADIUS_WAVELENGTHS = 2.0
 
-ROW_TOLERANCE = tables.ROW_TOLERANCE
-PROGRESS_DELAY = tables.PROGRESS_DELAY
+ROW_TOLERANCE = tabulated.ROW_TOLERANCE
+PROGRESS_DELAY = tabulated.PROGRESS_DELAY
 _small_radius_warned = False
 
 
@@ -318,12 +318,12 @@ class Material:
 
     @staticmethod
     def _wavelength(wavelength) -> np.ndarray:
-        allowed = f"allowed [{tables.WAVELENGTH_MIN:g}, {tables.WAVELENGTH_MAX:g}] nm"
+        allowed = f"allowed [{tabulated.WAVELENGTH_MIN:g}, {tabulated.WAVELENGTH_MAX:g}] nm"
         try:
             lam = np.asarray(wavelength, dtype=np.float64)
         except (TypeError, ValueError):
             raise CoronaError(f"wavelength={wavelength!r} is not a number; {allowed}") from None
-        ok = (lam >= tables.WAVELENGTH_MIN) & (lam <= tables.WAVELENGTH_MAX)   # False for NaN
+        ok = (lam >= tabulated.WAVELENGTH_MIN) & (lam <= tabulated.WAVELENGTH_MAX)   # False for NaN
         if not np.all(ok):
             bad = float(np.ravel(lam[~ok] if lam.ndim else lam)[0])
             raise CoronaError(f"wavelength={bad!r} is out of range; {allowed}")
@@ -352,31 +352,31 @@ class Material:
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
         return {"shape": self.shape.key(), "process": self.process.key(),
-                "isotropic": self.isotropic, "du": tables.RADIAL_DU,
-                "max_samples": tables.RADIAL_MAX_SAMPLES, "grid": tables.GRID2D_SIZE,
-                "wavelength_min": tables.WAVELENGTH_MIN, "render": self.render_kind,
+                "isotropic": self.isotropic, "du": tabulated.RADIAL_DU,
+                "max_samples": tabulated.RADIAL_MAX_SAMPLES, "grid": tabulated.GRID2D_SIZE,
+                "wavelength_min": tabulated.WAVELENGTH_MIN, "render": self.render_kind,
                 "supersample": rlobe.SUPERSAMPLE}
 
     @functools.cached_property
     def _arrays(self) -> dict:
         """Every table of this material, from the on-disk cache or built."""
-        return tables.cached(self.table_params(), self._build_table, use_cache=self.use_cache)
+        return tabulated.cached(self.table_params(), self._build_table, use_cache=self.use_cache)
 
     @functools.cached_property
-    def table(self) -> tables.RadialTable | tables.GridTable:
+    def table(self) -> tabulated.RadialTable | tabulated.GridTable:
         """The dimensionless lobe table ``v(u)`` (cached on disk) that the
         renderer samples (and, for radial and lattice tables, evaluates)."""
-        return tables.table_from_arrays(self._arrays)
+        return tabulated.table_from_arrays(self._arrays)
 
     @functools.cached_property
     def analytic_terms(self):
-        """The shape as closed-form outlines (:func:`corona.tables.lobe.analytic_terms`), or None."""
+        """The shape as closed-form outlines (:func:`corona.model.render_lobe.analytic_terms`), or None."""
         return rlobe.analytic_terms(self.shape)
 
     @property
     def render_kind(self) -> str:
         """How the renderer evaluates the lobe: "radial", "analytic", "grid" or
-        "table" (see :mod:`corona.tables.lobe`)."""
+        "table" (see :mod:`corona.model.render_lobe`)."""
         if self.isotropic:
             return "radial"
         if not self.process.isotropic:
@@ -385,7 +385,7 @@ class Material:
 
     @functools.cached_property
     def render_lobe(self) -> rlobe.RenderLobe:
-        """The lobe ``v(u)`` as the renderer evaluates it (:mod:`corona.tables.lobe`)."""
+        """The lobe ``v(u)`` as the renderer evaluates it (:mod:`corona.model.render_lobe`)."""
         a = self._arrays
         kind = self.render_kind
         rl = rlobe.RenderLobe(kind, self.length_scale, float(self.shape.area))
@@ -408,31 +408,31 @@ class Material:
         """``(s_du, S(|u|/R) - 1 at |u| = i·s_du)``: the isotropic process's structure factor on the
         step of the radial tables up to ``u_max`` (what :attr:`render_lobe` holds for anisotropic shapes)."""
         R = self.length_scale
-        u_max = tables.u_max_for(R)
-        du_target = min(tables.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
-        ns = min(int(np.ceil(u_max / du_target)) + 1, tables.RADIAL_MAX_SAMPLES)
+        u_max = tabulated.u_max_for(R)
+        du_target = min(tabulated.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
+        ns = min(int(np.ceil(u_max / du_target)) + 1, tabulated.RADIAL_MAX_SAMPLES)
         s_du = u_max / (ns - 1)
         return s_du, self.process.structure_factor_radial(np.arange(ns) * s_du / R, self.shape) - 1.0
 
     def _build_table(self) -> dict:
-        u_max = tables.u_max_for(self.length_scale)
+        u_max = tabulated.u_max_for(self.length_scale)
         R = self.length_scale
         # a process whose S is itself piecewise linear on a q grid (a measured
         # point set) gets a u step of a quarter of that grid's, so the kinks cost
         # little in the linear tables (RADIAL_DU otherwise)
-        du_target = min(tables.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
+        du_target = min(tabulated.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
         if self.isotropic:
             n = int(np.ceil(u_max / du_target)) + 1
-            n = min(n, tables.RADIAL_MAX_SAMPLES)
+            n = min(n, tabulated.RADIAL_MAX_SAMPLES)
             du = u_max / (n - 1)
             u = np.arange(n) * du
             # v and the form factor P/R² in one pass over the shape (P's integral: the tail)
             vp = self._in_chunks(lambda x: (lambda t: np.stack([t["v"], t["P"] / R**2], -1))(
                 self.lobe_terms(x, radial=True)), u)
-            out = tables.RadialTable(du, vp[:, 0]).arrays()
-            out["form_total"] = np.array(tables.RadialTable(du, vp[:, 1]).total)
+            out = tabulated.RadialTable(du, vp[:, 0]).arrays()
+            out["form_total"] = np.array(tabulated.RadialTable(du, vp[:, 1]).total)
             return out
-        n = tables.GRID2D_SIZE
+        n = tabulated.GRID2D_SIZE
         u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
         cell = 2 * u_range / n
         c = -u_range + (np.arange(n) + 0.5) * cell
@@ -462,7 +462,7 @@ class Material:
                 v = decoupled_lobe(P, C, S_bg, R, bragg)
             else:
                 v = decoupled_lobe(P, C, self.process.structure_factor_at(q, self.shape), R)
-            out = tables.GridTable(u_range, v).arrays()
+            out = tabulated.GridTable(u_range, v).arrays()
             out["form_total"] = np.array(form_total)
             return out
         # isotropic process: S - 1 on the radial tables' step, the sampling grid of v
@@ -475,7 +475,7 @@ class Material:
             # uniform in t = u / (1 + |u|/c) instead (cells of 0.25 near u = 0,
             # the outer vertices at u_max), each vertex the local mean of the
             # density in t over its cell (positive wherever the lobe is)
-            g = tables.GridTable(u_range, np.zeros((2, 2)), tables.warp_for(c[-1], u_max))   # last vertex at u_max
+            g = tabulated.GridTable(u_range, np.zeros((2, 2)), tabulated.warp_for(c[-1], u_max))   # last vertex at u_max
             k = rlobe.SUPERSAMPLE
             sub = ((np.arange(k) + 0.5) / k - 0.5) * cell
             acc = np.zeros((n, n))
@@ -485,10 +485,10 @@ class Material:
                     uu = g.to_u(np.stack([tx, ty], -1))
                     acc[:half] += rl.eval(uu) * g.jacobian(uu)
             acc[half:] = acc[:n - half][::-1, ::-1]
-            out = tables.GridTable(u_range, acc / k**2, g.warp).arrays()
+            out = tabulated.GridTable(u_range, acc / k**2, g.warp).arrays()
         else:
             v = decoupled_lobe(P, C, 1.0 + rl.s1(np.hypot(ux, uy)), R)
-            out = tables.GridTable(u_range, v).arrays()
+            out = tabulated.GridTable(u_range, v).arrays()
         out["form_total"] = np.array(form_total)
         if not poisson:
             out["s_du"], out["s_minus_one"] = np.array(s_du), s1
@@ -504,8 +504,8 @@ class Material:
     # ------------------------------------------------------------------
     def _table_grid(self):
         """The u samples of the radial :attr:`table` and its step."""
-        u_max = tables.u_max_for(self.length_scale)
-        n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
+        u_max = tabulated.u_max_for(self.length_scale)
+        n = min(int(np.ceil(u_max / tabulated.RADIAL_DU)) + 1, tabulated.RADIAL_MAX_SAMPLES)
         du = u_max / (n - 1)
         return np.arange(n) * du, du
 
@@ -544,20 +544,20 @@ class Material:
             The largest relative midpoint error of the final rows.
         """
         if not (self.process.varying_area_fraction and self.isotropic):
-            # anisotropic lobes (corona.tables.lobe) and processes whose geometry F_a sets: one row
+            # anisotropic lobes (corona.model.render_lobe) and processes whose geometry F_a sets: one row
             return np.array([self.area_fraction]), [self.table], 0.0
         limit = float(self.process.area_fraction_limit(self.shape))
         hi = limit if hi is None else min(float(hi), limit)
         lo = max(0.0, min(float(lo), hi))
         include = sorted(float(f) for f in include if lo <= f <= hi)
-        arrays = tables.cached({**self.table_params(), "rows": [lo, hi], "tolerance": tolerance,
+        arrays = tabulated.cached({**self.table_params(), "rows": [lo, hi], "tolerance": tolerance,
                                 "max_rows": max_rows, "include": include},
                                lambda: self._build_rows(lo, hi, tolerance, max_rows, include),
                                use_cache=self.use_cache)
         fas = np.asarray(arrays["area_fraction"], dtype=np.float64)
         vals = np.asarray(arrays["values"], dtype=np.float64)
         geo = float(arrays["geometry"])
-        return fas, [tables.RadialTable(geo, v) for v in vals], float(arrays["error"])
+        return fas, [tabulated.RadialTable(geo, v) for v in vals], float(arrays["error"])
 
     def _build_rows(self, lo, hi, tolerance, max_rows, include=()):
         u, geo = self._table_grid()
@@ -573,7 +573,7 @@ class Material:
             sel = e > 1e-3 * e.max()
             return np.max(np.abs(lerp[sel] - e[sel]) / e[sel]) if np.any(sel) else 0.0
 
-        keys, worst = tables.bisect_rows(vals, lambda mids: self._row_values(u, mids), error,
+        keys, worst = tabulated.bisect_rows(vals, lambda mids: self._row_values(u, mids), error,
                                          tolerance, max_rows)
         return {"area_fraction": np.array(keys), "values": np.stack([vals[k] for k in keys]).astype(np.float32),
                 "geometry": np.array(geo), "error": np.array(worst)}
@@ -915,12 +915,12 @@ def _warn_if_small(shape) -> None:
     global _small_radius_warned
     if _small_radius_warned:
         return
-    limit = SMALL_RADIUS_WAVELENGTHS * tables.WAVELENGTH_MAX * 1e-3          # µm
+    limit = SMALL_RADIUS_WAVELENGTHS * tabulated.WAVELENGTH_MAX * 1e-3          # µm
     r_eq = math.sqrt(float(shape.area) / math.pi)
     if r_eq < limit:
         warnings.warn(f"{shape!r}: equivalent radius sqrt(|A|/pi) = {r_eq:.3g} µm is below "
                       f"{SMALL_RADIUS_WAVELENGTHS:g} wavelengths ({limit:g} µm at "
-                      f"{tables.WAVELENGTH_MAX:g} nm); Fraunhofer diffraction loses accuracy there "
+                      f"{tabulated.WAVELENGTH_MAX:g} nm); Fraunhofer diffraction loses accuracy there "
                       "(warned once per process)", CoronaWarning, stacklevel=3)
         _small_radius_warned = True
 

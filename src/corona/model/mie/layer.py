@@ -71,7 +71,7 @@ import math
 
 import numpy as np
 
-from corona import tables
+from corona.model import tabulated as tables   # the table types and the cache
 from corona.model.mie import theory as mie
 from corona._validation import CoronaError, check_choice, check_finite_array, check_range
 from corona.model.layer import decoupled_lobe
