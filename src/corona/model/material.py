@@ -4,6 +4,7 @@ This is the readable, exact model that the Mitsuba plugin is tested against.
 """
 from __future__ import annotations
 
+import copy
 import functools
 import math
 import warnings
@@ -16,6 +17,7 @@ from corona.model import render_lobe as rlobe
 from corona.model import tabulated
 from corona.model.processes import Poisson, Process
 from corona.model.shapes import Shape
+from corona.model.mie.sphere import sphere_parts     # after the shapes (they import the sphere)
 from corona.model.substrate import GlassPane, double_pass_visibility, interference_integral
 
 MODES = ("aperture", "particle")
@@ -128,11 +130,12 @@ class Material:
     def __new__(cls, shape=None, *args, **kwargs):
         # a transparent sphere is a Mie scatterer, not a planar profile: its own material
         # (docs/physics.md#transparent-droplets-mie-spheres); everything else is this class
-        if cls is Material and isinstance(shape, Shape):
-            from corona.model.mie.sphere import sphere_parts
-            if sphere_parts(shape) is not None:
-                from corona.model.mie.layer import SphereMaterial
-                return SphereMaterial(shape, *args, **kwargs)
+        if cls is Material and isinstance(shape, Shape) and sphere_parts(shape) is not None:
+            # the Mie layer's class registers itself here (MieMembers), so this module never
+            # imports the one that subclasses it; the package root imports it
+            if MieMembers.layer is None:
+                raise CoronaError("corona.model.mie.layer is not imported; import corona first")
+            return super().__new__(MieMembers.layer)     # a Material: Python runs its __init__ next
         return super().__new__(cls)
 
     def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
@@ -293,12 +296,16 @@ class Material:
         v = decoupled_lobe(P, C, S_smooth, R, bragg)
         return {"P": P, "C": C, "S": S, "v": v}
 
-    def lobe_dimensionless(self, u) -> np.ndarray:
-        """Exact ``v(u) = [P + C (S - 1)] / R²`` at ``u`` (..., 2) (:meth:`lobe_terms`)."""
+    def lobe_dimensionless(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """Exact ``v(u) = [P + C (S - 1)] / R²`` at ``u`` (..., 2) (:meth:`lobe_terms`).
+
+        ``wavelength`` [nm] is part of the one protocol: a planar profile's ``v(u)`` is the same
+        at every wavelength (a Mie sphere's is not), so here it changes nothing."""
         return self.lobe_terms(u)["v"]
 
-    def lobe_dimensionless_radial(self, u) -> np.ndarray:
-        """Exact radial ``v(|u|)`` for isotropic materials (:meth:`lobe_terms`)."""
+    def lobe_dimensionless_radial(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """Exact radial ``v(|u|)`` for isotropic materials (:meth:`lobe_terms`; ``wavelength`` as
+        in :meth:`lobe_dimensionless`)."""
         return self.lobe_terms(u, radial=True)["v"]
 
     def _form_factors(self, q, radial: bool):
@@ -721,8 +728,11 @@ class Material:
         c = np.asarray(cos_theta_i, dtype=np.float64)
         return np.ones(c.shape, bool) if self.substrate is None else self.substrate.layer_first(c)
 
-    def coherent_transmission(self, cos_theta_i) -> np.ndarray:
+    def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
         """Weight of the delta transmission along ``-wi``: ``C T'(θi)``.
+
+        ``wavelength`` [nm] is part of the one protocol: a flat layer's coherent beam does not
+        depend on it (a Mie layer's extinction does).
 
         ``C`` is :attr:`coherent_transmittance`, ``T'`` the pane's
         transmittance (1 without a substrate); ``cos_theta_i`` is signed
@@ -750,7 +760,7 @@ class Material:
         through = self.substrate.specular_through_layer(cos_theta_i, wavelength, self.coherent_transmittance)
         return np.where(self._layer_first(cos_theta_i), through, r)
 
-    def eval(self, wi, wo, wavelength) -> np.ndarray:
+    def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
         """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``.
 
         Parameters
@@ -760,6 +770,10 @@ class Material:
             where the light comes from (Mitsuba's convention).
         wavelength : float or array
             Wavelength [nm].
+        exact : bool
+            Part of the one protocol: a layer that reads its lobe from tables (Mie spheres)
+            evaluates the theory instead.  A flat layer's ``eval`` is the exact model either
+            way (:meth:`lobe_tabulated` is the renderer's).
 
         Notes
         -----
@@ -850,7 +864,8 @@ class Material:
             accumulate(ux * d_per_u, uy * d_per_u, t.values * np.outer(edge, edge) * t.cell**2)
         return list(out * scale)
 
-    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0) -> dict:
+    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0,
+                           n_phi: int | None = None, pane: bool = True) -> dict:
         """Energy of each component for light arriving from ``wi`` (the white furnace).
 
         Parameters
@@ -861,14 +876,28 @@ class Material:
             Wavelength [nm].
         phi_i : float
             Azimuth of ``wi`` [rad] (matters for anisotropic lobes).
+        n_phi : int, optional
+            Azimuths of the quadrature of a radial table (default 512; 2-D tables are
+            integrated on their vertices and ignore it).
+        pane : bool
+            False: the layer alone, without its substrate.
 
         Returns
         -------
         dict with ``coherent``, ``specular``, ``lobe_transmission``,
         ``lobe_reflection``, ``diffuse`` and their ``total`` (<= 1): the
         integrals over ``wo`` of the components of :meth:`eval` plus the delta
-        weights, the lobes integrated numerically from the table.
+        weights, the lobes integrated numerically from the table; and the
+        layer's own lobes without the pane's factors, ``forward`` (through the
+        layer) and ``backward`` (back to the incident side: 0 for a planar
+        screen, whose Fraunhofer lobe is transmitted only), not in ``total``.
+        The keys are the same for every material.
         """
+        if not pane and self.substrate is not None:
+            alone = copy.copy(self)
+            alone.substrate = None
+            return alone.directional_albedo(cos_theta_i, wavelength, phi_i, n_phi)
+        n_phi = 512 if n_phi is None else int(check_range("n_phi", n_phi, 1, 1e6))
         ci = check_range("cos_theta_i", cos_theta_i, -1.0, 1.0)
         if ci == 0.0:
             raise CoronaError("cos_theta_i=0 is out of range; allowed [-1, 0) or (0, 1] (grazing light "
@@ -889,7 +918,8 @@ class Material:
             front = np.minimum(pane.face_reflectance(ci), pane.face_reflectance(co))
             return front + c * (pane.inner_reflectance(ci, wavelength) + pane.inner_reflectance(co, wavelength))
 
-        plain, transmitted, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_t, pane_r])
+        plain, transmitted, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_t, pane_r],
+                                                             n_phi)
         out = {"coherent": c * ti, "specular": float(self.specular_reflection(ci, wavelength))}
         if first:
             out["lobe_transmission"] = transmitted                  # ∫ f T'(θo)
@@ -907,7 +937,82 @@ class Material:
             out["diffuse"] = ti * self.reflectance * float(2.0 * np.sum(w * mu * self._pane(mu)[1]))
         out = {k: float(v) for k, v in out.items()}
         out["total"] = sum(out.values())
+        out["forward"], out["backward"] = float(plain), 0.0
         return out
+
+
+class MieMembers:
+    """What :class:`Material`'s members are for a layer of Mie spheres.
+
+    :class:`corona.model.mie.layer.SphereMaterial` is a :class:`Material` with the same
+    methods, signatures and result keys (:meth:`Material.eval`, :meth:`Material.lobe`,
+    :meth:`Material.directional_albedo`, ...).  The members below are built on the flat
+    layer's one table of ``v(u)``; a Mie layer's lobes are rows over the size parameter
+    (forward and backward, :attr:`SphereMaterial.rows`), so each raises one
+    :class:`corona.CoronaError` naming the member, why, and what to use instead.  This
+    class comes first in ``SphereMaterial``'s bases, so its members replace the flat ones.
+    """
+
+    #: How the renderer evaluates the lobe: the Mie rows (:mod:`corona.mitsuba.sphere`).
+    render_kind = "mie"
+    #: The Mie layer's class, set when it is defined: ``Material(corona.Sphere(r), ...)`` returns one.
+    layer = None
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if MieMembers.layer is None:
+            MieMembers.layer = cls
+
+    @property
+    def opaque_fraction(self) -> float:
+        """0: the spheres are transparent (what they absorb is their ``ior``'s imaginary part)."""
+        return 0.0
+
+    def _refuse(self, member: str, why: str):
+        raise CoronaError(f"{type(self).__name__}.{member} is not available for shape='sphere': {why}")
+
+    @property
+    def table(self):
+        self._refuse("table", "a Mie layer has no single table of v(u); its lobes are rows over the "
+                     "size parameter (rows)")
+
+    @property
+    def render_lobe(self):
+        self._refuse("render_lobe", "the renderer reads the Mie rows (rows), not a lobe of v(u)")
+
+    @property
+    def analytic_terms(self):
+        self._refuse("analytic_terms", "a sphere's amplitudes are Mie theory's, not a closed-form outline")
+
+    @property
+    def double_pass_visibility(self):
+        self._refuse("double_pass_visibility", "spheres sit on incoherent panes only (no double pass)")
+
+    @property
+    def tabulated_transmittance(self):
+        self._refuse("tabulated_transmittance", "use diffuse_transmittance(wavelength, cos_theta_i): "
+                     "the Mie lobes' energy depends on the wavelength and the incidence")
+
+    def lobe_terms(self, u, radial: bool = False, cell: float | None = None,
+                   structure_factor: bool = True) -> dict:
+        self._refuse("lobe_terms", "the Mie lobe is not P + C (S - 1) of u alone (it depends on the "
+                     "scattering angle and the wavelength); use lobe_dimensionless(u, wavelength)")
+
+    def radial_s_minus_one(self):
+        self._refuse("radial_s_minus_one", "a Mie layer's S is tabulated in u = q R by structure_table; "
+                     "use structure_factor(u)")
+
+    def area_fraction_rows(self, lo: float = 0.0, hi: float | None = None,
+                           tolerance: float = ROW_TOLERANCE, max_rows: int = 160, include=()):
+        self._refuse("area_fraction_rows", "the plugin builds a Mie layer's rows over F_a itself "
+                     "(corona.mitsuba.sphere)")
+
+    def sample(self, xi, wavelength) -> np.ndarray:
+        self._refuse("sample", "a Mie layer's lobes are sampled about wi (forward) and its mirror "
+                     "(backward); use sample_lobe(which, wi, xi, wavelength)")
+
+    def pdf(self, d, wavelength) -> np.ndarray:
+        self._refuse("pdf", "use pdf_lobe(which, wi, wo, wavelength), the density of sample_lobe")
 
 
 def _warn_if_small(shape) -> None:
