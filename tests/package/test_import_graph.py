@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import ast
 import pathlib
+import subprocess
+import sys
 
 import pytest
 
@@ -265,3 +267,21 @@ def test_the_checker_sees_function_level_cycles(tmp_path, source, cycle):
         (pkg / (name.split(".")[1] + ".py")).write_text(text + "\n")
     found = _cycles(_graph(tmp_path))
     assert found == ([cycle] if cycle else [])
+
+
+def test_importing_the_model_imports_no_higher_tier():
+    """``import corona.model.material`` (which runs the package root) loads the model and the shared
+    infrastructure only; the applications' names of the root come on first use (PEP 562)."""
+    code = ("import sys, corona.model.material\n"
+            "print(' '.join(sorted(m for m in sys.modules if m.startswith(('corona.tables', 'corona.parameters',"
+            " 'corona.mitsuba', 'corona.apps', 'corona.reference')))))\n"
+            "import corona, corona.apps.fit, corona.apps.micrograph\n"
+            "assert corona.fit_photograph is corona.apps.fit.fit_photograph\n"
+            "assert corona.from_micrograph is corona.apps.micrograph.from_micrograph\n"
+            "assert 'fit_photograph' in dir(corona)\n"
+            "try:\n    corona.no_such_name\nexcept AttributeError as e:\n    print('AttributeError', e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    first, second = out.stdout.splitlines()
+    assert first == "", f"importing the model imported {first}"
+    assert second.startswith("AttributeError") and "no_such_name" in second

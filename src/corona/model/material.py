@@ -998,7 +998,7 @@ class MieMembers:
         self._refuse("lobe_terms", "the Mie lobe is not P + C (S - 1) of u alone (it depends on the "
                      "scattering angle and the wavelength); use lobe_dimensionless(u, wavelength)")
 
-    def radial_s_minus_one(self):
+    def radial_s_minus_one(self) -> tuple[float, np.ndarray]:
         self._refuse("radial_s_minus_one", "a Mie layer's S is tabulated in u = q R by structure_table; "
                      "use structure_factor(u)")
 
