@@ -29,11 +29,11 @@ REFERENCE_IMPORTERS = {
 }
 
 
-#: The tiers, low to high (docs/tables.md#the-tiers): an import may only point to the same tier or
-#: a lower one.  The shared infrastructure sits below the model; corona.parameters (the one
-#: parameter spec, which builds materials and reads the tables' settings) above the tables;
-#: corona.reference beside the runtime, above the tables (it may use the model and the
-#: tables, never the plugin or the applications, and nothing below it imports it).
+#: The tiers, low to high (README, "What is in the package"): an import may only point to the
+#: same tier or a lower one.  The shared infrastructure sits below the model; corona.parameters
+#: (the one parameter spec, which builds materials and reads the tables' settings) above the
+#: tables; corona.reference beside the runtime, above the spec (it may use the model, the tables
+#: and the spec, never the plugin or the applications, and nothing else imports it).
 TIERS = (
     ("shared", ("corona._validation", "corona._environment", "corona._executor", "corona._moved", "corona.color")),
     ("model", ("corona.model",)),
