@@ -119,8 +119,7 @@ def test_what_means_nothing_for_spheres_is_refused_in_one_line(layers, member, a
 
 def test_every_refusal_is_listed():
     """Each member MieMembers replaces is tested above, and the flat layer keeps them all."""
-    own = {name for name in vars(MieMembers) if not name.startswith("_")} - {"render_kind", "opaque_fraction",
-                                                                            "layer"}
+    own = {name for name in vars(MieMembers) if not name.startswith("_")} - {"render_kind", "opaque_fraction"}
     assert own == {name for name, _ in REFUSED}
     flat = corona.Material(corona.Circle(2.0), corona.Poisson(0.2))
     assert flat.render_kind == "radial" and flat.table.total > 0 and flat.opaque_fraction == pytest.approx(0.8)
@@ -129,7 +128,7 @@ def test_every_refusal_is_listed():
 def test_a_sphere_layer_says_what_it_is(layers):
     m = layers["sphere"]
     assert m.render_kind == "mie" and m.opaque_fraction == 0.0
-    assert MieMembers.layer is SphereMaterial
+    assert MieMembers._layer_class is SphereMaterial
 
 
 def test_material_of_a_sphere_runs_the_constructor_once(monkeypatch):

@@ -133,9 +133,9 @@ class Material:
         if cls is Material and isinstance(shape, Shape) and sphere_parts(shape) is not None:
             # the Mie layer's class registers itself here (MieMembers), so this module never
             # imports the one that subclasses it; the package root imports it
-            if MieMembers.layer is None:
+            if MieMembers._layer_class is None:
                 raise CoronaError("corona.model.mie.layer is not imported; import corona first")
-            return super().__new__(MieMembers.layer)     # a Material: Python runs its __init__ next
+            return super().__new__(MieMembers._layer_class)     # a Material: Python runs its __init__ next
         return super().__new__(cls)
 
     def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
@@ -956,12 +956,12 @@ class MieMembers:
     #: How the renderer evaluates the lobe: the Mie rows (:mod:`corona.mitsuba.sphere`).
     render_kind = "mie"
     #: The Mie layer's class, set when it is defined: ``Material(corona.Sphere(r), ...)`` returns one.
-    layer = None
+    _layer_class = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
-        if MieMembers.layer is None:
-            MieMembers.layer = cls
+        if MieMembers._layer_class is None:
+            MieMembers._layer_class = cls
 
     @property
     def opaque_fraction(self) -> float:
