@@ -49,6 +49,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from corona.model.layer import decoupled_lobe
+
 #: Polygons with more edges go to the form-factor grid (the edge sum costs one
 #: sincos per edge and wavelength in the kernel).
 EDGE_MAX = 16
@@ -246,4 +248,4 @@ class RenderLobe:
         else:
             P = self.P.eval(u)
             C = P if self.C is None else self.C.eval(u)
-        return np.maximum(P + C * self.s1(ua), 0.0)
+        return decoupled_lobe(P, C, 1.0 + self.s1(ua))    # P, C already over R²
