@@ -22,7 +22,7 @@ _moved.install()   # the previous release's module names (corona.mitsuba_bsdf, c
 from corona._environment import default_variant, set_default_variant
 from corona._validation import CoronaError, CoronaWarning
 from corona.model.material import Material
-import corona.model.mie.layer  # noqa: F401  (the Mie layer: Material(corona.Sphere(r)) returns it)
+from corona.model.mie import layer as _mie_layer  # noqa: F401  (Material(corona.Sphere(r)) returns its class)
 from corona.model.processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
                      RegularPolygon, Shape, SizeDistribution, SoftEdge, Sphere, Square)
