@@ -6,9 +6,13 @@ scatterer and ``T_s`` the structure factor of their positions.
 
 Data flows one way: :mod:`corona.model.shapes` + :mod:`corona.model.processes` →
 :class:`corona.Material` → :mod:`corona.tables` → the Mitsuba plugin
-(:mod:`corona.mitsuba.bsdf`) → the CLI (:mod:`corona.apps.cli`).  The reference
+(:mod:`corona.mitsuba.bsdf`) → the applications (:mod:`corona.apps`).  The reference
 tier (:mod:`corona.reference`: simulations, brute force, validation) needs
 the ``reference`` extra and is never imported from here.
+
+Importing ``corona`` (or any ``corona.model`` module) imports the model only: the
+applications' names here (:func:`fit_photograph`, :func:`from_micrograph`) are
+loaded on first use (PEP 562), and the plugin by :func:`register`.
 """
 # _environment must come first: when DRJIT_LIBLLVM_PATH is unset it points it at
 # a libLLVM >= 16 before Dr.Jit loads (a user's own setting is left alone)
@@ -17,15 +21,32 @@ from corona import _moved
 _moved.install()   # the previous release's module names (corona.mitsuba_bsdf, corona.cli, ...)
 from corona._environment import default_variant, set_default_variant
 from corona._validation import CoronaError, CoronaWarning
-from corona.apps.fit import fit_photograph
 from corona.model.material import Material
-from corona.apps.micrograph import from_micrograph
+from corona.model.mie import layer as _mie_layer  # noqa: F401  (Material(corona.Sphere(r)) returns its class)
 from corona.model.processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
                      RegularPolygon, Shape, SizeDistribution, SoftEdge, Sphere, Square)
 from corona.model.substrate import GlassPane, Mirror
 
 __version__ = "0.1.0"
+
+#: Names of the applications tier, imported on first use (PEP 562): ``import corona`` stays the model.
+_LAZY = ("fit_photograph", "from_micrograph")
+
+
+def __getattr__(name: str):
+    if name == "fit_photograph":
+        from corona.apps.fit import fit_photograph as value
+    elif name == "from_micrograph":
+        from corona.apps.micrograph import from_micrograph as value
+    else:
+        raise AttributeError(f"module 'corona' has no attribute {name!r}")
+    globals()[name] = value           # later look-ups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
 
 __all__ = ["CoronaError", "CoronaWarning",
            "Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon", "Mask",

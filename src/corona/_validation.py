@@ -3,6 +3,7 @@ the value and the allowed range."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -79,3 +80,29 @@ def _short(value, limit: int = 80) -> str:
     """``repr(value)`` on one line, shortened (arrays can be long)."""
     r = " ".join(repr(value).split())
     return r if len(r) <= limit else r[:limit - 3] + "..."
+
+
+def one_line_error(err) -> str:
+    """A one-line message for ``err``, however deep Mitsuba wrapped it.
+
+    Mitsuba reports a plugin's exception as ``[parser.cpp:N] At FILE (line L,
+    col C): failed to instantiate ... Traceback ...  CoronaError: <message>``;
+    this keeps ``FILE (line L, col C): <message>``.  Lists (``Found unused
+    parameters:`` followed by ``- $x=1`` lines) are joined on one line.
+    """
+    while "(see above)" in str(err) and (err.__cause__ or err.__context__) is not None:
+        err = err.__cause__ or err.__context__          # Dr.Jit wraps the real error
+    text = str(err).strip()
+    if not text:
+        return repr(err)
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    first = re.sub(r"^\[[\w.]+:\d+\]\s*", "", lines[0])
+    if len(lines) == 1:
+        return first
+    if any(ln.startswith("Traceback") or "Traceback (most recent call last)" in ln for ln in lines):
+        last = re.sub(r"^[\w.]*(Error|Exception|Warning)\s*:\s*", "", lines[-1])
+        where = re.match(r"^(?:At|Error while loading)\s+(.*?\(line \d+(?:, col \d+)?\))", first)
+        return f"{where.group(1)}: {last}" if where else last
+    if first.endswith(":"):
+        return first + " " + ", ".join(ln.lstrip("- ").strip() for ln in lines[1:])
+    return first

@@ -241,3 +241,13 @@ def test_cli_validate(tmp_path):
     assert os.path.getsize(out / "circle-hd-0.30.png") > 10_000
     bad = runner.invoke(main, ["validate", "--out", str(out), "--cases", "nothing-like-this"])
     assert bad.exit_code == 2 and "corona: error: cases=" in bad.output
+
+
+def test_brute_force_refuses_a_mie_layer_in_one_line():
+    """A Mie layer is a Material too, but the brute force sums planar screens' far fields."""
+    from corona.reference.wave import brute_force
+    sphere = Material(shapes.Sphere(2.0), Poisson(0.1))
+    assert isinstance(sphere, Material)
+    with pytest.raises(CoronaError, match=r"out of range for the brute force.*planar screens") as err:
+        brute_force(sphere, realisations=1, n_scatterers=16)
+    assert "\n" not in str(err.value)

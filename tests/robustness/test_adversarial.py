@@ -17,6 +17,7 @@ from scipy import special
 
 import corona
 from corona import parameters, tables
+from corona.model import tabulated
 from corona.apps.cli import main as cli_main
 from corona.parameters import RADIUS_MAX, SPEC, material_from_parameters
 
@@ -375,7 +376,7 @@ def _unwritable_folder(tmp_path):
 def test_read_only_cache_builds_in_memory_and_warns_once(tmp_path, monkeypatch):
     folder = _unwritable_folder(tmp_path)
     monkeypatch.setenv("CORONA_CACHE_DIR", folder)
-    monkeypatch.setattr(tables, "_warned_folders", set())
+    monkeypatch.setattr(tabulated, "_warned_folders", set())   # the cache's home
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
         out = tables.cached({"read-only": 1}, lambda: {"values": np.arange(3.0)})
@@ -387,7 +388,7 @@ def test_read_only_cache_builds_in_memory_and_warns_once(tmp_path, monkeypatch):
 
 def test_lock_path_that_is_a_folder(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(tables, "_warned_folders", set())
+    monkeypatch.setattr(tabulated, "_warned_folders", set())   # the cache's home
     params = {"lock-is-a-folder": 1}
     (tmp_path / f"{tables.cache_key(params)}.npz.lock").mkdir()
     with pytest.warns(RuntimeWarning, match="building tables in memory"):

@@ -312,9 +312,10 @@ def lobe(out_path, as_json, wavelength, **params):
     try:
         from corona.parameters import material_from_parameters
         m = material_from_parameters(**params)
-        if getattr(m, "table", None) is None:       # a Mie layer (shape=sphere): no lobe tables here
+        from corona.model.mie.layer import SphereMaterial
+        if isinstance(m, SphereMaterial):            # a Mie layer (shape=sphere): no lobe tables here
             _fail("corona lobe does not draw or tabulate shape='sphere' (Mie droplets) yet; "
-                  "render it with corona render, or use corona.SphereMaterial in Python")
+                  "render it with corona render, or use corona.Material(corona.Sphere(r), ...) in Python")
         if as_json:
             from corona._validation import check_range
             from corona.tables import WAVELENGTH_MAX, WAVELENGTH_MIN

@@ -150,7 +150,8 @@ def layer(material=None, **params):
         material = material_from_parameters(**params)
     elif params:
         raise CoronaError(f"give either a material or parameters, not both (got {', '.join(sorted(params))})")
-    if getattr(material, "table", None) is None or not hasattr(material, "lobe_dimensionless"):
+    from corona.model.mie.layer import SphereMaterial
+    if isinstance(material, SphereMaterial):
         raise CoronaError("shape='sphere' is out of range for corona post: the Mie lobe depends on the "
                           "scattering angle, not on d alone (render it); allowed circle, ellipse, square, "
                           "rectangle, polygon, mask, mixture")

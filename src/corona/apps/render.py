@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from corona._validation import CoronaError
+from corona._validation import CoronaError, one_line_error
 
 
 def setup_variant(variant: str | None = None) -> str:
@@ -33,32 +33,6 @@ def setup_variant(variant: str | None = None) -> str:
     from corona import register            # the corona BSDF and the corona_mie phase function
     register()
     return variant
-
-
-def one_line_error(err) -> str:
-    """A one-line message for ``err``, however deep Mitsuba wrapped it.
-
-    Mitsuba reports a plugin's exception as ``[parser.cpp:N] At FILE (line L,
-    col C): failed to instantiate ... Traceback ...  CoronaError: <message>``;
-    this keeps ``FILE (line L, col C): <message>``.  Lists (``Found unused
-    parameters:`` followed by ``- $x=1`` lines) are joined on one line.
-    """
-    while "(see above)" in str(err) and (err.__cause__ or err.__context__) is not None:
-        err = err.__cause__ or err.__context__          # Dr.Jit wraps the real error
-    text = str(err).strip()
-    if not text:
-        return repr(err)
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
-    first = re.sub(r"^\[[\w.]+:\d+\]\s*", "", lines[0])
-    if len(lines) == 1:
-        return first
-    if any(ln.startswith("Traceback") or "Traceback (most recent call last)" in ln for ln in lines):
-        last = re.sub(r"^[\w.]*(Error|Exception|Warning)\s*:\s*", "", lines[-1])
-        where = re.match(r"^(?:At|Error while loading)\s+(.*?\(line \d+(?:, col \d+)?\))", first)
-        return f"{where.group(1)}: {last}" if where else last
-    if first.endswith(":"):
-        return first + " " + ", ".join(ln.lstrip("- ").strip() for ln in lines[1:])
-    return first
 
 
 def is_interrupt(err) -> bool:

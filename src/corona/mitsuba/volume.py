@@ -68,6 +68,7 @@ from scipy import optimize, special, stats
 
 from corona import tables
 from corona.model.mie import theory as mie
+from corona.model.layer import decoupled_lobe
 from corona._validation import CoronaError, check_choice, check_positive, check_range
 
 __all__ = ["DISTRIBUTIONS", "size_nodes", "droplet_index", "MieVolume", "homogeneous_medium",
@@ -541,7 +542,7 @@ class MieVolume:
         if self.volume_fraction > 0:
             S = _structure(self.volume_fraction, 2 * self.mean_radius)
             q = 2 * k[:, None] * np.sin(theta[None, :] / 2)
-            Z = np.maximum(P + C * (S(q) - 1), 0.0)
+            Z = decoupled_lobe(P, C, S(q))              # the one decoupling rule
         else:
             Z = P
         # the rows normalised under linear interpolation in v = sin²(Θ/2) (dΩ = 4π dv)

@@ -4,18 +4,20 @@ This is the readable, exact model that the Mitsuba plugin is tested against.
 """
 from __future__ import annotations
 
+import copy
 import functools
 import math
 import warnings
 
 import numpy as np
 
-from corona.tables import lobe as rlobe
-from corona import tables
 from corona._validation import CoronaError, CoronaWarning, check_choice, check_finite_array, check_range
 from corona.model.layer import decoupled_lobe
+from corona.model import render_lobe as rlobe
+from corona.model import tabulated
 from corona.model.processes import Poisson, Process
 from corona.model.shapes import Shape
+from corona.model.mie.sphere import sphere_parts     # after the shapes (they import the sphere)
 from corona.model.substrate import GlassPane, double_pass_visibility, interference_integral
 
 MODES = ("aperture", "particle")
@@ -26,8 +28,8 @@ MODES = ("aperture", "particle")
 #: loses accuracy there, but the model stays computable.
 SMALL_RADIUS_WAVELENGTHS = 2.0
 
-ROW_TOLERANCE = tables.ROW_TOLERANCE
-PROGRESS_DELAY = tables.PROGRESS_DELAY
+ROW_TOLERANCE = tabulated.ROW_TOLERANCE
+PROGRESS_DELAY = tabulated.PROGRESS_DELAY
 _small_radius_warned = False
 
 
@@ -128,11 +130,12 @@ class Material:
     def __new__(cls, shape=None, *args, **kwargs):
         # a transparent sphere is a Mie scatterer, not a planar profile: its own material
         # (docs/physics.md#transparent-droplets-mie-spheres); everything else is this class
-        if cls is Material and isinstance(shape, Shape):
-            from corona.model.mie.sphere import sphere_parts
-            if sphere_parts(shape) is not None:
-                from corona.model.mie.layer import SphereMaterial
-                return SphereMaterial(shape, *args, **kwargs)
+        if cls is Material and isinstance(shape, Shape) and sphere_parts(shape) is not None:
+            # the Mie layer's class registers itself here (MieMembers), so this module never
+            # imports the one that subclasses it; the package root imports it
+            if MieMembers._layer_class is None:
+                raise CoronaError("corona.model.mie.layer is not imported; import corona first")
+            return super().__new__(MieMembers._layer_class)     # a Material: Python runs its __init__ next
         return super().__new__(cls)
 
     def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
@@ -293,12 +296,16 @@ class Material:
         v = decoupled_lobe(P, C, S_smooth, R, bragg)
         return {"P": P, "C": C, "S": S, "v": v}
 
-    def lobe_dimensionless(self, u) -> np.ndarray:
-        """Exact ``v(u) = [P + C (S - 1)] / R²`` at ``u`` (..., 2) (:meth:`lobe_terms`)."""
+    def lobe_dimensionless(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """Exact ``v(u) = [P + C (S - 1)] / R²`` at ``u`` (..., 2) (:meth:`lobe_terms`).
+
+        ``wavelength`` [nm] is part of the one protocol: a planar profile's ``v(u)`` is the same
+        at every wavelength (a Mie sphere's is not), so here it changes nothing."""
         return self.lobe_terms(u)["v"]
 
-    def lobe_dimensionless_radial(self, u) -> np.ndarray:
-        """Exact radial ``v(|u|)`` for isotropic materials (:meth:`lobe_terms`)."""
+    def lobe_dimensionless_radial(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """Exact radial ``v(|u|)`` for isotropic materials (:meth:`lobe_terms`; ``wavelength`` as
+        in :meth:`lobe_dimensionless`)."""
         return self.lobe_terms(u, radial=True)["v"]
 
     def _form_factors(self, q, radial: bool):
@@ -318,12 +325,12 @@ class Material:
 
     @staticmethod
     def _wavelength(wavelength) -> np.ndarray:
-        allowed = f"allowed [{tables.WAVELENGTH_MIN:g}, {tables.WAVELENGTH_MAX:g}] nm"
+        allowed = f"allowed [{tabulated.WAVELENGTH_MIN:g}, {tabulated.WAVELENGTH_MAX:g}] nm"
         try:
             lam = np.asarray(wavelength, dtype=np.float64)
         except (TypeError, ValueError):
             raise CoronaError(f"wavelength={wavelength!r} is not a number; {allowed}") from None
-        ok = (lam >= tables.WAVELENGTH_MIN) & (lam <= tables.WAVELENGTH_MAX)   # False for NaN
+        ok = (lam >= tabulated.WAVELENGTH_MIN) & (lam <= tabulated.WAVELENGTH_MAX)   # False for NaN
         if not np.all(ok):
             bad = float(np.ravel(lam[~ok] if lam.ndim else lam)[0])
             raise CoronaError(f"wavelength={bad!r} is out of range; {allowed}")
@@ -352,31 +359,31 @@ class Material:
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
         return {"shape": self.shape.key(), "process": self.process.key(),
-                "isotropic": self.isotropic, "du": tables.RADIAL_DU,
-                "max_samples": tables.RADIAL_MAX_SAMPLES, "grid": tables.GRID2D_SIZE,
-                "wavelength_min": tables.WAVELENGTH_MIN, "render": self.render_kind,
+                "isotropic": self.isotropic, "du": tabulated.RADIAL_DU,
+                "max_samples": tabulated.RADIAL_MAX_SAMPLES, "grid": tabulated.GRID2D_SIZE,
+                "wavelength_min": tabulated.WAVELENGTH_MIN, "render": self.render_kind,
                 "supersample": rlobe.SUPERSAMPLE}
 
     @functools.cached_property
     def _arrays(self) -> dict:
         """Every table of this material, from the on-disk cache or built."""
-        return tables.cached(self.table_params(), self._build_table, use_cache=self.use_cache)
+        return tabulated.cached(self.table_params(), self._build_table, use_cache=self.use_cache)
 
     @functools.cached_property
-    def table(self) -> tables.RadialTable | tables.GridTable:
+    def table(self) -> tabulated.RadialTable | tabulated.GridTable:
         """The dimensionless lobe table ``v(u)`` (cached on disk) that the
         renderer samples (and, for radial and lattice tables, evaluates)."""
-        return tables.table_from_arrays(self._arrays)
+        return tabulated.table_from_arrays(self._arrays)
 
     @functools.cached_property
     def analytic_terms(self):
-        """The shape as closed-form outlines (:func:`corona.tables.lobe.analytic_terms`), or None."""
+        """The shape as closed-form outlines (:func:`corona.model.render_lobe.analytic_terms`), or None."""
         return rlobe.analytic_terms(self.shape)
 
     @property
     def render_kind(self) -> str:
         """How the renderer evaluates the lobe: "radial", "analytic", "grid" or
-        "table" (see :mod:`corona.tables.lobe`)."""
+        "table" (see :mod:`corona.model.render_lobe`)."""
         if self.isotropic:
             return "radial"
         if not self.process.isotropic:
@@ -385,7 +392,7 @@ class Material:
 
     @functools.cached_property
     def render_lobe(self) -> rlobe.RenderLobe:
-        """The lobe ``v(u)`` as the renderer evaluates it (:mod:`corona.tables.lobe`)."""
+        """The lobe ``v(u)`` as the renderer evaluates it (:mod:`corona.model.render_lobe`)."""
         a = self._arrays
         kind = self.render_kind
         rl = rlobe.RenderLobe(kind, self.length_scale, float(self.shape.area))
@@ -408,31 +415,31 @@ class Material:
         """``(s_du, S(|u|/R) - 1 at |u| = i·s_du)``: the isotropic process's structure factor on the
         step of the radial tables up to ``u_max`` (what :attr:`render_lobe` holds for anisotropic shapes)."""
         R = self.length_scale
-        u_max = tables.u_max_for(R)
-        du_target = min(tables.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
-        ns = min(int(np.ceil(u_max / du_target)) + 1, tables.RADIAL_MAX_SAMPLES)
+        u_max = tabulated.u_max_for(R)
+        du_target = min(tabulated.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
+        ns = min(int(np.ceil(u_max / du_target)) + 1, tabulated.RADIAL_MAX_SAMPLES)
         s_du = u_max / (ns - 1)
         return s_du, self.process.structure_factor_radial(np.arange(ns) * s_du / R, self.shape) - 1.0
 
     def _build_table(self) -> dict:
-        u_max = tables.u_max_for(self.length_scale)
+        u_max = tabulated.u_max_for(self.length_scale)
         R = self.length_scale
         # a process whose S is itself piecewise linear on a q grid (a measured
         # point set) gets a u step of a quarter of that grid's, so the kinks cost
         # little in the linear tables (RADIAL_DU otherwise)
-        du_target = min(tables.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
+        du_target = min(tabulated.RADIAL_DU, 0.25 * getattr(self.process, "q_step", np.inf) * R)
         if self.isotropic:
             n = int(np.ceil(u_max / du_target)) + 1
-            n = min(n, tables.RADIAL_MAX_SAMPLES)
+            n = min(n, tabulated.RADIAL_MAX_SAMPLES)
             du = u_max / (n - 1)
             u = np.arange(n) * du
             # v and the form factor P/R² in one pass over the shape (P's integral: the tail)
             vp = self._in_chunks(lambda x: (lambda t: np.stack([t["v"], t["P"] / R**2], -1))(
                 self.lobe_terms(x, radial=True)), u)
-            out = tables.RadialTable(du, vp[:, 0]).arrays()
-            out["form_total"] = np.array(tables.RadialTable(du, vp[:, 1]).total)
+            out = tabulated.RadialTable(du, vp[:, 0]).arrays()
+            out["form_total"] = np.array(tabulated.RadialTable(du, vp[:, 1]).total)
             return out
-        n = tables.GRID2D_SIZE
+        n = tabulated.GRID2D_SIZE
         u_range = min(u_max, 0.25 * n / 2)  # cells no coarser than 0.25 in u
         cell = 2 * u_range / n
         c = -u_range + (np.arange(n) + 0.5) * cell
@@ -462,7 +469,7 @@ class Material:
                 v = decoupled_lobe(P, C, S_bg, R, bragg)
             else:
                 v = decoupled_lobe(P, C, self.process.structure_factor_at(q, self.shape), R)
-            out = tables.GridTable(u_range, v).arrays()
+            out = tabulated.GridTable(u_range, v).arrays()
             out["form_total"] = np.array(form_total)
             return out
         # isotropic process: S - 1 on the radial tables' step, the sampling grid of v
@@ -475,7 +482,7 @@ class Material:
             # uniform in t = u / (1 + |u|/c) instead (cells of 0.25 near u = 0,
             # the outer vertices at u_max), each vertex the local mean of the
             # density in t over its cell (positive wherever the lobe is)
-            g = tables.GridTable(u_range, np.zeros((2, 2)), tables.warp_for(c[-1], u_max))   # last vertex at u_max
+            g = tabulated.GridTable(u_range, np.zeros((2, 2)), tabulated.warp_for(c[-1], u_max))   # last vertex at u_max
             k = rlobe.SUPERSAMPLE
             sub = ((np.arange(k) + 0.5) / k - 0.5) * cell
             acc = np.zeros((n, n))
@@ -485,10 +492,10 @@ class Material:
                     uu = g.to_u(np.stack([tx, ty], -1))
                     acc[:half] += rl.eval(uu) * g.jacobian(uu)
             acc[half:] = acc[:n - half][::-1, ::-1]
-            out = tables.GridTable(u_range, acc / k**2, g.warp).arrays()
+            out = tabulated.GridTable(u_range, acc / k**2, g.warp).arrays()
         else:
             v = decoupled_lobe(P, C, 1.0 + rl.s1(np.hypot(ux, uy)), R)
-            out = tables.GridTable(u_range, v).arrays()
+            out = tabulated.GridTable(u_range, v).arrays()
         out["form_total"] = np.array(form_total)
         if not poisson:
             out["s_du"], out["s_minus_one"] = np.array(s_du), s1
@@ -504,8 +511,8 @@ class Material:
     # ------------------------------------------------------------------
     def _table_grid(self):
         """The u samples of the radial :attr:`table` and its step."""
-        u_max = tables.u_max_for(self.length_scale)
-        n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
+        u_max = tabulated.u_max_for(self.length_scale)
+        n = min(int(np.ceil(u_max / tabulated.RADIAL_DU)) + 1, tabulated.RADIAL_MAX_SAMPLES)
         du = u_max / (n - 1)
         return np.arange(n) * du, du
 
@@ -544,20 +551,20 @@ class Material:
             The largest relative midpoint error of the final rows.
         """
         if not (self.process.varying_area_fraction and self.isotropic):
-            # anisotropic lobes (corona.tables.lobe) and processes whose geometry F_a sets: one row
+            # anisotropic lobes (corona.model.render_lobe) and processes whose geometry F_a sets: one row
             return np.array([self.area_fraction]), [self.table], 0.0
         limit = float(self.process.area_fraction_limit(self.shape))
         hi = limit if hi is None else min(float(hi), limit)
         lo = max(0.0, min(float(lo), hi))
         include = sorted(float(f) for f in include if lo <= f <= hi)
-        arrays = tables.cached({**self.table_params(), "rows": [lo, hi], "tolerance": tolerance,
+        arrays = tabulated.cached({**self.table_params(), "rows": [lo, hi], "tolerance": tolerance,
                                 "max_rows": max_rows, "include": include},
                                lambda: self._build_rows(lo, hi, tolerance, max_rows, include),
                                use_cache=self.use_cache)
         fas = np.asarray(arrays["area_fraction"], dtype=np.float64)
         vals = np.asarray(arrays["values"], dtype=np.float64)
         geo = float(arrays["geometry"])
-        return fas, [tables.RadialTable(geo, v) for v in vals], float(arrays["error"])
+        return fas, [tabulated.RadialTable(geo, v) for v in vals], float(arrays["error"])
 
     def _build_rows(self, lo, hi, tolerance, max_rows, include=()):
         u, geo = self._table_grid()
@@ -573,7 +580,7 @@ class Material:
             sel = e > 1e-3 * e.max()
             return np.max(np.abs(lerp[sel] - e[sel]) / e[sel]) if np.any(sel) else 0.0
 
-        keys, worst = tables.bisect_rows(vals, lambda mids: self._row_values(u, mids), error,
+        keys, worst = tabulated.bisect_rows(vals, lambda mids: self._row_values(u, mids), error,
                                          tolerance, max_rows)
         return {"area_fraction": np.array(keys), "values": np.stack([vals[k] for k in keys]).astype(np.float32),
                 "geometry": np.array(geo), "error": np.array(worst)}
@@ -721,8 +728,11 @@ class Material:
         c = np.asarray(cos_theta_i, dtype=np.float64)
         return np.ones(c.shape, bool) if self.substrate is None else self.substrate.layer_first(c)
 
-    def coherent_transmission(self, cos_theta_i) -> np.ndarray:
+    def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
         """Weight of the delta transmission along ``-wi``: ``C T'(θi)``.
+
+        ``wavelength`` [nm] is part of the one protocol: a flat layer's coherent beam does not
+        depend on it (a Mie layer's extinction does).
 
         ``C`` is :attr:`coherent_transmittance`, ``T'`` the pane's
         transmittance (1 without a substrate); ``cos_theta_i`` is signed
@@ -750,7 +760,7 @@ class Material:
         through = self.substrate.specular_through_layer(cos_theta_i, wavelength, self.coherent_transmittance)
         return np.where(self._layer_first(cos_theta_i), through, r)
 
-    def eval(self, wi, wo, wavelength) -> np.ndarray:
+    def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
         """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``.
 
         Parameters
@@ -760,6 +770,10 @@ class Material:
             where the light comes from (Mitsuba's convention).
         wavelength : float or array
             Wavelength [nm].
+        exact : bool
+            Part of the one protocol: a layer that reads its lobe from tables (Mie spheres)
+            evaluates the theory instead.  A flat layer's ``eval`` is the exact model either
+            way (:meth:`lobe_tabulated` is the renderer's).
 
         Notes
         -----
@@ -850,7 +864,8 @@ class Material:
             accumulate(ux * d_per_u, uy * d_per_u, t.values * np.outer(edge, edge) * t.cell**2)
         return list(out * scale)
 
-    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0) -> dict:
+    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0,
+                           n_phi: int | None = None, pane: bool = True) -> dict:
         """Energy of each component for light arriving from ``wi`` (the white furnace).
 
         Parameters
@@ -861,14 +876,28 @@ class Material:
             Wavelength [nm].
         phi_i : float
             Azimuth of ``wi`` [rad] (matters for anisotropic lobes).
+        n_phi : int, optional
+            Azimuths of the quadrature of a radial table (default 512; 2-D tables are
+            integrated on their vertices and ignore it).
+        pane : bool
+            False: the layer alone, without its substrate.
 
         Returns
         -------
         dict with ``coherent``, ``specular``, ``lobe_transmission``,
         ``lobe_reflection``, ``diffuse`` and their ``total`` (<= 1): the
         integrals over ``wo`` of the components of :meth:`eval` plus the delta
-        weights, the lobes integrated numerically from the table.
+        weights, the lobes integrated numerically from the table; and the
+        layer's own lobes without the pane's factors, ``forward`` (through the
+        layer) and ``backward`` (back to the incident side: 0 for a planar
+        screen, whose Fraunhofer lobe is transmitted only), not in ``total``.
+        The keys are the same for every material.
         """
+        if not pane and self.substrate is not None:
+            alone = copy.copy(self)
+            alone.substrate = None
+            return alone.directional_albedo(cos_theta_i, wavelength, phi_i, n_phi)
+        n_phi = 512 if n_phi is None else int(check_range("n_phi", n_phi, 1, 1e6))
         ci = check_range("cos_theta_i", cos_theta_i, -1.0, 1.0)
         if ci == 0.0:
             raise CoronaError("cos_theta_i=0 is out of range; allowed [-1, 0) or (0, 1] (grazing light "
@@ -889,7 +918,8 @@ class Material:
             front = np.minimum(pane.face_reflectance(ci), pane.face_reflectance(co))
             return front + c * (pane.inner_reflectance(ci, wavelength) + pane.inner_reflectance(co, wavelength))
 
-        plain, transmitted, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_t, pane_r])
+        plain, transmitted, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_t, pane_r],
+                                                             n_phi)
         out = {"coherent": c * ti, "specular": float(self.specular_reflection(ci, wavelength))}
         if first:
             out["lobe_transmission"] = transmitted                  # ∫ f T'(θo)
@@ -907,7 +937,82 @@ class Material:
             out["diffuse"] = ti * self.reflectance * float(2.0 * np.sum(w * mu * self._pane(mu)[1]))
         out = {k: float(v) for k, v in out.items()}
         out["total"] = sum(out.values())
+        out["forward"], out["backward"] = float(plain), 0.0
         return out
+
+
+class MieMembers:
+    """What :class:`Material`'s members are for a layer of Mie spheres.
+
+    :class:`corona.model.mie.layer.SphereMaterial` is a :class:`Material` with the same
+    methods, signatures and result keys (:meth:`Material.eval`, :meth:`Material.lobe`,
+    :meth:`Material.directional_albedo`, ...).  The members below are built on the flat
+    layer's one table of ``v(u)``; a Mie layer's lobes are rows over the size parameter
+    (forward and backward, :attr:`SphereMaterial.rows`), so each raises one
+    :class:`corona.CoronaError` naming the member, why, and what to use instead.  This
+    class comes first in ``SphereMaterial``'s bases, so its members replace the flat ones.
+    """
+
+    #: How the renderer evaluates the lobe: the Mie rows (:mod:`corona.mitsuba.sphere`).
+    render_kind = "mie"
+    #: The Mie layer's class, set when it is defined: ``Material(corona.Sphere(r), ...)`` returns one.
+    _layer_class = None
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if MieMembers._layer_class is None:
+            MieMembers._layer_class = cls
+
+    @property
+    def opaque_fraction(self) -> float:
+        """0: the spheres are transparent (what they absorb is their ``ior``'s imaginary part)."""
+        return 0.0
+
+    def _refuse(self, member: str, why: str):
+        raise CoronaError(f"{type(self).__name__}.{member} is not available for shape='sphere': {why}")
+
+    @property
+    def table(self):
+        self._refuse("table", "a Mie layer has no single table of v(u); its lobes are rows over the "
+                     "size parameter (rows)")
+
+    @property
+    def render_lobe(self):
+        self._refuse("render_lobe", "the renderer reads the Mie rows (rows), not a lobe of v(u)")
+
+    @property
+    def analytic_terms(self):
+        self._refuse("analytic_terms", "a sphere's amplitudes are Mie theory's, not a closed-form outline")
+
+    @property
+    def double_pass_visibility(self):
+        self._refuse("double_pass_visibility", "spheres sit on incoherent panes only (no double pass)")
+
+    @property
+    def tabulated_transmittance(self):
+        self._refuse("tabulated_transmittance", "use diffuse_transmittance(wavelength, cos_theta_i): "
+                     "the Mie lobes' energy depends on the wavelength and the incidence")
+
+    def lobe_terms(self, u, radial: bool = False, cell: float | None = None,
+                   structure_factor: bool = True) -> dict:
+        self._refuse("lobe_terms", "the Mie lobe is not P + C (S - 1) of u alone (it depends on the "
+                     "scattering angle and the wavelength); use lobe_dimensionless(u, wavelength)")
+
+    def radial_s_minus_one(self) -> tuple[float, np.ndarray]:
+        self._refuse("radial_s_minus_one", "a Mie layer's S is tabulated in u = q R by structure_table; "
+                     "use structure_factor(u)")
+
+    def area_fraction_rows(self, lo: float = 0.0, hi: float | None = None,
+                           tolerance: float = ROW_TOLERANCE, max_rows: int = 160, include=()):
+        self._refuse("area_fraction_rows", "the plugin builds a Mie layer's rows over F_a itself "
+                     "(corona.mitsuba.sphere)")
+
+    def sample(self, xi, wavelength) -> np.ndarray:
+        self._refuse("sample", "a Mie layer's lobes are sampled about wi (forward) and its mirror "
+                     "(backward); use sample_lobe(which, wi, xi, wavelength)")
+
+    def pdf(self, d, wavelength) -> np.ndarray:
+        self._refuse("pdf", "use pdf_lobe(which, wi, wo, wavelength), the density of sample_lobe")
 
 
 def _warn_if_small(shape) -> None:
@@ -915,12 +1020,12 @@ def _warn_if_small(shape) -> None:
     global _small_radius_warned
     if _small_radius_warned:
         return
-    limit = SMALL_RADIUS_WAVELENGTHS * tables.WAVELENGTH_MAX * 1e-3          # µm
+    limit = SMALL_RADIUS_WAVELENGTHS * tabulated.WAVELENGTH_MAX * 1e-3          # µm
     r_eq = math.sqrt(float(shape.area) / math.pi)
     if r_eq < limit:
         warnings.warn(f"{shape!r}: equivalent radius sqrt(|A|/pi) = {r_eq:.3g} µm is below "
                       f"{SMALL_RADIUS_WAVELENGTHS:g} wavelengths ({limit:g} µm at "
-                      f"{tables.WAVELENGTH_MAX:g} nm); Fraunhofer diffraction loses accuracy there "
+                      f"{tabulated.WAVELENGTH_MAX:g} nm); Fraunhofer diffraction loses accuracy there "
                       "(warned once per process)", CoronaWarning, stacklevel=3)
         _small_radius_warned = True
 

@@ -799,7 +799,7 @@ def table_row(eta: float, settings: dict, jobs: int = 1, progress: bool = False)
     """One row of the shipped table: a :func:`simulate_hard_disks` run and its raw data.
 
     The unit of work of ``scripts/make_hard_disk_table.py`` (one task of a
-    :class:`corona.apps.sweep.Executor` per row).  ``settings`` are the keyword
+    :class:`corona._executor.Executor` per row).  ``settings`` are the keyword
     arguments of :func:`simulate_hard_disks` (``n_disks``, ``n_sweeps``,
     ``seed``, ..., ``q_sigma_max``, ``bin_width``); the seed fixes the row bit
     for bit, whichever process runs it.  ``S``, ``S_err`` and ``n_vectors``

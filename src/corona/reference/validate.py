@@ -541,13 +541,13 @@ def run(out_dir: str = "out/validate", *, quick: bool = False, cases=None,
         Scatterers per screen (default 2000).
     seed : int
         Seed of every ensemble.
-    executor : corona.apps.sweep.Executor, optional
+    executor : corona._executor.Executor, optional
         Where the cases run, one case per task (:func:`run_case`); default: in
         this process, one after the other.  Every case depends only on its
         name and these arguments, so the report is the same either way
         (timings apart).
     """
-    from corona.apps.sweep import Executor
+    from corona._executor import Executor
     chosen = select_cases(all_cases(quick), cases)
     M_default = QUICK_REALISATIONS if quick else REALISATIONS
     if realisations is not None:

@@ -884,8 +884,13 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
     BruteForce
     """
     from corona.model.material import Material
+    from corona.model.mie.layer import SphereMaterial
     if not isinstance(material, Material):
         raise CoronaError(f"material={material!r} is not a corona.Material")
+    if isinstance(material, SphereMaterial):
+        raise CoronaError(f"material={material!r} is out of range for the brute force: it sums the far "
+                          "fields of planar screens (Fraunhofer); allowed a flat layer (circle, ellipse, "
+                          "square, rectangle, polygon, mask, mixture)")
     M = int(check_range("realisations", realisations, 1, 1e7))
     n_sc = int(check_range("n_scatterers", n_scatterers, 1, 1e8))
     check_choice("overlaps", overlaps, _OVERLAPS)

@@ -71,10 +71,11 @@ import math
 
 import numpy as np
 
-from corona import tables
+from corona.model import tabulated as tables   # the table types and the cache
 from corona.model.mie import theory as mie
 from corona._validation import CoronaError, check_choice, check_finite_array, check_range
 from corona.model.layer import decoupled_lobe
+from corona.model.material import Material, MieMembers
 from corona.model.processes import Lattice, Poisson, Process
 from corona.model.shapes.modifiers import SizeDistribution
 from corona.model.mie.sphere import Sphere, sphere_parts
@@ -570,8 +571,12 @@ def _scaled_blend(values, ds, x_rows, j, t, x, s, cubic=True):
     return out
 
 
-class SphereMaterial:
+class SphereMaterial(MieMembers, Material):
     """A layer of Mie spheres: coherent beam, forward and backward lobes (see the module docstring).
+
+    A :class:`corona.Material` (``corona.Material(corona.Sphere(r), ...)`` returns one) with
+    the same methods, signatures and result keys; the flat layer's table members raise one
+    line each (:class:`corona.model.material.MieMembers`).
 
     Parameters
     ----------
@@ -1056,12 +1061,12 @@ class SphereMaterial:
         c = np.asarray(cos_theta_i, dtype=np.float64)
         return np.ones(c.shape, bool) if self.substrate is None else self.substrate.layer_first(c)
 
-    def coherent_transmission(self, cos_theta_i, wavelength=550.0):
+    def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
         """Weight of the delta transmission along ``-wi``: ``C T'(θi)``, ``C = |1 - F_s s₀(λ)|²``
         (a spectrum: the mean field depends on λ), ``T'`` the pane's (1 without one)."""
         return self.energies(cos_theta_i, wavelength)["coherent"] * self._pane(cos_theta_i)[1]
 
-    def specular_reflection(self, cos_theta_i, wavelength=550.0):
+    def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
         """Weight of the delta reflection (the mirror direction of ``wi``): 0 without a pane;
         ``C R + C² (R' - R)`` when light meets the layer first (the front face's ``R`` crosses the
         layer once: :meth:`corona.GlassPane.specular_through_layer`), ``R'(θi)`` when it meets the
@@ -1257,7 +1262,7 @@ class SphereMaterial:
     # energy checks
     # ------------------------------------------------------------------
     def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0,
-                           n_phi: int = 256, pane: bool = True) -> dict:
+                           n_phi: int | None = None, pane: bool = True) -> dict:
         """Energy of each component for light from ``cos_theta_i`` (the white furnace).
 
         The tabulated lobes are integrated over the sphere of directions on
@@ -1273,8 +1278,8 @@ class SphereMaterial:
             Wavelength [nm].
         phi_i : float
             Azimuth of ``wi`` (the layer is isotropic: the result does not depend on it).
-        n_phi : int
-            Azimuths of the quadrature.
+        n_phi : int, optional
+            Azimuths of the quadrature (default 256).
         pane : bool
             False: the layer alone (without its substrate).
 
@@ -1287,6 +1292,7 @@ class SphereMaterial:
         ci = check_range("cos_theta_i", cos_theta_i, -1.0, 1.0)
         if ci == 0.0:
             raise CoronaError("cos_theta_i=0 is out of range; allowed [-1, 0) or (0, 1]")
+        n_phi = 256 if n_phi is None else n_phi
         wi = np.array([math.sqrt(max(0.0, 1 - ci * ci)), 0.0, ci])
         K = self.rows["P_f"].shape[1]
         s = np.linspace(0.0, CHORD_MAX, 2 * K - 1)
@@ -1341,7 +1347,7 @@ class SphereMaterial:
                                              "diffuse"))
         return out
 
-    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=None, phi_i=0.0):
+    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=None, phi_i=0.0) -> float | np.ndarray:
         """The lobes' energy leaving through the far side (``lobe_transmission`` of
         :meth:`directional_albedo`) for light from ``cos_theta_i`` (None: normal incidence).
         ``phi_i`` is accepted for the shared signature (the layer is isotropic)."""

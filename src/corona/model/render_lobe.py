@@ -1,0 +1,251 @@
+"""What the renderer evaluates: the lobe ``v(u)`` as exact as the model.
+
+The model's dimensionless lobe (:mod:`corona.model.tabulated`) is
+
+    v(u) = [P(u) + C(u) (S(|u|) - 1)] / R²,
+
+``P`` the form factor, ``C`` the coherent form factor and ``S`` the structure
+factor, all at ``q = u / R``.  A bilinear table of ``v`` on cells of 0.25 in u
+is 3–5 % RMS off ``v`` for anisotropic shapes (it fills the zeros of sinc² and
+misses the peaks), so the renderer evaluates instead, by kind:
+
+``"radial"``
+    isotropic shape and process: the radial table of ``v`` (step 0.01 in u,
+    linear), as before — within 1e-4 of the model.
+``"analytic"``
+    deterministic shapes with closed-form transforms (circle, ellipse,
+    rectangle, square, polygons of at most :data:`EDGE_MAX` edges, soft edges
+    of these, mixtures of these) with an isotropic process: ``Â`` in closed
+    form in the kernel (Airy, sinc, the polygon edge sum), ``P = Σ w_i |Â_i|²
+    / ⟨|A|⟩``, ``C = |Σ w_i Â_i|² / ⟨|A|⟩``, times the radial
+    ``S(|u|) - 1`` tabulated on the radial tables' step (0.01 in u, linear).
+    Exact everywhere up to float32 and the ``S`` table.
+``"grid"``
+    other shapes (masks, size distributions, polygons with many edges,
+    mixtures holding these) with an isotropic process: ``P`` and ``C`` on the
+    2-D grid of the sampling table (cells <= 0.25 in u), interpolated by
+    cubic B-splines (prefiltered, exact at the vertices, fourth-order
+    accurate: ~1e-4 relative where ``v`` is above 1e-3 of its peak), times
+    the same radial ``S - 1``; zero beyond the grid (``|u_x|, |u_y| <= 64``).
+``"table"``
+    anisotropic processes (a lattice in fixed orientation): the bilinear
+    table of cell means of ``v`` (Bragg peaks narrower than a cell keep
+    their exact weight but not their point values), as before.
+
+Sampling stays on the bilinear N×N table of ``v`` (:class:`corona.model.tabulated.GridTable`,
+exact with respect to its own density, so ``eval / pdf`` is unbiased).  Where
+the analytic lobe reaches beyond a uniform grid of cells <= 0.25
+(``u_max > 64``, scatterers larger than ~1.75 µm), the table is uniform in
+``t = u / (1 + |u|/c)`` instead (``c`` such that its outer vertices sit at ``u_max``:
+cells of 0.25 near ``u = 0`` growing as ``(1 + |u|/c)²``), its vertices the
+local means of the density over their cells (:data:`SUPERSAMPLE`² points),
+so the sampled region covers every evaluated direction.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from corona.model.layer import decoupled_lobe
+
+#: Polygons with more edges go to the form-factor grid (the edge sum costs one
+#: sincos per edge and wavelength in the kernel).
+EDGE_MAX = 16
+#: Sub-samples per axis of each vertex's local mean in warped sampling tables.
+SUPERSAMPLE = 2
+#: Below ``|q| R_c`` (R_c the circumradius) the polygon kernel uses the Taylor
+#: series of ``Â`` (order :data:`TAYLOR_ORDER`) instead of the edge sum, whose
+#: terms cancel to O(q²) there (float32).
+TAYLOR_U = 0.1
+TAYLOR_ORDER = 5
+
+
+# --------------------------------------------------------------------------
+# analytic terms
+# --------------------------------------------------------------------------
+@dataclass
+class Term:
+    """One deterministic outline of the kernel.
+
+    ``kind`` is ``"circle"`` (``radius``), ``"ellipse"`` (semi-axes ``a``,
+    ``b``, ``angle``), ``"rect"`` (``width``, ``height``, ``angle``; the
+    kernel's ``angle`` in radians) or
+    ``"polygon"`` (``vertices`` (n, 2), centred on the centroid,
+    counter-clockwise); ``weight`` is the number weight, ``area`` [µm²] the
+    outline's area, ``blur`` [µm] the rms width of the Gaussian soft edge
+    (``Â`` times ``exp(-q² blur² / 2)``).
+    """
+
+    kind: str
+    params: dict
+    weight: float = 1.0
+    area: float = 0.0
+    blur: float = 0.0
+
+    def key(self):
+        p = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v) for k, v in self.params.items()}
+        return {"kind": self.kind, "params": p, "weight": self.weight, "blur": self.blur}
+
+
+def analytic_terms(shape) -> list[Term] | None:
+    """The shape as a list of closed-form outlines, or None when it has none.
+
+    Mixtures of deterministic outlines give one term per component (their
+    number weights); :class:`SoftEdge` multiplies the amplitudes by its
+    Gaussian; a :class:`SizeDistribution` of zero spread is its shape.  Random
+    shapes (orientation, size), masks and polygons of more than
+    :data:`EDGE_MAX` edges return None.
+    """
+    from corona.model.shapes import Circle, Ellipse, Mixture, Polygon, Rectangle, SizeDistribution, SoftEdge
+    if isinstance(shape, SoftEdge):
+        inner = analytic_terms(shape.shape)
+        if inner is None:
+            return None
+        return [Term(t.kind, t.params, t.weight, t.area, math.hypot(t.blur, shape.edge_width)) for t in inner]
+    if isinstance(shape, SizeDistribution):
+        return analytic_terms(shape.shape) if shape.spread == 0.0 else None
+    if isinstance(shape, Mixture):
+        out = []
+        for sh, w in shape.components:
+            inner = analytic_terms(sh)
+            if inner is None:
+                return None
+            out += [Term(t.kind, t.params, t.weight * w, t.area, t.blur) for t in inner if w > 0]
+        return out
+    if type(shape) is Circle:
+        return [Term("circle", {"radius": shape.radius}, 1.0, shape.area)]
+    if type(shape) is Ellipse:
+        return [Term("ellipse", {"a": shape.semi_axis_x, "b": shape.semi_axis_y,
+                                 "angle": math.radians(shape.angle)},
+                     1.0, shape.area)]
+    if isinstance(shape, Rectangle):
+        return [Term("rect", {"width": shape.width, "height": shape.height,
+                                  "angle": math.radians(shape.angle)},
+                     1.0, shape.area)]
+    if isinstance(shape, Polygon) and len(shape.vertices) <= EDGE_MAX:
+        return [Term("polygon", {"vertices": np.array(shape.vertices)}, 1.0, shape.area)]
+    return None
+
+
+def terms_amplitudes(terms: list[Term], q) -> tuple[np.ndarray, np.ndarray]:
+    """(``Σ w_i |Â_i|²``, ``Σ w_i Â_i``) at q (..., 2) [rad/µm], float64.
+
+    The numpy twin of the kernel (:mod:`corona.mitsuba.kernels`), from the
+    shapes' own closed forms; used to check the kernel and by
+    :meth:`RenderLobe.eval`.
+    """
+    from corona.model.shapes import Circle, Ellipse, Polygon, Rectangle
+    q = np.asarray(q, dtype=np.float64)
+    inten = np.zeros(q.shape[:-1])
+    amp = np.zeros(q.shape[:-1], dtype=np.complex128)
+    for t in terms:
+        p = t.params
+        if t.kind == "circle":
+            a = Circle(p["radius"]).amplitude(q)
+        elif t.kind == "ellipse":
+            a = Ellipse(p["a"], aspect=p["b"] / p["a"], angle=math.degrees(p["angle"])).amplitude(q)
+        elif t.kind == "rect":
+            a = Rectangle(0.5 * p["width"], aspect=p["height"] / p["width"],
+                          angle=math.degrees(p["angle"])).amplitude(q)
+        else:
+            a = Polygon(p["vertices"]).amplitude(q)
+        if t.blur > 0:
+            a = a * np.exp(-0.5 * (q[..., 0] ** 2 + q[..., 1] ** 2) * t.blur**2)
+        inten += t.weight * np.abs(a) ** 2
+        amp += t.weight * a
+    return inten, amp
+
+
+# --------------------------------------------------------------------------
+# cubic B-spline grids
+# --------------------------------------------------------------------------
+@dataclass
+class CubicGrid:
+    """A function on the vertices ``lo + i·cell`` (i = 0 … n-1, both axes),
+    interpolated by the cubic B-spline through them (``coef`` the prefiltered
+    coefficients, mirror boundary as :func:`scipy.ndimage.spline_filter`),
+    zero outside the vertex square."""
+
+    lo: float
+    cell: float
+    coef: np.ndarray  # (n, n), index [iy, ix]
+
+    @classmethod
+    def from_values(cls, lo, cell, values):
+        coef = ndimage.spline_filter(np.asarray(values, dtype=np.float64), order=3, mode="mirror")
+        return cls(float(lo), float(cell), coef)
+
+    @property
+    def n(self) -> int:
+        return self.coef.shape[0]
+
+    def eval(self, u) -> np.ndarray:
+        u = np.asarray(u, dtype=np.float64)
+        fx = (u[..., 0] - self.lo) / self.cell
+        fy = (u[..., 1] - self.lo) / self.cell
+        inside = (fx >= 0) & (fx <= self.n - 1) & (fy >= 0) & (fy <= self.n - 1)
+        out = ndimage.map_coordinates(self.coef, [np.ravel(fy), np.ravel(fx)], order=3,
+                                      mode="mirror", prefilter=False).reshape(fx.shape)
+        return np.where(inside, out, 0.0)
+
+
+# --------------------------------------------------------------------------
+# the renderer's lobe
+# --------------------------------------------------------------------------
+@dataclass
+class RenderLobe:
+    """The lobe ``v(u)`` as the renderer evaluates it (see the module docstring).
+
+    Attributes
+    ----------
+    kind : {"radial", "analytic", "grid", "table"}
+    R : float
+        ``length_scale`` [µm] (``q = u / R``).
+    area : float
+        ``⟨|A|⟩`` [µm²].
+    terms : list of Term
+        (analytic) the outlines.
+    s_du, s_minus_one : float, ndarray
+        (analytic, grid) ``S(|u|/R) - 1`` at ``|u| = i·s_du``, linear in
+        between, 0 beyond; None for Poisson (S = 1).
+    P, C : CubicGrid
+        (grid) ``P/R²`` and ``C/R²`` (C None for deterministic shapes: C = P).
+    """
+
+    kind: str
+    R: float
+    area: float = 1.0
+    terms: list = field(default_factory=list)
+    s_du: float = 0.0
+    s_minus_one: np.ndarray | None = None
+    P: CubicGrid | None = None
+    C: CubicGrid | None = None
+    radial: object = None   # RadialTable (radial)
+    table: object = None    # GridTable (table)
+
+    def s1(self, u_abs) -> np.ndarray:
+        """``S - 1`` at ``|u|`` from the radial table (linear; 0 beyond)."""
+        if self.s_minus_one is None:
+            return np.zeros_like(np.asarray(u_abs, dtype=np.float64))
+        grid = np.arange(self.s_minus_one.size) * self.s_du
+        return np.interp(u_abs, grid, self.s_minus_one, right=0.0)
+
+    def eval(self, u) -> np.ndarray:
+        """``v(u)`` at u (..., 2) as the renderer evaluates it (float64)."""
+        u = np.asarray(u, dtype=np.float64)
+        ua = np.hypot(u[..., 0], u[..., 1])
+        if self.kind == "radial":
+            return self.radial.eval(ua)
+        if self.kind == "table":
+            return self.table.eval(u)
+        if self.kind == "analytic":
+            inten, amp = terms_amplitudes(self.terms, u / self.R)
+            P = inten / self.area / self.R**2
+            C = np.abs(amp) ** 2 / self.area / self.R**2
+        else:
+            P = self.P.eval(u)
+            C = P if self.C is None else self.C.eval(u)
+        return decoupled_lobe(P, C, 1.0 + self.s1(ua))    # P, C already over R²
