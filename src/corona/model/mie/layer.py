@@ -89,6 +89,10 @@ SPHERE_FORMAT = 3
 ROW_DLNX = 0.001
 ROW_DX_START = 0.1
 ROW_DX_MIN = 0.005
+#: A table still under ``MAX_ROWS`` after that goes on halving the intervals that stopped at
+#: ``ROW_DX_MIN``, down to ``ROW_DX_FINE`` (narrow resonances of small spheres; a table that
+#: reaches the cap spends no rows on them).
+ROW_DX_FINE = 0.0015
 ROW_TOLERANCE = 0.007
 #: The midpoint test reads every ``ROW_TEST_STRIDE``-th chord node (an RMS over thousands of nodes,
 #: a ring spans about 20).
@@ -323,7 +327,8 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
     """Halve the row intervals of a one-size table where the lookup between two rows misses Mie
     theory at the midpoint by more than ``ROW_TOLERANCE`` (energy-weighted RMS, either lobe),
     down to ``ROW_DX_MIN``: best first (the largest misses, at any depth), in batches of
-    ``ROW_CHUNK``, up to ``MAX_ROWS`` rows.
+    ``ROW_CHUNK``, up to ``MAX_ROWS`` rows; then, while under ``MAX_ROWS``, the intervals that
+    stopped at ``ROW_DX_MIN`` the same way down to ``ROW_DX_FINE``.
 
     ``rows``: per-row arrays keyed like :func:`_evaluate_rows`, normalised (P per steradian).
     Returns the same keys with the new rows, in increasing ``x``."""
@@ -350,8 +355,10 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
     def candidates(pairs):
         """Midpoints of the intervals ``pairs`` (n, 2) of store indices: the intervals that
         miss, their midpoints' store indices and their errors."""
+        nonlocal blocked
         xa, xb = store["x"][pairs[:, 0]], store["x"][pairs[:, 1]]
-        keep = (xb - xa) > 2.0 * ROW_DX_MIN * (1 - 1e-9)
+        keep = (xb - xa) > 2.0 * dx_min * (1 - 1e-9)
+        blocked.append(pairs[~keep & ((xb - xa) > 2.0 * ROW_DX_FINE * (1 - 1e-9))])
         pairs, xa, xb = pairs[keep], xa[keep], xb[keep]
         if not pairs.size:
             return pairs, np.zeros(0, np.int64), np.zeros(0)
@@ -368,8 +375,16 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
 
     kept = [put(rows)]
     n_kept = n0
+    dx_min, blocked = ROW_DX_MIN, []
     pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1))
-    while pend_err.size and n_kept < MAX_ROWS:
+    while n_kept < MAX_ROWS:
+        if not pend_err.size:
+            if dx_min == ROW_DX_FINE:
+                break
+            # under the cap: the intervals stopped at ROW_DX_MIN, down to ROW_DX_FINE
+            dx_min, stopped, blocked = ROW_DX_FINE, np.concatenate(blocked + [np.zeros((0, 2), np.int64)]), []
+            pend_pairs, pend_mid, pend_err = candidates(stopped)
+            continue
         take = np.argsort(-pend_err)[:min(ROW_CHUNK, MAX_ROWS - n_kept)]
         rest = np.setdiff1d(np.arange(pend_err.size), take)
         idx = pend_mid[take]
@@ -754,7 +769,7 @@ class SphereMaterial:
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
         key = {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
-               "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_TOLERANCE, ROW_TEST_STRIDE],
+               "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_DX_FINE, ROW_TOLERANCE, ROW_TEST_STRIDE],
                "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
                "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX, SPREAD_CHORD_SMOOTH],
                "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
