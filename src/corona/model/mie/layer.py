@@ -327,8 +327,8 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
     """Halve the row intervals of a one-size table where the lookup between two rows misses Mie
     theory at the midpoint by more than ``ROW_TOLERANCE`` (energy-weighted RMS, either lobe),
     down to ``ROW_DX_MIN``: best first (the largest misses, at any depth), in batches of
-    ``ROW_CHUNK``, up to ``MAX_ROWS`` rows; then, while under ``MAX_ROWS``, the intervals that
-    stopped at ``ROW_DX_MIN`` the same way down to ``ROW_DX_FINE``.
+    ``ROW_CHUNK``, up to ``MAX_ROWS`` rows; then, while under ``MAX_ROWS``, the halves that
+    stopped at ``ROW_DX_MIN`` (of intervals that missed) the same way down to ``ROW_DX_FINE``.
 
     ``rows``: per-row arrays keyed like :func:`_evaluate_rows`, normalised (P per steradian).
     Returns the same keys with the new rows, in increasing ``x``."""
@@ -352,13 +352,14 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
         used += n
         return np.arange(used - n, used)
 
-    def candidates(pairs):
+    def candidates(pairs, halves=True):
         """Midpoints of the intervals ``pairs`` (n, 2) of store indices: the intervals that
-        miss, their midpoints' store indices and their errors."""
-        nonlocal blocked
+        miss, their midpoints' store indices and their errors.  ``halves``: the intervals are
+        halves of intervals that missed (those too narrow to halve are kept for the fine pass)."""
         xa, xb = store["x"][pairs[:, 0]], store["x"][pairs[:, 1]]
         keep = (xb - xa) > 2.0 * dx_min * (1 - 1e-9)
-        blocked.append(pairs[~keep & ((xb - xa) > 2.0 * ROW_DX_FINE * (1 - 1e-9))])
+        if halves:
+            blocked.append(pairs[~keep & ((xb - xa) > 2.0 * ROW_DX_FINE * (1 - 1e-9))])
         pairs, xa, xb = pairs[keep], xa[keep], xb[keep]
         if not pairs.size:
             return pairs, np.zeros(0, np.int64), np.zeros(0)
@@ -376,7 +377,7 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
     kept = [put(rows)]
     n_kept = n0
     dx_min, blocked = ROW_DX_MIN, []
-    pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1))
+    pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1), False)
     while n_kept < MAX_ROWS:
         if not pend_err.size:
             if dx_min == ROW_DX_FINE:
