@@ -435,6 +435,9 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     ``Σ_k W_jk F(X_k)`` with ``W_jk ∝ p_y(ln(X_k/x_j)) ΔX/X_k`` (a convolution in ``ln x``; the
     trapezoid in X).  A dispersive index is handled by evaluating the grid at index nodes
     ``m(λ_q)`` at most ``SIZE_DM`` apart and interpolating the rows linearly in λ between them.
+    The sizes are evaluated on a subset of the chord nodes (:func:`_spread_chord_nodes`; the
+    average is smooth in the chord where the spread smears the fringes) and the rows filled in
+    between (:func:`_fill_chord`).
 
     Returns
     -------
