@@ -50,6 +50,8 @@ SLOW_TESTS = {"test_fit_window_recovers_radius_area_fraction_and_bitmap", "test_
               "test_furnace_sweep_numpy", "test_percus_yevick_against_simulation", "test_cli_validate",
               "test_table_between_nodes_and_rows_matches_mie", "test_large_droplets_coherent_is_one_minus_fa_squared",
               "test_rsa_saturates_at_jamming_limit",
+              # 20 µm droplets with a size spread against brute-force Mie (6000 sizes)
+              "test_large_droplet_spread_matches_brute_force_mie",
               # reverse and forward AD of a textured or anisotropic layer (a kernel compiled per
               # case: 1-17 s each on two idle cores)
               "test_derivatives_match_central_differences",

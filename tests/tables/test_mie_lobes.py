@@ -42,7 +42,9 @@ def _extrema(theta, p, n=3):
 CASES = [(1.3, None, 487.3), (1.3, None, 611.9), (4.7, None, 533.3), (4.7, None, 402.9),
          (2.3, 1.5, 702.1),
          # near a narrow resonance (x = 42.76, m = 1.45): the rows crowd there
-         (3.1, 1.45, 455.5)]
+         (3.1, 1.45, 455.5),
+         # a resonance narrower than ROW_DX_MIN (x = 17.4): the rows go on to ROW_DX_FINE there
+         (1.0, 1.5, 361.3)]
 
 
 @pytest.mark.parametrize("radius,ior,lam", CASES)
@@ -85,7 +87,7 @@ def test_negative_control_detects_a_shifted_lobe():
     assert np.sqrt(np.sum(w * (tab / ref - 1) ** 2) / np.sum(w)) > 0.01
 
 
-def _spread_reference(radius, spread, lam, theta, distribution, dX=0.04):
+def _spread_reference(radius, spread, lam, theta, distribution, dX=0.04, ior=None):
     """⟨|S1|² + |S2|²⟩ / (2π ⟨x²⟩) of a size distribution by brute force: corona.model.mie.theory.amplitudes on a
     grid of size parameters 1.5x finer than the table builder's, weighted by scipy.stats' density."""
     from scipy import stats
@@ -99,11 +101,11 @@ def _spread_reference(radius, spread, lam, theta, distribution, dX=0.04):
     lo, hi = dist.ppf(1e-7), dist.ppf(1 - 1e-9)
     X = np.arange(x0 * lo, x0 * hi, dX)
     w = dist.pdf(X / x0)
-    m = complex(corona.Sphere(radius).index(lam))
+    m = complex(corona.Sphere(radius, ior=ior).index(lam))
     P = np.zeros(theta.size)
-    for c in range(0, X.size, 64):
-        S1, S2 = mie.amplitudes(np.full(X[c:c + 64].size, m), X[c:c + 64], np.cos(theta))
-        P += w[c:c + 64] @ (np.abs(S1) ** 2 + np.abs(S2) ** 2)
+    for c in range(0, X.size, 512):
+        S1, S2 = mie.amplitudes(np.full(X[c:c + 512].size, m), X[c:c + 512], np.cos(theta))
+        P += w[c:c + 512] @ (np.abs(S1) ** 2 + np.abs(S2) ** 2)
     return P / (2 * np.pi * np.sum(w * X**2))
 
 
@@ -130,3 +132,27 @@ def test_size_distribution_lobes_match_brute_force_mie(radius, spread, distribut
                 assert rms < 0.01 and abs(scale) < 0.005, (name, rms, scale)
             else:
                 assert rms > 0.03, (name, rms)
+
+
+@pytest.mark.parametrize("ior,lam", [(None, 551.9), (1.5, 452.7)])
+def test_large_droplet_spread_matches_brute_force_mie(ior, lam):
+    # 20 µm, 10 % lognormal (a cloud's droplets): the rows are Mie theory on a subset of the chord
+    # nodes with a cubic between (SPREAD_CHORD_SMOOTH) and, for water, index nodes SIZE_DM apart;
+    # the reference averages Mie theory at the wavelength itself on a finer grid of sizes
+    radius, spread = 20.0, 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sd = corona.SizeDistribution(corona.Sphere(radius, ior=ior), spread)
+        mat = corona.Material(sd, corona.Poisson(0.01))
+    n = 3000
+    th = (np.arange(n) + 0.5) * (0.5 * np.pi / n)
+    for name, ang in (("forward", th), ("backward", np.pi - th)):
+        ref = _spread_reference(radius, spread, lam, ang, "lognormal", ior=ior)
+        w = ref * np.sin(th)
+        tab = _lobe(mat, ang, lam, exact=False)
+        rms = np.sqrt(np.sum(w * (tab / ref - 1) ** 2) / np.sum(w))
+        scale = np.sum(tab * np.sin(th)) / np.sum(w) - 1
+        assert rms < 0.01 and abs(scale) < 0.005, (name, rms, scale)
+        # negative control: one droplet of the mean radius is far from the average
+        one = _mie_P(corona.Sphere(radius, ior=ior), ang, lam)
+        assert np.sqrt(np.sum(w * (one / ref - 1) ** 2) / np.sum(w)) > 0.05, name

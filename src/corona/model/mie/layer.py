@@ -90,6 +90,10 @@ SPHERE_FORMAT = 3
 ROW_DLNX = 0.001
 ROW_DX_START = 0.1
 ROW_DX_MIN = 0.005
+#: A table still under ``MAX_ROWS`` after that goes on halving the intervals that stopped at
+#: ``ROW_DX_MIN``, down to ``ROW_DX_FINE`` (narrow resonances of small spheres; a table that
+#: reaches the cap spends no rows on them).
+ROW_DX_FINE = 0.0015
 ROW_TOLERANCE = 0.007
 #: The midpoint test reads every ``ROW_TEST_STRIDE``-th chord node (an RMS over thousands of nodes,
 #: a ring spans about 20).
@@ -134,6 +138,12 @@ SIZE_PER_SIGMA = 4.0
 MAX_SIZE_SAMPLES = 8000
 SIZE_TAIL = 1e-6
 SIZE_DM = 0.002
+#: Size distributions: the rows average Mie theory on a subset of the chord nodes, every node
+#: while the node step is below ``SPREAD_CHORD_SMOOTH · σ · s`` (σ the spread, s the chord) and
+#: steps of about that beyond (a spread of σ smears the pattern's fringes at the chord s over
+#: ``σ s``); a cubic in the chord fills the nodes between (:func:`_spread_chord_nodes`; the
+#: filled rows differ from rows on every node by less than the size grid's own error, docs/mie.md).
+SPREAD_CHORD_SMOOTH = 0.1
 #: Why the renderer's sphere layer takes no fixed lattice (the one line of the refusal): the numpy
 #: model evaluates it (:class:`SphereMaterial`), the plugin has no sampler for its orders.
 SPHERE_NO_LATTICE = ("the Bragg orders of spheres on a lattice are evaluated by the numpy model "
@@ -318,7 +328,8 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
     """Halve the row intervals of a one-size table where the lookup between two rows misses Mie
     theory at the midpoint by more than ``ROW_TOLERANCE`` (energy-weighted RMS, either lobe),
     down to ``ROW_DX_MIN``: best first (the largest misses, at any depth), in batches of
-    ``ROW_CHUNK``, up to ``MAX_ROWS`` rows.
+    ``ROW_CHUNK``, up to ``MAX_ROWS`` rows; then, while under ``MAX_ROWS``, the halves that
+    stopped at ``ROW_DX_MIN`` (of intervals that missed) the same way down to ``ROW_DX_FINE``.
 
     ``rows``: per-row arrays keyed like :func:`_evaluate_rows`, normalised (P per steradian).
     Returns the same keys with the new rows, in increasing ``x``."""
@@ -342,11 +353,14 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
         used += n
         return np.arange(used - n, used)
 
-    def candidates(pairs):
+    def candidates(pairs, halves=True):
         """Midpoints of the intervals ``pairs`` (n, 2) of store indices: the intervals that
-        miss, their midpoints' store indices and their errors."""
+        miss, their midpoints' store indices and their errors.  ``halves``: the intervals are
+        halves of intervals that missed (those too narrow to halve are kept for the fine pass)."""
         xa, xb = store["x"][pairs[:, 0]], store["x"][pairs[:, 1]]
-        keep = (xb - xa) > 2.0 * ROW_DX_MIN * (1 - 1e-9)
+        keep = (xb - xa) > 2.0 * dx_min * (1 - 1e-9)
+        if halves:
+            blocked.append(pairs[~keep & ((xb - xa) > 2.0 * ROW_DX_FINE * (1 - 1e-9))])
         pairs, xa, xb = pairs[keep], xa[keep], xb[keep]
         if not pairs.size:
             return pairs, np.zeros(0, np.int64), np.zeros(0)
@@ -363,8 +377,16 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
 
     kept = [put(rows)]
     n_kept = n0
-    pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1))
-    while pend_err.size and n_kept < MAX_ROWS:
+    dx_min, blocked = ROW_DX_MIN, []
+    pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1), False)
+    while n_kept < MAX_ROWS:
+        if not pend_err.size:
+            if dx_min == ROW_DX_FINE:
+                break
+            # under the cap: the intervals stopped at ROW_DX_MIN, down to ROW_DX_FINE
+            dx_min, stopped, blocked = ROW_DX_FINE, np.concatenate(blocked + [np.zeros((0, 2), np.int64)]), []
+            pend_pairs, pend_mid, pend_err = candidates(stopped)
+            continue
         take = np.argsort(-pend_err)[:min(ROW_CHUNK, MAX_ROWS - n_kept)]
         rest = np.setdiff1d(np.arange(pend_err.size), take)
         idx = pend_mid[take]
@@ -414,6 +436,9 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     ``Σ_k W_jk F(X_k)`` with ``W_jk ∝ p_y(ln(X_k/x_j)) ΔX/X_k`` (a convolution in ``ln x``; the
     trapezoid in X).  A dispersive index is handled by evaluating the grid at index nodes
     ``m(λ_q)`` at most ``SIZE_DM`` apart and interpolating the rows linearly in λ between them.
+    The sizes are evaluated on a subset of the chord nodes (:func:`_spread_chord_nodes`; the
+    average is smooth in the chord where the spread smears the fringes) and the rows filled in
+    between (:func:`_fill_chord`).
 
     Returns
     -------
@@ -441,8 +466,8 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     J = x_rows.size
     x_top = float(x_rows[-1]) * s_hi
     # the angular products in single precision: |S|² to about 1e-6 (AngularBasis), twice as fast
-    basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)), ANGULAR_DTYPE)
     if sizes is None:
+        basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)), ANGULAR_DTYPE)
         with tqdm(unit="row", leave=False, delay=tables.PROGRESS_DELAY,
                   desc="corona: building the Mie sphere table") as bar:
             rows = _evaluate_rows(sphere, x_rows, basis)
@@ -452,9 +477,14 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
         return {"x": x_rows, "wavelength": 2 * np.pi * r / x_rows * 1e3, "ds": np.array(ds),
                 "P_f": rows["P_f"], "P_b": rows["P_b"], "C_f": np.zeros((0, K)), "s0": rows["s0"],
                 "q_sca": rows["q_sca"], "q_ext": rows["q_ext"]}
-    out = {k: np.zeros((J, K)) for k in ("P_f", "P_b")}
+    # the size average is smooth in the chord beyond the first fringes: Mie theory on a subset of
+    # the nodes, a cubic in the chord between them
+    nodes = _spread_chord_nodes(K, ds, spread)
+    basis = mie.AngularBasis(mu[nodes], int(mie.n_terms(x_top)), ANGULAR_DTYPE)
+    Ke = nodes.size
+    out = {k: np.zeros((J, Ke)) for k in ("P_f", "P_b")}
     out.update({"s0": np.zeros(J, complex), "q_sca": np.zeros(J), "q_ext": np.zeros(J), "x2": np.zeros(J)})
-    out.update({"A1": np.zeros((2 * J, K)), "A2": np.zeros((2 * J, K))})     # mean forward S, [Re; Im]
+    out.update({"A1": np.zeros((2 * J, Ke)), "A2": np.zeros((2 * J, Ke))})   # mean forward S, [Re; Im]
     plan = _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi)
     total = sum(p[3].size for p in plan)
     with tqdm(total=total, unit="size", leave=False, delay=tables.PROGRESS_DELAY,
@@ -475,11 +505,53 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     x2 = out["x2"]
     norm = 1.0 / (2 * np.pi * x2[:, None])
     s0 = out["s0"]
+    P_f, P_b = out["P_f"] * norm, out["P_b"] * norm
+    C_f = (out["A1"][:J] ** 2 + out["A1"][J:] ** 2 + out["A2"][:J] ** 2 + out["A2"][J:] ** 2) * norm
+    P_f, C_f, P_b = _fill_chord(nodes, K, P_f, C_f, P_b)
     return {"x": x_rows, "wavelength": lam, "ds": np.array(ds),
-            "P_f": out["P_f"] * norm, "P_b": out["P_b"] * norm,
-            "C_f": (out["A1"][:J] ** 2 + out["A1"][J:] ** 2 + out["A2"][:J] ** 2 + out["A2"][J:] ** 2) * norm,
+            "P_f": P_f, "P_b": P_b, "C_f": C_f,
             "s0": np.stack([2 * s0.real / x2, 2 * s0.imag / x2], -1),
             "q_sca": out["q_sca"] / x2, "q_ext": out["q_ext"] / x2}
+
+
+def _spread_chord_nodes(K: int, ds: float, spread: float) -> np.ndarray:
+    """Indices of the chord nodes ``s_i = i ds`` (i < K) at which a size distribution's rows are
+    evaluated: every node up to ``s = ds / (SPREAD_CHORD_SMOOTH σ)``, then steps of
+    ``floor(SPREAD_CHORD_SMOOTH σ s / ds)`` nodes (σ the spread), and the last node.
+
+    A spread σ of the sizes smears a fringe of phase ``x φ(s)`` (φ ∝ s near the forward and the
+    backward direction) over ``σ x φ``: what survives at the chord s has a period of ``~2π σ s``
+    or more (amplitude ``e^{-1/2}``; ``π σ s``: ``e^{-2}``), some 60 (30) steps of ``0.1 σ s``.
+
+    >>> n = _spread_chord_nodes(2169, 0.3 / 453, 0.1)      # 20 µm, 10 %: x up to 453
+    >>> int(n.size), bool(np.all(np.diff(n)[:100] == 1)), int(n[-1])
+    (465, True, 2168)
+    """
+    step_at = lambda i: max(1, int(SPREAD_CHORD_SMOOTH * spread * i))    # σ s / ds = σ i
+    idx = [0]
+    while idx[-1] < K - 1:
+        idx.append(min(idx[-1] + step_at(idx[-1]), K - 1))
+    return np.asarray(idx, dtype=np.int64)
+
+
+def _fill_chord(nodes, K: int, P_f, C_f, P_b):
+    """The rows on every chord node from their values on ``nodes`` (:func:`_spread_chord_nodes`):
+    ``ln P`` of both lobes by a cubic spline in the chord (positive, and even in relative
+    error over the lobes' decades), the coherent part as the fraction ``C/P`` in [0, 1] (so that
+    ``C <= P``)."""
+    if nodes.size == K:
+        return P_f, C_f, P_b
+    from scipy.interpolate import CubicSpline
+    grid = np.arange(K, dtype=np.float64)
+    tiny = np.finfo(np.float64).tiny
+
+    def fill(v):
+        return CubicSpline(nodes.astype(np.float64), v, axis=1)(grid)
+
+    P_f_all = np.exp(fill(np.log(np.maximum(P_f, tiny))))
+    P_b_all = np.exp(fill(np.log(np.maximum(P_b, tiny))))
+    frac = np.clip(fill(np.clip(C_f / np.maximum(P_f, tiny), 0.0, 1.0)), 0.0, 1.0)
+    return P_f_all, frac * P_f_all, P_b_all
 
 
 def _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi):
@@ -706,9 +778,9 @@ class SphereMaterial(MieMembers, Material):
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
         key = {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
-               "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_TOLERANCE, ROW_TEST_STRIDE],
+               "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_DX_FINE, ROW_TOLERANCE, ROW_TEST_STRIDE],
                "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
-               "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX],
+               "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX, SPREAD_CHORD_SMOOTH],
                "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
         if self.radius_cover is not None:
             key["radius_cover"] = list(self.radius_cover)

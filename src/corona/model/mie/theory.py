@@ -83,27 +83,28 @@ def _check_mx(m, x):
     return m, x
 
 
-def _riccati_bessel(x, N: int):
+def _riccati_bessel(x, N: int, by_order: bool = False):
     """``ψ_n(x) = x j_n(x)`` and ``x y_n(x)``, n = 0 … N, shape ``(B, N + 1)``, by the upward
     recurrence ``f_n = (2n - 1)/x f_{n-1} - f_{n-2}`` from ``ψ_{-1} = cos x``, ``ψ_0 = sin x``,
     ``x y_{-1} = sin x``, ``x y_0 = -cos x`` (Bohren & Huffman App. A).  The upward recurrence of
     ``ψ_n`` loses accuracy beyond ``n ≈ x``, where ψ_n decays; up to Wiscombe's ``N`` the error
     stays below 1e-9 of the largest ``ψ_n`` (checked against scipy.special in the tests).  Terms past a size's own ``N`` may
-    overflow; :func:`coefficients` discards them."""
-    x = np.asarray(x, dtype=np.float64)
-    psi = np.empty((x.size, N + 1))
-    chi = np.empty((x.size, N + 1))
+    overflow; :func:`coefficients` discards them.  ``by_order``: shape ``(N + 1, B)`` (each step
+    of the recurrence writes one contiguous row)."""
+    x = np.asarray(x, dtype=np.float64).ravel()
+    psi = np.empty((N + 1, x.size))
+    chi = np.empty((N + 1, x.size))
     sx, cx = np.sin(x), np.cos(x)
     inv = 1.0 / x
     p_prev, p = cx, sx
     c_prev, c = sx, -cx
-    psi[:, 0], chi[:, 0] = p, c
+    psi[0], chi[0] = p, c
     for n in range(1, N + 1):
         k = (2 * n - 1) * inv
         p_prev, p = p, k * p - p_prev
         c_prev, c = c, k * c - c_prev
-        psi[:, n], chi[:, n] = p, c
-    return psi, chi
+        psi[n], chi[n] = p, c
+    return (psi, chi) if by_order else (psi.T, chi.T)
 
 
 def coefficients(m, x, n_max: int | None = None):
@@ -145,24 +146,40 @@ def coefficients(m, x, n_max: int | None = None):
     # value decays only beyond n ≈ |z|, over a transition of width ~|z|^(1/3)
     za = float(np.abs(z).max())
     n_start = int(max(N, za) + 16 + 8 * np.cbrt(za))
-    D = np.zeros((xf.size, N + 1), dtype=np.complex128)
-    d = np.zeros(xf.size, dtype=np.complex128)
+    # a real index (no absorption) has a real D_n and real parts of a_n, b_n below; every array
+    # is laid out by order n (rows) and sphere (columns), so that each step writes one row
+    real = not np.any(z.imag)
+    dtype = np.float64 if real else np.complex128
+    zinv = 1.0 / z.real if real else 1.0 / z
+    D = np.zeros((N + 1, xf.size), dtype=dtype)
+    d = np.zeros(xf.size, dtype=dtype)
     for n in range(n_start, 0, -1):
-        nz = n / z
+        nz = n * zinv
         d = nz - 1.0 / (d + nz)            # D_{n-1}
         if n - 1 <= N:
-            D[:, n - 1] = d
+            D[n - 1] = d
     n = np.arange(0, N + 1)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        psi, chi = _riccati_bessel(xf, N)
-        xi = psi + 1j * chi                                  # ξ_n = x h_n^(1)
-        nn = n[None, 1:]
-        nx = nn / xf[:, None]
-        Dn = D[:, 1:]
-        ta = Dn / mf[:, None] + nx
-        tb = mf[:, None] * Dn + nx
-        a = (ta * psi[:, 1:] - psi[:, :-1]) / (ta * xi[:, 1:] - xi[:, :-1])
-        b = (tb * psi[:, 1:] - psi[:, :-1]) / (tb * xi[:, 1:] - xi[:, :-1])
+        psi, chi = _riccati_bessel(xf, N, by_order=True)
+        nx = n[1:, None] / xf[None, :]
+        Dn = D[1:]
+        mr = (mf.real if real else mf)[None, :]
+        ta = Dn / mr + nx
+        tb = mr * Dn + nx
+
+        def ratio(t):        # (t ψ_n - ψ_{n-1}) / (t ξ_n - ξ_{n-1}), ξ = ψ + i χ
+            u = t * psi[1:] - psi[:-1]
+            if not real:
+                return u / (u + 1j * (t * chi[1:] - chi[:-1]))
+            v = t * chi[1:] - chi[:-1]
+            inv = 1.0 / (u * u + v * v)
+            out = np.empty(u.shape, np.complex128)
+            out.real = u * u * inv
+            out.imag = -u * v * inv
+            return out
+
+        a, b = ratio(ta).T, ratio(tb).T
+    nn = n[None, 1:]
     keep = nn <= ownf[:, None]
     a = np.where(keep, a, 0.0)
     b = np.where(keep, b, 0.0)
