@@ -11,7 +11,9 @@ revisions), each round timing every kernel ``--repeats`` times and keeping the
 fastest: a load change on a shared machine hits every layer alike.  A
 layer's time is the median over the rounds of those fastest runs; the ratios
 to roughdielectric are taken round by round, and their minimum, median and
-maximum go to the JSON file.
+maximum go to the JSON file.  By default Dr.Jit runs on one thread and the time is the
+process's CPU time (``time.process_time``): on a shared, loaded machine that is far steadier
+than wall time; ``--threads N`` (N > 1) times wall-clock on N threads instead.
 
 With ``--base REV`` the revision's ``src`` (``git archive``) is imported first
 and its BSDFs loaded; then its modules are dropped from ``sys.modules`` and
@@ -19,7 +21,7 @@ this checkout's corona is imported and registered in their place.  Both
 revisions' BSDF objects live in the one process (their classes are distinct),
 so "after / before" compares the two on the same inputs, caches and load.
 
-    python benchmarks/bench_bsdf.py [--base REV] [--layers ...] [--lanes 18] [--rounds 5] [--repeats 5]
+    python benchmarks/bench_bsdf.py [--base REV] [--layers ...] [--lanes 18] [--rounds 5] [--repeats 5] [--threads 1]
         [--variant llvm_ad_spectral] [--name bsdf]
 
 writes benchmarks/results/<name>.json.  No timing is asserted anywhere.
@@ -71,6 +73,8 @@ def main():
     ap.add_argument("--lanes", type=int, default=18, help="log2 of the lanes per call")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=5, help="timed calls per kernel and round (fastest kept)")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="Dr.Jit's threads: 1 times CPU time, more wall-clock time")
     ap.add_argument("--variant", default="llvm_ad_spectral")
     ap.add_argument("--name", default="bsdf")
     args = ap.parse_args()
@@ -90,6 +94,9 @@ def main():
     import numpy as np
     mi.set_variant(args.variant)
     corona.register()
+    if args.threads > 0:
+        dr.set_thread_count(args.threads)
+    clock = time.process_time if args.threads == 1 else time.perf_counter
     if args.base:
         bsdfs.update(_load(mi, [n for n in names if n != "roughdielectric"], "base"))
         _swap_to(os.path.join(ROOT, "src"))
@@ -116,9 +123,9 @@ def main():
             for m in METHODS:
                 best = float("inf")
                 for _ in range(args.repeats):
-                    t0 = time.perf_counter()
+                    t0 = clock()
                     run(b, m)
-                    best = min(best, time.perf_counter() - t0)
+                    best = min(best, clock() - t0)
                 times[key][m].append(best * 1e3)
         print(f"round {r + 1}/{args.rounds} done", flush=True)
     ref = times[("roughdielectric", "now")]
@@ -139,7 +146,8 @@ def main():
             for m in METHODS))
     from common import write
     write(args.name, {"lanes": 1 << args.lanes, "variant": args.variant, "base": args.base, "rounds": args.rounds,
-                      "repeats": args.repeats, "layers": {n: LAYERS[n] for n in names}, "results": results,
+                      "repeats": args.repeats, "threads": args.threads,
+                      "clock": "process CPU time" if args.threads == 1 else "wall", "layers": {n: LAYERS[n] for n in names}, "results": results,
                       "load_average_1min": {"start": load_start, "end": os.getloadavg()[0]},
                       "note": "ms per call over all lanes: the median over rounds of each round's fastest of "
                               "`repeats`; ratios round by round (min / median / max over rounds)"})

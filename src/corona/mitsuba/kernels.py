@@ -45,6 +45,10 @@ _J1_F1 = (0.79788456, 0.00000156, 0.01659667, 0.00017105, -0.00249511, 0.0011365
 _J1_TH = (-2.35619449, 0.12499612, 0.00005650, -0.00637879, 0.00074348, 0.00079824, -0.00029166)
 
 
+#: sinc(x) = Σ (-x²)^i / (2i + 1)!, i = 0 .. 5 (in x²)
+_SINC_SERIES = tuple((-1.0) ** i / math.factorial(2 * i + 1) for i in range(6))
+
+
 def _poly(coeffs, x):
     acc = mi.Float(coeffs[-1])
     for c in coeffs[-2::-1]:
@@ -93,22 +97,7 @@ class LobeKernel:
                 if "angle" in p:
                     p["cos"], p["sin"] = math.cos(p["angle"]), math.sin(p["angle"])
                 if t.kind == "polygon":
-                    v = np.asarray(p["vertices"], dtype=np.float64)
-                    w = np.roll(v, -1, axis=0)
-                    p["edges"] = (w - v).tolist()
-                    p["mids"] = (0.5 * (w + v)).tolist()
-                    p["v0"] = v.tolist()
-                    p["v1"] = w.tolist()
-                    p["cross"] = (v[:, 0] * w[:, 1] - v[:, 1] * w[:, 0]).tolist()
-                    p["circumradius"] = float(np.max(np.hypot(v[:, 0], v[:, 1])))
-                    # centrosymmetric (v_{k+n/2} = -v_k): Â is real, and edge k+n/2
-                    # doubles edge k's sine term (and cancels its cosine term)
-                    h = len(v) // 2
-                    p["centrosymmetric"] = bool(len(v) % 2 == 0 and np.allclose(
-                        v[h:], -v[:h], rtol=0.0, atol=1e-9 * p["circumradius"]))
-                    if p["centrosymmetric"]:
-                        for key in ("edges", "mids", "v0", "v1", "cross"):
-                            p[key] = p[key][:h]
+                    self._polygon_setup(p)
                 self.terms.append((t.kind, p, float(t.weight), float(t.area), float(t.blur)))
         # --- form-factor grids --------------------------------------------------------
         if rl.kind == "grid":
@@ -294,48 +283,95 @@ class LobeKernel:
         return re, im
 
     @staticmethod
+    def _polygon_setup(p):
+        """Constants of :meth:`_polygon` (in ``p``): the vertices whose half phases the edge sum
+        needs, the edges, their cross products with q's coefficients, and the Taylor series'
+        homogeneous polynomials in ``(q_x, q_y)``."""
+        v = np.asarray(p["vertices"], dtype=np.float64)
+        n = len(v)
+        p["circumradius"] = float(np.max(np.hypot(v[:, 0], v[:, 1])))
+        # centrosymmetric (v_{k+n/2} = -v_k): Â is real, and edge k+n/2 doubles edge k's sine
+        # term (and cancels its cosine term); the edges k < n/2 need vertices 0 .. n/2 (v_{n/2} = -v_0)
+        h = n // 2
+        p["centrosymmetric"] = bool(n % 2 == 0 and np.allclose(
+            v[h:], -v[:h], rtol=0.0, atol=1e-9 * p["circumradius"]))
+        m = h if p["centrosymmetric"] else n           # edges summed
+        p["phase_vertices"] = v[:m].tolist()           # (the closing vertex: -v_0 or v_0, no new phase)
+        p["edges"] = (np.roll(v, -1, axis=0) - v)[:m].tolist()
+        # the Taylor series of the fan of triangles (0, v_k, v_{k+1}), Σ_j (-i)^j c_j(q), c_j the
+        # homogeneous polynomial Σ_k 2|T_k| / (j + 2)! Σ_{a+b=j} (q·v_k)^a (q·v_{k+1})^b, as its
+        # coefficients of q_x^i q_y^(j-i) (index i), in float64 from all n triangles
+        w = np.roll(v, -1, axis=0)
+        cross = v[:, 0] * w[:, 1] - v[:, 1] * w[:, 0]
+        taylor = []
+        for j in range(TAYLOR_ORDER + 1):
+            c = np.zeros(j + 1)
+            for (ax, ay), (bx, by), cr in zip(v, w, cross):
+                for a in range(j + 1):
+                    poly = np.array([1.0])
+                    for _ in range(a):
+                        poly = np.convolve(poly, [ay, ax])     # q·v_k: index = power of q_x
+                    for _ in range(j - a):
+                        poly = np.convolve(poly, [by, bx])
+                    c += cr / math.factorial(j + 2) * poly
+            taylor.append(c.tolist())
+        p["taylor"] = taylor
+
+    @staticmethod
     def _polygon(p, qx, qy):
         """``Â`` of a polygon: the edge sum ``(i/|q|²) Σ (q × e) sinc(q·e/2) e^{-i q·m}``
-        (Lee & Mittra 1983), and the Taylor series of the fan of triangles
-        ``Σ_n (-i)^n/(n+2)! 2|T| Σ_{i+j=n} α^i β^j`` near q = 0."""
+        (Lee & Mittra 1983), and its Taylor series near q = 0.
+
+        An edge from ``v_k`` to ``v_{k+1}`` has ``q·m = ψ_k + ψ_{k+1}`` and ``q·e/2 = ψ_{k+1} - ψ_k``
+        with the vertices' half phases ``ψ_k = q·v_k/2``, so one ``sincos`` a vertex gives both
+        sines by the angle-sum formulas (instead of two trigonometric calls an edge);
+        ``sinc(q·e/2)`` is its Maclaurin series below 1 (with ``q·e/2`` itself, so no cancellation
+        where q is nearly normal to an edge).  Near q = 0 the Taylor series of the fan of
+        triangles ``Σ_j (-i)^j c_j(q)``, its homogeneous polynomials ``c_j`` precomputed
+        (:meth:`_polygon_setup`; odd ones vanish for centrosymmetric polygons)."""
         qq = dr.fma(qx, qx, qy * qy)
         small = qq * (p["circumradius"] ** 2) < TAYLOR_U**2
         sym = p["centrosymmetric"]
+        phases = [dr.sincos(0.5 * dr.fma(qx, vx, qy * vy)) for vx, vy in p["phase_vertices"]]
+        s0, c0 = phases[0]
+        phases.append((-s0, c0) if sym else (s0, c0))      # the closing vertex: -v_0 or v_0
         sw = mi.Float(0.0)   # Σ w sin φ
         cw = mi.Float(0.0)   # Σ w cos φ
-        for (ex, ey), (mx, my) in zip(p["edges"], p["mids"]):
-            w = (qx * ey - qy * ex) * sinc(0.5 * (qx * ex + qy * ey))
-            if sym:
-                sw = dr.fma(w, dr.sin(qx * mx + qy * my), sw)
-            else:
-                s, c = dr.sincos(qx * mx + qy * my)
-                sw = dr.fma(w, s, sw)
-                cw = dr.fma(w, c, cw)
+        for k, (ex, ey) in enumerate(p["edges"]):
+            (sa, ca), (sb, cb) = phases[k], phases[k + 1]
+            beta = 0.5 * dr.fma(qx, ex, qy * ey)
+            b2 = dr.square(beta)
+            # sinc(β): Σ (-β²)^i / (2i + 1)! to β^10 below |β| = 1 (|error| < 2e-10), else sin β / β
+            series = _poly(_SINC_SERIES, b2)
+            sin_beta = dr.fma(sb, ca, -(cb * sa))
+            sinc_beta = dr.select(b2 < 1.0, series, sin_beta / dr.select(b2 < 1.0, 1.0, beta))
+            w = (qx * ey - qy * ex) * sinc_beta
+            sw = dr.fma(w, dr.fma(sa, cb, ca * sb), sw)                 # sin(ψ_k + ψ_{k+1})
+            if not sym:
+                cw = dr.fma(w, dr.fma(ca, cb, -(sa * sb)), cw)             # cos(ψ_k + ψ_{k+1})
         inv = (2.0 if sym else 1.0) / dr.select(small, 1.0, qq)
         re_e, im_e = sw * inv, cw * inv
-        # Taylor: (-i)^n cycles 1, -i, -1, i
-        re_t = mi.Float(0.0)
+        # Taylor: (-i)^j cycles 1, -i, -1, i; c_j by Horner in q_x with the powers of q_y
+        qy_pow = [mi.Float(1.0)]
+        for _ in range(TAYLOR_ORDER):
+            qy_pow.append(qy_pow[-1] * qy)
+        re_t = mi.Float(p["taylor"][0][0])
         im_t = mi.Float(0.0)
-        for (ax, ay), (bx, by), cr in zip(p["v0"], p["v1"], p["cross"]):
-            alpha = qx * ax + qy * ay
-            beta = qx * bx + qy * by
-            h = mi.Float(1.0)
-            apow = mi.Float(1.0)
-            re_t += 0.5 * cr * (2.0 if sym else 1.0)
-            for n in range(1, TAYLOR_ORDER + 1):
-                apow = apow * alpha
-                h = dr.fma(beta, h, apow)
-                if sym and n % 2 == 1:
-                    continue          # odd moments vanish; even ones double
-                term = h * (cr * (2.0 if sym else 1.0) / math.factorial(n + 2))
-                if n % 4 == 0:
-                    re_t += term
-                elif n % 4 == 1:
-                    im_t -= term
-                elif n % 4 == 2:
-                    re_t -= term
-                else:
-                    im_t += term
+        for j in range(1, TAYLOR_ORDER + 1):
+            if sym and j % 2 == 1:
+                continue          # odd moments vanish
+            coef = p["taylor"][j]
+            acc = mi.Float(coef[j])
+            for i in range(j - 1, -1, -1):
+                acc = dr.fma(acc, qx, coef[i] * qy_pow[j - i])
+            if j % 4 == 0:
+                re_t += acc
+            elif j % 4 == 1:
+                im_t -= acc
+            elif j % 4 == 2:
+                re_t -= acc
+            else:
+                im_t += acc
         if sym:
             return dr.select(small, re_t, re_e), None
         return dr.select(small, re_t, re_e), dr.select(small, im_t, im_e)
