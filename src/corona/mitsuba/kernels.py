@@ -297,6 +297,16 @@ class LobeKernel:
             v[h:], -v[:h], rtol=0.0, atol=1e-9 * p["circumradius"]))
         m = h if p["centrosymmetric"] else n           # edges summed
         p["phase_vertices"] = v[:m].tolist()           # (the closing vertex: -v_0 or v_0, no new phase)
+        # a vertex that is the sum or difference of two earlier ones (a regular hexagon's v_2 = v_1 - v_0)
+        # takes its half phase's sine and cosine from theirs by the angle-sum formulas: (k, a, b, ±1)
+        p["phase_sums"] = {}
+        for k in range(2, m):
+            for a in range(k):
+                for b in range(a):
+                    for sign in (1.0, -1.0):
+                        if k not in p["phase_sums"] and np.allclose(v[k], v[a] + sign * v[b], rtol=0.0,
+                                                                    atol=1e-9 * p["circumradius"]):
+                            p["phase_sums"][k] = (a, b, sign)
         p["edges"] = (np.roll(v, -1, axis=0) - v)[:m].tolist()
         # the Taylor series of the fan of triangles (0, v_k, v_{k+1}), Σ_j (-i)^j c_j(q), c_j the
         # homogeneous polynomial Σ_k 2|T_k| / (j + 2)! Σ_{a+b=j} (q·v_k)^a (q·v_{k+1})^b, as its
@@ -324,7 +334,8 @@ class LobeKernel:
 
         An edge from ``v_k`` to ``v_{k+1}`` has ``q·m = ψ_k + ψ_{k+1}`` and ``q·e/2 = ψ_{k+1} - ψ_k``
         with the vertices' half phases ``ψ_k = q·v_k/2``, so one ``sincos`` a vertex gives both
-        sines by the angle-sum formulas (instead of two trigonometric calls an edge);
+        sines by the angle-sum formulas (instead of two trigonometric calls an edge), and none for
+        a vertex that is the sum or difference of two others (a regular hexagon's third);
         ``sinc(q·e/2)`` is its Maclaurin series below 1 (with ``q·e/2`` itself, so no cancellation
         where q is nearly normal to an edge).  Near q = 0 the Taylor series of the fan of
         triangles ``Σ_j (-i)^j c_j(q)``, its homogeneous polynomials ``c_j`` precomputed
@@ -332,7 +343,15 @@ class LobeKernel:
         qq = dr.fma(qx, qx, qy * qy)
         small = qq * (p["circumradius"] ** 2) < TAYLOR_U**2
         sym = p["centrosymmetric"]
-        phases = [dr.sincos(0.5 * dr.fma(qx, vx, qy * vy)) for vx, vy in p["phase_vertices"]]
+        phases = []
+        for k, (vx, vy) in enumerate(p["phase_vertices"]):
+            if k in p["phase_sums"]:            # ψ_k = ψ_a ± ψ_b
+                a, b, sign = p["phase_sums"][k]
+                (sa, ca), (sb, cb) = phases[a], phases[b]
+                sb = sign * sb
+                phases.append((dr.fma(sa, cb, ca * sb), dr.fma(ca, cb, -(sa * sb))))
+            else:
+                phases.append(dr.sincos(0.5 * dr.fma(qx, vx, qy * vy)))
         s0, c0 = phases[0]
         phases.append((-s0, c0) if sym else (s0, c0))      # the closing vertex: -v_0 or v_0
         sw = mi.Float(0.0)   # Σ w sin φ
