@@ -18,7 +18,7 @@ the (few) outlines and polygon edges only, never over lanes.
 * ``table``: the bilinear table (lattices).
 
 Sampling: the bilinear table of ``v`` (uniform in u, or in ``t = u / (1 + |u|/c)``
-for lobes reaching beyond it) sampled exactly, a cell by two guided searches, a
+for lobes reaching beyond it) sampled exactly, a cell by two alias tables (:func:`alias_tables`), a
 corner of it and the product of two linear ramps (:meth:`LobeKernel._sample_cell`);
 the pdf is the exact density of that table (divided by the Jacobian ``d²u/d²t``).
 
@@ -35,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from corona.mitsuba.common import array as _array, gather as _gather, gather4, guided_cdfs, guided_search
+from corona.mitsuba.common import array as _array, gather as _gather, gather4
 from corona.tables.lobe import TAYLOR_ORDER, TAYLOR_U
 
 # Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
@@ -73,6 +73,66 @@ def sinc(x):
     tiny = dr.abs(x) < 1e-3
     xs = dr.select(tiny, 1.0, x)
     return dr.select(tiny, 1.0 - dr.square(x) * (1.0 / 6.0), dr.sin(xs) / xs)
+
+
+def alias_tables(weights):
+    """Walker's alias tables (Vose's construction) of each row of ``weights`` ``(rows, n)`` (>= 0),
+    all rows at once: ``prob`` (float32) and ``alias`` (uint32), both ``(rows, n)``, such that
+    picking ``i`` uniformly and keeping it with probability ``prob[i]`` (else taking ``alias[i]``)
+    draws ``i`` with probability ``weights[i] / Σ weights`` (a row of total 0: uniform).
+
+    References
+    ----------
+    A. J. Walker, ACM TOMS 3 (1977) 253; M. D. Vose, IEEE TSE 17 (1991) 972.
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    rows, n = w.shape
+    total = w.sum(axis=1, keepdims=True)
+    p = np.where(total > 0, w * n / np.where(total > 0, total, 1.0), 1.0)
+    prob = np.ones((rows, n))
+    alias = np.tile(np.arange(n), (rows, 1))
+    # per row, a stack of the entries below 1 and one of those at or above 1, processed in lockstep
+    small_first = np.argsort(p >= 1.0, axis=1, kind="stable")            # entries < 1 first
+    n_small = np.sum(p < 1.0, axis=1)
+    small = np.full((rows, n), -1)
+    large = np.full((rows, n), -1)
+    idx = np.arange(n)[None, :]
+    small[idx < n_small[:, None]] = small_first[idx < n_small[:, None]]
+    n_large = n - n_small
+    large_rev = small_first[:, ::-1]                                      # entries >= 1 first
+    large[idx < n_large[:, None]] = large_rev[idx < n_large[:, None]]
+    r = np.arange(rows)
+    while True:
+        go = (n_small > 0) & (n_large > 0)
+        if not np.any(go):
+            break
+        g = r[go]
+        i_s = small[g, n_small[g] - 1]
+        i_l = large[g, n_large[g] - 1]
+        n_small[g] -= 1
+        prob[g, i_s] = p[g, i_s]
+        alias[g, i_s] = i_l
+        p[g, i_l] -= 1.0 - p[g, i_s]
+        moved = p[g, i_l] < 1.0                  # the large entry drops below 1: a small one now
+        gm = g[moved]
+        n_large[gm] -= 1
+        small[gm, n_small[gm]] = i_l[moved]
+        n_small[gm] += 1
+    # what is left (at 1 up to rounding) keeps itself: prob 1, alias itself (set above)
+    return prob.astype(np.float32), alias.astype(np.uint32)
+
+
+def _alias_pick(prob, alias, n, offset, xi, active):
+    """An entry of row ``offset / n`` of :func:`alias_tables` (``mi.Float`` / ``mi.UInt32``) from ``xi`` in
+    [0, 1) (Dr.Jit), and what is left of ``xi``, uniform in [0, 1) again: ``(entry, rest)``."""
+    x = xi * n
+    i = dr.minimum(mi.UInt32(x), n - 1)
+    f = dr.clip(x - mi.Float(i), 0.0, 1.0)
+    keep = _gather(mi.Float, prob, offset + i, active)
+    other = _gather(mi.UInt32, alias, offset + i, active)
+    stay = f < keep
+    rest = dr.select(stay, f / dr.maximum(keep, 1e-30), (f - keep) / dr.maximum(1.0 - keep, 1e-30))
+    return dr.select(stay, i, other), dr.clip(rest, 0.0, 0.99999994)
 
 
 class LobeKernel:
@@ -120,16 +180,15 @@ class LobeKernel:
         self.set_sampling_table(t.values)
 
     def set_sampling_table(self, values):
-        """Sample the bilinear table ``values`` ``(n, n)`` (:meth:`sample`): the CDF of its rows of
-        cells and, in each row, of its cells (:func:`corona.mitsuba.common.guided_cdfs`), a cell's
+        """Sample the bilinear table ``values`` ``(n, n)`` (:meth:`sample`): alias tables
+        (:func:`alias_tables`) of its rows of cells and, in each row, of its cells, a cell's
         weight the mean of its corners (its integral)."""
         v = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
         cells = 0.25 * (v[:-1, :-1] + v[:-1, 1:] + v[1:, :-1] + v[1:, 1:])        # (n - 1, n - 1)
-        zero = np.zeros((cells.shape[0], 1))
-        self.s_rows_g = guided_cdfs([np.concatenate([[0.0], np.cumsum(cells.sum(axis=1))])])
-        self.s_cols_g = guided_cdfs(list(np.concatenate([zero, np.cumsum(cells, axis=1)], axis=1)))
-        for g in (self.s_rows_g, self.s_cols_g):
-            g["cdf"], g["guide"] = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
+        rows_p, rows_a = alias_tables(cells.sum(axis=1)[None, :])
+        cols_p, cols_a = alias_tables(cells)
+        self.s_rows_alias = (_array(mi.Float, rows_p.ravel()), _array(mi.UInt32, rows_a.ravel()))
+        self.s_cols_alias = (_array(mi.Float, cols_p.ravel()), _array(mi.UInt32, cols_a.ravel()))
 
     @staticmethod
     def corners(values):
@@ -442,17 +501,13 @@ class LobeKernel:
     def _sample_cell(self, s, active):
         """``s`` (Point2f in [0, 1)²) -> a point in [0, 1]² of the sampling table with the density of
         its bilinear interpolant (exactly): the row of cells by ``s.x``, the cell in it by ``s.y``
-        (guided searches), one of the cell's four corners with probability ∝ its value (what is
-        left of ``s.x``), then the product of the two linear ramps that vanish at the opposite
+        (alias tables: two independent gathers each, no search), one of the cell's four corners
+        with probability ∝ its value (what is left of ``s.x``), then the product of the two linear ramps that vanish at the opposite
         edges (``√ξ``; ``ξ``: what is left of each): the mixture of the corners' ramps weighted by
         their values is the bilinear interpolant of the cell, and the cell's probability its integral."""
         n1 = self.near["n"] - 1
-        rg, cg = self.s_rows_g, self.s_cols_g
-        y0, a0, a1 = guided_search(rg["cdf"], rg["guide"], rg["G"], rg["n_bins"], rg["steps"], mi.UInt32(0),
-                                   s.x, active)
-        x0, b0, b1 = guided_search(cg["cdf"], cg["guide"], cg["G"], cg["n_bins"], cg["steps"], y0, s.y, active)
-        ry = dr.clip((s.x - a0) / dr.maximum(a1 - a0, 1e-30), 0.0, 0.99999994)
-        rx = dr.clip((s.y - b0) / dr.maximum(b1 - b0, 1e-30), 0.0, 0.99999994)
+        y0, ry = _alias_pick(*self.s_rows_alias, n1, mi.UInt32(0), s.x, active)
+        x0, rx = _alias_pick(*self.s_cols_alias, n1, y0 * n1, s.y, active)
         q = gather4(self.near["values"], y0 * n1 + x0, active)      # v00, v01 (x + 1), v10 (y + 1), v11
         q0, q1, q2, q3 = (dr.maximum(q.x, 0.0), dr.maximum(q.y, 0.0), dr.maximum(q.z, 0.0),
                           dr.maximum(q.w, 0.0))
