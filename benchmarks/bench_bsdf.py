@@ -21,7 +21,11 @@ this checkout's corona is imported and registered in their place.  Both
 revisions' BSDF objects live in the one process (their classes are distinct),
 so "after / before" compares the two on the same inputs, caches and load.
 
-    python benchmarks/bench_bsdf.py [--base REV] [--layers ...] [--lanes 18] [--rounds 5] [--repeats 5] [--threads 1]
+With ``--pieces`` the anisotropic layers' kernels (``LobeKernel``) are timed on their own
+too: ``value``, ``pdf`` and ``sample`` on 2^20 points (u normal with σ = 5 around the forward
+peak, where the lobe is; uniform sample numbers), one wavelength each, for both revisions.
+
+    python benchmarks/bench_bsdf.py [--base REV] [--pieces] [--layers ...] [--lanes 18] [--rounds 5] [--repeats 5] [--threads 1]
         [--variant llvm_ad_spectral] [--name bsdf]
 
 writes benchmarks/results/<name>.json.  No timing is asserted anywhere.
@@ -62,6 +66,32 @@ def _swap_to(src: str):
     sys.path.insert(0, src)
 
 
+def _pieces(dr, mi, np, bsdfs, args, clock) -> dict:
+    """The fastest of ``rounds × repeats`` runs [ms] of each anisotropic kernel's ``value``, ``pdf`` and
+    ``sample`` on 2^20 points, rounds interleaved over the layers and revisions."""
+    rng = np.random.default_rng(7)
+    u = rng.normal(0.0, 5.0, (2, 1 << 20)).astype(np.float32)
+    ux, uy = mi.Float(u[0]), mi.Float(u[1])
+    xi = mi.Point2f(rng.random((2, 1 << 20)).astype(np.float32))
+    on = mi.Bool(True)
+    dr.eval(ux, uy, xi)
+    calls = {"value": lambda k: k.value(ux, uy, on), "pdf": lambda k: k.pdf(ux, uy, on),
+             "sample": lambda k: k.sample(xi, on)}
+    kernels = {(name if tag == "now" else f"{name} (base)"): b.kernel for (name, tag), b in bsdfs.items()
+               if getattr(b, "kernel", None) is not None}
+    best = {label: {m: float("inf") for m in calls} for label in kernels}
+    for r in range(args.rounds + 1):                 # (round 0: the JIT compile, untimed)
+        for label, k in kernels.items():
+            for m, fn in calls.items():
+                for _ in range(args.repeats if r else 1):
+                    t0 = clock()
+                    dr.eval(fn(k))
+                    dr.sync_thread()
+                    if r:
+                        best[label][m] = min(best[label][m], (clock() - t0) * 1e3)
+    return best
+
+
 def _spread(xs):
     return {"min": min(xs), "median": statistics.median(xs), "max": max(xs)}
 
@@ -73,6 +103,7 @@ def main():
     ap.add_argument("--lanes", type=int, default=18, help="log2 of the lanes per call")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--repeats", type=int, default=5, help="timed calls per kernel and round (fastest kept)")
+    ap.add_argument("--pieces", action="store_true", help="time the anisotropic kernels' value / pdf / sample too")
     ap.add_argument("--threads", type=int, default=1,
                     help="Dr.Jit's threads: 1 times CPU time, more wall-clock time")
     ap.add_argument("--variant", default="llvm_ad_spectral")
@@ -128,6 +159,7 @@ def main():
                     best = min(best, clock() - t0)
                 times[key][m].append(best * 1e3)
         print(f"round {r + 1}/{args.rounds} done", flush=True)
+    pieces = _pieces(dr, mi, np, bsdfs, args, clock) if args.pieces else {}
     ref = times[("roughdielectric", "now")]
     results = {}
     for (name, tag), row in times.items():
@@ -144,8 +176,10 @@ def main():
             f"{m} {res[m]['median_ms']:7.2f} ms ({res[m]['over_roughdielectric']['median']:.2f}x rd"
             + (f", {res[m]['over_base']['median']:.2f}x base" if "over_base" in res[m] else "") + ")"
             for m in METHODS))
+    for label, row in pieces.items():
+        print(f"{label:40s} kernel " + "  ".join(f"{m} {v:6.2f} ms" for m, v in row.items()))
     from common import write
-    write(args.name, {"lanes": 1 << args.lanes, "variant": args.variant, "base": args.base, "rounds": args.rounds,
+    write(args.name, {"kernel_pieces_ms_per_2^20": pieces, "lanes": 1 << args.lanes, "variant": args.variant, "base": args.base, "rounds": args.rounds,
                       "repeats": args.repeats, "threads": args.threads,
                       "clock": "process CPU time" if args.threads == 1 else "wall", "layers": {n: LAYERS[n] for n in names}, "results": results,
                       "load_average_1min": {"start": load_start, "end": os.getloadavg()[0]},
