@@ -167,3 +167,36 @@ def test_polygon_kernel_along_edge_normals(mi_variant, name):
         naive = (s1 * c - c1 * s) / beta
     exact = np.sinc(beta.astype(np.float64) / np.pi)
     assert np.nanmax(np.abs(naive - exact)) > 100 * 5e-5
+
+
+def test_alias_tables_reproduce_the_weights(mi_variant):
+    """The anisotropic sampler's alias tables draw each cell with its weight's share: the
+    probability each table assigns (``(prob[i] + Σ_{alias[j]=i} (1 - prob[j])) / n``) against
+    ``w / Σ w`` for peaked rows with zeros, a row of zeros and a single non-zero entry;
+    negative control: the same check of a table with one entry's alias moved fails."""
+    from corona.mitsuba.kernels import alias_tables
+    rng = np.random.default_rng(5)
+    w = rng.random((40, 97)) ** 12
+    w[3] = 0.0
+    w[5, :60] = 0.0
+    w[7] = 0.0
+    w[7, 13] = 2.0
+
+    def drawn(prob, alias):
+        n = prob.shape[1]
+        out = prob.astype(np.float64) / n
+        for r in range(prob.shape[0]):
+            np.add.at(out[r], alias[r].astype(np.int64), (1.0 - prob[r].astype(np.float64)) / n)
+        return out
+
+    prob, alias = alias_tables(w)
+    assert prob.dtype == np.float32 and alias.dtype == np.uint32
+    total = w.sum(axis=1, keepdims=True)
+    want = np.where(total > 0, w / np.where(total > 0, total, 1.0), 1.0 / w.shape[1])
+    got = drawn(prob, alias)
+    np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-7)
+    assert np.all(got[w == 0.0][np.repeat(total > 0, w.shape[1], axis=1)[w == 0.0]] < 1e-7)
+    bad = alias.copy()
+    j = int(np.argmax(prob[0] < 0.5))
+    bad[0, j] = (bad[0, j] + 1) % w.shape[1]
+    assert np.max(np.abs(drawn(prob, bad) - want)) > 1e-3

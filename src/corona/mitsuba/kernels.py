@@ -76,10 +76,22 @@ def sinc(x):
 
 
 def alias_tables(weights):
-    """Walker's alias tables (Vose's construction) of each row of ``weights`` ``(rows, n)`` (>= 0),
-    all rows at once: ``prob`` (float32) and ``alias`` (uint32), both ``(rows, n)``, such that
-    picking ``i`` uniformly and keeping it with probability ``prob[i]`` (else taking ``alias[i]``)
-    draws ``i`` with probability ``weights[i] / Σ weights`` (a row of total 0: uniform).
+    """Walker's alias tables (Vose's construction) of each row of ``weights``, all rows at once.
+
+    Picking ``i`` uniformly from a row and keeping it with probability ``prob[i]`` (else taking
+    ``alias[i]``) draws ``i`` with probability ``weights[i] / Σ weights``, exactly up to rounding:
+    ``P(i) = (prob[i] + Σ_{j: alias[j] = i} (1 - prob[j])) / n``.  The rows' stacks of entries
+    below and above the mean are worked in lockstep (at most ``n`` numpy steps for all rows).
+
+    Parameters
+    ----------
+    weights : array_like, shape (rows, n)
+        Non-negative weights; a row of total 0 is drawn uniformly.
+
+    Returns
+    -------
+    prob : ndarray of float32, shape (rows, n)
+    alias : ndarray of uint32, shape (rows, n)
 
     References
     ----------
