@@ -23,9 +23,10 @@ a round's median render to the reference's median in the same round: min, median
 
 Next to the whole render, each child times its BSDF alone (``--bsdf-lanes``, default 2^18
 lanes of ``bench_kernels.inputs``; the fastest of five calls of ``eval_pdf`` and of
-``sample``, wall-clock on the render's threads), so a ratio of renders can be read against
-the ratio of what the BSDF itself costs (``bench_bsdf.py`` times those on one thread, in one
-process).
+``sample``, CPU time on one Dr.Jit thread as ``bench_bsdf.py`` does: on a loaded machine a
+short kernel's wall time on several threads waits for whichever thread the system preempted,
+up to 6× its run time), so a ratio of renders can be read against the ratio of what the BSDF
+itself costs.
 
     python benchmarks/bench_render.py [--res 256] [--spp 64] [--rounds 5] [--repeats 3] [--variant V]
         [--bsdfs ...] [--bsdf-lanes 18]
@@ -84,7 +85,7 @@ GOALS = {"corona": (1.10, "roughdielectric"), "corona_textured": (1.25, "roughdi
 
 def bsdf_alone(dr, mi, bsdf: dict, lanes: int) -> dict:
     """The fastest of five calls [ms] of ``eval_pdf`` and ``sample`` of ``bsdf`` alone on
-    ``2^lanes`` lanes of ``bench_kernels.inputs`` (wall-clock, the render's threads; JIT untimed)."""
+    ``2^lanes`` lanes of ``bench_kernels.inputs`` (CPU time on one Dr.Jit thread; JIT untimed)."""
     import warnings
     import numpy as np
     from bench_kernels import inputs
@@ -94,15 +95,18 @@ def bsdf_alone(dr, mi, bsdf: dict, lanes: int) -> dict:
     si, wo, s1, s2 = inputs(dr, mi, np, n=1 << lanes)
     ctx = mi.BSDFContext()
     out = {}
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
     for method, fn in (("eval_pdf", lambda: b.eval_pdf(ctx, si, wo)), ("sample", lambda: b.sample(ctx, si, s1, s2))):
         best = float("inf")
         for k in range(6):
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             dr.eval(fn())
             dr.sync_thread()
             if k:
-                best = min(best, time.perf_counter() - t0)
+                best = min(best, time.process_time() - t0)
         out[f"{method}_ms"] = best * 1e3
+    dr.set_thread_count(threads)
     return out
 
 
