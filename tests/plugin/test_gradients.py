@@ -135,8 +135,11 @@ def _context(flags):
     return ctx
 
 
-def _quantity(bsdf, what, key, theta):
-    """The scalar q(bsdf) whose derivative is tested: a sum over directions or samples."""
+def _quantity(bsdf, what, key, theta, keep=None):
+    """The scalar q(bsdf) whose derivative is tested: a sum over directions or samples (with
+    ``keep``, a bool per sample, only those); ``what="keep"``: the samples whose direction lies
+    away from grazing exit (``|wo_xy|² < 0.98``: the evanescent cut is a jump of the weight, and a
+    step in the radius moves a direction sampled there across it)."""
     import mitsuba as mi
     wi, wo = _directions(theta)
     uv = (0.25, 0.25)                                   # the first texel
@@ -153,6 +156,10 @@ def _quantity(bsdf, what, key, theta):
     one = mi.BSDFFlags.DiffuseReflection if key.startswith("albedo") else mi.BSDFFlags.GlossyTransmission
     bs, w = bsdf.sample(_context(one), uv_interaction(n, wi, uv, LAMS), mi.Float(s1.astype(np.float32)),
                         mi.Point2f(s2.astype(np.float32)))
+    if what == "keep":
+        return np.asarray(dr.detach(dr.square(bs.wo.x) + dr.square(bs.wo.y))) < 0.98
+    if keep is not None:
+        w = w * mi.Float(np.asarray(keep, dtype=np.float32))
     return dr.sum(dr.sum(w))
 
 
@@ -197,23 +204,27 @@ def test_derivatives_match_central_differences(mi_variant, family, key, textured
         for theta in THETAS:
             if key == "albedo" and what == "weight" and theta:
                 continue                             # the diffuse weight does not depend on θ
+            keep = None
+            if what == "weight":                     # the samples away from grazing exit at x
+                put(mi.Float(x))
+                keep = _quantity(bsdf, "keep", key, theta)
             put(mi.Float(x + h))
-            up = float(_quantity(bsdf, what, key, theta)[0])
+            up = float(_quantity(bsdf, what, key, theta, keep)[0])
             put(mi.Float(x - h))
-            down = float(_quantity(bsdf, what, key, theta)[0])
+            down = float(_quantity(bsdf, what, key, theta, keep)[0])
             fd = (up - down) / (2 * h)
             # reverse mode
             xr = mi.Float(x)
             dr.enable_grad(xr)
             put(xr)
-            y = _quantity(bsdf, what, key, theta)
+            y = _quantity(bsdf, what, key, theta, keep)
             dr.backward(y)
             rev = float(np.asarray(dr.grad(xr)).ravel()[0])
             # forward mode
             xf = mi.Float(x)
             dr.enable_grad(xf)
             put(xf)
-            y = _quantity(bsdf, what, key, theta)
+            y = _quantity(bsdf, what, key, theta, keep)
             dr.forward(xf)
             fwd = float(np.asarray(dr.grad(y)).ravel()[0])
             scale = abs(up + down) * 0.5 / max(abs(x), 1e-3)       # q / x: a derivative's natural size

@@ -145,6 +145,18 @@ def _pack_rows(rows, slopes=None):
     return _array(mi.Float, packed.ravel())
 
 
+def _pack_row_pairs(rows, slopes):
+    """Radial rows ``(n_rows, n)`` (``n_rows >= 2``) and their slopes in F_a as one float32 array of
+    8-float packets, row pair by row pair and bin by bin: packet ``(j, i)`` holds row ``j``'s packet of
+    :func:`_pack_rows` for bin ``i`` and then row ``j + 1``'s (``j < n_rows - 1``), so that the Hermite
+    in F_a between rows ``j`` and ``j + 1`` reads one 32-byte packet (one cache line) a lookup, and
+    row ``r``'s own packet is the 4-float packet ``2 (p (n - 1) + i) + r - p``, ``p = min(r, n_rows - 2)``."""
+    rows = np.asarray(rows, dtype=np.float64)
+    slopes = np.asarray(slopes, dtype=np.float64)
+    single = np.stack([rows[:, :-1], rows[:, 1:], slopes[:, :-1], slopes[:, 1:]], axis=-1)   # (n_rows, n - 1, 4)
+    return _array(mi.Float, np.concatenate([single[:-1], single[1:]], axis=-1).ravel())
+
+
 def _channel_tables(v, dv, du, lams_nm, weights):
     """A radial row ``v(u)`` (linear in ``u``, nodes ``du`` apart, 0 beyond) and its slope ``dv`` in
     F_a as one table per RGB / mono channel in ``s = L |d|`` [µm]:
@@ -392,8 +404,11 @@ class CoronaBSDFMixin:
             self.du = float(tabs[0].du)
             self.n = int(tabs[0].values.size)
             rows = np.stack([t.values for t in tabs])
-            # ∂v/∂F_a of each row (Hermite in F_a between rows)
-            self.packed = _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None)
+            # ∂v/∂F_a of each row (Hermite in F_a between rows); vectorised variants with rows to
+            # interpolate keep row pairs side by side (one wide packet gather a lookup)
+            self.row_pairs = self.n_rows > 1 and dr.is_array_v(mi.Float)
+            self.packed = (_pack_row_pairs(rows, row_slopes(fas, rows)) if self.row_pairs else
+                           _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None))
             self._set_cdf([t.cdf for t in tabs])
             if self.channel_tables_on:
                 self._set_channel_tables(rows[0], np.zeros_like(rows[0]), self.du)
@@ -436,6 +451,7 @@ class CoronaBSDFMixin:
         lo, step = dv[:-1], dv[1:] - dv[:-1]
         slope_total = float(np.sum(2 * np.pi * du * (u0 * lo + (u0 * step + du * lo) / 2 + du * step / 3)))
         self.du, self.n = du, int(v.size)
+        self.row_pairs = False
         self.packed = _pack_rows(v[None], dv[None])
         self.totals = _array(mi.Float, [row.total])
         self.total_slopes = _array(mi.Float, [slope_total])
@@ -575,13 +591,18 @@ class CoronaBSDFMixin:
         t = x - mi.Float(i)
         inside = active & (x <= self.n - 1)
         k = row * (self.n - 1) + i       # the packet of bin i: v(i), v(i + 1), ∂v(i), ∂v(i + 1)
-        q = gather4(self.packed, k, inside)
+        if self.row_pairs and t_fa is not None:     # rows j and j + 1 in one 8-float packet
+            r8 = dr.gather(mi.ArrayXf, self.packed, k, inside, shape=(8, dr.width(k)))
+            q, q1 = mi.Vector4f(r8[0], r8[1], r8[2], r8[3]), mi.Vector4f(r8[4], r8[5], r8[6], r8[7])
+        else:
+            q = gather4(self.packed, k, inside)
         v0 = dr.lerp(q.x, q.y, t)
         if t_fa is None:
             return dr.select(inside, dr.maximum(v0, 0.0), 0.0), None, None
         if self.centred:         # t_fa = F_a - the row's F_a: 0 in value, the slope for derivatives
             return dr.select(inside, dr.maximum(dr.fma(t_fa, dr.lerp(q.z, q.w, t), v0), 0.0), 0.0), None, None
-        q1 = gather4(self.packed, k + (self.n - 1), inside)
+        if not self.row_pairs:
+            q1 = gather4(self.packed, k + (self.n - 1), inside)
         v1 = dr.lerp(q1.x, q1.y, t)
         h00, h10, h01, h11 = hermite
         v = h00 * v0 + h01 * v1 + h10 * dr.lerp(q.z, q.w, t) + h11 * dr.lerp(q1.z, q1.w, t)
@@ -604,7 +625,11 @@ class CoronaBSDFMixin:
         else:
             du, n, packed, totals = self.du, self.n, self.packed, self.totals
         u0 = mi.Float(idx) * du
-        q = gather4(packed, row * (n - 1) + idx, active)    # (bins of the CDF = of the rows)
+        if self.row_pairs and not self.channel_tables_on:   # row `row`'s half of its pair's packet
+            pair = dr.minimum(row, self.n_rows - 2)
+            q = gather4(packed, 2 * (pair * (n - 1) + idx) + (row - pair), active)
+        else:
+            q = gather4(packed, row * (n - 1) + idx, active)    # (bins of the CDF = of the rows)
         a = q.x
         b = q.y - a
         t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, totals, row, active))

@@ -18,7 +18,7 @@ the (few) outlines and polygon edges only, never over lanes.
 * ``table``: the bilinear table (lattices).
 
 Sampling: the bilinear table of ``v`` (uniform in u, or in ``t = u / (1 + |u|/c)``
-for lobes reaching beyond it) sampled exactly, a cell by two guided searches, a
+for lobes reaching beyond it) sampled exactly, a cell by two alias tables (:func:`alias_tables`), a
 corner of it and the product of two linear ramps (:meth:`LobeKernel._sample_cell`);
 the pdf is the exact density of that table (divided by the Jacobian ``d²u/d²t``).
 
@@ -35,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from corona.mitsuba.common import array as _array, gather as _gather, gather4, guided_cdfs, guided_search
+from corona.mitsuba.common import array as _array, gather as _gather, gather4
 from corona.tables.lobe import TAYLOR_ORDER, TAYLOR_U
 
 # Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
@@ -43,6 +43,10 @@ _J1_SMALL = (0.5, -0.56249985, 0.21093573, -0.03954289, 0.00443319, -0.00031761,
 # 9.4.6: J1(x) = x^{-1/2} f1 cos θ1, x >= 3, in powers of 3/x
 _J1_F1 = (0.79788456, 0.00000156, 0.01659667, 0.00017105, -0.00249511, 0.00113653, -0.00020033)
 _J1_TH = (-2.35619449, 0.12499612, 0.00005650, -0.00637879, 0.00074348, 0.00079824, -0.00029166)
+
+
+#: sinc(x) = Σ (-x²)^i / (2i + 1)!, i = 0 .. 5 (in x²)
+_SINC_SERIES = tuple((-1.0) ** i / math.factorial(2 * i + 1) for i in range(6))
 
 
 def _poly(coeffs, x):
@@ -71,6 +75,78 @@ def sinc(x):
     return dr.select(tiny, 1.0 - dr.square(x) * (1.0 / 6.0), dr.sin(xs) / xs)
 
 
+def alias_tables(weights):
+    """Walker's alias tables (Vose's construction) of each row of ``weights``, all rows at once.
+
+    Picking ``i`` uniformly from a row and keeping it with probability ``prob[i]`` (else taking
+    ``alias[i]``) draws ``i`` with probability ``weights[i] / Σ weights``, exactly up to rounding:
+    ``P(i) = (prob[i] + Σ_{j: alias[j] = i} (1 - prob[j])) / n``.  The rows' stacks of entries
+    below and above the mean are worked in lockstep (at most ``n`` numpy steps for all rows).
+
+    Parameters
+    ----------
+    weights : array_like, shape (rows, n)
+        Non-negative weights; a row of total 0 is drawn uniformly.
+
+    Returns
+    -------
+    prob : ndarray of float32, shape (rows, n)
+    alias : ndarray of uint32, shape (rows, n)
+
+    References
+    ----------
+    A. J. Walker, ACM TOMS 3 (1977) 253; M. D. Vose, IEEE TSE 17 (1991) 972.
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    rows, n = w.shape
+    total = w.sum(axis=1, keepdims=True)
+    p = np.where(total > 0, w * n / np.where(total > 0, total, 1.0), 1.0)
+    prob = np.ones((rows, n))
+    alias = np.tile(np.arange(n), (rows, 1))
+    # per row, a stack of the entries below 1 and one of those at or above 1, processed in lockstep
+    small_first = np.argsort(p >= 1.0, axis=1, kind="stable")            # entries < 1 first
+    n_small = np.sum(p < 1.0, axis=1)
+    small = np.full((rows, n), -1)
+    large = np.full((rows, n), -1)
+    idx = np.arange(n)[None, :]
+    small[idx < n_small[:, None]] = small_first[idx < n_small[:, None]]
+    n_large = n - n_small
+    large_rev = small_first[:, ::-1]                                      # entries >= 1 first
+    large[idx < n_large[:, None]] = large_rev[idx < n_large[:, None]]
+    r = np.arange(rows)
+    while True:
+        go = (n_small > 0) & (n_large > 0)
+        if not np.any(go):
+            break
+        g = r[go]
+        i_s = small[g, n_small[g] - 1]
+        i_l = large[g, n_large[g] - 1]
+        n_small[g] -= 1
+        prob[g, i_s] = p[g, i_s]
+        alias[g, i_s] = i_l
+        p[g, i_l] -= 1.0 - p[g, i_s]
+        moved = p[g, i_l] < 1.0                  # the large entry drops below 1: a small one now
+        gm = g[moved]
+        n_large[gm] -= 1
+        small[gm, n_small[gm]] = i_l[moved]
+        n_small[gm] += 1
+    # what is left (at 1 up to rounding) keeps itself: prob 1, alias itself (set above)
+    return prob.astype(np.float32), alias.astype(np.uint32)
+
+
+def _alias_pick(prob, alias, n, offset, xi, active):
+    """An entry of row ``offset / n`` of :func:`alias_tables` (``mi.Float`` / ``mi.UInt32``) from ``xi`` in
+    [0, 1) (Dr.Jit), and what is left of ``xi``, uniform in [0, 1) again: ``(entry, rest)``."""
+    x = xi * n
+    i = dr.minimum(mi.UInt32(x), n - 1)
+    f = dr.clip(x - mi.Float(i), 0.0, 1.0)
+    keep = _gather(mi.Float, prob, offset + i, active)
+    other = _gather(mi.UInt32, alias, offset + i, active)
+    stay = f < keep
+    rest = dr.select(stay, f / dr.maximum(keep, 1e-30), (f - keep) / dr.maximum(1.0 - keep, 1e-30))
+    return dr.select(stay, i, other), dr.clip(rest, 0.0, 0.99999994)
+
+
 class LobeKernel:
     """The renderer's lobe of a non-radial material in Dr.Jit (see the module docstring)."""
 
@@ -93,22 +169,7 @@ class LobeKernel:
                 if "angle" in p:
                     p["cos"], p["sin"] = math.cos(p["angle"]), math.sin(p["angle"])
                 if t.kind == "polygon":
-                    v = np.asarray(p["vertices"], dtype=np.float64)
-                    w = np.roll(v, -1, axis=0)
-                    p["edges"] = (w - v).tolist()
-                    p["mids"] = (0.5 * (w + v)).tolist()
-                    p["v0"] = v.tolist()
-                    p["v1"] = w.tolist()
-                    p["cross"] = (v[:, 0] * w[:, 1] - v[:, 1] * w[:, 0]).tolist()
-                    p["circumradius"] = float(np.max(np.hypot(v[:, 0], v[:, 1])))
-                    # centrosymmetric (v_{k+n/2} = -v_k): Â is real, and edge k+n/2
-                    # doubles edge k's sine term (and cancels its cosine term)
-                    h = len(v) // 2
-                    p["centrosymmetric"] = bool(len(v) % 2 == 0 and np.allclose(
-                        v[h:], -v[:h], rtol=0.0, atol=1e-9 * p["circumradius"]))
-                    if p["centrosymmetric"]:
-                        for key in ("edges", "mids", "v0", "v1", "cross"):
-                            p[key] = p[key][:h]
+                    self._polygon_setup(p)
                 self.terms.append((t.kind, p, float(t.weight), float(t.area), float(t.blur)))
         # --- form-factor grids --------------------------------------------------------
         if rl.kind == "grid":
@@ -131,16 +192,15 @@ class LobeKernel:
         self.set_sampling_table(t.values)
 
     def set_sampling_table(self, values):
-        """Sample the bilinear table ``values`` ``(n, n)`` (:meth:`sample`): the CDF of its rows of
-        cells and, in each row, of its cells (:func:`corona.mitsuba.common.guided_cdfs`), a cell's
+        """Sample the bilinear table ``values`` ``(n, n)`` (:meth:`sample`): alias tables
+        (:func:`alias_tables`) of its rows of cells and, in each row, of its cells, a cell's
         weight the mean of its corners (its integral)."""
         v = np.maximum(np.asarray(values, dtype=np.float64), 0.0)
         cells = 0.25 * (v[:-1, :-1] + v[:-1, 1:] + v[1:, :-1] + v[1:, 1:])        # (n - 1, n - 1)
-        zero = np.zeros((cells.shape[0], 1))
-        self.s_rows_g = guided_cdfs([np.concatenate([[0.0], np.cumsum(cells.sum(axis=1))])])
-        self.s_cols_g = guided_cdfs(list(np.concatenate([zero, np.cumsum(cells, axis=1)], axis=1)))
-        for g in (self.s_rows_g, self.s_cols_g):
-            g["cdf"], g["guide"] = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
+        rows_p, rows_a = alias_tables(cells.sum(axis=1)[None, :])
+        cols_p, cols_a = alias_tables(cells)
+        self.s_rows_alias = (_array(mi.Float, rows_p.ravel()), _array(mi.UInt32, rows_a.ravel()))
+        self.s_cols_alias = (_array(mi.Float, cols_p.ravel()), _array(mi.UInt32, cols_a.ravel()))
 
     @staticmethod
     def corners(values):
@@ -294,48 +354,114 @@ class LobeKernel:
         return re, im
 
     @staticmethod
+    def _polygon_setup(p):
+        """Constants of :meth:`_polygon` (in ``p``): the vertices whose half phases the edge sum
+        needs, the edges, their cross products with q's coefficients, and the Taylor series'
+        homogeneous polynomials in ``(q_x, q_y)``."""
+        v = np.asarray(p["vertices"], dtype=np.float64)
+        n = len(v)
+        p["circumradius"] = float(np.max(np.hypot(v[:, 0], v[:, 1])))
+        # centrosymmetric (v_{k+n/2} = -v_k): Â is real, and edge k+n/2 doubles edge k's sine
+        # term (and cancels its cosine term); the edges k < n/2 need vertices 0 .. n/2 (v_{n/2} = -v_0)
+        h = n // 2
+        p["centrosymmetric"] = bool(n % 2 == 0 and np.allclose(
+            v[h:], -v[:h], rtol=0.0, atol=1e-9 * p["circumradius"]))
+        m = h if p["centrosymmetric"] else n           # edges summed
+        p["phase_vertices"] = v[:m].tolist()           # (the closing vertex: -v_0 or v_0, no new phase)
+        # a vertex that is the sum or difference of two earlier ones (a regular hexagon's v_2 = v_1 - v_0)
+        # takes its half phase's sine and cosine from theirs by the angle-sum formulas: (k, a, b, ±1)
+        p["phase_sums"] = {}
+        for k in range(2, m):
+            for a in range(k):
+                for b in range(a):
+                    for sign in (1.0, -1.0):
+                        if k not in p["phase_sums"] and np.allclose(v[k], v[a] + sign * v[b], rtol=0.0,
+                                                                    atol=1e-9 * p["circumradius"]):
+                            p["phase_sums"][k] = (a, b, sign)
+        p["edges"] = (np.roll(v, -1, axis=0) - v)[:m].tolist()
+        # the Taylor series of the fan of triangles (0, v_k, v_{k+1}), Σ_j (-i)^j c_j(q), c_j the
+        # homogeneous polynomial Σ_k 2|T_k| / (j + 2)! Σ_{a+b=j} (q·v_k)^a (q·v_{k+1})^b, as its
+        # coefficients of q_x^i q_y^(j-i) (index i), in float64 from all n triangles
+        w = np.roll(v, -1, axis=0)
+        cross = v[:, 0] * w[:, 1] - v[:, 1] * w[:, 0]
+        taylor = []
+        for j in range(TAYLOR_ORDER + 1):
+            c = np.zeros(j + 1)
+            for (ax, ay), (bx, by), cr in zip(v, w, cross):
+                for a in range(j + 1):
+                    poly = np.array([1.0])
+                    for _ in range(a):
+                        poly = np.convolve(poly, [ay, ax])     # q·v_k: index = power of q_x
+                    for _ in range(j - a):
+                        poly = np.convolve(poly, [by, bx])
+                    c += cr / math.factorial(j + 2) * poly
+            taylor.append(c.tolist())
+        p["taylor"] = taylor
+
+    @staticmethod
     def _polygon(p, qx, qy):
         """``Â`` of a polygon: the edge sum ``(i/|q|²) Σ (q × e) sinc(q·e/2) e^{-i q·m}``
-        (Lee & Mittra 1983), and the Taylor series of the fan of triangles
-        ``Σ_n (-i)^n/(n+2)! 2|T| Σ_{i+j=n} α^i β^j`` near q = 0."""
+        (Lee & Mittra 1983), and its Taylor series near q = 0.
+
+        An edge from ``v_k`` to ``v_{k+1}`` has ``q·m = ψ_k + ψ_{k+1}`` and ``q·e/2 = ψ_{k+1} - ψ_k``
+        with the vertices' half phases ``ψ_k = q·v_k/2``, so one ``sincos`` a vertex gives both
+        sines by the angle-sum formulas (instead of two trigonometric calls an edge), and none for
+        a vertex that is the sum or difference of two others (a regular hexagon's third);
+        ``sinc(q·e/2)`` is its Maclaurin series below 1 (with ``q·e/2`` itself, so no cancellation
+        where q is nearly normal to an edge).  Near q = 0 the Taylor series of the fan of
+        triangles ``Σ_j (-i)^j c_j(q)``, its homogeneous polynomials ``c_j`` precomputed
+        (:meth:`_polygon_setup`; odd ones vanish for centrosymmetric polygons)."""
         qq = dr.fma(qx, qx, qy * qy)
         small = qq * (p["circumradius"] ** 2) < TAYLOR_U**2
         sym = p["centrosymmetric"]
+        phases = []
+        for k, (vx, vy) in enumerate(p["phase_vertices"]):
+            if k in p["phase_sums"]:            # ψ_k = ψ_a ± ψ_b
+                a, b, sign = p["phase_sums"][k]
+                (sa, ca), (sb, cb) = phases[a], phases[b]
+                sb = sign * sb
+                phases.append((dr.fma(sa, cb, ca * sb), dr.fma(ca, cb, -(sa * sb))))
+            else:
+                phases.append(dr.sincos(0.5 * dr.fma(qx, vx, qy * vy)))
+        s0, c0 = phases[0]
+        phases.append((-s0, c0) if sym else (s0, c0))      # the closing vertex: -v_0 or v_0
         sw = mi.Float(0.0)   # Σ w sin φ
         cw = mi.Float(0.0)   # Σ w cos φ
-        for (ex, ey), (mx, my) in zip(p["edges"], p["mids"]):
-            w = (qx * ey - qy * ex) * sinc(0.5 * (qx * ex + qy * ey))
-            if sym:
-                sw = dr.fma(w, dr.sin(qx * mx + qy * my), sw)
-            else:
-                s, c = dr.sincos(qx * mx + qy * my)
-                sw = dr.fma(w, s, sw)
-                cw = dr.fma(w, c, cw)
+        for k, (ex, ey) in enumerate(p["edges"]):
+            (sa, ca), (sb, cb) = phases[k], phases[k + 1]
+            beta = 0.5 * dr.fma(qx, ex, qy * ey)
+            b2 = dr.square(beta)
+            # sinc(β): Σ (-β²)^i / (2i + 1)! to β^10 below |β| = 1 (|error| < 2e-10), else sin β / β
+            series = _poly(_SINC_SERIES, b2)
+            sin_beta = dr.fma(sb, ca, -(cb * sa))
+            sinc_beta = dr.select(b2 < 1.0, series, sin_beta / dr.select(b2 < 1.0, 1.0, beta))
+            w = (qx * ey - qy * ex) * sinc_beta
+            sw = dr.fma(w, dr.fma(sa, cb, ca * sb), sw)                 # sin(ψ_k + ψ_{k+1})
+            if not sym:
+                cw = dr.fma(w, dr.fma(ca, cb, -(sa * sb)), cw)             # cos(ψ_k + ψ_{k+1})
         inv = (2.0 if sym else 1.0) / dr.select(small, 1.0, qq)
         re_e, im_e = sw * inv, cw * inv
-        # Taylor: (-i)^n cycles 1, -i, -1, i
-        re_t = mi.Float(0.0)
+        # Taylor: (-i)^j cycles 1, -i, -1, i; c_j by Horner in q_x with the powers of q_y
+        qy_pow = [mi.Float(1.0)]
+        for _ in range(TAYLOR_ORDER):
+            qy_pow.append(qy_pow[-1] * qy)
+        re_t = mi.Float(p["taylor"][0][0])
         im_t = mi.Float(0.0)
-        for (ax, ay), (bx, by), cr in zip(p["v0"], p["v1"], p["cross"]):
-            alpha = qx * ax + qy * ay
-            beta = qx * bx + qy * by
-            h = mi.Float(1.0)
-            apow = mi.Float(1.0)
-            re_t += 0.5 * cr * (2.0 if sym else 1.0)
-            for n in range(1, TAYLOR_ORDER + 1):
-                apow = apow * alpha
-                h = dr.fma(beta, h, apow)
-                if sym and n % 2 == 1:
-                    continue          # odd moments vanish; even ones double
-                term = h * (cr * (2.0 if sym else 1.0) / math.factorial(n + 2))
-                if n % 4 == 0:
-                    re_t += term
-                elif n % 4 == 1:
-                    im_t -= term
-                elif n % 4 == 2:
-                    re_t -= term
-                else:
-                    im_t += term
+        for j in range(1, TAYLOR_ORDER + 1):
+            if sym and j % 2 == 1:
+                continue          # odd moments vanish
+            coef = p["taylor"][j]
+            acc = mi.Float(coef[j])
+            for i in range(j - 1, -1, -1):
+                acc = dr.fma(acc, qx, coef[i] * qy_pow[j - i])
+            if j % 4 == 0:
+                re_t += acc
+            elif j % 4 == 1:
+                im_t -= acc
+            elif j % 4 == 2:
+                re_t -= acc
+            else:
+                im_t += acc
         if sym:
             return dr.select(small, re_t, re_e), None
         return dr.select(small, re_t, re_e), dr.select(small, im_t, im_e)
@@ -387,17 +513,13 @@ class LobeKernel:
     def _sample_cell(self, s, active):
         """``s`` (Point2f in [0, 1)²) -> a point in [0, 1]² of the sampling table with the density of
         its bilinear interpolant (exactly): the row of cells by ``s.x``, the cell in it by ``s.y``
-        (guided searches), one of the cell's four corners with probability ∝ its value (what is
-        left of ``s.x``), then the product of the two linear ramps that vanish at the opposite
+        (alias tables: two independent gathers each, no search), one of the cell's four corners
+        with probability ∝ its value (what is left of ``s.x``), then the product of the two linear ramps that vanish at the opposite
         edges (``√ξ``; ``ξ``: what is left of each): the mixture of the corners' ramps weighted by
         their values is the bilinear interpolant of the cell, and the cell's probability its integral."""
         n1 = self.near["n"] - 1
-        rg, cg = self.s_rows_g, self.s_cols_g
-        y0, a0, a1 = guided_search(rg["cdf"], rg["guide"], rg["G"], rg["n_bins"], rg["steps"], mi.UInt32(0),
-                                   s.x, active)
-        x0, b0, b1 = guided_search(cg["cdf"], cg["guide"], cg["G"], cg["n_bins"], cg["steps"], y0, s.y, active)
-        ry = dr.clip((s.x - a0) / dr.maximum(a1 - a0, 1e-30), 0.0, 0.99999994)
-        rx = dr.clip((s.y - b0) / dr.maximum(b1 - b0, 1e-30), 0.0, 0.99999994)
+        y0, ry = _alias_pick(*self.s_rows_alias, n1, mi.UInt32(0), s.x, active)
+        x0, rx = _alias_pick(*self.s_cols_alias, n1, y0 * n1, s.y, active)
         q = gather4(self.near["values"], y0 * n1 + x0, active)      # v00, v01 (x + 1), v10 (y + 1), v11
         q0, q1, q2, q3 = (dr.maximum(q.x, 0.0), dr.maximum(q.y, 0.0), dr.maximum(q.z, 0.0),
                           dr.maximum(q.w, 0.0))
