@@ -62,3 +62,75 @@ class LatticeS:
                 peak = self.amp * dr.exp(e)
                 out = out + dr.select((h == 0) & (k == 0), 0.0, peak)
         return out
+
+
+class OrderSampler:
+    """Samples the Bragg orders of a fixed lattice: an order ``G`` with probability
+    ``π_G = W_G / Σ W`` over the orders ``0 < |G| ≤ G_max`` (``W_G = (2π)² n e^{-G²δ²}``, a
+    :class:`mitsuba.DiscreteDistribution`), then ``q = G + w ξ`` (``ξ`` a standard normal pair:
+    the broadened peak ``g_G``), ``wo_xy = q/k - wi_xy`` (the grating equation), and the side of
+    the layer with the caller's probabilities.  A sample past the horizon (``|wo_xy| ≥ 1``) fails.
+    In solid angle (``d²q = k² |cos θo| dΩ``) the density of ``wo`` on the side it is on is
+
+        pdf(wo) = p_side(wo) · k² |cos θo| · Σ_{|G| ≤ G_max} π_G g_G(k (wo + wi)_xy),
+
+    the sum closed-form over the ``(2m + 1)²`` peaks nearest ``q`` (as :class:`LatticeS`): it
+    integrates to the share of samples that do not fail.
+
+    Parameters
+    ----------
+    lattice : corona.Lattice
+        With ``orientation="fixed"``.
+    g_max : float
+        The largest ``|G|`` sampled [rad/µm] (``2 k`` of the shortest wavelength reaches every
+        order that can leave the layer).
+    """
+
+    def __init__(self, lattice, g_max: float):
+        G, W = lattice.bragg_peaks(float(g_max))
+        self.structure = LatticeS(lattice)
+        self.g_max2 = float(g_max) ** 2
+        self.w = float(lattice.peak_width)
+        self.total = float(np.sum(W))
+        self.Gx = mi.Float(np.asarray(G[:, 0], dtype=np.float32))
+        self.Gy = mi.Float(np.asarray(G[:, 1], dtype=np.float32))
+        self.orders = mi.DiscreteDistribution(mi.Float(np.asarray(W, dtype=np.float32)))
+        self.count = int(G.shape[0])
+
+    def sample(self, wi, k, u_order, u_peak, active=True):
+        """``(wo_x, wo_y, valid)``: an order's direction in the plane (the side is the caller's)."""
+        idx = self.orders.sample(u_order, active)
+        gx = dr.gather(mi.Float, self.Gx, idx, active)
+        gy = dr.gather(mi.Float, self.Gy, idx, active)
+        xi = mi.warp.square_to_std_normal(u_peak)
+        px = (gx + self.w * xi.x) / k - wi.x
+        py = (gy + self.w * xi.y) / k - wi.y
+        valid = mi.Bool(active) & (px * px + py * py < 1.0)
+        return px, py, valid
+
+    def density_q(self, qx, qy):
+        """``Σ_{|G| ≤ G_max} π_G g_G(q)`` [µm²]: the sampled orders' density in q."""
+        st = self.structure
+        A, B = st.A, st.B
+        f1 = dr.round(qx * A[0, 0] + qy * A[0, 1])
+        f2 = dr.round(qx * A[1, 0] + qy * A[1, 1])
+        amp = st.amp / self.total                           # (2π)² n / (2π w² Σ W)
+        out = mi.Float(0.0)
+        for dh in range(-st.m, st.m + 1):
+            for dk in range(-st.m, st.m + 1):
+                h, kk = f1 + dh, f2 + dk
+                gx = h * B[0, 0] + kk * B[1, 0]
+                gy = h * B[0, 1] + kk * B[1, 1]
+                g2 = gx * gx + gy * gy
+                dx, dy = qx - gx, qy - gy
+                e = -(dx * dx + dy * dy) * st.inv_2w2
+                if st.jitter2 > 0:
+                    e = e - g2 * st.jitter2
+                keep = ((h != 0) | (kk != 0)) & (g2 <= self.g_max2 * (1 + 1e-6))
+                out = out + dr.select(keep, amp * dr.exp(e), 0.0)
+        return out
+
+    def pdf(self, wi, wo, k, p_side):
+        """The density of ``wo`` in solid angle, ``p_side`` the probability of its side."""
+        qx, qy = k * (wo.x + wi.x), k * (wo.y + wi.y)
+        return p_side * k * k * dr.abs(wo.z) * self.density_q(qx, qy)
