@@ -134,3 +134,44 @@ class OrderSampler:
         """The density of ``wo`` in solid angle, ``p_side`` the probability of its side."""
         qx, qy = k * (wo.x + wi.x), k * (wo.y + wi.y)
         return p_side * k * k * dr.abs(wo.z) * self.density_q(qx, qy)
+
+
+class LatticeLobe:
+    """The lattice layer's lobe per steradian, ``Z = P S`` (one size, ``C = P``), in Dr.Jit.
+
+    ``P`` is the Mie pattern read from a sphere plugin's rows by its own lookup (its
+    :meth:`~corona.mitsuba.sphere.SphereBSDFMixin._states` and
+    :meth:`~corona.mitsuba.sphere.SphereBSDFMixin._rows_at`: the forward rows for ``Θ < 90°`` from
+    ``-wi``, the backward rows beyond), ``S`` the lattice's (:class:`LatticeS`) at
+    ``q = k (wo + wi)_xy``, on both lobes (a crystal is a strict monolayer).  The cap ``F_s w``
+    is not applied here (docs/physics.md#spheres-on-a-lattice).
+
+    Parameters
+    ----------
+    sphere_bsdf : the ``corona`` plugin of the same sphere (any isotropic process: the Mie rows
+        do not depend on it)
+    lattice : corona.Lattice (fixed)
+    """
+
+    def __init__(self, sphere_bsdf, lattice):
+        self.bsdf = sphere_bsdf
+        self.structure = LatticeS(lattice)
+
+    def __call__(self, si, wo, active=True):
+        """Per wavelength of the lane: ``Z`` at ``wo`` (a list of mi.Float)."""
+        b = self.bsdf
+        active = mi.Bool(active)
+        wi = si.wi
+        states, _ = b._states(si, active)
+        s_f = dr.norm(wo + wi)
+        s_b = dr.norm(wo - wi)
+        forward = s_f <= s_b
+        s_any = dr.select(forward, s_f, s_b)
+        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+        out = []
+        for st in states:
+            P = b._rows_at(b.P, st, s_any, active, offset)[0]
+            k = (2.0 * dr.pi) / st["lam"]
+            S = self.structure(k * (wo.x + wi.x), k * (wo.y + wi.y))
+            out.append(dr.select(active, P * S, 0.0))
+        return out

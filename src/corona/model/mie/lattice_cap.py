@@ -62,7 +62,7 @@ CAP_OVERLAP = 1e-3
 CUBIC_EXCESS = 1.125
 
 __all__ = ["CAP_LAMBDA_CELLS", "CAP_NEAR", "CAP_NEAR_CELLS", "CAP_WI_CELLS", "cap_energy", "cap_parts",
-           "cap_table", "diffuse_bound_rows", "far_energy"]
+           "cap_table", "diffuse_bound_rows", "far_energy", "near_bound_at"]
 
 
 def _sparse_max(values):
@@ -193,6 +193,81 @@ def _far_nodes(material, lam_nodes, s_nodes):
         lam_nodes.size, s_nodes.size, s_nodes.size)
 
 
+def _near_bound(material, sc, hs: float, l0: float, l1: float) -> np.ndarray:
+    """Per cell of ``wi_xy`` (centres ``sc`` (N, 2), half diagonal ``hs``) and wavelengths
+    ``[l0, l1]`` [µm]: a proven bound of the near orders' energy ``Σ_G (1 - χ(ρ_G)) e_G``
+    (module docstring)."""
+    lattice, rows, radius = material.lattice, material.rows, material.length_scale
+    P_f, P_b, xr, ds = rows["P_f"], rows["P_b"], rows["x"], float(rows["ds"])
+    J = P_f.shape[0]
+    s_abs = np.hypot(sc[:, 0], sc[:, 1])
+    s_min, s_max = np.clip(s_abs - hs, 0.0, 1.0), np.clip(s_abs + hs, 0.0, 1.0)
+    inside = s_abs - hs < 1.0
+    ci_lo, ci_hi = np.sqrt(1.0 - s_max ** 2), np.sqrt(1.0 - s_min ** 2)
+    w = lattice.peak_width
+    chord_top = math.sqrt(2.0)
+    out = np.zeros(sc.shape[0])
+    jrow = lambda xx: int(np.clip(np.searchsorted(xr, xx, side="right") - 1, 0, J - 2))
+    lc = 0.5 * (l0 + l1)
+    k_lo, k_hi = 2 * np.pi / l1, 2 * np.pi / l0
+    x_lo, x_hi = radius * k_lo, radius * k_hi
+    j0, j1 = jrow(x_lo), jrow(x_hi) + 1
+    xrow_min, xrow_max = xr[j0], xr[j1]
+    scale = CUBIC_EXCESS * (x_hi / xrow_min) ** 2
+    lev_f = _sparse_max(P_f[j0:j1 + 1].max(axis=0))
+    lev_b = _sparse_max(P_b[j0:j1 + 1].max(axis=0))
+    p_glob = scale * max(lev_f[0].max(), lev_b[0].max())
+
+    def lobe_max(levels, s_lo, s_hi):
+        """Bound of the lane's P over lane chords [s_lo, s_hi] (the lobe is used up to √2)."""
+        s_hi = np.minimum(s_hi, chord_top)
+        use = s_lo <= s_hi
+        lo = np.floor(np.minimum(s_lo, 4.0) * x_lo / (xrow_max * ds)).astype(np.int64)
+        hi = np.floor(s_hi * x_hi / (xrow_min * ds)).astype(np.int64) + 1
+        return np.where(use, scale * _range_max(levels, lo, hi), 0.0)
+
+    eps_lo, eps_hi = w * l0 / (2 * np.pi), w * l1 / (2 * np.pi)
+    rwin = CAP_REACH * eps_hi
+    G, W = lattice.bragg_peaks(k_hi * (2.0 + 2.0 * rwin) + CAP_REACH * w)
+    Gn = np.hypot(G[:, 0], G[:, 1])
+    pc_all = G[None, :, :] * (lc / (2 * np.pi)) - sc[:, None, :]          # (cells, orders, 2)
+    lip_all = np.broadcast_to(Gn[None, :] * (l1 - l0) / (4 * np.pi) + hs, pc_all.shape[:2])
+    rc_all = np.hypot(pc_all[..., 0], pc_all[..., 1])
+    near = 1.0 - _chi(rc_all + lip_all)                     # the near share's bound over the cell
+    keep = (rc_all - lip_all < 1.0 + 2.0 * rwin) & inside[:, None] & (near > 0)
+    n_i, g_i = np.nonzero(keep)
+    if n_i.size == 0:
+        return out
+    Gb, Wb, Gnb = G[g_i], W[g_i], Gn[g_i]
+    rc, lip, share = rc_all[n_i, g_i], lip_all[n_i, g_i], near[n_i, g_i]
+    rho_lo, rho_hi = np.maximum(rc - lip, 0.0), rc + lip
+    H = _h_bound(rho_lo, rho_hi, eps_lo, eps_hi)
+    # the directions of the window: |p| range, then c_o = (1 - |p|²)^½
+    p_lo = np.clip(rho_lo - rwin, 0.0, 1.0)
+    p_hi = np.clip(rho_hi + rwin, 0.0, 1.0)
+    co_lo, co_hi = np.sqrt(1.0 - p_hi ** 2), np.sqrt(1.0 - p_lo ** 2)
+    cil, cih = ci_lo[n_i], ci_hi[n_i]
+    # |wo + wi|_xy = |q|/k and |wo - wi|_xy = |G λ/2π - 2 wi_xy + δ|
+    qk_lo = np.maximum(Gnb * l0 / (2 * np.pi) - rwin, 0.0)
+    qk_hi = Gnb * l1 / (2 * np.pi) + rwin
+    pm = Gb * (lc / (2 * np.pi)) - 2.0 * sc[n_i]
+    pm_c = np.hypot(pm[:, 0], pm[:, 1])
+    pm_r = Gnb * (l1 - l0) / (4 * np.pi) + 2.0 * hs + rwin
+    pm_lo, pm_hi = np.maximum(pm_c - pm_r, 0.0), pm_c + pm_r
+    dlo, dhi = _abs_diff_range(cil, cih, co_lo, co_hi)       # |c_i - c_o|
+    slo, shi = cil + co_lo, cih + co_hi                         # c_i + c_o
+    # transmitted: s_f² = (q/k)² + (c_i - c_o)², s_b² = |p - s|² + (c_i + c_o)²
+    # reflected:   s_f² = (q/k)² + (c_i + c_o)², s_b² = |p - s|² + (c_o - c_i)²
+    P_sum = np.zeros_like(rc)
+    for (fa, fb), (ba, bb) in (((dlo, dhi), (slo, shi)), ((slo, shi), (dlo, dhi))):
+        f_lo, f_hi = _hypot_range(qk_lo, qk_hi, fa, fb)
+        b_lo, b_hi = _hypot_range(pm_lo, pm_hi, ba, bb)
+        P_sum += np.maximum(lobe_max(lev_f, f_lo, f_hi), lobe_max(lev_b, b_lo, b_hi))
+    tail = p_glob * 2.0 * 2.51 * math.exp(-0.5 * CAP_REACH ** 2) / eps_lo
+    e = share * (Wb / k_lo ** 2) * (P_sum * H + tail)
+    return np.bincount(n_i, weights=e, minlength=sc.shape[0])
+
+
 def cap_table(material, lam_range=(360.0, 830.0), n_lam: int = CAP_LAMBDA_CELLS,
               n_s: int = CAP_WI_CELLS, n_near: int = CAP_NEAR_CELLS) -> dict:
     """The cap's table of the orders' energy (module docstring): ``far`` at the nodes of a grid in
@@ -227,77 +302,20 @@ def cap_table(material, lam_range=(360.0, 830.0), n_lam: int = CAP_LAMBDA_CELLS,
     scx, scy = np.meshgrid(sc1, sc1, indexing="xy")          # [iy, ix]
     sc = np.stack([scx.ravel(), scy.ravel()], -1)
     hs = (0.5 + CAP_OVERLAP) * dsw * math.sqrt(2.0)             # half diagonal of a cell (with overlap)
-    s_abs = np.hypot(sc[:, 0], sc[:, 1])
-    s_min, s_max = np.clip(s_abs - hs, 0.0, 1.0), np.clip(s_abs + hs, 0.0, 1.0)
-    inside = s_abs - hs < 1.0
-    ci_lo, ci_hi = np.sqrt(1.0 - s_max ** 2), np.sqrt(1.0 - s_min ** 2)
-    w = lattice.peak_width
-    chord_top = math.sqrt(2.0)
     out = np.zeros((n_lam, n_s * n_s))
-    jrow = lambda xx: int(np.clip(np.searchsorted(xr, xx, side="right") - 1, 0, J - 2))
     for c in range(n_lam):
         l0 = (lam_edges[c] - CAP_OVERLAP * dlam) * 1e-3
         l1 = (lam_edges[c + 1] + CAP_OVERLAP * dlam) * 1e-3
-        lc = 0.5 * (l0 + l1)
-        k_lo, k_hi = 2 * np.pi / l1, 2 * np.pi / l0
-        x_lo, x_hi = radius * k_lo, radius * k_hi
-        j0, j1 = jrow(x_lo), jrow(x_hi) + 1
-        xrow_min, xrow_max = xr[j0], xr[j1]
-        scale = CUBIC_EXCESS * (x_hi / xrow_min) ** 2
-        lev_f = _sparse_max(P_f[j0:j1 + 1].max(axis=0))
-        lev_b = _sparse_max(P_b[j0:j1 + 1].max(axis=0))
-        p_glob = scale * max(lev_f[0].max(), lev_b[0].max())
-
-        def lobe_max(levels, s_lo, s_hi):
-            """Bound of the lane's P over lane chords [s_lo, s_hi] (the lobe is used up to √2)."""
-            s_hi = np.minimum(s_hi, chord_top)
-            use = s_lo <= s_hi
-            lo = np.floor(np.minimum(s_lo, 4.0) * x_lo / (xrow_max * ds)).astype(np.int64)
-            hi = np.floor(s_hi * x_hi / (xrow_min * ds)).astype(np.int64) + 1
-            return np.where(use, scale * _range_max(levels, lo, hi), 0.0)
-
-        eps_lo, eps_hi = w * l0 / (2 * np.pi), w * l1 / (2 * np.pi)
-        rwin = CAP_REACH * eps_hi
-        G, W = lattice.bragg_peaks(k_hi * (2.0 + 2.0 * rwin) + CAP_REACH * w)
-        Gn = np.hypot(G[:, 0], G[:, 1])
-        pc_all = G[None, :, :] * (lc / (2 * np.pi)) - sc[:, None, :]          # (cells, orders, 2)
-        lip_all = np.broadcast_to(Gn[None, :] * (l1 - l0) / (4 * np.pi) + hs, pc_all.shape[:2])
-        rc_all = np.hypot(pc_all[..., 0], pc_all[..., 1])
-        near = 1.0 - _chi(rc_all + lip_all)                     # the near share's bound over the cell
-        keep = (rc_all - lip_all < 1.0 + 2.0 * rwin) & inside[:, None] & (near > 0)
-        n_i, g_i = np.nonzero(keep)
-        if n_i.size == 0:
-            continue
-        Gb, Wb, Gnb = G[g_i], W[g_i], Gn[g_i]
-        rc, lip, share = rc_all[n_i, g_i], lip_all[n_i, g_i], near[n_i, g_i]
-        rho_lo, rho_hi = np.maximum(rc - lip, 0.0), rc + lip
-        H = _h_bound(rho_lo, rho_hi, eps_lo, eps_hi)
-        # the directions of the window: |p| range, then c_o = (1 - |p|²)^½
-        p_lo = np.clip(rho_lo - rwin, 0.0, 1.0)
-        p_hi = np.clip(rho_hi + rwin, 0.0, 1.0)
-        co_lo, co_hi = np.sqrt(1.0 - p_hi ** 2), np.sqrt(1.0 - p_lo ** 2)
-        cil, cih = ci_lo[n_i], ci_hi[n_i]
-        # |wo + wi|_xy = |q|/k and |wo - wi|_xy = |G λ/2π - 2 wi_xy + δ|
-        qk_lo = np.maximum(Gnb * l0 / (2 * np.pi) - rwin, 0.0)
-        qk_hi = Gnb * l1 / (2 * np.pi) + rwin
-        pm = Gb * (lc / (2 * np.pi)) - 2.0 * sc[n_i]
-        pm_c = np.hypot(pm[:, 0], pm[:, 1])
-        pm_r = Gnb * (l1 - l0) / (4 * np.pi) + 2.0 * hs + rwin
-        pm_lo, pm_hi = np.maximum(pm_c - pm_r, 0.0), pm_c + pm_r
-        dlo, dhi = _abs_diff_range(cil, cih, co_lo, co_hi)       # |c_i - c_o|
-        slo, shi = cil + co_lo, cih + co_hi                         # c_i + c_o
-        # transmitted: s_f² = (q/k)² + (c_i - c_o)², s_b² = |p - s|² + (c_i + c_o)²
-        # reflected:   s_f² = (q/k)² + (c_i + c_o)², s_b² = |p - s|² + (c_o - c_i)²
-        P_sum = np.zeros_like(rc)
-        for (fa, fb), (ba, bb) in (((dlo, dhi), (slo, shi)), ((slo, shi), (dlo, dhi))):
-            f_lo, f_hi = _hypot_range(qk_lo, qk_hi, fa, fb)
-            b_lo, b_hi = _hypot_range(pm_lo, pm_hi, ba, bb)
-            P_sum += np.maximum(lobe_max(lev_f, f_lo, f_hi), lobe_max(lev_b, b_lo, b_hi))
-        tail = p_glob * 2.0 * 2.51 * math.exp(-0.5 * CAP_REACH ** 2) / eps_lo
-        e = share * (Wb / k_lo ** 2) * (P_sum * H + tail)
-        out[c] = np.bincount(n_i, weights=e, minlength=sc.shape[0])
+        out[c] = _near_bound(material, sc, hs, l0, l1)
     return {"far": far, "near": out.reshape(n_lam, n_s, n_s), "lam0": float(lam_edges[0]),
             "dlam": float(dlam), "s0": -1.0, "ds_wi": float(dsw_far), "ds_near": float(dsw_near)}
+
+
+def near_bound_at(material, wi_xy, wavelength: float) -> np.ndarray:
+    """The near orders' bound at the lanes ``wi_xy`` (N, 2) themselves (cells of no width) and one
+    wavelength [nm]: what a per-lane evaluation of the near orders would count."""
+    lam = float(wavelength) * 1e-3
+    return _near_bound(material, np.atleast_2d(np.asarray(wi_xy, dtype=np.float64)), 1e-9, lam, lam)
 
 
 def cap_energy(table: dict, diffuse_rows, wi, wavelength, j, t):
