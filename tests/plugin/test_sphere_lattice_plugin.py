@@ -162,3 +162,40 @@ def test_lattice_lobe_matches_numpy_between_and_at_orders(mi_variant, kind, a, j
     P_f, P_b, fwd_p = ref._mie_at(wi, wo, 520.0)
     want = np.where(fwd, Z_f, Z_b)
     assert np.max(np.abs(np.where(fwd_p, P_f, P_b) - want)) > 0.5 * np.max(want)
+
+
+def _mixture(kind, jitter, domain=3.0):
+    import warnings
+
+    import mitsuba as mi
+    from corona.mitsuba.sphere_lattice import LatticeSampler
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.1})
+    lat = corona.Lattice(kind, 2.5, jitter=jitter, domain_size=domain * 2.5)
+    return bsdf, lat, LatticeSampler(bsdf, lat)
+
+
+@pytest.mark.parametrize("kind, jitter", [("square", 0.0), ("hexagonal", 0.15)])
+@pytest.mark.parametrize("theta", [0.0, 30.0, 60.0])
+def test_lattice_sampler_chi2(mi_variant, kind, jitter, theta):
+    """The mixture of the orders and the sphere's own sampler against its pdf (four wavelengths a
+    lane, the side by the Mie pattern; crystallites 3 spacings wide, as for the order sampler)."""
+    import drjit as dr
+    import mitsuba as mi
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+    from bsdf_checks import interaction, run_chi2
+    _, _, sampler = _mixture(kind, jitter)
+    th = np.radians(theta)
+    wi = (float(np.sin(th)), 0.0, float(np.cos(th)))
+
+    def sample(s, *args):
+        wo, pdf = sampler.sample(interaction(dr.width(s), wi), s[0], mi.Point2f(s[1], s[2]))
+        return wo, dr.select(pdf > 0, 1.0, 0.0)
+
+    def pdf(wo, *args):
+        return sampler.pdf(interaction(dr.width(wo), wi), wo)
+
+    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
+                         sample_count=1_000_000, res=101, ires=32)
+    assert run_chi2(test), test.messages

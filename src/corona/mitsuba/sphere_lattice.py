@@ -175,3 +175,90 @@ class LatticeLobe:
             S = self.structure(k * (wo.x + wi.x), k * (wo.y + wi.y))
             out.append(dr.select(active, P * S, 0.0))
         return out
+
+
+class LatticeSampler:
+    """The lattice lobe's sampler: a mixture of the Bragg orders (:class:`OrderSampler`, with
+    probability ``alpha``) and the sphere plugin's own sampler of its Mie lobes (the diffuse part
+    ``P (1 - e^{-q²δ²})`` and the orders' Mie envelope), one-sample balance heuristic.
+
+    The order branch picks one of the lane's wavelengths uniformly, an order for it, and the side
+    of the layer in the ratio of ``Σ_λ P`` at the two candidate directions; so
+
+        pdf(wo) = alpha · p_side(wo) · mean_λ [k² |cos θo| Σ π_G g_G(k (wo + wi)_xy)]
+                  + (1 - alpha) · pdf_sphere(wo)
+
+    with ``pdf_sphere`` the sphere plugin's pdf of its lobes alone (its coherent beam off).
+
+    Parameters
+    ----------
+    sphere_bsdf : the ``corona`` plugin of the same sphere (bare: no pane)
+    lattice : corona.Lattice (fixed)
+    alpha : float
+        The order branch's share.
+    """
+
+    def __init__(self, sphere_bsdf, lattice, alpha: float = 0.5):
+        from corona import tables
+        self.bsdf = sphere_bsdf
+        self.lobe = LatticeLobe(sphere_bsdf, lattice)
+        self.orders = OrderSampler(lattice, 2.0 * 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3))
+        self.alpha = float(alpha)
+        self.ctx = mi.BSDFContext()
+        self.ctx.type_mask = +(mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection)
+
+    def _mie(self, si, wo, active):
+        """``Σ_λ P`` at ``wo`` over the lane's wavelengths."""
+        b = self.bsdf
+        states, _ = b._states(si, active)
+        s_f, s_b = dr.norm(wo + si.wi), dr.norm(wo - si.wi)
+        forward = s_f <= s_b
+        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+        total = mi.Float(0.0)
+        for st in states:
+            total += b._rows_at(b.P, st, dr.select(forward, s_f, s_b), active, offset)[0]
+        return total, states
+
+    def _side(self, si, px, py, active):
+        cz = dr.safe_sqrt(1.0 - px * px - py * py)
+        up, down = mi.Vector3f(px, py, cz), mi.Vector3f(px, py, -cz)
+        a, _ = self._mie(si, up, active)
+        b, _ = self._mie(si, down, active)
+        return up, down, dr.select(a + b > 0, a / dr.maximum(a + b, 1e-30), 0.5)
+
+    def _order_pdf(self, si, wo, active):
+        states, _ = self.bsdf._states(si, active)
+        dens = mi.Float(0.0)
+        for st in states:
+            dens += self.orders.pdf(si.wi, wo, (2.0 * dr.pi) / st["lam"], 1.0)
+        _, _, p_up = self._side(si, wo.x, wo.y, active)
+        return dr.select(wo.z > 0, p_up, 1.0 - p_up) * dens / len(states)
+
+    def sample(self, si, u1, u2, active=True):
+        """``(wo, pdf)``; pdf 0 where the sample failed (an order past the horizon)."""
+        active = mi.Bool(active)
+        pick_order = u1 < self.alpha
+        u = dr.select(pick_order, u1 / self.alpha, (u1 - self.alpha) / (1.0 - self.alpha))
+        states, _ = self.bsdf._states(si, active)
+        n = len(states)
+        # the order branch: a wavelength, an order (the rest of u), the side (what is left of it)
+        g = u * n
+        i = dr.minimum(mi.UInt32(dr.floor(g)), n - 1)
+        u_order = g - mi.Float(i)
+        lam = states[0]["lam"]
+        for m in range(1, n):
+            lam = dr.select(i == m, states[m]["lam"], lam)
+        idx, u_side = self.orders.orders.sample_reuse(u_order, active & pick_order)
+        px, py, valid = self.orders.sample(si.wi, (2.0 * dr.pi) / lam, u_order, u2, active & pick_order)
+        up, down, p_up = self._side(si, px, py, active & pick_order & valid)
+        wo_order = dr.select(u_side < p_up, up, down)
+        bs, _ = self.bsdf.sample(self.ctx, si, u, u2, active & ~pick_order)
+        wo = dr.select(pick_order, wo_order, bs.wo)
+        ok = dr.select(pick_order, valid, bs.pdf > 0) & active
+        return wo, dr.select(ok, self.pdf(si, wo, active), 0.0)
+
+    def pdf(self, si, wo, active=True):
+        active = mi.Bool(active)
+        p_sphere = self.bsdf.pdf(self.ctx, si, wo, active)
+        return dr.select(active, self.alpha * self._order_pdf(si, wo, active)
+                         + (1.0 - self.alpha) * p_sphere, 0.0)
