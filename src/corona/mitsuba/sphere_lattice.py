@@ -1,6 +1,8 @@
 """Dr.Jit pieces of spheres on a fixed lattice (docs/physics.md#spheres-on-a-lattice).
 
-:class:`LatticeS` evaluates a fixed :class:`corona.Lattice`'s structure factor per lane in closed
+:class:`LatticeS` (below), :class:`LatticeLobe` (``P S`` from a sphere plugin's rows),
+:class:`OrderSampler` (the Bragg orders) and :class:`LatticeSampler` (the orders mixed with the
+sphere's own sampler).  :class:`LatticeS` evaluates a fixed :class:`corona.Lattice`'s structure factor per lane in closed
 form, as :meth:`corona.Lattice.structure_factor_at` does in numpy:
 
     S(q) = 1 - e^{-q²δ²} + Σ_{G ≠ 0, near q} (2π)² n e^{-G²δ²} e^{-|q - G|²/2w²} / (2π w²)
@@ -248,7 +250,7 @@ class LatticeSampler:
         lam = states[0]["lam"]
         for m in range(1, n):
             lam = dr.select(i == m, states[m]["lam"], lam)
-        idx, u_side = self.orders.orders.sample_reuse(u_order, active & pick_order)
+        _, u_side = self.orders.orders.sample_reuse(u_order, active & pick_order)
         px, py, valid = self.orders.sample(si.wi, (2.0 * dr.pi) / lam, u_order, u2, active & pick_order)
         up, down, p_up = self._side(si, px, py, active & pick_order & valid)
         wo_order = dr.select(u_side < p_up, up, down)

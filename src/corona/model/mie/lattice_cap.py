@@ -1,14 +1,19 @@
-"""The energy cap of spheres on a lattice: a table of proven upper bounds of the lobes' energy.
+"""The energy cap of spheres on a lattice: bounds of the lobes' energy for a renderer.
 
 A layer of spheres on a fixed :class:`corona.Lattice` has the lobe
 ``Z = P (1 - e^{-q²δ²}) + P Σ_G W_G g_G(q)`` (docs/physics.md#spheres-on-a-lattice) and the cap
 ``w = min(1, (1 - |t|²) / (ENERGY_MARGIN F_s ē))``.  The energy ``e = ∫ Z dΩ`` depends on λ and
 on ``wi`` (its azimuth too), and an order at grazing exit carries ``∝ 1/|cos θ_G|`` (a Rayleigh
 anomaly, finite only through the peak's width): a table of ``e`` interpolated between nodes is no
-bound there.  So ``ē`` is built from bounds, never from interpolation:
+bound there.  The orders are split by a linear partition of unity ``χ`` in ``ρ_G = |G λ/2π -
+wi_xy|`` (:data:`CAP_NEAR`):
 
-* **the orders**, per cell of a table over λ (``n_lam`` cells) and ``wi_xy`` (``n_s`` × ``n_s``
-  cells over [-1, 1]²; ``e`` is even in ``wi_z``).  In ``p = wo_xy`` the order ``G`` is the unit
+* **the far orders** (``ρ_G ≤ 1 - Δ``, :func:`far_energy`) in the narrow-peak limit, at the nodes
+  of a grid in λ and ``wi_xy`` (``e`` is even in ``wi_z``), read trilinearly: smooth, but an
+  interpolation, not a bound;
+* **the near orders** (``ρ_G ≥ 1 - 2Δ``), a proven bound per cell of λ (``n_lam`` cells) and
+  ``wi_xy`` (``n_near`` × ``n_near`` cells over [-1, 1]²), or per lane
+  (:func:`near_bound_at`).  In ``p = wo_xy`` the order ``G`` is the unit
   Gaussian ``ĝ`` of rms ``ε = w/k`` about ``p_G = G λ/2π - wi_xy`` (``w`` the peak's rms width in
   q, :attr:`corona.Lattice.peak_width`), and ``dΩ = d²p / c``, ``c = (1 - |p|²)^½``, so
 
@@ -35,10 +40,11 @@ bound there.  So ``ē`` is built from bounds, never from interpolation:
   ``(1 - t) D_j + t D_j+1``, ``D_j = ∫ P_f,j(σ) (1 - e^{-(σ x_j δ/r)²}) 2πσ dσ + ∫ P_b,j 2πσ dσ``
   (``k/x = 1/r``): no λ or ``wi`` left.
 
-The numpy model (:meth:`corona.model.mie.layer.SphereMaterial._lattice_weight`) and the renderer
-(:mod:`corona.mitsuba.sphere_lattice`) read the same table: the cell of the lane's (λ, ``wi_xy``)
-(cells overlap by :data:`CAP_OVERLAP` of their width, so float32 rounding of the cell index
-stays covered) and the rows' ``D``.
+Cells overlap by :data:`CAP_OVERLAP` of their width, so that float32 rounding of a lane's cell
+index stays covered.  Neither the numpy model (which keeps its exact cap,
+:meth:`corona.model.mie.layer.SphereMaterial.lattice_energy` per lane) nor the renderer uses this
+table yet: its bound is too loose to render with (docs/physics.md#spheres-on-a-lattice has the
+measured figures, from ``benchmarks/lattice_cap.py``).
 """
 from __future__ import annotations
 
@@ -49,7 +55,7 @@ from scipy.special import i0e
 
 #: Gaussian reach [rms widths] of an order's window for the bound of ``P``.
 CAP_REACH = 8.0
-#: Table cells in λ and per axis of ``wi_xy``.
+#: Table cells in λ, per axis of ``wi_xy`` for the far orders' nodes and for the near orders' cells.
 CAP_LAMBDA_CELLS = 64
 CAP_WI_CELLS = 32
 CAP_NEAR_CELLS = 96
