@@ -233,3 +233,45 @@ def test_sample_weights_integrate_the_numpy_lobe(mi_variant, theta):
     P = smp._mie(si, wo, True)[0] / len(lams)
     w0 = np.asarray(dr.select(pdf > 0, P / dr.maximum(pdf, 1e-30), 0.0), dtype=np.float64)
     assert abs(w0.mean() - e) > 10 * err
+
+
+def test_furnace_from_sample_weights_through_a_rayleigh_anomaly(mi_variant):
+    """The plugin's lobe and sampler with the numpy model's per-lane cap (its exact
+    lattice_energy, applied as the lane's constant F_s w): coherent + the mean sample weight stays
+    ≤ 1 as λ steps through the grazing exit of the h² + hk + k² = 39 shell of a hexagonal 4 µm
+    crystal at normal incidence (554.6 nm).  Negative control: without the cap the layer gains
+    energy at the anomaly."""
+    import warnings
+
+    import drjit as dr
+    import mitsuba as mi
+    from bsdf_checks import interaction
+    from corona.model.mie.layer import SphereMaterial
+    from corona.mitsuba.sphere_lattice import LatticeSampler
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.1})
+    lat = corona.Lattice("hexagonal", 4.0)
+    smp = LatticeSampler(bsdf, lat)
+    ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)
+    b = np.linalg.norm(lat.reciprocal_vectors[0])
+    lam_a = 2 * np.pi / (b * np.sqrt(39.0)) * 1e3
+    wi = np.array([0.0, 0.0, 1.0])
+    n = 200_000
+    rng = np.random.default_rng(8)
+    raw = []
+    for lam in [float(v) for v in lam_a + np.array([-0.4, -0.1, 0.0, 0.05, 0.2])]:
+        si = interaction(n, tuple(wi), (lam,) * 4)
+        u = [mi.Float(rng.random(n).astype(np.float32)) for _ in range(3)]
+        wo, pdf = smp.sample(si, u[0], mi.Point2f(u[1], u[2]))
+        Z = smp.lobe(si, wo)[0]
+        w = np.asarray(dr.select(pdf > 0, Z / dr.maximum(pdf, 1e-30), 0.0), dtype=np.float64)
+        e = ref.energies(1.0, lam)
+        cap = float(ref._lattice_weight(wi, lam, ()))
+        scattered = float(e["slant"]) * w.mean()
+        err = float(e["slant"]) * w.std() / np.sqrt(n)
+        assert float(e["coherent"]) + cap * scattered <= 1.0 + 3 * cap * err, (lam, e["coherent"], cap, scattered)
+        raw.append(float(e["coherent"]) + scattered - 3 * err)
+        print(f"{lam:.2f} nm: coherent {float(e['coherent']):.4f}, F_s e {scattered:.4f} ± {err:.4f}, w {cap:.4f}, "
+              f"capped {float(e['coherent']) + cap * scattered:.4f}")
+    assert max(raw) > 1.0        # uncapped, the crystal returns more than it receives
