@@ -264,3 +264,144 @@ class LatticeSampler:
         p_sphere = self.bsdf.pdf(self.ctx, si, wo, active)
         return dr.select(active, self.alpha * self._order_pdf(si, wo, active)
                          + (1.0 - self.alpha) * p_sphere, 0.0)
+
+
+class LatticeCap:
+    """The lattice layer's energy ``e(λ, wi)`` per lane (per unit ``F_s w``) and its cap
+    ``w = min(1, (1 - |t|²) / (ENERGY_MARGIN F_s e))`` (docs/physics.md#spheres-on-a-lattice).
+
+        e = D + Σ_G e_G,   e_G = W_G / (k² ε^½) Σ_i w_i(u) [P(wo↑) + P(wo↓)](r_i) / (1 + r_i)^½
+
+    over the orders that reach the layer's directions (``ρ_G = |G/k - wi_xy| < 1 + 8 ε``), ``ε =
+    w/k``, ``u = (ρ_G - 1)/ε``, the radial Gauss rule ``(t_i, w_i)`` of
+    :func:`corona.model.mie.lattice_cap.rim_rules` (``r_i = 1 - ε t_i²``) near the horizon and the
+    peak's centre (``P/c (1 + 3/8u²)``) for ``u < -RIM_U``; one Dr.Jit loop over the orders
+    (sorted by ``|G|``, each lane stopping past ``k_max (1 + |wi_xy|) + 8 w``), ``P`` read from the
+    sphere plugin's rows by its own lookup at both sides' directions.  ``D`` is the jittered
+    lattice's diffuse part, the proven per-row bound
+    :func:`corona.model.mie.lattice_cap.diffuse_bound_rows` (0 for a perfect crystal).
+
+    Parameters
+    ----------
+    sphere_bsdf : the sphere plugin (its rows)
+    lattice : corona.Lattice (fixed)
+    """
+
+    def __init__(self, sphere_bsdf, lattice):
+        from corona import tables
+        from corona.model.mie import lattice_cap
+        self.bsdf = sphere_bsdf
+        w = float(lattice.peak_width)
+        self.w = w
+        k_max = 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
+        G, W = lattice.bragg_peaks(2.0 * k_max + lattice_cap.RIM_REACH * w)
+        Gn = np.hypot(G[:, 0], G[:, 1])
+        order = np.argsort(Gn, kind="stable")
+        G, W, Gn = G[order], W[order], Gn[order]
+        self.count = int(G.shape[0])
+        # one Vector4f an order: (G_x, G_y, W_G, |G|)
+        self.orders = mi.Float(np.stack([G[:, 0], G[:, 1], W, Gn], axis=-1).ravel().astype(np.float32))
+        us, tn, tw = lattice_cap.rim_rules()
+        self.n_rule = int(tn.shape[1])
+        self.rule_u0, self.rule_du, self.rule_n = float(us[0]), float(us[1] - us[0]), int(us.size)
+        self.rule = mi.Float(np.concatenate([tn, tw], axis=1).ravel().astype(np.float32))
+        self.rim_u = float(lattice_cap.RIM_U)
+        self.reach = float(lattice_cap.RIM_REACH)
+        rows = sphere_bsdf.material.rows
+        D = lattice_cap.diffuse_bound_rows(rows, float(sphere_bsdf.material.length_scale), float(lattice.jitter))
+        self.has_diffuse = bool(np.any(D > 0))
+        self.D = mi.Float(D.astype(np.float32))
+
+    def _psum(self, st, wi, px, py, active):
+        """(forward, backward) ``P`` at ``wo = (p, ±c)``: each side's ``P`` by its chord's lobe."""
+        b = self.bsdf
+        cz = dr.safe_sqrt(1.0 - px * px - py * py)
+        e_f, e_b = mi.Float(0.0), mi.Float(0.0)
+        for side in (1.0, -1.0):
+            wo = mi.Vector3f(px, py, side * cz)
+            s_f, s_b = dr.norm(wo + wi), dr.norm(wo - wi)
+            forward = s_f <= s_b
+            offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+            P = b._rows_at(b.P, st, dr.select(forward, s_f, s_b), active, offset)[0]
+            e_f += dr.select(forward, P, 0.0)
+            e_b += dr.select(forward, 0.0, P)
+        return e_f, e_b
+
+    def energies(self, si, states, active=True):
+        """Per state (wavelength) of the lane: ``(e_f, e_b)``, the orders' energy split by the lobe
+        (forward or backward chord) with the diffuse part in ``e_f`` (per unit ``F_s w``)."""
+        from corona.mitsuba.common import gather4
+        active = mi.Bool(active)
+        wi = si.wi
+        n = len(states)
+        ks = [(2.0 * dr.pi) / st["lam"] for st in states]
+        k_max = ks[0]
+        for k in ks[1:]:
+            k_max = dr.maximum(k_max, k)
+        g_stop = k_max * (1.0 + dr.sqrt(wi.x * wi.x + wi.y * wi.y)) + self.reach * self.w
+        R = self.n_rule
+
+        def cond(i, *e):
+            o = gather4(self.orders, i, active & (i < self.count))
+            return active & (i < self.count) & (o.w <= g_stop)
+
+        def body(i, *e):
+            e = list(e)
+            o = gather4(self.orders, i, active)
+            for m, (st, k) in enumerate(zip(states, ks)):
+                eps = self.w / k
+                px, py = o.x / k - wi.x, o.y / k - wi.y
+                rho = dr.sqrt(px * px + py * py)
+                u = (rho - 1.0) / eps
+                reach = active & (u < self.reach)
+                far = u < -self.rim_u
+                scale = o.z / (k * k)
+                # the peak's centre (far from the horizon)
+                c2 = dr.maximum(1.0 - rho * rho, 1e-12)
+                f0, b0 = self._psum(st, wi, px, py, reach & far)
+                wc = scale * (1.0 + 0.375 / (u * u)) / dr.sqrt(c2)
+                ef, eb = dr.select(reach & far, f0 * wc, 0.0), dr.select(reach & far, b0 * wc, 0.0)
+                # the rim rule (near the horizon), read linearly in u
+                near = reach & ~far
+                g = dr.clip((u - self.rule_u0) * (1.0 / self.rule_du), 0.0, self.rule_n - 1.001)
+                j = mi.UInt32(dr.floor(g))
+                t = g - mi.Float(j)
+                inv_r = 1.0 / dr.maximum(rho, 1e-12)
+                for q in range(R):
+                    t0 = dr.gather(mi.Float, self.rule, j * (2 * R) + q, near)
+                    t1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + q, near)
+                    w0 = dr.gather(mi.Float, self.rule, j * (2 * R) + R + q, near)
+                    w1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + R + q, near)
+                    tq, wq = dr.lerp(t0, t1, t), dr.lerp(w0, w1, t)
+                    r = 1.0 - eps * tq * tq
+                    fq, bq = self._psum(st, wi, px * inv_r * r, py * inv_r * r, near)
+                    wt = scale * wq / dr.sqrt(eps * (1.0 + r))
+                    ef += dr.select(near, fq * wt, 0.0)
+                    eb += dr.select(near, bq * wt, 0.0)
+                e[2 * m] = e[2 * m] + ef
+                e[2 * m + 1] = e[2 * m + 1] + eb
+            return (i + 1, *e)
+
+        zero = [mi.Float(0.0) for _ in range(2 * n)]
+        out = dr.while_loop(state=(mi.UInt32(0), *zero), cond=cond, body=body)[1:]
+        res = []
+        for m, st in enumerate(states):
+            e_f, e_b = out[2 * m], out[2 * m + 1]
+            if self.has_diffuse:
+                d0 = dr.gather(mi.Float, self.D, st["j"], active)
+                d1 = dr.gather(mi.Float, self.D, st["j"] + 1, active)
+                e_f = e_f + dr.lerp(d0, d1, st["t"])
+            res.append((e_f, e_b))
+        return res
+
+    def capped(self, si, states, active=True):
+        """The states with the lattice layer's cap: ``w`` and ``e_f``, ``e_b`` (the lobes' energies
+        times ``F_s w``) replaced (new dicts)."""
+        from corona.model.mie.layer import ENERGY_MARGIN
+        out = []
+        for st, (e_f, e_b) in zip(states, self.energies(si, states, active)):
+            scattered = st["fs"] * (e_f + e_b) * ENERGY_MARGIN
+            w = dr.minimum(1.0, dr.maximum(1.0 - st["coherent"], 0.0) / dr.maximum(scattered, 1e-30))
+            out.append({**st, "w": w, "e_f": st["fs"] * w * e_f, "e_b": st["fs"] * w * e_b,
+                        "e_lattice": e_f + e_b})
+        return out

@@ -67,7 +67,8 @@ CAP_OVERLAP = 1e-3
 #: The Catmull–Rom cubic's largest excess over its interval's larger node (non-negative nodes).
 CUBIC_EXCESS = 1.125
 
-__all__ = ["CAP_LAMBDA_CELLS", "CAP_NEAR", "CAP_NEAR_CELLS", "CAP_WI_CELLS", "cap_energy", "cap_parts",
+__all__ = ["CAP_LAMBDA_CELLS", "CAP_NEAR", "CAP_NEAR_CELLS", "CAP_WI_CELLS", "RIM_NODES", "RIM_U", "cap_energy", "cap_parts",
+           "order_energy", "rim_rules",
            "cap_table", "diffuse_bound_rows", "far_energy", "near_bound_at"]
 
 
@@ -355,3 +356,97 @@ def cap_parts(table: dict, diffuse_rows, wi, wavelength, j, t):
     jy = np.clip(np.floor((wi[..., 1] - table["s0"]) / table["ds_near"]).astype(np.int64), 0, n_near - 1)
     d = np.asarray(diffuse_rows)
     return v, near[c, jy, jx], d[j] * (1 - t) + d[j + 1] * t
+
+
+# ----------------------------------------------------------------------
+# the cap's energy per lane in closed form (what the renderer evaluates)
+# ----------------------------------------------------------------------
+#: Orders with ``u = (ρ_G - 1)/ε`` below ``-RIM_U`` are read at the peak's centre (``1/c`` and ``P``
+#: smooth on its scale), those above by :func:`rim_rules`' Gauss rule in the radial direction.
+RIM_U = 40.0
+#: Orders past the horizon by more than ``RIM_REACH`` rms widths carry nothing (``< e^{-32}``).
+RIM_REACH = 8.0
+#: Nodes of the rim rule and the step in ``u`` of its table.
+RIM_NODES = 4
+RIM_DU = 0.05
+
+
+def _rim_rule(u: float, n: int, m: int = 4000):
+    """The ``n``-point Gauss rule of the weight ``ω_u(t) = 2 φ(t² + u)`` on ``t ≥ 0`` (``φ`` the
+    standard normal density), by the Stieltjes procedure on a fine midpoint discretisation."""
+    t0 = math.sqrt(max(-u, 0.0))
+    hi = t0 + 10.0 / max(1.0, 2.0 * t0) + 3.0
+    t = (np.arange(m) + 0.5) * (hi / m)
+    wv = 2.0 * np.exp(-0.5 * (t * t + u) ** 2) / math.sqrt(2.0 * np.pi) * (hi / m)
+    a, b = np.zeros(n), np.zeros(n)
+    p_prev, p, nrm_prev = np.zeros_like(t), np.ones_like(t), 1.0
+    for j in range(n):
+        nrm = float(np.sum(wv * p * p))
+        a[j] = float(np.sum(wv * t * p * p)) / nrm
+        if j:
+            b[j] = nrm / nrm_prev
+        p, p_prev, nrm_prev = (t - a[j]) * p - (b[j] * p_prev if j else 0.0), p, nrm
+    x, v = np.linalg.eigh(np.diag(a) + np.diag(np.sqrt(b[1:]), 1) + np.diag(np.sqrt(b[1:]), -1))
+    return x, float(np.sum(wv)) * v[0] ** 2
+
+
+def rim_rules(n: int = RIM_NODES, du: float = RIM_DU):
+    """The table of the orders' radial rule near the horizon: ``(u, nodes, weights)``, ``u`` from
+    ``-RIM_U`` to ``RIM_REACH`` step ``du``, nodes and weights (len(u), n).
+
+    An order ``G`` of the lattice lobe (rms ``ε = w/k`` in ``p = wo_xy``, centre ``p_G``,
+    ``ρ = |p_G|``) carries ``(W_G/k²) ∫ ĝ(p - p_G) [P(wo↑) + P(wo↓)] / c d²p`` (``c = (1 -
+    |p|²)^½``).  With the Gaussian's tangential part integrated out (``ε`` ≪ 1), ``r = |p| = 1 -
+    ε t²`` and ``u = (ρ - 1)/ε``, ``dr / c = ε^½ 2 dt / (1 + r)^½``, so
+
+        e_G = W_G / (k² ε^½) ∫_0^∞ ω_u(t) [P(wo↑) + P(wo↓)](r(t)) / (1 + r(t))^½ dt,
+
+    ``ω_u(t) = 2 φ(t² + u)``, a smooth weight (the ``1/c`` singularity is gone: ``P`` is smooth in
+    ``t``, ``t ∝ θ`` at grazing exit) whose integral is ``F(u) = e^{-u²/4} D_{-1/2}(u)/√2``
+    (``D`` the parabolic cylinder function; ``F → |u|^{-1/2}``, ``e_G → P/c``, far from the
+    horizon).  Its Gauss rule is tabulated in ``u`` (read linearly)."""
+    us = np.arange(-RIM_U, RIM_REACH + 0.5 * du, du)
+    rules = [_rim_rule(float(u), n) for u in us]
+    return us, np.array([r[0] for r in rules]), np.array([r[1] for r in rules])
+
+
+def order_energy(material, wi, wavelength: float, rules=None) -> float:
+    """The orders' energy ``Σ_G e_G`` (per unit ``F_s w``) at one ``wi`` (3,) and wavelength [nm]
+    by :func:`rim_rules` (orders with ``u ≥ -RIM_U``) and the peak's centre (the rest, ``P/c``
+    times ``1 + 3/(8u²)``, the Gaussian's second moment of ``1/c``): the closed form the renderer
+    evaluates per lane, for checks against the model's quadrature
+    (:meth:`SphereMaterial.lattice_energy`)."""
+    us, tn, tw = rules if rules is not None else rim_rules()
+    wi = np.asarray(wi, dtype=np.float64)
+    lam = float(wavelength)
+    k = 2 * np.pi / (lam * 1e-3)
+    lat = material.lattice
+    eps = lat.peak_width / k
+    G, W = lat.bragg_peaks(2 * k + RIM_REACH * lat.peak_width)
+    p = G / k - wi[:2]
+    rho = np.hypot(p[:, 0], p[:, 1])
+    keep = rho < 1 + RIM_REACH * eps
+    p, rho, W = p[keep], rho[keep], W[keep]
+    u = (rho - 1) / eps
+
+    def psum(pp):
+        cz = np.sqrt(np.maximum(1 - np.sum(pp * pp, axis=1), 0.0))
+        e = 0.0
+        for side in (1.0, -1.0):
+            P_f, P_b, fwd = material._mie_at(wi, np.c_[pp, side * cz], lam)
+            e = e + np.where(fwd, P_f, P_b)
+        return e
+
+    far = u < -RIM_U
+    e = float(np.sum(W[far] / k ** 2 * psum(p[far]) * (1 + 0.375 / u[far] ** 2) / np.sqrt(1 - rho[far] ** 2)))
+    if np.any(~far):
+        g = np.clip((u[~far] - us[0]) / (us[1] - us[0]), 0, us.size - 1 - 1e-9)
+        i = np.floor(g).astype(np.int64)
+        f = (g - i)[:, None]
+        nodes, wts = tn[i] * (1 - f) + tn[i + 1] * f, tw[i] * (1 - f) + tw[i + 1] * f
+        pn, rn = p[~far], rho[~far]
+        for q in range(nodes.shape[1]):
+            r = 1 - eps * nodes[:, q] ** 2
+            e += float(np.sum(W[~far] / (k * k * math.sqrt(eps)) * wts[:, q] * psum(pn / rn[:, None] * r[:, None])
+                              / np.sqrt(1 + r)))
+    return e
