@@ -23,7 +23,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-__all__ = ["LatticeS"]
+__all__ = ["LatticeCap", "LatticeLayer", "LatticeLobe", "LatticeS", "LatticeSampler", "OrderSampler",
+           "lattice_layer_params"]
 
 
 class LatticeS:
@@ -159,12 +160,14 @@ class LatticeLobe:
         self.bsdf = sphere_bsdf
         self.structure = LatticeS(lattice)
 
-    def __call__(self, si, wo, active=True):
-        """Per wavelength of the lane: ``Z`` at ``wo`` (a list of mi.Float)."""
+    def __call__(self, si, wo, active=True, states=None):
+        """Per wavelength of the lane: ``Z`` at ``wo`` (a list of mi.Float); ``states`` the sphere
+        plugin's (:meth:`~corona.mitsuba.sphere.SphereBSDFMixin._states`), made where not given."""
         b = self.bsdf
         active = mi.Bool(active)
         wi = si.wi
-        states, _ = b._states(si, active)
+        if states is None:
+            states, _ = b._states(si, active)
         s_f = dr.norm(wo + wi)
         s_b = dr.norm(wo - wi)
         forward = s_f <= s_b
@@ -405,3 +408,115 @@ class LatticeCap:
             out.append({**st, "w": w, "e_f": st["fs"] * w * e_f, "e_b": st["fs"] * w * e_b,
                         "e_lattice": e_f + e_b})
         return out
+
+
+def lattice_layer_params(params: dict, textures: dict):
+    """``(lattice, params)`` for a sphere layer with ``process=lattice-*``: the fixed lattice the
+    parameters make (:func:`corona.parameters.material_from_parameters`, its checks and errors) and
+    the parameters of the sphere plugin's Mie rows (the same sphere, ``process=poisson`` at the
+    lattice's area fraction).  One-line errors for what the lattice path does not take: a glass
+    substrate and area_fraction or radius textures that vary."""
+    from corona._validation import CoronaError
+    from corona.parameters import material_from_parameters
+    import warnings
+    process = params["process"]
+    for name in ("area_fraction", "radius"):
+        tex = textures.get(name)
+        if tex is not None and tex.is_spatially_varying():
+            raise CoronaError(f"a {name} texture is out of range for shape='sphere' with process={process!r}; "
+                              "allowed a uniform value (the lattice's spacing and its Bragg orders are one "
+                              "for the whole layer)")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        material = material_from_parameters(**params)
+    if material.substrate is not None:
+        raise CoronaError(f"substrate={params.get('substrate')!r} is out of range for shape='sphere' with "
+                          f"process={process!r} in the renderer; allowed none (the sphere plugin's pane "
+                          "composes the isotropic lobes only; the numpy model takes a lattice on glass)")
+    rows = {k: v for k, v in params.items() if k != "jitter"}
+    rows["process"] = "poisson"
+    rows["area_fraction"] = float(material.area_fraction)
+    return material.lattice, rows
+
+
+class LatticeLayer:
+    """The sphere plugin's BSDF on a fixed lattice: the coherent beam ``C = |1 - F_s s₀|²`` along
+    ``-wi`` and the lattice lobe ``F_s w P S`` (:class:`LatticeLobe`) with the per-lane cap
+    (:class:`LatticeCap`), the component picked in the ratio of their energies as the sphere
+    plugin picks its own (:meth:`~corona.mitsuba.sphere.SphereBSDFMixin._selection`'s
+    ``selection``: coherent, forward, backward), the lobe sampled by :class:`LatticeSampler`.
+    The sphere plugin routes its ``eval``/``pdf``/``sample`` here (its ``lattice_layer``); the
+    sampler's calls of the plugin's own lobe sampler come with :attr:`inner_ctx` and are not
+    routed.
+
+    Parameters
+    ----------
+    sphere_bsdf : the sphere plugin (its rows: ``process=poisson``, no pane)
+    lattice : corona.Lattice (fixed)
+    """
+
+    def __init__(self, sphere_bsdf, lattice):
+        self.bsdf = sphere_bsdf
+        self.lattice = lattice
+        self.cap = LatticeCap(sphere_bsdf, lattice)
+        self.sampler = LatticeSampler(sphere_bsdf, lattice)
+        self.lobe = self.sampler.lobe
+        self.inner_ctx = self.sampler.ctx
+
+    def _states(self, si, active):
+        states, m = self.bsdf._states(si, active)
+        return self.cap.capped(si, states, active), m
+
+    def _selection(self, ctx, states):
+        from corona.mitsuba.common import selection
+        en = [mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)]
+        for st in states:
+            en = [en[0] + st["coherent"], en[1] + st["e_f"], en[2] + st["e_b"]]
+        flags = [(mi.BSDFFlags.DeltaTransmission, 0), (mi.BSDFFlags.GlossyTransmission, 1),
+                 (mi.BSDFFlags.GlossyReflection, 2)]
+        return selection(en, [ctx.is_enabled(fl, i) for fl, i in flags])
+
+    def eval_pdf(self, ctx, si, wo, active, cached=None):
+        """``(f |cos θo|, pdf)`` of the lattice lobe (the coherent beam is a delta)."""
+        b = self.bsdf
+        active = mi.Bool(active)
+        states, m = cached if cached is not None else self._states(si, active)
+        _, p_f, p_b = self._selection(ctx, states)
+        on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
+        on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
+        forward = dr.norm(wo + si.wi) <= dr.norm(wo - si.wi)
+        on = active & dr.select(forward, on_f, on_b)
+        Z = self.lobe(si, wo, active, states)
+        values = [dr.select(on, z * (st["fs"] * st["w"]), 0.0) for st, z in zip(states, Z)]
+        pdf = (p_f + p_b) * self.sampler.pdf(si, wo, active)
+        return b._spectrum(values), dr.select(active, pdf, 0.0)
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        b = self.bsdf
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        active = mi.Bool(active) & (cos_i != 0)
+        states, m = self._states(si, active)
+        p_coh, p_f, p_b = self._selection(ctx, states)
+        p_lobe = p_f + p_b
+        pick_coh = active & (sample1 < p_coh)
+        pick_lobe = active & ~pick_coh & (p_lobe > 0)
+        u = dr.clip((sample1 - p_coh) / dr.maximum(p_lobe, 1e-30), 0.0, 0.99999994)
+        wo_lobe, pdf_lobe = self.sampler.sample(si, u, sample2, pick_lobe)
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.eta = 1.0
+        bs.wo = dr.select(pick_coh, -wi, wo_lobe)
+        forward = dr.norm(bs.wo + wi) <= dr.norm(bs.wo - wi)
+        bs.sampled_component = dr.select(pick_coh, mi.UInt32(0), dr.select(forward, mi.UInt32(1), mi.UInt32(2)))
+        same_side = cos_i * mi.Frame3f.cos_theta(bs.wo) > 0
+        bs.sampled_type = dr.select(pick_coh, mi.UInt32(+mi.BSDFFlags.DeltaTransmission),
+                                    dr.select(same_side, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                              mi.UInt32(+mi.BSDFFlags.GlossyTransmission)))
+        lobe_ok = pick_lobe & (pdf_lobe > 0)
+        value, pdf = self.eval_pdf(ctx, si, bs.wo, lobe_ok, (states, m))
+        bs.pdf = dr.select(pick_coh, p_coh, pdf)
+        weight = dr.select(pdf > 0, value / dr.maximum(pdf, 1e-30), 0.0)
+        coh = b._spectrum([st["coherent"] for st in states])
+        weight = dr.select(pick_coh, coh / dr.maximum(p_coh, 1e-30), weight)
+        ok = pick_coh | (lobe_ok & (bs.pdf > 0))
+        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
