@@ -1,7 +1,7 @@
 """Spheres on a fixed lattice in Dr.Jit: the closed-form S(q) per lane
 (corona.mitsuba.sphere_lattice.LatticeS) against the numpy lattice's structure_factor_at, on the
-peaks, between them and through the Debye–Waller background (the renderer's one-line refusal,
-which stays until the cap's per-lane bound is tight, is tested in test_sphere_points.py)."""
+peaks, between them and through the Debye–Waller background; the lobe, its samplers, the per-lane
+cap and the assembled plugin (process=lattice-* for shape=sphere) against the numpy model."""
 import numpy as np
 import pytest
 
@@ -350,3 +350,146 @@ def test_lattice_cap_energy_through_rayleigh_anomalies(mi_variant):
         ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)
         r = _cap_ratio(bsdf, LatticeCap(bsdf, lat), ref, wis, np.full((31, 4), 550.0))
         assert np.all(np.abs(r - 1) < 0.005), (kind, r.min(), r.max())
+
+
+#: Spheres of 1 µm on a hexagonal lattice of 4 µm spacing (area fraction π / (√3/2 · 16)).
+HEX4 = {"type": "corona", "shape": "sphere", "radius": 1.0, "process": "lattice-hex",
+        "area_fraction": float(np.pi / (np.sqrt(3.0) / 2.0 * 16.0))}
+#: ... and on a square lattice of 3 µm spacing.
+SQUARE3 = {"type": "corona", "shape": "sphere", "radius": 1.0, "process": "lattice-square",
+           "area_fraction": float(np.pi / 9.0)}
+
+
+def _layer(params, domain=None):
+    """The plugin on a lattice (``domain``: a crystallite that many spacings wide instead)."""
+    import mitsuba as mi
+    from corona.mitsuba.sphere_lattice import LatticeLayer
+    bsdf = mi.load_dict(params)
+    if domain is not None:
+        lat = bsdf.lattice_layer.lattice
+        bsdf.lattice_layer = LatticeLayer(bsdf, corona.Lattice(lat.kind, lat.spacing, jitter=lat.jitter,
+                                                               domain_size=domain * lat.spacing))
+    return bsdf
+
+
+def test_plugin_loads_the_lattice_with_the_models_spacing(mi_variant):
+    bsdf = _layer({**HEX4, "jitter": 0.1})
+    lat = bsdf.lattice_layer.lattice
+    assert lat.kind == "hexagonal" and abs(lat.spacing - 4.0) < 1e-9 and lat.jitter == 0.1
+    assert abs(_layer(SQUARE3).lattice_layer.lattice.spacing - 3.0) < 1e-9
+
+
+@pytest.mark.parametrize("params, theta", [(HEX4, 0.0), (SQUARE3, 30.0), ({**SQUARE3, "jitter": 0.15}, 0.0)])
+def test_eval_matches_the_numpy_model_at_and_between_orders(mi_variant, params, theta):
+    """``eval`` (``F_s w P S``, as the model's ``eval``) against SphereMaterial.eval on the same rows, at the orders of 520 nm on both sides and
+    between them: the lobe within float32 (5e-4 of the peak), the cap within the closed form's
+    0.35 % (perfect crystal); a jittered lattice's diffuse bound makes the plugin dimmer (never
+    brighter) where the cap binds.  Negative control: where the model's cap binds (w < 0.99), the
+    uncapped lobe misses the model."""
+    from bsdf_checks import assert_eval_matches, plugin_eval
+    from corona.model.mie.layer import SphereMaterial
+    bsdf = _layer(params)
+    lat = bsdf.lattice_layer.lattice
+    ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)
+    th = np.radians(theta)
+    wi = np.array([np.sin(th), 0.0, np.cos(th)])
+    k = 2 * np.pi / 0.52
+    G, _ = lat.bragg_peaks(2 * k)
+    p = G / k - wi[:2]
+    p = p[np.hypot(p[:, 0], p[:, 1]) < 0.97][:60]
+    cz = np.sqrt(1 - np.sum(p * p, axis=1))
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(300, 3))
+    wo = np.concatenate([np.c_[p, cz], np.c_[p, -cz], d / np.linalg.norm(d, axis=1, keepdims=True)])
+    if lat.jitter == 0.0:
+        assert_eval_matches(bsdf, ref.eval, wi, wo, rtol=0.0045, atol=5e-4)
+    else:
+        val, _ = plugin_eval(bsdf, wi, wo)
+        want = np.stack([ref.eval(wi, wo, lam) for lam in (450.0, 520.0, 600.0, 700.0)])
+        peak = want.max(axis=1, keepdims=True)
+        assert np.all(val <= want * 1.0045 + 5e-4 * peak)
+        assert np.all(val >= want * 0.7 - 5e-4 * peak)
+    # negative control: without the cap (w = 1) the plugin's lobe is brighter than the model's
+    cap = bsdf.lattice_layer.cap
+    capped = cap.capped
+    cap.capped = lambda si, states, active=True: [{**s, "w": 1.0} for s in capped(si, states, active)]
+    try:
+        val, _ = plugin_eval(bsdf, wi, wo)
+    finally:
+        cap.capped = capped
+    want = np.stack([ref.eval(wi, wo, lam) for lam in (450.0, 520.0, 600.0, 700.0)])
+    w = np.array([ref._lattice_weight(wi, lam, ()) for lam in (450.0, 520.0, 600.0, 700.0)])
+    print("the model's cap w:", w)
+    for m in np.nonzero(w < 0.99)[0]:        # where the cap binds, the uncapped lobe misses
+        assert np.max(val[m] - want[m]) > 0.5 * (1 / w[m] - 1) * want[m].max()
+
+
+@pytest.mark.parametrize("params, theta", [(HEX4, 0.0), (SQUARE3, 30.0)])
+def test_plugin_chi2(mi_variant, params, theta):
+    """The plugin's sample against its pdf (smooth components; crystallites 3 spacings wide so
+    that the histogram resolves the peaks)."""
+    from bsdf_checks import chi2_bsdf, smooth_context
+    ok, test = chi2_bsdf(_layer(params, domain=3.0), theta, smooth_context(), ires=32)
+    assert ok, test.messages
+
+
+def _uncapped(bsdf):
+    cap = bsdf.lattice_layer.cap
+    capped = cap.capped
+    cap.capped = lambda si, states, active=True: [{**s, "w": 1.0, "e_f": s["e_f"] / s["w"], "e_b": s["e_b"] / s["w"]}
+                                                  for s in capped(si, states, active)]
+    return lambda: setattr(cap, "capped", capped)
+
+
+@pytest.mark.parametrize("theta", [0.0, 30.0])
+def test_furnace_from_the_plugins_sample_weights(mi_variant, theta):
+    """The plugin's directional albedo (coherent beam + lobe, its own sample weights) ≤ 1 at
+    four wavelengths; a perfect crystal is bright (the cap binds: ≥ 0.95)."""
+    from bsdf_checks import furnace
+    mean, err = furnace(_layer(HEX4), theta, wavelengths=(420.0, 520.0, 640.0, 780.0))
+    assert np.all(mean - 3 * err <= 1.0), (mean, err)
+    assert np.all(mean >= 0.95), mean
+
+
+def test_furnace_through_a_rayleigh_anomaly(mi_variant):
+    """Through the 554.6 nm grazing exit of the h² + hk + k² = 39 shell (hexagonal 4 µm, normal
+    incidence): the plugin's albedo ≤ 1; negative control, uncapped (w = 1) it gains energy."""
+    from bsdf_checks import furnace
+    bsdf = _layer(HEX4)
+    lat = bsdf.lattice_layer.lattice
+    b = np.linalg.norm(lat.reciprocal_vectors[0])
+    lam_a = 2 * np.pi / (b * np.sqrt(39.0)) * 1e3
+    lams = tuple(float(v) for v in lam_a + np.array([-0.4, -0.1, 0.0, 0.2]))
+    mean, err = furnace(bsdf, 0.0, wavelengths=lams, n=400_000)
+    print("capped:", mean, err)
+    assert np.all(mean - 3 * err <= 1.0), (mean, err)
+    restore = _uncapped(bsdf)
+    try:
+        raw, raw_err = furnace(bsdf, 0.0, wavelengths=lams, n=400_000)
+    finally:
+        restore()
+    print("uncapped:", raw, raw_err)
+    assert np.all(raw - 3 * raw_err > 1.0), (raw, raw_err)
+
+
+def test_render_has_no_nan(mi_variant):
+    import mitsuba as mi
+    from bsdf_checks import layer_scene
+    props = ('<float name="radius" value="1"/><string name="process" value="lattice-hex"/>'
+             '<float name="area_fraction" value="0.2"/><float name="jitter" value="0.05"/>')
+    img = np.asarray(mi.render(mi.load_string(layer_scene(props, spp=4, res=12))))
+    assert img.shape[:2] == (12, 12) and np.all(np.isfinite(img))
+    assert img.mean() > 0.1
+
+
+def test_lattice_layer_refuses_glass_and_varying_textures(mi_variant):
+    import mitsuba as mi
+    from bsdf_checks import bitmap_texture
+    for extra, want in (({"substrate": "glass"}, "substrate='glass' is out of range for shape='sphere' with "
+                                                 "process='lattice-hex' in the renderer; allowed none"),
+                        ({"area_fraction": bitmap_texture([[0.1, 0.2], [0.15, 0.2]])},
+                         "a area_fraction texture is out of range for shape='sphere' with process='lattice-hex'")):
+        with pytest.raises(Exception) as err:
+            mi.load_dict({**HEX4, **extra})
+        lines = [ln for ln in str(err.value).splitlines() if "CoronaError" in ln]
+        assert lines and want in lines[-1], str(err.value)

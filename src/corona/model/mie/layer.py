@@ -133,13 +133,6 @@ SIZE_PER_SIGMA = 4.0
 MAX_SIZE_SAMPLES = 8000
 SIZE_TAIL = 1e-6
 SIZE_DM = 0.002
-#: Why the renderer's sphere layer takes no fixed lattice (the one line of the refusal): the numpy
-#: model evaluates it (:class:`SphereMaterial`); the renderer has its lobe and sampler
-#: (:mod:`corona.mitsuba.sphere_lattice`) but no per-lane energy cap that is a bound and tight
-#: (:mod:`corona.model.mie.lattice_cap`, docs/physics.md#spheres-on-a-lattice).
-SPHERE_NO_LATTICE = ("the Bragg orders of spheres on a lattice are evaluated by the numpy model "
-                     "(corona.Material(corona.Sphere(r), corona.Lattice(...))) only; the renderer has no "
-                     "per-lane energy cap for them that stays a bound through Rayleigh anomalies yet")
 #: Why a size spread takes no fixed lattice (the one line of the refusal).
 SPHERE_LATTICE_ONE_SIZE = ("the reflected Bragg orders need the coherent part |<S(Θ)>|² of the backward "
                            "amplitudes, which the tables of a size spread do not hold (a colloidal "
