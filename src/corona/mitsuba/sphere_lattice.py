@@ -1,8 +1,9 @@
 """Dr.Jit pieces of spheres on a fixed lattice (docs/physics.md#spheres-on-a-lattice).
 
 :class:`LatticeS` (below), :class:`LatticeLobe` (``P S`` from a sphere plugin's rows),
-:class:`OrderSampler` (the Bragg orders) and :class:`LatticeSampler` (the orders mixed with the
-sphere's own sampler).  :class:`LatticeS` evaluates a fixed :class:`corona.Lattice`'s structure factor per lane in closed
+:class:`OrderSampler` (the Bragg orders), :class:`LatticeSampler` (the orders mixed with the
+sphere's own sampler), :class:`LatticeCap` (the cap per lane) and :class:`LatticeLayer` (the BSDF).
+:class:`LatticeS` evaluates a fixed :class:`corona.Lattice`'s structure factor per lane in closed
 form, as :meth:`corona.Lattice.structure_factor_at` does in numpy:
 
     S(q) = 1 - e^{-q²δ²} + Σ_{G ≠ 0, near q} (2π)² n e^{-G²δ²} e^{-|q - G|²/2w²} / (2π w²)
@@ -10,10 +11,10 @@ form, as :meth:`corona.Lattice.structure_factor_at` does in numpy:
 over the ``(2m + 1)²`` reciprocal lattice vectors about the one nearest ``q`` in fractional
 coordinates (``f = q · a_i / 2π`` rounded; ``m = ⌈1/2 + 6 w a / 2π⌉``, 1 for the default
 crystallite of 20 spacings: the nearest 3 × 3 peaks), ``w`` the peaks' rms width.  It is what the
-renderer's lattice lobe ``F_s w P S`` needs besides the sphere plugin's Mie rows and the cap
-(:mod:`corona.model.mie.lattice_cap`).  The renderer does not carry spheres on a lattice yet
-(the sphere plugin refuses them in one line): the cap's per-lane bound is not tight enough to
-render with (docs/physics.md#spheres-on-a-lattice).
+renderer's lattice lobe ``F_s w P S`` needs besides the sphere plugin's Mie rows and the cap.
+:class:`LatticeCap` is the cap's energy per lane in closed form, and :class:`LatticeLayer` the
+assembled BSDF that the sphere plugin routes ``process=lattice-*`` to
+(docs/physics.md#spheres-on-a-lattice).
 """
 from __future__ import annotations
 

@@ -43,8 +43,11 @@ wi_xy|`` (:data:`CAP_NEAR`):
 Cells overlap by :data:`CAP_OVERLAP` of their width, so that float32 rounding of a lane's cell
 index stays covered.  Neither the numpy model (which keeps its exact cap,
 :meth:`corona.model.mie.layer.SphereMaterial.lattice_energy` per lane) nor the renderer uses this
-table yet: its bound is too loose to render with (docs/physics.md#spheres-on-a-lattice has the
-measured figures, from ``benchmarks/lattice_cap.py``).
+table: its bound is too loose to render with (docs/physics.md#spheres-on-a-lattice has the
+measured figures, from ``benchmarks/lattice_cap.py``).  The renderer sums the orders per lane in
+closed form instead (:func:`rim_rules`, :func:`order_energy`,
+:class:`corona.mitsuba.sphere_lattice.LatticeCap`), with :func:`diffuse_bound_rows` for the
+diffuse part.
 """
 from __future__ import annotations
 
