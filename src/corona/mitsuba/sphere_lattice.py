@@ -443,9 +443,9 @@ def lattice_layer_params(params: dict, textures: dict):
 class LatticeLayer:
     """The sphere plugin's BSDF on a fixed lattice: the coherent beam ``C = |1 - F_s s₀|²`` along
     ``-wi`` and the lattice lobe ``F_s w P S`` (:class:`LatticeLobe`) with the per-lane cap
-    (:class:`LatticeCap`), the component picked in the ratio of their energies as the sphere
-    plugin picks its own (:meth:`~corona.mitsuba.sphere.SphereBSDFMixin._selection`'s
-    ``selection``: coherent, forward, backward), the lobe sampled by :class:`LatticeSampler`.
+    (:class:`LatticeCap`); the coherent beam picked with the probability of its weight ``C`` (the
+    lane's mean), the lobe otherwise (its capped energy is at most ``1 - C``: the pdf needs no
+    cap), sampled by :class:`LatticeSampler`.
     The sphere plugin routes its ``eval``/``pdf``/``sample`` here (its ``lattice_layer``); the
     sampler's calls of the plugin's own lobe sampler come with :attr:`inner_ctx` and are not
     routed.
@@ -469,27 +469,38 @@ class LatticeLayer:
         return self.cap.capped(si, states, active), m
 
     def _selection(self, ctx, states):
-        from corona.mitsuba.common import selection
-        en = [mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)]
+        """``(p_coherent, p_lobe)``: the coherent beam with the probability of its weight (the
+        lane's mean ``C``), the lobe with the rest (whose capped energy is at most ``1 - C``), so
+        that the pdf needs no cap; honouring the context."""
+        on_coh = ctx.is_enabled(mi.BSDFFlags.DeltaTransmission, 0)
+        on_lobe = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1) or ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
+        if not on_coh:
+            return mi.Float(0.0), mi.Float(1.0 if on_lobe else 0.0)
+        if not on_lobe:
+            return mi.Float(1.0), mi.Float(0.0)
+        c = mi.Float(0.0)
         for st in states:
-            en = [en[0] + st["coherent"], en[1] + st["e_f"], en[2] + st["e_b"]]
-        flags = [(mi.BSDFFlags.DeltaTransmission, 0), (mi.BSDFFlags.GlossyTransmission, 1),
-                 (mi.BSDFFlags.GlossyReflection, 2)]
-        return selection(en, [ctx.is_enabled(fl, i) for fl, i in flags])
+            c = c + st["coherent"]
+        p_coh = dr.clip(c / len(states), 0.0, 1.0)
+        return p_coh, 1.0 - p_coh
 
     def eval_pdf(self, ctx, si, wo, active, cached=None):
         """``(f |cos θo|, pdf)`` of the lattice lobe (the coherent beam is a delta)."""
         b = self.bsdf
         active = mi.Bool(active)
-        states, m = cached if cached is not None else self._states(si, active)
-        _, p_f, p_b = self._selection(ctx, states)
+        if cached is None:     # the pdf needs no cap (:meth:`_selection`), eval does
+            states, m = b._states(si, active)
+            states = self.cap.capped(si, states, active)
+        else:
+            states, m = cached
+        _, p_lobe = self._selection(ctx, states)
         on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
         forward = dr.norm(wo + si.wi) <= dr.norm(wo - si.wi)
         on = active & dr.select(forward, on_f, on_b)
         Z = self.lobe(si, wo, active, states)
         values = [dr.select(on, z * (st["fs"] * st["w"]), 0.0) for st, z in zip(states, Z)]
-        pdf = (p_f + p_b) * self.sampler.pdf(si, wo, active)
+        pdf = p_lobe * self.sampler.pdf(si, wo, active)
         return b._spectrum(values), dr.select(active, pdf, 0.0)
 
     def sample(self, ctx, si, sample1, sample2, active=True):
@@ -498,8 +509,7 @@ class LatticeLayer:
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
         states, m = self._states(si, active)
-        p_coh, p_f, p_b = self._selection(ctx, states)
-        p_lobe = p_f + p_b
+        p_coh, p_lobe = self._selection(ctx, states)
         pick_coh = active & (sample1 < p_coh)
         pick_lobe = active & ~pick_coh & (p_lobe > 0)
         u = dr.clip((sample1 - p_coh) / dr.maximum(p_lobe, 1e-30), 0.0, 0.99999994)
