@@ -360,28 +360,30 @@ class LatticeCap:
                 reach = active & (u < self.reach)
                 far = u < -self.rim_u
                 scale = o.z / (k * k)
-                # the peak's centre (far from the horizon)
-                c2 = dr.maximum(1.0 - rho * rho, 1e-12)
-                f0, b0 = self._psum(st, wi, px, py, reach & far)
-                wc = scale * (1.0 + 0.375 / (u * u)) / dr.sqrt(c2)
-                ef, eb = dr.select(reach & far, f0 * wc, 0.0), dr.select(reach & far, b0 * wc, 0.0)
-                # the rim rule (near the horizon), read linearly in u
+                # the rim rule near the horizon (read linearly in u); node 0 is the peak's centre
+                # far from it (P/c (1 + 3/8u²))
                 near = reach & ~far
                 g = dr.clip((u - self.rule_u0) * (1.0 / self.rule_du), 0.0, self.rule_n - 1.001)
                 j = mi.UInt32(dr.floor(g))
                 t = g - mi.Float(j)
                 inv_r = 1.0 / dr.maximum(rho, 1e-12)
+                c2 = dr.maximum(1.0 - rho * rho, 1e-12)
+                ef, eb = mi.Float(0.0), mi.Float(0.0)
                 for q in range(R):
+                    on = reach if q == 0 else near
                     t0 = dr.gather(mi.Float, self.rule, j * (2 * R) + q, near)
                     t1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + q, near)
                     w0 = dr.gather(mi.Float, self.rule, j * (2 * R) + R + q, near)
                     w1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + R + q, near)
                     tq, wq = dr.lerp(t0, t1, t), dr.lerp(w0, w1, t)
                     r = 1.0 - eps * tq * tq
-                    fq, bq = self._psum(st, wi, px * inv_r * r, py * inv_r * r, near)
                     wt = scale * wq / dr.sqrt(eps * (1.0 + r))
-                    ef += dr.select(near, fq * wt, 0.0)
-                    eb += dr.select(near, bq * wt, 0.0)
+                    if q == 0:
+                        r = dr.select(far, rho, r)
+                        wt = dr.select(far, scale * (1.0 + 0.375 / (u * u)) / dr.sqrt(c2), wt)
+                    fq, bq = self._psum(st, wi, px * inv_r * r, py * inv_r * r, on)
+                    ef += dr.select(on, fq * wt, 0.0)
+                    eb += dr.select(on, bq * wt, 0.0)
                 e[2 * m] = e[2 * m] + ef
                 e[2 * m + 1] = e[2 * m + 1] + eb
             return (i + 1, *e)
