@@ -493,3 +493,10 @@ def test_lattice_layer_refuses_glass_and_varying_textures(mi_variant):
             mi.load_dict({**HEX4, **extra})
         lines = [ln for ln in str(err.value).splitlines() if "CoronaError" in ln]
         assert lines and want in lines[-1], str(err.value)
+
+
+def test_finite_at_a_zero_interaction(mi_variant):
+    """sample / eval / pdf without ``active`` at a zero-initialised interaction (wavelengths 0, as
+    mitsuba.chi2's adapters pass): finite."""
+    from bsdf_checks import assert_finite_at_a_zero_interaction
+    assert_finite_at_a_zero_interaction(_layer({**HEX4, "jitter": 0.05}))
