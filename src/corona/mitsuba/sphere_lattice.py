@@ -282,8 +282,9 @@ class LatticeCap:
     peak's centre (``P/c (1 + 3/8u²)``) for ``u < -RIM_U``; one Dr.Jit loop over the orders
     (sorted by ``|G|``, each lane stopping past ``k_max (1 + |wi_xy|) + 8 w``), ``P`` read from the
     sphere plugin's rows by its own lookup at both sides' directions.  ``D`` is the jittered
-    lattice's diffuse part, the proven per-row bound
-    :func:`corona.model.mie.lattice_cap.diffuse_bound_rows` (0 for a perfect crystal).
+    lattice's diffuse part per row of x and ``μ_i``
+    (:func:`corona.model.mie.lattice_cap.diffuse_rows_mu`, read bilinearly; 0 for a perfect
+    crystal).
 
     Parameters
     ----------
@@ -312,9 +313,10 @@ class LatticeCap:
         self.rim_u = float(lattice_cap.RIM_U)
         self.reach = float(lattice_cap.RIM_REACH)
         rows = sphere_bsdf.material.rows
-        D = lattice_cap.diffuse_bound_rows(rows, float(sphere_bsdf.material.length_scale), float(lattice.jitter))
+        D = lattice_cap.diffuse_rows_mu(rows, float(sphere_bsdf.material.length_scale), float(lattice.jitter))
         self.has_diffuse = bool(np.any(D > 0))
-        self.D = mi.Float(D.astype(np.float32))
+        self.n_mu = int(D.shape[1])
+        self.D = mi.Float(D.ravel().astype(np.float32))
 
     def _psum(self, st, wi, px, py, active):
         """(forward, backward) ``P`` at ``wo = (p, ±c)``: each side's ``P`` by its chord's lobe."""
@@ -393,10 +395,13 @@ class LatticeCap:
         res = []
         for m, st in enumerate(states):
             e_f, e_b = out[2 * m], out[2 * m + 1]
-            if self.has_diffuse:
-                d0 = dr.gather(mi.Float, self.D, st["j"], active)
-                d1 = dr.gather(mi.Float, self.D, st["j"] + 1, active)
-                e_f = e_f + dr.lerp(d0, d1, st["t"])
+            if self.has_diffuse:     # bilinear in (row, μ_i)
+                g = dr.clip(dr.abs(wi.z), 0.0, 1.0) * (self.n_mu - 1)
+                b = dr.minimum(mi.UInt32(dr.floor(g)), self.n_mu - 2)
+                f = g - mi.Float(b)
+                k0 = st["j"] * self.n_mu + b
+                d = [dr.gather(mi.Float, self.D, k0 + o, active) for o in (0, 1, self.n_mu, self.n_mu + 1)]
+                e_f = e_f + dr.lerp(dr.lerp(d[0], d[1], f), dr.lerp(d[2], d[3], f), st["t"])
             res.append((e_f, e_b))
         return res
 

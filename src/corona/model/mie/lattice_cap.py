@@ -453,3 +453,40 @@ def order_energy(material, wi, wavelength: float, rules=None) -> float:
             e += float(np.sum(W[~far] / (k * k * math.sqrt(eps)) * wts[:, q] * psum(pn / rn[:, None] * r[:, None])
                               / np.sqrt(1 + r)))
     return e
+
+
+#: Nodes in μ_i = |cos θi| of the diffuse part's table (uniform on [0, 1]) and its azimuths.
+DIFFUSE_MU_NODES = 17
+DIFFUSE_PHI = 32
+
+
+def diffuse_rows_mu(rows: dict, radius: float, jitter: float, n_mu: int = DIFFUSE_MU_NODES,
+                    n_phi: int = DIFFUSE_PHI) -> np.ndarray:
+    """``D[j, m]`` (J, n_mu): the jittered lattice's diffuse energy ``∫ P (1 - e^{-q²δ²}) dΩ`` of
+    both lobes per row of x (``k = x_j / r``) at ``μ_i = m/(n_mu - 1)`` (``wi`` in the xz plane:
+    the integral does not depend on its azimuth), on the rows' own chord nodes (``dΩ = s ds dφ``,
+    trapezoid in ``s``, ``n_phi`` azimuths about ``∓wi``), ``q = k (wo + wi)_xy``; 0 for a
+    perfect crystal.  Read bilinearly in (row, μ) it is the lane's diffuse part (not a bound)."""
+    from corona.model.mie.layer import _frame
+    P_f, P_b, x, ds = rows["P_f"], rows["P_b"], rows["x"], float(rows["ds"])
+    J, K = P_f.shape
+    out = np.zeros((J, n_mu))
+    if jitter <= 0.0:
+        return out
+    s = np.arange(K) * ds
+    ws = np.full(K, ds)
+    ws[0] = ws[-1] = 0.5 * ds
+    ws = ws * s * (s <= math.sqrt(2.0)) * (2 * np.pi / n_phi)
+    cos_t, sin_t = 1 - 0.5 * s * s, s * np.sqrt(np.maximum(1 - 0.25 * s * s, 0.0))
+    phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
+    k2d2 = (x / radius * jitter) ** 2
+    for m, mu in enumerate(np.linspace(0.0, 1.0, n_mu)):
+        wi = np.array([math.sqrt(max(1.0 - mu * mu, 0.0)), 0.0, mu])
+        for P, axis in ((P_f, -wi), (P_b, wi)):
+            e1, e2 = _frame(axis)
+            wo = (cos_t[:, None, None] * axis + sin_t[:, None, None]
+                  * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2))
+            q2 = np.sum((wo + wi)[..., :2] ** 2, axis=-1)                  # (K, n_phi), per k²
+            damp = -np.expm1(-k2d2[:, None, None] * q2[None, :, :]).sum(axis=-1)   # (J, K)
+            out[:, m] += np.sum(P * damp * ws[None, :], axis=1)
+    return out
