@@ -430,14 +430,16 @@ def _uncapped(bsdf):
     return lambda: setattr(cap, "capped", capped)
 
 
-@pytest.mark.parametrize("theta", [0.0, 30.0])
-def test_furnace_from_the_plugins_sample_weights(mi_variant, theta):
+@pytest.mark.parametrize("params, theta", [(HEX4, 0.0), (HEX4, 30.0), ({**SQUARE3, "jitter": 0.15}, 30.0)])
+def test_furnace_from_the_plugins_sample_weights(mi_variant, params, theta):
     """The plugin's directional albedo (coherent beam + lobe, its own sample weights) ≤ 1 at
     four wavelengths; a perfect crystal is bright (the cap binds: ≥ 0.95)."""
     from bsdf_checks import furnace
-    mean, err = furnace(_layer(HEX4), theta, wavelengths=(420.0, 520.0, 640.0, 780.0))
+    mean, err = furnace(_layer(params), theta, wavelengths=(420.0, 520.0, 640.0, 780.0))
+    print(mean, err)
     assert np.all(mean - 3 * err <= 1.0), (mean, err)
-    assert np.all(mean >= 0.95), mean
+    if params is HEX4:
+        assert np.all(mean >= 0.95), mean
 
 
 def test_furnace_through_a_rayleigh_anomaly(mi_variant):

@@ -46,7 +46,7 @@ index stays covered.  Neither the numpy model (which keeps its exact cap,
 table: its bound is too loose to render with (docs/physics.md#spheres-on-a-lattice has the
 measured figures, from ``benchmarks/lattice_cap.py``).  The renderer sums the orders per lane in
 closed form instead (:func:`rim_rules`, :func:`order_energy`,
-:class:`corona.mitsuba.sphere_lattice.LatticeCap`), with :func:`diffuse_bound_rows` for the
+:class:`corona.mitsuba.sphere_lattice.LatticeCap`), with :func:`diffuse_rows_mu` for the
 diffuse part.
 """
 from __future__ import annotations
@@ -71,7 +71,7 @@ CAP_OVERLAP = 1e-3
 CUBIC_EXCESS = 1.125
 
 __all__ = ["CAP_LAMBDA_CELLS", "CAP_NEAR", "CAP_NEAR_CELLS", "CAP_WI_CELLS", "RIM_NODES", "RIM_U", "cap_energy", "cap_parts",
-           "order_energy", "rim_rules",
+           "DIFFUSE_MU_NODES", "DIFFUSE_PHI", "diffuse_rows_mu", "order_energy", "rim_rules",
            "cap_table", "diffuse_bound_rows", "far_energy", "near_bound_at"]
 
 
