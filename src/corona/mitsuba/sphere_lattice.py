@@ -280,7 +280,9 @@ class LatticeCap:
     w/k``, ``u = (ρ_G - 1)/ε``, the radial Gauss rule ``(t_i, w_i)`` of
     :func:`corona.model.mie.lattice_cap.rim_rules` (``r_i = 1 - ε t_i²``) near the horizon and the
     peak's centre (``P/c (1 + 3/8u²)``) for ``u < -RIM_U``; one Dr.Jit loop over the orders
-    (sorted by ``|G|``, each lane stopping past ``k_max (1 + |wi_xy|) + 8 w``), ``P`` read from the
+    (sorted by ``|G|``, each lane stopping past ``k_max (1 + |wi_xy|) + 8 w``; per wavelength
+    an order is a branch taken where it reaches the layer, ``u < 8``, and the rule's other nodes
+    a branch taken near the horizon), ``P`` read from the
     sphere plugin's rows by its own lookup at both sides' directions.  ``D`` is the jittered
     lattice's diffuse part per row of x and ``μ_i``
     (:func:`corona.model.mie.lattice_cap.diffuse_rows_mu`, read bilinearly; 0 for a perfect
@@ -370,13 +372,11 @@ class LatticeCap:
                 t = g - mi.Float(j)
                 inv_r = 1.0 / dr.maximum(rho, 1e-12)
                 c2 = dr.maximum(1.0 - rho * rho, 1e-12)
-                ef, eb = mi.Float(0.0), mi.Float(0.0)
-                for q in range(R):
-                    on = reach if q == 0 else near
-                    t0 = dr.gather(mi.Float, self.rule, j * (2 * R) + q, near)
-                    t1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + q, near)
-                    w0 = dr.gather(mi.Float, self.rule, j * (2 * R) + R + q, near)
-                    w1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + R + q, near)
+                def node(q, on, ef, eb):
+                    t0 = dr.gather(mi.Float, self.rule, j * (2 * R) + q, on)
+                    t1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + q, on)
+                    w0 = dr.gather(mi.Float, self.rule, j * (2 * R) + R + q, on)
+                    w1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + R + q, on)
                     tq, wq = dr.lerp(t0, t1, t), dr.lerp(w0, w1, t)
                     r = 1.0 - eps * tq * tq
                     wt = scale * wq / dr.sqrt(eps * (1.0 + r))
@@ -384,8 +384,21 @@ class LatticeCap:
                         r = dr.select(far, rho, r)
                         wt = dr.select(far, scale * (1.0 + 0.375 / (u * u)) / dr.sqrt(c2), wt)
                     fq, bq = self._psum(st, wi, px * inv_r * r, py * inv_r * r, on)
-                    ef += dr.select(on, fq * wt, 0.0)
-                    eb += dr.select(on, bq * wt, 0.0)
+                    return ef + dr.select(on, fq * wt, 0.0), eb + dr.select(on, bq * wt, 0.0)
+
+                def rim(ef, eb):
+                    for q in range(1, R):
+                        ef, eb = node(q, near, ef, eb)
+                    return ef, eb
+
+                def order(ef, eb):
+                    ef, eb = node(0, reach, ef, eb)
+                    # the rule's other nodes only where the order is near the horizon (a branch)
+                    return dr.if_stmt(args=(ef, eb), cond=near, true_fn=rim, false_fn=lambda ef, eb: (ef, eb))
+
+                # only the orders that reach the layer's directions at this wavelength (a branch)
+                ef, eb = dr.if_stmt(args=(mi.Float(0.0), mi.Float(0.0)), cond=reach, true_fn=order,
+                                    false_fn=lambda ef, eb: (ef, eb))
                 e[2 * m] = e[2 * m] + ef
                 e[2 * m + 1] = e[2 * m + 1] + eb
             return (i + 1, *e)
