@@ -544,8 +544,8 @@ def material_from_parameters(**params):
     process = make_process(p, shape)
     if p["shape"] == "sphere":   # droplets in air: particles; the mode given must say so
         from corona.model.mie.layer import SphereMaterial
-        # every process: lattices are the numpy model's (the plugin refuses them at load, with
-        # the reason), a point file's S(q) is radial (an isotropic corona.PointSet)
+        # every process: a fixed lattice (the plugin's own path, corona.mitsuba.sphere_lattice),
+        # a point file's S(q) is radial (an isotropic corona.PointSet)
         material = SphereMaterial(shape, process, mode=params.get("mode") or "particle", substrate=substrate)
     else:
         material = Material(shape, process, mode=p["mode"], albedo=p["albedo"], substrate=substrate)

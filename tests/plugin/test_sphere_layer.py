@@ -129,15 +129,15 @@ def test_albedo_texture_is_unused(mi_variant):
 
 
 @pytest.mark.parametrize("extra,line", [
-    ({"process": "lattice-hex"}, r"process='lattice-hex' is out of range for shape='sphere' in the renderer; "
-                                 r"allowed poisson, hard-disk, rsa, points \(the Bragg orders of spheres on a "
-                                 r"lattice are evaluated by the numpy model"),
+    ({"process": "lattice-hex", "area_fraction": 0.2, "substrate": "glass"},
+     r"substrate='glass' is out of range for shape='sphere' with process='lattice-hex' in the renderer; "
+     r"allowed none"),
     ({"radius": "tex"}, r"radius=1 … 3 is out of range for shape='sphere' with a dispersive ior \(water\): "
                         r"one table of rows holds the index of one radius"),
     ({"substrate": "mirror"}, r"substrate=Mirror\(.*\) is out of range for shape='sphere'; allowed none or an "
                               r"incoherent glass pane"),
     ({"substrate": "glass", "substrate_thickness": 1000.0}, r"substrate=GlassPane\(.*\) is out of range"),
-], ids=["lattice", "radius-texture", "mirror", "thick-glass"])
+], ids=["lattice-on-glass", "radius-texture", "mirror", "thick-glass"])
 def test_refusals_are_one_line(mi_variant, extra, line):
     import mitsuba as mi
 

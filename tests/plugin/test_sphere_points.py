@@ -1,7 +1,7 @@
 """Spheres on a point file (process=points): the centres' measured S(q) is radial (an isotropic
 corona.PointSet), so the sphere layer carries it as it carries a hard core's: the plugin against
-the numpy reference, its chi-square and its furnace; and the renderer's one-line refusal of a
-fixed lattice (the numpy model's)."""
+the numpy reference, its chi-square and its furnace; and that the renderer takes a fixed lattice
+(its own path, test_sphere_lattice_plugin.py)."""
 import warnings
 
 import numpy as np
@@ -62,13 +62,12 @@ def test_furnace(bsdf):
         assert np.all(mean <= 1.0 + 3 * err), (deg, mean)
 
 
-def test_renderer_refuses_a_lattice_in_one_line(mi_variant):
+def test_renderer_takes_a_lattice(mi_variant):
+    # the lattice path's physics: tests/plugin/test_sphere_lattice_plugin.py
     import mitsuba as mi
-    with pytest.raises(Exception) as err:
-        mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "process": "lattice-hex",
-                      "area_fraction": 0.2})
-    line = [ln for ln in str(err.value).splitlines() if "CoronaError" in ln or "out of range" in ln]
-    assert line and "process='lattice-hex'" in line[-1] and "numpy model" in line[-1]
+    bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "process": "lattice-hex",
+                         "area_fraction": 0.2})
+    assert bsdf.lattice_layer is not None and bsdf.lattice_layer.lattice.kind == "hexagonal"
     # the numpy model takes it from the same parameters
     from corona.parameters import material_from_parameters
     m = material_from_parameters(shape="sphere", radius=1.0, process="lattice-hex", area_fraction=0.2)

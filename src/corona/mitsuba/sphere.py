@@ -164,10 +164,10 @@ class SphereBSDFMixin:
         mi.BSDF.__init__(self, props)
         params, textures = _read_props(props)
         process = params.get("process", SPEC["process"].default)
-        if str(process).startswith("lattice"):
-            from corona.model.mie.layer import SPHERE_NO_LATTICE
-            raise CoronaError(f"process={process!r} is out of range for shape='sphere' in the renderer; "
-                              f"allowed poisson, hard-disk, rsa, points ({SPHERE_NO_LATTICE})")
+        lattice = None
+        if str(process).startswith("lattice"):   # the Mie rows of the same sphere; the lattice apart
+            from corona.mitsuba.sphere_lattice import lattice_layer_params
+            lattice, params = lattice_layer_params(params, textures)
         albedo_tex = textures.pop("albedo", None)
         if albedo_tex is not None:     # means nothing for a sphere: the one unused-parameter warning
             warn_unused(["albedo"], {**DEFAULTS, **params}, stacklevel=2)
@@ -202,6 +202,15 @@ class SphereBSDFMixin:
         for c in self.m_components[1:]:
             flags = flags | c
         self.m_flags = flags
+        #: spheres on a fixed lattice (corona.mitsuba.sphere_lattice.LatticeLayer), None otherwise
+        self.lattice_layer = None
+        if lattice is not None:
+            from corona.mitsuba.sphere_lattice import LatticeLayer
+            self.lattice_layer = LatticeLayer(self, lattice)
+
+    def _lattice_routed(self, ctx):
+        """Whether a call goes to the lattice layer (not the lattice sampler's own calls)."""
+        return self.lattice_layer is not None and ctx is not self.lattice_layer.inner_ctx
 
     def _radius_init(self, radius_tex, params):
         """The radius texture (None: a uniform value, made after the tables) and the radii the rows serve."""
@@ -683,6 +692,8 @@ class SphereBSDFMixin:
     # BSDF interface
     # ------------------------------------------------------------------
     def _eval_pdf(self, ctx, si, wo, active, cached=None):
+        if cached is None and self._lattice_routed(ctx):
+            return self.lattice_layer.eval_pdf(ctx, si, wo, active)
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
@@ -726,6 +737,8 @@ class SphereBSDFMixin:
         return self._eval_pdf(ctx, si, wo, mi.Bool(active))
 
     def sample(self, ctx, si, sample1, sample2, active=True):
+        if self._lattice_routed(ctx):
+            return self.lattice_layer.sample(ctx, si, sample1, sample2, active)
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
@@ -811,6 +824,14 @@ class SphereBSDFMixin:
         callback.put("radius", self.radius_tex, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
+        if self.lattice_layer is not None:
+            lo, hi = texture_range(self.fa_tex)
+            r_lo, r_hi = texture_range(self.radius_tex)
+            if abs(hi - self.fa) > 1e-7 or abs(r_hi - float(self.params.get("radius", SPEC["radius"].default))) > 1e-7:
+                raise CoronaError("corona BSDF: area_fraction and radius of spheres on a lattice are out of range "
+                                  "for updates; allowed the values the layer was loaded with (the lattice's "
+                                  "spacing follows them)")
+            return
         # new values: check them; rebuild the F_a rows only when they leave what the rows cover
         lo, hi = texture_range(self.fa_tex)
         if lo is None or not (0.0 < lo and hi < 1.0) or not (np.isfinite(lo) and np.isfinite(hi)):

@@ -144,12 +144,6 @@ SIZE_DM = 0.002
 #: ``σ s``); a cubic in the chord fills the nodes between (:func:`_spread_chord_nodes`; the
 #: filled rows differ from rows on every node by less than the size grid's own error, docs/mie.md).
 SPREAD_CHORD_SMOOTH = 0.1
-#: Why the renderer's sphere layer takes no fixed lattice (the one line of the refusal): the numpy
-#: model evaluates it (:class:`SphereMaterial`), the plugin has no sampler for its orders.
-SPHERE_NO_LATTICE = ("the Bragg orders of spheres on a lattice are evaluated by the numpy model "
-                     "(corona.Material(corona.Sphere(r), corona.Lattice(...))) only; the renderer's sphere "
-                     "layer tabulates and samples its lobes by scattering angle alone and has no 2-D "
-                     "table of the orders yet")
 #: Why a size spread takes no fixed lattice (the one line of the refusal).
 SPHERE_LATTICE_ONE_SIZE = ("the reflected Bragg orders need the coherent part |<S(Θ)>|² of the backward "
                            "amplitudes, which the tables of a size spread do not hold (a colloidal "

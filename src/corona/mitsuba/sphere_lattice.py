@@ -1,0 +1,553 @@
+"""Dr.Jit pieces of spheres on a fixed lattice (docs/physics.md#spheres-on-a-lattice).
+
+:class:`LatticeS` (below), :class:`LatticeLobe` (``P S`` from a sphere plugin's rows),
+:class:`OrderSampler` (the Bragg orders), :class:`LatticeSampler` (the orders mixed with the
+sphere's own sampler), :class:`LatticeCap` (the cap per lane) and :class:`LatticeLayer` (the BSDF).
+:class:`LatticeS` evaluates a fixed :class:`corona.Lattice`'s structure factor per lane in closed
+form, as :meth:`corona.Lattice.structure_factor_at` does in numpy:
+
+    S(q) = 1 - e^{-q²δ²} + Σ_{G ≠ 0, near q} (2π)² n e^{-G²δ²} e^{-|q - G|²/2w²} / (2π w²)
+
+over the ``(2m + 1)²`` reciprocal lattice vectors about the one nearest ``q`` in fractional
+coordinates (``f = q · a_i / 2π`` rounded; ``m = ⌈1/2 + 6 w a / 2π⌉``, 1 for the default
+crystallite of 20 spacings: the nearest 3 × 3 peaks), ``w`` the peaks' rms width.  It is what the
+renderer's lattice lobe ``F_s w P S`` needs besides the sphere plugin's Mie rows and the cap.
+:class:`LatticeCap` is the cap's energy per lane in closed form, and :class:`LatticeLayer` the
+assembled BSDF that the sphere plugin routes ``process=lattice-*`` to
+(docs/physics.md#spheres-on-a-lattice).
+"""
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+__all__ = ["LatticeCap", "LatticeLayer", "LatticeLobe", "LatticeS", "LatticeSampler", "OrderSampler",
+           "lattice_layer_params"]
+
+
+class LatticeS:
+    """A fixed lattice's ``S(q)`` in Dr.Jit (module docstring).
+
+    Parameters
+    ----------
+    lattice : corona.Lattice
+        With ``orientation="fixed"``.
+    """
+
+    def __init__(self, lattice):
+        A = np.asarray(lattice.lattice_vectors, dtype=np.float64)
+        B = np.asarray(lattice.reciprocal_vectors, dtype=np.float64)
+        w = float(lattice.peak_width)
+        self.A = A / (2.0 * np.pi)            # f = q · a_i / 2π
+        self.B = B
+        self.jitter2 = float(lattice.jitter) ** 2
+        self.inv_2w2 = 0.5 / (w * w)
+        self.amp = (2.0 * np.pi) ** 2 * float(lattice.number_density) / (2.0 * np.pi * w * w)
+        self.m = max(1, int(math.ceil(0.5 + 6.0 * w * lattice.spacing / (2.0 * np.pi))))
+
+    def __call__(self, qx, qy):
+        """``S`` at the in-plane momentum transfer ``(qx, qy)`` [rad/µm] (mi.Float each)."""
+        A, B = self.A, self.B
+        f1 = dr.round(qx * A[0, 0] + qy * A[0, 1])
+        f2 = dr.round(qx * A[1, 0] + qy * A[1, 1])
+        out = 1.0 - dr.exp(-(qx * qx + qy * qy) * self.jitter2) if self.jitter2 > 0 else mi.Float(0.0)
+        for dh in range(-self.m, self.m + 1):
+            for dk in range(-self.m, self.m + 1):
+                h, k = f1 + dh, f2 + dk
+                gx = h * B[0, 0] + k * B[1, 0]
+                gy = h * B[0, 1] + k * B[1, 1]
+                dx, dy = qx - gx, qy - gy
+                e = -(dx * dx + dy * dy) * self.inv_2w2
+                if self.jitter2 > 0:
+                    e = e - (gx * gx + gy * gy) * self.jitter2
+                peak = self.amp * dr.exp(e)
+                out = out + dr.select((h == 0) & (k == 0), 0.0, peak)
+        return out
+
+
+class OrderSampler:
+    """Samples the Bragg orders of a fixed lattice: an order ``G`` with probability
+    ``π_G = W_G / Σ W`` over the orders ``0 < |G| ≤ G_max`` (``W_G = (2π)² n e^{-G²δ²}``, a
+    :class:`mitsuba.DiscreteDistribution`), then ``q = G + w ξ`` (``ξ`` a standard normal pair:
+    the broadened peak ``g_G``), ``wo_xy = q/k - wi_xy`` (the grating equation), and the side of
+    the layer with the caller's probabilities.  A sample past the horizon (``|wo_xy| ≥ 1``) fails.
+    In solid angle (``d²q = k² |cos θo| dΩ``) the density of ``wo`` on the side it is on is
+
+        pdf(wo) = p_side(wo) · k² |cos θo| · Σ_{|G| ≤ G_max} π_G g_G(k (wo + wi)_xy),
+
+    the sum closed-form over the ``(2m + 1)²`` peaks nearest ``q`` (as :class:`LatticeS`): it
+    integrates to the share of samples that do not fail.
+
+    Parameters
+    ----------
+    lattice : corona.Lattice
+        With ``orientation="fixed"``.
+    g_max : float
+        The largest ``|G|`` sampled [rad/µm] (``2 k`` of the shortest wavelength reaches every
+        order that can leave the layer).
+    """
+
+    def __init__(self, lattice, g_max: float):
+        G, W = lattice.bragg_peaks(float(g_max))
+        self.structure = LatticeS(lattice)
+        self.g_max2 = float(g_max) ** 2
+        self.w = float(lattice.peak_width)
+        self.total = float(np.sum(W))
+        self.Gx = mi.Float(np.asarray(G[:, 0], dtype=np.float32))
+        self.Gy = mi.Float(np.asarray(G[:, 1], dtype=np.float32))
+        self.orders = mi.DiscreteDistribution(mi.Float(np.asarray(W, dtype=np.float32)))
+        self.count = int(G.shape[0])
+
+    def sample(self, wi, k, u_order, u_peak, active=True):
+        """``(wo_x, wo_y, valid)``: an order's direction in the plane (the side is the caller's)."""
+        idx = self.orders.sample(u_order, active)
+        gx = dr.gather(mi.Float, self.Gx, idx, active)
+        gy = dr.gather(mi.Float, self.Gy, idx, active)
+        xi = mi.warp.square_to_std_normal(u_peak)
+        px = (gx + self.w * xi.x) / k - wi.x
+        py = (gy + self.w * xi.y) / k - wi.y
+        valid = mi.Bool(active) & (px * px + py * py < 1.0)
+        return px, py, valid
+
+    def density_q(self, qx, qy):
+        """``Σ_{|G| ≤ G_max} π_G g_G(q)`` [µm²]: the sampled orders' density in q."""
+        st = self.structure
+        A, B = st.A, st.B
+        f1 = dr.round(qx * A[0, 0] + qy * A[0, 1])
+        f2 = dr.round(qx * A[1, 0] + qy * A[1, 1])
+        amp = st.amp / self.total                           # (2π)² n / (2π w² Σ W)
+        out = mi.Float(0.0)
+        for dh in range(-st.m, st.m + 1):
+            for dk in range(-st.m, st.m + 1):
+                h, kk = f1 + dh, f2 + dk
+                gx = h * B[0, 0] + kk * B[1, 0]
+                gy = h * B[0, 1] + kk * B[1, 1]
+                g2 = gx * gx + gy * gy
+                dx, dy = qx - gx, qy - gy
+                e = -(dx * dx + dy * dy) * st.inv_2w2
+                if st.jitter2 > 0:
+                    e = e - g2 * st.jitter2
+                keep = ((h != 0) | (kk != 0)) & (g2 <= self.g_max2 * (1 + 1e-6))
+                out = out + dr.select(keep, amp * dr.exp(e), 0.0)
+        return out
+
+    def pdf(self, wi, wo, k, p_side):
+        """The density of ``wo`` in solid angle, ``p_side`` the probability of its side."""
+        qx, qy = k * (wo.x + wi.x), k * (wo.y + wi.y)
+        return p_side * k * k * dr.abs(wo.z) * self.density_q(qx, qy)
+
+
+class LatticeLobe:
+    """The lattice layer's lobe per steradian, ``Z = P S`` (one size, ``C = P``), in Dr.Jit.
+
+    ``P`` is the Mie pattern read from a sphere plugin's rows by its own lookup (its
+    :meth:`~corona.mitsuba.sphere.SphereBSDFMixin._states` and
+    :meth:`~corona.mitsuba.sphere.SphereBSDFMixin._rows_at`: the forward rows for ``Θ < 90°`` from
+    ``-wi``, the backward rows beyond), ``S`` the lattice's (:class:`LatticeS`) at
+    ``q = k (wo + wi)_xy``, on both lobes (a crystal is a strict monolayer).  The cap ``F_s w``
+    is not applied here (docs/physics.md#spheres-on-a-lattice).
+
+    Parameters
+    ----------
+    sphere_bsdf : the ``corona`` plugin of the same sphere (any isotropic process: the Mie rows
+        do not depend on it)
+    lattice : corona.Lattice (fixed)
+    """
+
+    def __init__(self, sphere_bsdf, lattice):
+        self.bsdf = sphere_bsdf
+        self.structure = LatticeS(lattice)
+
+    def __call__(self, si, wo, active=True, states=None):
+        """Per wavelength of the lane: ``Z`` at ``wo`` (a list of mi.Float); ``states`` the sphere
+        plugin's (:meth:`~corona.mitsuba.sphere.SphereBSDFMixin._states`), made where not given."""
+        b = self.bsdf
+        active = mi.Bool(active)
+        wi = si.wi
+        if states is None:
+            states, _ = b._states(si, active)
+        s_f = dr.norm(wo + wi)
+        s_b = dr.norm(wo - wi)
+        forward = s_f <= s_b
+        s_any = dr.select(forward, s_f, s_b)
+        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+        out = []
+        for st in states:
+            P = b._rows_at("P", st, s_any, active, offset)[0]
+            k = (2.0 * dr.pi) / st["lam"]
+            S = self.structure(k * (wo.x + wi.x), k * (wo.y + wi.y))
+            out.append(dr.select(active, P * S, 0.0))
+        return out
+
+
+class LatticeSampler:
+    """The lattice lobe's sampler: a mixture of the Bragg orders (:class:`OrderSampler`, with
+    probability ``alpha``) and the sphere plugin's own sampler of its Mie lobes (the diffuse part
+    ``P (1 - e^{-q²δ²})`` and the orders' Mie envelope), one-sample balance heuristic.
+
+    The order branch picks one of the lane's wavelengths uniformly, an order for it, and the side
+    of the layer in the ratio of ``Σ_λ P`` at the two candidate directions; so
+
+        pdf(wo) = alpha · p_side(wo) · mean_λ [k² |cos θo| Σ π_G g_G(k (wo + wi)_xy)]
+                  + (1 - alpha) · pdf_sphere(wo)
+
+    with ``pdf_sphere`` the sphere plugin's pdf of its lobes alone (its coherent beam off).
+
+    Parameters
+    ----------
+    sphere_bsdf : the ``corona`` plugin of the same sphere (bare: no pane)
+    lattice : corona.Lattice (fixed)
+    alpha : float
+        The order branch's share.
+    """
+
+    def __init__(self, sphere_bsdf, lattice, alpha: float = 0.5):
+        from corona import tables
+        self.bsdf = sphere_bsdf
+        self.lobe = LatticeLobe(sphere_bsdf, lattice)
+        self.orders = OrderSampler(lattice, 2.0 * 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3))
+        self.alpha = float(alpha)
+        self.ctx = mi.BSDFContext()
+        self.ctx.type_mask = +(mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection)
+
+    def _mie(self, si, wo, active):
+        """``Σ_λ P`` at ``wo`` over the lane's wavelengths."""
+        b = self.bsdf
+        states, _ = b._states(si, active)
+        s_f, s_b = dr.norm(wo + si.wi), dr.norm(wo - si.wi)
+        forward = s_f <= s_b
+        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+        total = mi.Float(0.0)
+        for st in states:
+            total += b._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0]
+        return total, states
+
+    def _side(self, si, px, py, active):
+        cz = dr.safe_sqrt(1.0 - px * px - py * py)
+        up, down = mi.Vector3f(px, py, cz), mi.Vector3f(px, py, -cz)
+        a, _ = self._mie(si, up, active)
+        b, _ = self._mie(si, down, active)
+        return up, down, dr.select(a + b > 0, a / dr.maximum(a + b, 1e-30), 0.5)
+
+    def _order_pdf(self, si, wo, active):
+        states, _ = self.bsdf._states(si, active)
+        dens = mi.Float(0.0)
+        for st in states:
+            dens += self.orders.pdf(si.wi, wo, (2.0 * dr.pi) / st["lam"], 1.0)
+        _, _, p_up = self._side(si, wo.x, wo.y, active)
+        return dr.select(wo.z > 0, p_up, 1.0 - p_up) * dens / len(states)
+
+    def sample(self, si, u1, u2, active=True):
+        """``(wo, pdf)``; pdf 0 where the sample failed (an order past the horizon)."""
+        active = mi.Bool(active)
+        pick_order = u1 < self.alpha
+        u = dr.select(pick_order, u1 / self.alpha, (u1 - self.alpha) / (1.0 - self.alpha))
+        states, _ = self.bsdf._states(si, active)
+        n = len(states)
+        # the order branch: a wavelength, an order (the rest of u), the side (what is left of it)
+        g = u * n
+        i = dr.minimum(mi.UInt32(dr.floor(g)), n - 1)
+        u_order = g - mi.Float(i)
+        lam = states[0]["lam"]
+        for m in range(1, n):
+            lam = dr.select(i == m, states[m]["lam"], lam)
+        _, u_side = self.orders.orders.sample_reuse(u_order, active & pick_order)
+        px, py, valid = self.orders.sample(si.wi, (2.0 * dr.pi) / lam, u_order, u2, active & pick_order)
+        up, down, p_up = self._side(si, px, py, active & pick_order & valid)
+        wo_order = dr.select(u_side < p_up, up, down)
+        bs, _ = self.bsdf.sample(self.ctx, si, u, u2, active & ~pick_order)
+        wo = dr.select(pick_order, wo_order, bs.wo)
+        ok = dr.select(pick_order, valid, bs.pdf > 0) & active
+        return wo, dr.select(ok, self.pdf(si, wo, active), 0.0)
+
+    def pdf(self, si, wo, active=True):
+        active = mi.Bool(active)
+        p_sphere = self.bsdf.pdf(self.ctx, si, wo, active)
+        return dr.select(active, self.alpha * self._order_pdf(si, wo, active)
+                         + (1.0 - self.alpha) * p_sphere, 0.0)
+
+
+class LatticeCap:
+    """The lattice layer's energy ``e(λ, wi)`` per lane (per unit ``F_s w``) and its cap
+    ``w = min(1, (1 - |t|²) / (ENERGY_MARGIN F_s e))`` (docs/physics.md#spheres-on-a-lattice).
+
+        e = D + Σ_G e_G,   e_G = W_G / (k² ε^½) Σ_i w_i(u) [P(wo↑) + P(wo↓)](r_i) / (1 + r_i)^½
+
+    over the orders that reach the layer's directions (``ρ_G = |G/k - wi_xy| < 1 + 8 ε``), ``ε =
+    w/k``, ``u = (ρ_G - 1)/ε``, the radial Gauss rule ``(t_i, w_i)`` of
+    :func:`corona.model.mie.lattice_cap.rim_rules` (``r_i = 1 - ε t_i²``) near the horizon and the
+    peak's centre (``P/c (1 + 3/8u²)``) for ``u < -RIM_U``; one Dr.Jit loop over the orders
+    (sorted by ``|G|``, each lane stopping past ``k_max (1 + |wi_xy|) + 8 w``; per wavelength
+    an order is a branch taken where it reaches the layer, ``u < 8``, and the rule's other nodes
+    a branch taken near the horizon), ``P`` read from the
+    sphere plugin's rows by its own lookup at both sides' directions.  ``D`` is the jittered
+    lattice's diffuse part per row of x and ``μ_i``
+    (:func:`corona.model.mie.lattice_cap.diffuse_rows_mu`, read bilinearly; 0 for a perfect
+    crystal).
+
+    Parameters
+    ----------
+    sphere_bsdf : the sphere plugin (its rows)
+    lattice : corona.Lattice (fixed)
+    """
+
+    def __init__(self, sphere_bsdf, lattice):
+        from corona import tables
+        from corona.model.mie import lattice_cap
+        self.bsdf = sphere_bsdf
+        w = float(lattice.peak_width)
+        self.w = w
+        k_max = 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
+        G, W = lattice.bragg_peaks(2.0 * k_max + lattice_cap.RIM_REACH * w)
+        Gn = np.hypot(G[:, 0], G[:, 1])
+        order = np.argsort(Gn, kind="stable")
+        G, W, Gn = G[order], W[order], Gn[order]
+        self.count = int(G.shape[0])
+        # one Vector4f an order: (G_x, G_y, W_G, |G|)
+        self.orders = mi.Float(np.stack([G[:, 0], G[:, 1], W, Gn], axis=-1).ravel().astype(np.float32))
+        us, tn, tw = lattice_cap.rim_rules()
+        self.n_rule = int(tn.shape[1])
+        self.rule_u0, self.rule_du, self.rule_n = float(us[0]), float(us[1] - us[0]), int(us.size)
+        self.rule = mi.Float(np.concatenate([tn, tw], axis=1).ravel().astype(np.float32))
+        self.rim_u = float(lattice_cap.RIM_U)
+        self.reach = float(lattice_cap.RIM_REACH)
+        rows = sphere_bsdf.material.rows
+        D = lattice_cap.diffuse_rows_mu(rows, float(sphere_bsdf.material.length_scale), float(lattice.jitter))
+        self.has_diffuse = bool(np.any(D > 0))
+        self.n_mu = int(D.shape[1])
+        self.D = mi.Float(D.ravel().astype(np.float32))
+
+    def _psum(self, st, wi, px, py, active):
+        """(forward, backward) ``P`` at ``wo = (p, ±c)``: each side's ``P`` by its chord's lobe."""
+        b = self.bsdf
+        cz = dr.safe_sqrt(1.0 - px * px - py * py)
+        e_f, e_b = mi.Float(0.0), mi.Float(0.0)
+        for side in (1.0, -1.0):
+            wo = mi.Vector3f(px, py, side * cz)
+            s_f, s_b = dr.norm(wo + wi), dr.norm(wo - wi)
+            forward = s_f <= s_b
+            offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+            P = b._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0]
+            e_f += dr.select(forward, P, 0.0)
+            e_b += dr.select(forward, 0.0, P)
+        return e_f, e_b
+
+    def energies(self, si, states, active=True):
+        """Per state (wavelength) of the lane: ``(e_f, e_b)``, the orders' energy split by the lobe
+        (forward or backward chord) with the diffuse part in ``e_f`` (per unit ``F_s w``)."""
+        from corona.mitsuba.common import gather4
+        active = mi.Bool(active)
+        wi = si.wi
+        n = len(states)
+        ks = [(2.0 * dr.pi) / st["lam"] for st in states]
+        k_max = ks[0]
+        for k in ks[1:]:
+            k_max = dr.maximum(k_max, k)
+        g_stop = k_max * (1.0 + dr.sqrt(wi.x * wi.x + wi.y * wi.y)) + self.reach * self.w
+        R = self.n_rule
+
+        def cond(i, *e):
+            o = gather4(self.orders, i, active & (i < self.count))
+            return active & (i < self.count) & (o.w <= g_stop)
+
+        def body(i, *e):
+            e = list(e)
+            o = gather4(self.orders, i, active)
+            for m, (st, k) in enumerate(zip(states, ks)):
+                eps = self.w / k
+                px, py = o.x / k - wi.x, o.y / k - wi.y
+                rho = dr.sqrt(px * px + py * py)
+                u = (rho - 1.0) / eps
+                reach = active & (u < self.reach)
+                far = u < -self.rim_u
+                scale = o.z / (k * k)
+                # the rim rule near the horizon (read linearly in u); node 0 is the peak's centre
+                # far from it (P/c (1 + 3/8u²))
+                near = reach & ~far
+                g = dr.clip((u - self.rule_u0) * (1.0 / self.rule_du), 0.0, self.rule_n - 1.001)
+                j = mi.UInt32(dr.floor(g))
+                t = g - mi.Float(j)
+                inv_r = 1.0 / dr.maximum(rho, 1e-12)
+                c2 = dr.maximum(1.0 - rho * rho, 1e-12)
+                def node(q, on, ef, eb):
+                    t0 = dr.gather(mi.Float, self.rule, j * (2 * R) + q, on)
+                    t1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + q, on)
+                    w0 = dr.gather(mi.Float, self.rule, j * (2 * R) + R + q, on)
+                    w1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + R + q, on)
+                    tq, wq = dr.lerp(t0, t1, t), dr.lerp(w0, w1, t)
+                    r = 1.0 - eps * tq * tq
+                    wt = scale * wq / dr.sqrt(eps * (1.0 + r))
+                    if q == 0:
+                        r = dr.select(far, rho, r)
+                        wt = dr.select(far, scale * (1.0 + 0.375 / (u * u)) / dr.sqrt(c2), wt)
+                    fq, bq = self._psum(st, wi, px * inv_r * r, py * inv_r * r, on)
+                    return ef + dr.select(on, fq * wt, 0.0), eb + dr.select(on, bq * wt, 0.0)
+
+                def rim(ef, eb):
+                    for q in range(1, R):
+                        ef, eb = node(q, near, ef, eb)
+                    return ef, eb
+
+                def order(ef, eb):
+                    ef, eb = node(0, reach, ef, eb)
+                    # the rule's other nodes only where the order is near the horizon (a branch)
+                    return dr.if_stmt(args=(ef, eb), cond=near, true_fn=rim, false_fn=lambda ef, eb: (ef, eb))
+
+                # only the orders that reach the layer's directions at this wavelength (a branch)
+                ef, eb = dr.if_stmt(args=(mi.Float(0.0), mi.Float(0.0)), cond=reach, true_fn=order,
+                                    false_fn=lambda ef, eb: (ef, eb))
+                e[2 * m] = e[2 * m] + ef
+                e[2 * m + 1] = e[2 * m + 1] + eb
+            return (i + 1, *e)
+
+        zero = [mi.Float(0.0) for _ in range(2 * n)]
+        out = dr.while_loop(state=(mi.UInt32(0), *zero), cond=cond, body=body)[1:]
+        res = []
+        for m, st in enumerate(states):
+            e_f, e_b = out[2 * m], out[2 * m + 1]
+            if self.has_diffuse:     # bilinear in (row, μ_i)
+                g = dr.clip(dr.abs(wi.z), 0.0, 1.0) * (self.n_mu - 1)
+                b = dr.minimum(mi.UInt32(dr.floor(g)), self.n_mu - 2)
+                f = g - mi.Float(b)
+                k0 = st["j"] * self.n_mu + b
+                d = [dr.gather(mi.Float, self.D, k0 + o, active) for o in (0, 1, self.n_mu, self.n_mu + 1)]
+                e_f = e_f + dr.lerp(dr.lerp(d[0], d[1], f), dr.lerp(d[2], d[3], f), st["t"])
+            res.append((e_f, e_b))
+        return res
+
+    def capped(self, si, states, active=True):
+        """The states with the lattice layer's cap: ``w`` and ``e_f``, ``e_b`` (the lobes' energies
+        times ``F_s w``) replaced (new dicts)."""
+        from corona.model.mie.layer import ENERGY_MARGIN
+        out = []
+        for st, (e_f, e_b) in zip(states, self.energies(si, states, active)):
+            scattered = st["fs"] * (e_f + e_b) * ENERGY_MARGIN
+            w = dr.minimum(1.0, dr.maximum(1.0 - st["coherent"], 0.0) / dr.maximum(scattered, 1e-30))
+            out.append({**st, "w": w, "e_f": st["fs"] * w * e_f, "e_b": st["fs"] * w * e_b,
+                        "e_lattice": e_f + e_b})
+        return out
+
+
+def lattice_layer_params(params: dict, textures: dict):
+    """``(lattice, params)`` for a sphere layer with ``process=lattice-*``: the fixed lattice the
+    parameters make (:func:`corona.parameters.material_from_parameters`, its checks and errors) and
+    the parameters of the sphere plugin's Mie rows (the same sphere, ``process=poisson`` at the
+    lattice's area fraction).  One-line errors for what the lattice path does not take: a glass
+    substrate and area_fraction or radius textures that vary."""
+    from corona._validation import CoronaError
+    from corona.parameters import material_from_parameters
+    import warnings
+    process = params["process"]
+    for name in ("area_fraction", "radius"):
+        tex = textures.get(name)
+        if tex is not None and tex.is_spatially_varying():
+            raise CoronaError(f"a {name} texture is out of range for shape='sphere' with process={process!r}; "
+                              "allowed a uniform value (the lattice's spacing and its Bragg orders are one "
+                              "for the whole layer)")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        material = material_from_parameters(**params)
+    if material.substrate is not None:
+        raise CoronaError(f"substrate={params.get('substrate')!r} is out of range for shape='sphere' with "
+                          f"process={process!r} in the renderer; allowed none (the sphere plugin's pane "
+                          "composes the isotropic lobes only; the numpy model takes a lattice on glass)")
+    rows = {k: v for k, v in params.items() if k != "jitter"}
+    rows["process"] = "poisson"
+    rows["area_fraction"] = float(material.area_fraction)
+    return material.lattice, rows
+
+
+class LatticeLayer:
+    """The sphere plugin's BSDF on a fixed lattice: the coherent beam ``C = |1 - F_s s₀|²`` along
+    ``-wi`` and the lattice lobe ``F_s w P S`` (:class:`LatticeLobe`) with the per-lane cap
+    (:class:`LatticeCap`); the coherent beam picked with the probability of its weight ``C`` (the
+    lane's mean), the lobe otherwise (its capped energy is at most ``1 - C``: the pdf needs no
+    cap), sampled by :class:`LatticeSampler`.
+    The sphere plugin routes its ``eval``/``pdf``/``sample`` here (its ``lattice_layer``); the
+    sampler's calls of the plugin's own lobe sampler come with :attr:`inner_ctx` and are not
+    routed.
+
+    Parameters
+    ----------
+    sphere_bsdf : the sphere plugin (its rows: ``process=poisson``, no pane)
+    lattice : corona.Lattice (fixed)
+    """
+
+    def __init__(self, sphere_bsdf, lattice):
+        self.bsdf = sphere_bsdf
+        self.lattice = lattice
+        self.cap = LatticeCap(sphere_bsdf, lattice)
+        self.sampler = LatticeSampler(sphere_bsdf, lattice)
+        self.lobe = self.sampler.lobe
+        self.inner_ctx = self.sampler.ctx
+
+    def _states(self, si, active):
+        states, m = self.bsdf._states(si, active)
+        return self.cap.capped(si, states, active), m
+
+    def _selection(self, ctx, states):
+        """``(p_coherent, p_lobe)``: the coherent beam with the probability of its weight (the
+        lane's mean ``C``), the lobe with the rest (whose capped energy is at most ``1 - C``), so
+        that the pdf needs no cap; honouring the context."""
+        on_coh = ctx.is_enabled(mi.BSDFFlags.DeltaTransmission, 0)
+        on_lobe = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1) or ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
+        if not on_coh:
+            return mi.Float(0.0), mi.Float(1.0 if on_lobe else 0.0)
+        if not on_lobe:
+            return mi.Float(1.0), mi.Float(0.0)
+        c = mi.Float(0.0)
+        for st in states:
+            c = c + st["coherent"]
+        p_coh = dr.clip(c / len(states), 0.0, 1.0)
+        return p_coh, 1.0 - p_coh
+
+    def eval_pdf(self, ctx, si, wo, active, cached=None):
+        """``(f |cos θo|, pdf)`` of the lattice lobe (the coherent beam is a delta)."""
+        b = self.bsdf
+        active = mi.Bool(active)
+        if cached is None:     # the pdf needs no cap (:meth:`_selection`), eval does
+            states, m = b._states(si, active)
+            states = self.cap.capped(si, states, active)
+        else:
+            states, m = cached
+        _, p_lobe = self._selection(ctx, states)
+        on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
+        on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
+        forward = dr.norm(wo + si.wi) <= dr.norm(wo - si.wi)
+        on = active & dr.select(forward, on_f, on_b)
+        Z = self.lobe(si, wo, active, states)
+        values = [dr.select(on, z * (st["fs"] * st["w"]), 0.0) for st, z in zip(states, Z)]
+        pdf = p_lobe * self.sampler.pdf(si, wo, active)
+        return b._spectrum(values), dr.select(active, pdf, 0.0)
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        b = self.bsdf
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        active = mi.Bool(active) & (cos_i != 0)
+        states, m = self._states(si, active)
+        p_coh, p_lobe = self._selection(ctx, states)
+        pick_coh = active & (sample1 < p_coh)
+        pick_lobe = active & ~pick_coh & (p_lobe > 0)
+        u = dr.clip((sample1 - p_coh) / dr.maximum(p_lobe, 1e-30), 0.0, 0.99999994)
+        wo_lobe, pdf_lobe = self.sampler.sample(si, u, sample2, pick_lobe)
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.eta = 1.0
+        bs.wo = dr.select(pick_coh, -wi, wo_lobe)
+        forward = dr.norm(bs.wo + wi) <= dr.norm(bs.wo - wi)
+        bs.sampled_component = dr.select(pick_coh, mi.UInt32(0), dr.select(forward, mi.UInt32(1), mi.UInt32(2)))
+        same_side = cos_i * mi.Frame3f.cos_theta(bs.wo) > 0
+        bs.sampled_type = dr.select(pick_coh, mi.UInt32(+mi.BSDFFlags.DeltaTransmission),
+                                    dr.select(same_side, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                              mi.UInt32(+mi.BSDFFlags.GlossyTransmission)))
+        lobe_ok = pick_lobe & (pdf_lobe > 0)
+        value, pdf = self.eval_pdf(ctx, si, bs.wo, lobe_ok, (states, m))
+        bs.pdf = dr.select(pick_coh, p_coh, pdf)
+        weight = dr.select(pdf > 0, value / dr.maximum(pdf, 1e-30), 0.0)
+        coh = b._spectrum([st["coherent"] for st in states])
+        weight = dr.select(pick_coh, coh / dr.maximum(p_coh, 1e-30), weight)
+        ok = pick_coh | (lobe_ok & (bs.pdf > 0))
+        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
