@@ -491,3 +491,23 @@ def test_finite_at_a_zero_interaction(mi_variant):
     mitsuba.chi2's adapters pass): finite."""
     from bsdf_checks import assert_finite_at_a_zero_interaction
     assert_finite_at_a_zero_interaction(_layer({**HEX4, "jitter": 0.05}))
+
+
+def test_jittered_diffuse_table_is_kept_in_the_cache(mi_variant, tmp_path, monkeypatch):
+    """A jittered lattice's diffuse table (seconds of quadrature) is built once: the second load
+    reads it from the table cache, equal to a fresh build; another jitter is another table."""
+    from corona.model.mie import lattice_cap
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    params = {**SQUARE3, "jitter": 0.15}
+    calls = []
+    build = lattice_cap.diffuse_rows_mu
+    monkeypatch.setattr(lattice_cap, "diffuse_rows_mu", lambda *a, **k: calls.append(a[2]) or build(*a, **k))
+    first = _layer(params)
+    second = _layer(params)
+    assert calls == [0.15]                            # the second load built nothing
+    m = second.material
+    fresh = build(m.rows, float(m.length_scale), 0.15)
+    np.testing.assert_array_equal(np.asarray(second.lattice_layer.cap.D), fresh.ravel().astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(first.lattice_layer.cap.D), np.asarray(second.lattice_layer.cap.D))
+    _layer({**params, "jitter": 0.2})
+    assert calls == [0.15, 0.2]

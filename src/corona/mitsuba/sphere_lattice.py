@@ -314,8 +314,17 @@ class LatticeCap:
         self.rule = mi.Float(np.concatenate([tn, tw], axis=1).ravel().astype(np.float32))
         self.rim_u = float(lattice_cap.RIM_U)
         self.reach = float(lattice_cap.RIM_REACH)
-        rows = sphere_bsdf.material.rows
-        D = lattice_cap.diffuse_rows_mu(rows, float(sphere_bsdf.material.length_scale), float(lattice.jitter))
+        material = sphere_bsdf.material
+        rows, radius, jitter = material.rows, float(material.length_scale), float(lattice.jitter)
+        if jitter > 0.0:     # seconds of quadrature: kept in the table cache beside the rows
+            def make():
+                return {"D": lattice_cap.diffuse_rows_mu(rows, radius, jitter)}
+            key = {**material.table_params(), "lattice_jitter": jitter,
+                   "lattice_diffuse": [tables.code_key(lattice_cap.diffuse_rows_mu, make),
+                                       lattice_cap.DIFFUSE_MU_NODES, lattice_cap.DIFFUSE_PHI]}
+            D = np.asarray(tables.cached(key, make, use_cache=material.use_cache)["D"])
+        else:
+            D = lattice_cap.diffuse_rows_mu(rows, radius, jitter)
         self.has_diffuse = bool(np.any(D > 0))
         self.n_mu = int(D.shape[1])
         self.D = mi.Float(D.ravel().astype(np.float32))
