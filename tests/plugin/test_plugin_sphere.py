@@ -95,8 +95,9 @@ def test_white_furnace_by_sampling(layers, name):
 def test_bad_input(mi_variant):
     import mitsuba as mi
     # Mitsuba wraps the plugin's CoronaError in its parser's error; the one line is kept
-    with pytest.raises(Exception, match="process='lattice-hex' is out of range for shape='sphere'"):
-        mi.load_dict({"type": "corona", "shape": "sphere", "process": "lattice-hex"})
+    with pytest.raises(Exception, match=r"size_spread=0.1 is out of range for shape='sphere' on a lattice; "
+                                        r"allowed 0 \(the reflected Bragg orders"):
+        mi.load_dict({"type": "corona", "shape": "sphere", "process": "lattice-hex", "size_spread": 0.1})
     # a radius texture (here procedural: its sampled range) wider than water's index allows
     with pytest.raises(Exception, match=r"radius=1 … 3 is out of range for shape='sphere' with a dispersive ior "
                                         r"\(water\).*or a constant ior for any range"):
