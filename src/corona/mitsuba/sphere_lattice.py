@@ -28,6 +28,18 @@ __all__ = ["LatticeCap", "LatticeLayer", "LatticeLobe", "LatticeS", "LatticeSamp
            "lattice_layer_params"]
 
 
+def _mie_pattern(sphere_bsdf, st, wi, wo, active):
+    """``(P, forward)``: the Mie pattern at ``wo`` for one state (wavelength) of the lane, read from
+    the sphere plugin's rows by its own lookup
+    (:meth:`~corona.mitsuba.sphere.SphereBSDFMixin._rows_at`): the forward rows for ``Θ < 90°``
+    from ``-wi`` (``forward``), the backward rows beyond.  ``P`` alone, whatever the plugin's own
+    process."""
+    s_f, s_b = dr.norm(wo + wi), dr.norm(wo - wi)
+    forward = s_f <= s_b
+    offset = dr.select(forward, mi.UInt32(0), mi.UInt32(sphere_bsdf.back_offset))
+    return sphere_bsdf._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0], forward
+
+
 class LatticeS:
     """A fixed lattice's ``S(q)`` in Dr.Jit (module docstring).
 
@@ -50,21 +62,29 @@ class LatticeS:
 
     def __call__(self, qx, qy):
         """``S`` at the in-plane momentum transfer ``(qx, qy)`` [rad/µm] (mi.Float each)."""
+        out = 1.0 - dr.exp(-(qx * qx + qy * qy) * self.jitter2) if self.jitter2 > 0 else mi.Float(0.0)
+        return self.peaks(qx, qy, self.amp, out)
+
+    def peaks(self, qx, qy, amp, out, g_max2=None):
+        """``out + amp Σ_{G ≠ 0} e^{-G²δ²} e^{-|q - G|²/2w²}`` over the ``(2m + 1)²`` peaks nearest
+        ``q`` (those with ``|G|² ≤ g_max2`` where given)."""
         A, B = self.A, self.B
         f1 = dr.round(qx * A[0, 0] + qy * A[0, 1])
         f2 = dr.round(qx * A[1, 0] + qy * A[1, 1])
-        out = 1.0 - dr.exp(-(qx * qx + qy * qy) * self.jitter2) if self.jitter2 > 0 else mi.Float(0.0)
         for dh in range(-self.m, self.m + 1):
             for dk in range(-self.m, self.m + 1):
                 h, k = f1 + dh, f2 + dk
                 gx = h * B[0, 0] + k * B[1, 0]
                 gy = h * B[0, 1] + k * B[1, 1]
+                g2 = gx * gx + gy * gy
                 dx, dy = qx - gx, qy - gy
                 e = -(dx * dx + dy * dy) * self.inv_2w2
                 if self.jitter2 > 0:
-                    e = e - (gx * gx + gy * gy) * self.jitter2
-                peak = self.amp * dr.exp(e)
-                out = out + dr.select((h == 0) & (k == 0), 0.0, peak)
+                    e = e - g2 * self.jitter2
+                keep = (h != 0) | (k != 0)
+                if g_max2 is not None:
+                    keep = keep & (g2 <= g_max2)
+                out = out + dr.select(keep, amp * dr.exp(e), 0.0)
         return out
 
 
@@ -114,25 +134,8 @@ class OrderSampler:
 
     def density_q(self, qx, qy):
         """``Σ_{|G| ≤ G_max} π_G g_G(q)`` [µm²]: the sampled orders' density in q."""
-        st = self.structure
-        A, B = st.A, st.B
-        f1 = dr.round(qx * A[0, 0] + qy * A[0, 1])
-        f2 = dr.round(qx * A[1, 0] + qy * A[1, 1])
-        amp = st.amp / self.total                           # (2π)² n / (2π w² Σ W)
-        out = mi.Float(0.0)
-        for dh in range(-st.m, st.m + 1):
-            for dk in range(-st.m, st.m + 1):
-                h, kk = f1 + dh, f2 + dk
-                gx = h * B[0, 0] + kk * B[1, 0]
-                gy = h * B[0, 1] + kk * B[1, 1]
-                g2 = gx * gx + gy * gy
-                dx, dy = qx - gx, qy - gy
-                e = -(dx * dx + dy * dy) * st.inv_2w2
-                if st.jitter2 > 0:
-                    e = e - g2 * st.jitter2
-                keep = ((h != 0) | (kk != 0)) & (g2 <= self.g_max2 * (1 + 1e-6))
-                out = out + dr.select(keep, amp * dr.exp(e), 0.0)
-        return out
+        amp = self.structure.amp / self.total               # (2π)² n / (2π w² Σ W)
+        return self.structure.peaks(qx, qy, amp, mi.Float(0.0), self.g_max2 * (1 + 1e-6))
 
     def pdf(self, wi, wo, k, p_side):
         """The density of ``wo`` in solid angle, ``p_side`` the probability of its side."""
@@ -164,19 +167,13 @@ class LatticeLobe:
     def __call__(self, si, wo, active=True, states=None):
         """Per wavelength of the lane: ``Z`` at ``wo`` (a list of mi.Float); ``states`` the sphere
         plugin's (:meth:`~corona.mitsuba.sphere.SphereBSDFMixin._states`), made where not given."""
-        b = self.bsdf
         active = mi.Bool(active)
         wi = si.wi
         if states is None:
-            states, _ = b._states(si, active)
-        s_f = dr.norm(wo + wi)
-        s_b = dr.norm(wo - wi)
-        forward = s_f <= s_b
-        s_any = dr.select(forward, s_f, s_b)
-        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+            states, _ = self.bsdf._states(si, active)
         out = []
         for st in states:
-            P = b._rows_at("P", st, s_any, active, offset)[0]
+            P, _ = _mie_pattern(self.bsdf, st, wi, wo, active)
             k = (2.0 * dr.pi) / st["lam"]
             S = self.structure(k * (wo.x + wi.x), k * (wo.y + wi.y))
             out.append(dr.select(active, P * S, 0.0))
@@ -213,31 +210,28 @@ class LatticeSampler:
         self.ctx = mi.BSDFContext()
         self.ctx.type_mask = +(mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection)
 
-    def _mie(self, si, wo, active):
-        """``Σ_λ P`` at ``wo`` over the lane's wavelengths."""
-        b = self.bsdf
-        states, _ = b._states(si, active)
-        s_f, s_b = dr.norm(wo + si.wi), dr.norm(wo - si.wi)
-        forward = s_f <= s_b
-        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+    def _mie(self, si, wo, active, states=None):
+        """``Σ_λ P`` at ``wo`` over the lane's wavelengths, and the lane's states (the sphere
+        plugin's, made where not given)."""
+        if states is None:
+            states, _ = self.bsdf._states(si, active)
         total = mi.Float(0.0)
         for st in states:
-            total += b._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0]
+            total += _mie_pattern(self.bsdf, st, si.wi, wo, active)[0]
         return total, states
 
-    def _side(self, si, px, py, active):
+    def _side(self, si, px, py, active, states):
         cz = dr.safe_sqrt(1.0 - px * px - py * py)
         up, down = mi.Vector3f(px, py, cz), mi.Vector3f(px, py, -cz)
-        a, _ = self._mie(si, up, active)
-        b, _ = self._mie(si, down, active)
+        a, _ = self._mie(si, up, active, states)
+        b, _ = self._mie(si, down, active, states)
         return up, down, dr.select(a + b > 0, a / dr.maximum(a + b, 1e-30), 0.5)
 
-    def _order_pdf(self, si, wo, active):
-        states, _ = self.bsdf._states(si, active)
+    def _order_pdf(self, si, wo, active, states):
         dens = mi.Float(0.0)
         for st in states:
             dens += self.orders.pdf(si.wi, wo, (2.0 * dr.pi) / st["lam"], 1.0)
-        _, _, p_up = self._side(si, wo.x, wo.y, active)
+        _, _, p_up = self._side(si, wo.x, wo.y, active, states)
         return dr.select(wo.z > 0, p_up, 1.0 - p_up) * dens / len(states)
 
     def sample(self, si, u1, u2, active=True):
@@ -256,17 +250,21 @@ class LatticeSampler:
             lam = dr.select(i == m, states[m]["lam"], lam)
         _, u_side = self.orders.orders.sample_reuse(u_order, active & pick_order)
         px, py, valid = self.orders.sample(si.wi, (2.0 * dr.pi) / lam, u_order, u2, active & pick_order)
-        up, down, p_up = self._side(si, px, py, active & pick_order & valid)
+        up, down, p_up = self._side(si, px, py, active & pick_order & valid, states)
         wo_order = dr.select(u_side < p_up, up, down)
         bs, _ = self.bsdf.sample(self.ctx, si, u, u2, active & ~pick_order)
         wo = dr.select(pick_order, wo_order, bs.wo)
         ok = dr.select(pick_order, valid, bs.pdf > 0) & active
-        return wo, dr.select(ok, self.pdf(si, wo, active), 0.0)
+        return wo, dr.select(ok, self.pdf(si, wo, active, states), 0.0)
 
-    def pdf(self, si, wo, active=True):
+    def pdf(self, si, wo, active=True, states=None):
+        """The mixture's density of ``wo`` in solid angle (``states``: the sphere plugin's, made
+        where not given)."""
         active = mi.Bool(active)
+        if states is None:
+            states, _ = self.bsdf._states(si, active)
         p_sphere = self.bsdf.pdf(self.ctx, si, wo, active)
-        return dr.select(active, self.alpha * self._order_pdf(si, wo, active)
+        return dr.select(active, self.alpha * self._order_pdf(si, wo, active, states)
                          + (1.0 - self.alpha) * p_sphere, 0.0)
 
 
@@ -331,15 +329,10 @@ class LatticeCap:
 
     def _psum(self, st, wi, px, py, active):
         """(forward, backward) ``P`` at ``wo = (p, ±c)``: each side's ``P`` by its chord's lobe."""
-        b = self.bsdf
         cz = dr.safe_sqrt(1.0 - px * px - py * py)
         e_f, e_b = mi.Float(0.0), mi.Float(0.0)
         for side in (1.0, -1.0):
-            wo = mi.Vector3f(px, py, side * cz)
-            s_f, s_b = dr.norm(wo + wi), dr.norm(wo - wi)
-            forward = s_f <= s_b
-            offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
-            P = b._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0]
+            P, forward = _mie_pattern(self.bsdf, st, wi, mi.Vector3f(px, py, side * cz), active)
             e_f += dr.select(forward, P, 0.0)
             e_b += dr.select(forward, 0.0, P)
         return e_f, e_b
