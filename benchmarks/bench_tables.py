@@ -21,6 +21,12 @@ load it back from the on-disk cache (``--repeats`` times, medians).
 Writes benchmarks/results/tables.json.
 
     python benchmarks/bench_tables.py [--repeats 5] [--scenes scenes/a.xml ...] [--timeout 300]
+
+With ``--base REV`` the scenes alone (no materials) load cold from two source trees in turn, round by
+round (``--rounds``): the revision REV (``git archive`` into a temporary folder, its own
+``bench_tables.py --one`` child) and this checkout, so that load on a shared machine hits both
+alike; per scene and tree the children's figures and the minimum and median of each; writes
+benchmarks/results/<name>.json (default ``tables_ab``).
 """
 from __future__ import annotations
 
@@ -116,16 +122,18 @@ def one_scene(path: str) -> dict:
             "meets_goal_wall": cold["corona"] <= GOAL_S, "meets_goal_cpu": cold["corona_cpu"] <= GOAL_S}
 
 
-def scenes(paths, timeout: float) -> dict:
+def scenes(paths, timeout: float, root: str = ROOT) -> dict:
+    """Each scene cold in a fresh ``--one`` child of the source tree ``root`` (its ``src`` first)."""
     out = {}
     for path in paths:
         name = os.path.basename(path)
         cache = tempfile.mkdtemp(prefix="corona-bench-tables-")
         env = {**os.environ, "CORONA_CACHE_DIR": cache,
-               "PYTHONPATH": os.pathsep.join([os.path.join(ROOT, "src"), os.environ.get("PYTHONPATH", "")])}
+               "PYTHONPATH": os.pathsep.join([os.path.join(root, "src"), os.environ.get("PYTHONPATH", "")])}
         try:
-            res = subprocess.run([sys.executable, os.path.abspath(__file__), "--one", path], env=env,
-                                 capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+            res = subprocess.run([sys.executable, os.path.join(root, "benchmarks", "bench_tables.py"), "--one",
+                                  os.path.abspath(path)], env=env, capture_output=True, text=True, timeout=timeout,
+                                 cwd=root)
             lines = [ln for ln in res.stdout.splitlines() if ln.startswith("{")]
             if res.returncode != 0 or not lines:
                 out[name] = {"error": (res.stderr.strip().splitlines() or ["?"])[-1]}
@@ -178,11 +186,37 @@ def materials(repeats: int) -> dict:
     return results
 
 
+def compare(args, paths) -> None:
+    """``--base``: the scenes cold from the revision's tree and this checkout's, round by round."""
+    from common import write
+    keys = ("corona_s", "corona_cpu_s", "mie_cpu_s", "lobe_cpu_s", "load_s", "warm_corona_cpu_s")
+    runs: dict = {}
+    load_start = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as base:
+        archive = subprocess.run(["git", "-C", ROOT, "archive", args.base, "src", "benchmarks", "scenes"],
+                                 check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", base], input=archive, check=True)
+        for r in range(args.rounds):
+            for tree, root in ((f"base {args.base}", base), ("this checkout", ROOT)):
+                print(f"round {r + 1}/{args.rounds} {tree}", flush=True)
+                for name, res in scenes(paths, args.timeout, root).items():
+                    runs.setdefault(name, {}).setdefault(tree, []).append(res)
+    summary = {name: {tree: {k: {"min": min(x[k] for x in rs), "median": statistics.median(x[k] for x in rs)}
+                             for k in keys if all(k in x for x in rs)}
+                      for tree, rs in trees.items()} for name, trees in runs.items()}
+    write(args.name or "tables_ab", {"base": args.base, "rounds": args.rounds, "summary": summary, "runs": runs,
+                                     "load_average_1min": [load_start, os.getloadavg()[0]],
+                                     "goal": f"every scene's tables cold <= {GOAL_S:g} s (corona_s)"})
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--scenes", nargs="*", default=None, help="scene files (default: scenes/*.xml)")
     ap.add_argument("--timeout", type=float, default=300.0, help="longest load of one scene [s]")
+    ap.add_argument("--base", help="a git revision: the scenes from it and from this checkout, interleaved")
+    ap.add_argument("--rounds", type=int, default=3, help="rounds of the --base comparison")
+    ap.add_argument("--name", default=None, help="the JSON file's name (default tables, with --base tables_ab)")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
@@ -190,10 +224,13 @@ def main():
         return
     from common import write
     paths = args.scenes or sorted(glob.glob(os.path.join(ROOT, "scenes", "*.xml")))
+    if args.base:
+        compare(args, paths)
+        return
     load_start = os.getloadavg()[0]
     per_scene = scenes(paths, args.timeout)
     per_material = materials(args.repeats)
-    write("tables", {"repeats": args.repeats, "results": per_material, "scenes": per_scene,
+    write(args.name or "tables", {"repeats": args.repeats, "results": per_material, "scenes": per_scene,
                      "load_average_1min": [load_start, os.getloadavg()[0]],
                      "goal": "structure-factor table of a material from shipped data <= 0.2 s; "
                              f"every scene's tables cold <= {GOAL_S:g} s (corona_s)"})

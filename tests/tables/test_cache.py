@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from corona import tables
+from corona.model import tabulated
 
 
 def _build_in_process(args):
@@ -211,6 +212,11 @@ def test_radial_cdfs_and_totals_are_radial_tables_row_by_row():
     assert totals[3] == 0.0 and np.all(cdfs[3] == 0.0)
     with pytest.raises(ValueError, match="rows"):
         tables.radial_cdfs(0.1, rows[0])
+    # rows in several blocks (the last one partial): still RadialTable's bits, row by row
+    many = rng.normal(1.0, 1.0, (1500, 57)) * np.exp(rng.uniform(-20.0, 5.0, (1500, 57)))
+    assert many.size > 2 * tabulated.RADIAL_CDF_BLOCK
+    for row, cdf in zip(many, tables.radial_cdfs(0.013, many)):
+        assert np.array_equal(cdf, tables.RadialTable(0.013, row).cdf)
 
 
 def test_code_key_follows_the_code():

@@ -137,7 +137,11 @@ SIZE_ROW_DX = 0.02
 SIZE_PER_SIGMA = 4.0
 MAX_SIZE_SAMPLES = 8000
 SIZE_TAIL = 1e-6
-SIZE_DM = 0.002
+SIZE_DM = 0.004
+#: Size distributions of a dispersive sphere: the rows are Lagrange polynomials of this degree in
+#: the index (its arc length) through the nearest index nodes (cubics on nodes 0.004 apart are as
+#: close to dense nodes as lines on nodes 0.002 apart, with fewer nodes: docs/mie.md).
+SIZE_INDEX_ORDER = 3
 #: Size distributions: the rows average Mie theory on a subset of the chord nodes, every node
 #: while the node step is below ``SPREAD_CHORD_SMOOTH · σ · s`` (σ the spread, s the chord) and
 #: steps of about that beyond (a spread of σ smears the pattern's fringes at the chord s over
@@ -429,7 +433,8 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     see :func:`_size_plan`); row j (mean size ``x_j``, index ``m_j``) is the quadrature
     ``Σ_k W_jk F(X_k)`` with ``W_jk ∝ p_y(ln(X_k/x_j)) ΔX/X_k`` (a convolution in ``ln x``; the
     trapezoid in X).  A dispersive index is handled by evaluating the grid at index nodes
-    ``m(λ_q)`` at most ``SIZE_DM`` apart and interpolating the rows linearly in λ between them.
+    ``m(λ_q)`` at most ``SIZE_DM`` apart and interpolating the rows between them in the index
+    (Lagrange cubics in its arc length, ``SIZE_INDEX_ORDER``; :func:`_size_plan`).
     The sizes are evaluated on a subset of the chord nodes (:func:`_spread_chord_nodes`; the
     average is smooth in the chord where the spread smears the fringes) and the rows filled in
     between (:func:`_fill_chord`).
@@ -552,27 +557,34 @@ def _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi):
     """The evaluations of a size distribution's table: per index node q, (rows, their weights of
     that node, index, the fine size parameters X, the quadrature weights W (rows, X))."""
     J = x_rows.size
-    m = np.asarray(sphere.index(lam), dtype=np.complex128) * np.ones(J)
-    # index nodes in λ, at most SIZE_DM apart in m (one node for a constant index)
+    # index nodes in λ, uniform in the arc length of m, at most SIZE_DM apart (one node for a
+    # constant index); row j's weights of the nodes: the Lagrange polynomial of degree
+    # min(SIZE_INDEX_ORDER, nodes - 1) through the nodes nearest its arc coordinate g_j
     lam_f = np.linspace(lam.min(), lam.max(), 4 * J + 1)
     m_f = np.asarray(sphere.index(lam_f), dtype=np.complex128) * np.ones(lam_f.size)
     arc = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(m_f)))])
     n_q = int(math.ceil(arc[-1] / SIZE_DM)) + 1 if arc[-1] > 0 else 1
     if n_q == 1:
         lam_q = np.array([float(np.mean(lam))])
-        node = np.zeros(J, np.int64)
-        frac = np.zeros(J)
+        node_w = np.ones((J, 1))
     else:
         lam_q = np.interp(np.linspace(0.0, arc[-1], n_q), arc, lam_f)
-        g = np.interp(lam, lam_q, np.arange(n_q))
-        node = np.clip(np.floor(g).astype(np.int64), 0, n_q - 2)
-        frac = g - node
+        g = np.interp(lam, lam_f, arc) * ((n_q - 1) / arc[-1])
+        order = min(SIZE_INDEX_ORDER, n_q - 1)
+        first = np.clip(np.floor(g).astype(np.int64) - (order - 1) // 2, 0, n_q - 1 - order)
+        node_w = np.zeros((J, n_q))
+        for a in range(order + 1):
+            w = np.ones(J)
+            for b in range(order + 1):
+                if b != a:
+                    w *= (g - (first + b)) / (a - b)
+            node_w[np.arange(J), first + a] = w
     m_q = np.asarray(sphere.index(lam_q), dtype=np.complex128) * np.ones(lam_q.size)
     sig_y = float(np.sqrt(np.sum(pq * yq**2) / np.sum(pq) - (np.sum(pq * yq) / np.sum(pq)) ** 2))
     plan = []
     for q in range(lam_q.size):
-        wq = np.where(node == q, 1.0 - frac, 0.0) + (np.where(node + 1 == q, frac, 0.0) if n_q > 1 else 0.0)
-        rows_q = np.nonzero(wq > 0)[0]
+        wq = node_w[:, q]
+        rows_q = np.nonzero(wq != 0.0)[0]
         if rows_q.size == 0:
             continue
         x_a, x_b = float(x_rows[rows_q].min()) * s_lo, float(x_rows[rows_q].max()) * s_hi
@@ -774,7 +786,8 @@ class SphereMaterial(MieMembers, Material):
         key = {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
                "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_DX_FINE, ROW_TOLERANCE, ROW_TEST_STRIDE],
                "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
-               "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX, SPREAD_CHORD_SMOOTH],
+               "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX, SPREAD_CHORD_SMOOTH,
+                         SIZE_INDEX_ORDER],
                "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
         if self.radius_cover is not None:
             key["radius_cover"] = list(self.radius_cover)
