@@ -134,14 +134,32 @@ def alias_tables(weights):
     return prob.astype(np.float32), alias.astype(np.uint32)
 
 
-def _alias_pick(prob, alias, n, offset, xi, active):
-    """An entry of row ``offset / n`` of :func:`alias_tables` (``mi.Float`` / ``mi.UInt32``) from ``xi`` in
-    [0, 1) (Dr.Jit), and what is left of ``xi``, uniform in [0, 1) again: ``(entry, rest)``."""
+def _alias_packed(prob, alias):
+    """:func:`alias_tables`' ``prob`` and ``alias`` interleaved, an entry's two in one 8-byte
+    packet (``alias`` as the bits of a float32): one gather an entry (:func:`_alias_pick`)."""
+    bits = np.stack([np.asarray(prob, dtype=np.float32).ravel().view(np.uint32),
+                     np.asarray(alias, dtype=np.uint32).ravel()], -1).ravel()
+    if not dr.is_array_v(mi.Float):
+        return bits
+    # (written as integers: a float kernel would flush the aliases' bits, denormal floats, to 0)
+    out = dr.reinterpret_array(mi.Float, _array(mi.UInt32, bits))
+    dr.eval(out)
+    return out
+
+
+def _alias_pick(table, n, offset, xi, active):
+    """An entry of row ``offset / n`` of :func:`alias_tables` (packed by :func:`_alias_packed`) from
+    ``xi`` in [0, 1) (Dr.Jit), and what is left of ``xi``, uniform in [0, 1) again: ``(entry, rest)``."""
     x = xi * n
     i = dr.minimum(mi.UInt32(x), n - 1)
     f = dr.clip(x - mi.Float(i), 0.0, 1.0)
-    keep = _gather(mi.Float, prob, offset + i, active)
-    other = _gather(mi.UInt32, alias, offset + i, active)
+    if dr.is_array_v(mi.Float):     # the entry's probability and alias in one packet gather
+        r = dr.gather(mi.ArrayXf, table, offset + i, active, shape=(2, dr.width(i)))
+        keep, other = r[0], dr.reinterpret_array(mi.UInt32, r[1])
+    else:                           # scalar variants: the packed integers (numpy)
+        k = 2 * int(offset + i)
+        keep = float(table[k:k + 1].view(np.float32)[0]) if active else 0.0
+        other = int(table[k + 1]) if active else 0
     stay = f < keep
     rest = dr.select(stay, f / dr.maximum(keep, 1e-30), (f - keep) / dr.maximum(1.0 - keep, 1e-30))
     return dr.select(stay, i, other), dr.clip(rest, 0.0, 0.99999994)
@@ -181,9 +199,10 @@ class LobeKernel:
             padded = [self._padded(rl.P.coef)] + ([] if rl.C is None else [self._padded(rl.C.coef)])
             self.g_P = self._taps(padded[0])
             self.g_C = None if rl.C is None else self._taps(padded[1])
-            # the 4×4 taps of every cell of all the grids in one block (vectorised variants): one
-            # wide packet gather a lookup instead of four of Vector4f per grid
-            self.g_block = self._blocks(padded) if dr.is_array_v(mi.Float) else None
+            # a row's four taps of all the grids side by side (vectorised variants): one packet
+            # gather of 4 × grids floats a row of taps (four a lookup), 4 × grids floats a cell
+            # of the padded grids (a 4×4 block of all taps a cell would hold 16 × grids)
+            self.g_rows = self._row_taps(padded) if dr.is_array_v(mi.Float) else None
         # --- the sampling table (bilinear, in u or in the warped t) -----------------------
         t = material.table
         self.near = dict(n=int(t.n), lo=float(t.lo), cell=float(t.cell), span=float(t.cell * (t.n - 1)),
@@ -199,8 +218,8 @@ class LobeKernel:
         cells = 0.25 * (v[:-1, :-1] + v[:-1, 1:] + v[1:, :-1] + v[1:, 1:])        # (n - 1, n - 1)
         rows_p, rows_a = alias_tables(cells.sum(axis=1)[None, :])
         cols_p, cols_a = alias_tables(cells)
-        self.s_rows_alias = (_array(mi.Float, rows_p.ravel()), _array(mi.UInt32, rows_a.ravel()))
-        self.s_cols_alias = (_array(mi.Float, cols_p.ravel()), _array(mi.UInt32, cols_a.ravel()))
+        self.s_rows_alias = _alias_packed(rows_p, rows_a)
+        self.s_cols_alias = _alias_packed(cols_p, cols_a)
 
     @staticmethod
     def corners(values):
@@ -217,12 +236,13 @@ class LobeKernel:
         return _array(mi.Float, np.stack([padded[:, a:m - 3 + a] for a in range(4)], -1).ravel())
 
     @staticmethod
-    def _blocks(padded):
-        """Padded coefficient grids ``(m, m)`` as one block per cell ``(y, x)`` (``x, y < m - 3``,
-        row-major): ``block[g, b, a] = padded_g[y + b, x + a]``, ``16 × len(padded)`` floats."""
+    def _row_taps(padded):
+        """Padded coefficient grids ``(m, m)`` as one packet per padded row ``y`` and column
+        ``x < m - 3`` (row-major): ``packet[g, a] = padded_g[y, x + a]``, ``4 × len(padded)`` floats:
+        one packet gather reads a row of 4 taps of every grid."""
         m = padded[0].shape[0]
-        win = [np.lib.stride_tricks.sliding_window_view(p, (4, 4))[:m - 3, :m - 3] for p in padded]
-        return _array(mi.Float, np.stack(win, axis=2).ravel())          # (y, x, grid, b, a)
+        win = [np.lib.stride_tricks.sliding_window_view(p, 4, axis=1)[:, :m - 3] for p in padded]
+        return _array(mi.Float, np.stack(win, axis=2).ravel())          # (y, x, grid, a)
 
     @staticmethod
     def _padded(coef):
@@ -309,19 +329,17 @@ class LobeKernel:
         wx, wy = weights(tx), weights(ty)
         m = n                                       # packets a row of the padded array (n + 3 wide)
         base = mi.UInt32(iy) * m + mi.UInt32(ix)    # taps (-1 .. 2, -1) in the padded array
-        if self.g_block is not None and len(grids) == dr.width(self.g_block) // (16 * n * n):
-            # the cell's taps of every grid in one gather (the block holds exactly these grids)
-            taps = dr.gather(mi.ArrayXf, self.g_block, base, inside, shape=(16 * len(grids), dr.width(base)))
-            acc = []
-            for g in range(len(grids)):
-                a = mi.Float(0.0)
-                for b in range(4):
-                    r = [taps[16 * g + 4 * b + c] for c in range(4)]
-                    racc = dr.fma(wx[0], r[0], dr.fma(wx[1], r[1], dr.fma(wx[2], r[2], wx[3] * r[3])))
-                    a = dr.fma(wy[b], racc, a)
-                acc.append(a)
-            return [dr.select(inside, x, 0.0) for x in acc]
         acc = [mi.Float(0.0) for _ in grids]
+        ng = len(grids)
+        if self.g_rows is not None and ng == dr.width(self.g_rows) // (4 * n * (n + 3)):
+            # a row's taps of every grid in one gather (the packets hold exactly these grids)
+            for b in range(4):
+                taps = dr.gather(mi.ArrayXf, self.g_rows, base + b * m, inside, shape=(4 * ng, dr.width(base)))
+                for g in range(ng):
+                    r = [taps[4 * g + c] for c in range(4)]
+                    racc = dr.fma(wx[0], r[0], dr.fma(wx[1], r[1], dr.fma(wx[2], r[2], wx[3] * r[3])))
+                    acc[g] = dr.fma(wy[b], racc, acc[g])
+            return [dr.select(inside, x, 0.0) for x in acc]
         for b in range(4):
             for g, coef in enumerate(grids):
                 q = gather4(coef, base + b * m, inside)      # the row's four taps in one packet
@@ -518,8 +536,8 @@ class LobeKernel:
         edges (``√ξ``; ``ξ``: what is left of each): the mixture of the corners' ramps weighted by
         their values is the bilinear interpolant of the cell, and the cell's probability its integral."""
         n1 = self.near["n"] - 1
-        y0, ry = _alias_pick(*self.s_rows_alias, n1, mi.UInt32(0), s.x, active)
-        x0, rx = _alias_pick(*self.s_cols_alias, n1, y0 * n1, s.y, active)
+        y0, ry = _alias_pick(self.s_rows_alias, n1, mi.UInt32(0), s.x, active)
+        x0, rx = _alias_pick(self.s_cols_alias, n1, y0 * n1, s.y, active)
         q = gather4(self.near["values"], y0 * n1 + x0, active)      # v00, v01 (x + 1), v10 (y + 1), v11
         q0, q1, q2, q3 = (dr.maximum(q.x, 0.0), dr.maximum(q.y, 0.0), dr.maximum(q.z, 0.0),
                           dr.maximum(q.w, 0.0))
