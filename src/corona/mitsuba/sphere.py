@@ -28,6 +28,9 @@ azimuth uniformly, so the pdf is the rows' linear, scaled blend over the
 interpolated total (both lobes' densities, since a lobe's sampler reaches a
 sliver past 90°); the lane's wavelengths are mixed as for the flat layers
 (one-sample balance heuristic).
+In JIT variants, where no derivative flows, the lane's wavelengths run as one
+symbolic Dr.Jit loop (one traced copy of the lookups, the same sums as
+unrolled); with a gradient they are unrolled.
 
 With ``substrate=glass`` the droplets sit on a thin pane, with the flat
 layer's weights (:mod:`corona.mitsuba.bsdf`'s table, ``R'``, ``T'`` of the
@@ -501,14 +504,18 @@ class SphereBSDFMixin:
         e11 = self._hermite(self.Ef, stride, k + n + 1, hw, active)
         return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
 
-    def _states(self, si, active):
+    def _lane(self, si, active):
+        """What a lane's wavelengths share: (wavelengths [nm], their mixture weight, μ_i, F_a, its rows'
+        weights (:meth:`_fa_weights`), radius [µm])."""
         lams, m = self._wavelengths(si.wavelengths)
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
         fa = self.fa_tex.eval_1(si, active)
         if self.fa_textured:
             fa = dr.clip(fa, self.fa_range[0], self.fa_range[1])
-        hw = self._fa_weights(fa)
-        radius = self._lane_radius(si, active)
+        return lams, m, mu_i, fa, self._fa_weights(fa), self._lane_radius(si, active)
+
+    def _states(self, si, active):
+        lams, m, mu_i, fa, hw, radius = self._lane(si, active)
         states = [self._state(lam, mu_i, active, fa, hw, radius) for lam in lams]
         return states, m
 
@@ -627,46 +634,103 @@ class SphereBSDFMixin:
         s0 = mi.Float(idx) * self.ds
         return s0 + invert_radial_bin(xi - c0, c0, c1, s0, self.ds, a, b, total) * self.ds
 
-    def _lobes(self, states, wi, wo, active, on_f, on_b, with_pdf=True):
-        """Per wavelength the lobes' ``Z`` at ``wo`` (the enabled lobe, 0 else) and the sampler's
-        density there for each lobe, ``(dens_f, dens_b)`` per wavelength (solid angle)."""
+    def _lobes(self, states, wi, wo, active, on_f, on_b, mix=None):
+        """Per wavelength the lobes' ``Z`` at ``wo`` (the enabled lobe, 0 else) and, with ``mix = (m, p_f,
+        p_b)`` (the wavelengths' mixture weight and the lobes' selection probabilities), the sampler's
+        density there, ``Σ_λ m (p_f dens_f + p_b dens_b)`` (solid angle; None without ``mix`` or with
+        cosine sampling).  One symbolic Dr.Jit loop over the wavelengths (:meth:`_looped_lobes`) where
+        the kernel is traced and no derivative flows, else unrolled; the same sums either way."""
+        geo = self._lobe_geometry(wi, wo, active, on_f, on_b)
+        with_pdf = mix is not None and self.sampling != "cosine"
+        if self._loopable(len(states), wi, wo, *(mix if with_pdf else ()),
+                          *(st[k] for st in states for k in self._LOBE_KEYS + ("fs",))):
+            return self._looped_lobes(states, geo, mix if with_pdf else None)
+        values, pdf = [], (mi.Float(0.0) if with_pdf else None)
+        Q = self._other_lobe(states, geo) if with_pdf else None
+        for k, st in enumerate(states):
+            z, d_f, d_b = self._lobe_at(st, geo, Q[k] if with_pdf else None)
+            values.append(z)
+            if with_pdf:
+                m, p_f, p_b = mix
+                pdf += m * (p_f * d_f + p_b * d_b)
+        return values, pdf
+
+    def _lobe_geometry(self, wi, wo, active, on_f, on_b):
+        """What the lobes' lookups at ``wo`` share over the lane's wavelengths: the chords, the lobe
+        ``wo`` is in (``forward``), the other lobe's chord and the sliver past 90° its sampler reaches
+        (``near``)."""
         s_f = dr.norm(wo + wi)
         s_b = dr.norm(wo - wi)
         forward = s_f <= s_b
-        a_f = active & forward
-        dxy = dr.sqrt(dr.square(wo.x + wi.x) + dr.square(wo.y + wi.y))
-        s_any = dr.select(forward, s_f, s_b)
-        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
-        on = dr.select(forward, on_f, on_b)
         s_other = dr.select(forward, s_b, s_f)
-        offset_other = dr.select(forward, mi.UInt32(self.back_offset), mi.UInt32(0))
-        near = active & (s_other < self.reach)     # the sliver past 90° that a lobe's sampler reaches
-        values, dens = [], []
-        Q = self._other_lobe(states, s_other, near, offset_other) if with_pdf and self.sampling != "cosine" else None
-        for k, st in enumerate(states):
-            P, P_lin = self._rows_at("P", st, s_any, active, offset)       # P_f or P_b
-            Z = P
-            if self.has_S:
-                S = self._structure(st["x"] * dxy, st["hw"], a_f)      # u = q r = x |wo + wi|_xy
-                C_f = self._rows_at("Cf", st, s_f, a_f)[0] if self.has_C else P
-                # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
-                Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
-            values.append(dr.select(active & on, Z, 0.0))
-            if not with_pdf or self.sampling == "cosine":
-                continue
-            Q_lin = Q[k]
-            dens.append((dr.select(forward, P_lin, Q_lin) / dr.maximum(st["Tf"], 1e-30),
-                         dr.select(forward, Q_lin, P_lin) / dr.maximum(st["Tb"], 1e-30)))
-        return values, dens
+        return dict(active=active, s_f=s_f, forward=forward, a_f=active & forward,
+                    dxy=dr.sqrt(dr.square(wo.x + wi.x) + dr.square(wo.y + wi.y)),
+                    s_any=dr.select(forward, s_f, s_b),
+                    offset=dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset)),
+                    on=active & dr.select(forward, on_f, on_b), s_other=s_other,
+                    offset_other=dr.select(forward, mi.UInt32(self.back_offset), mi.UInt32(0)),
+                    near=active & (s_other < self.reach))
 
-    def _other_lobe(self, states, s_other, near, offset_other):
-        """Per wavelength the other lobe's linear rows at ``s_other`` (the sampler's density of the lobe
+    def _lobe_at(self, st, geo, Q_lin=None):
+        """One wavelength's ``Z`` at the lane's ``wo`` (:meth:`_lobe_geometry`) and, given the other
+        lobe's linear rows ``Q_lin`` there, the sampler's density of each lobe (dens_f, dens_b)."""
+        forward, active, a_f = geo["forward"], geo["active"], geo["a_f"]
+        P, P_lin = self._rows_at("P", st, geo["s_any"], active, geo["offset"])   # P_f or P_b
+        Z = P
+        if self.has_S:
+            S = self._structure(st["x"] * geo["dxy"], st["hw"], a_f)   # u = q r = x |wo + wi|_xy
+            C_f = self._rows_at("Cf", st, geo["s_f"], a_f)[0] if self.has_C else P
+            # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
+            Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
+        Z = dr.select(geo["on"], Z, 0.0)
+        if Q_lin is None:
+            return Z, None, None
+        return (Z, dr.select(forward, P_lin, Q_lin) / dr.maximum(st["Tf"], 1e-30),
+                dr.select(forward, Q_lin, P_lin) / dr.maximum(st["Tb"], 1e-30))
+
+    #: The per-wavelength state :meth:`_lobe_at` reads (with ``hw``, the lane's).
+    _LOBE_KEYS = ("j", "t", "rj", "rj1", "x", "Tf", "Tb")
+
+    @staticmethod
+    def _loopable(n, *inputs):
+        """Whether ``n`` wavelengths run as a symbolic loop: a JIT variant, more than one wavelength and
+        no derivative through ``inputs`` (Dr.Jit's reverse mode of a symbolic loop needs a bound on its
+        iterations: the wavelengths are unrolled then)."""
+        return dr.is_jit_v(mi.Float) and n > 1 and not dr.grad_enabled(*inputs)
+
+    def _looped_lobes(self, states, geo, mix):
+        """:meth:`_lobes` as one symbolic Dr.Jit loop over the lane's wavelengths: one traced copy of the
+        row lookups (and of the other lobe's conditional) instead of one a wavelength, so the kernel
+        compiles in a fraction of the time; each wavelength's values and the density's sum in the same
+        order and operations as unrolled."""
+        n = len(states)
+        hw = states[0]["hw"]
+        zero = dr.zeros(mi.Float, dr.width(geo["s_any"]))
+
+        def body(q, values, pdf):
+            st = {k: picked(q, [s[k] for s in states]) for k in self._LOBE_KEYS}
+            st["hw"] = hw
+            Q_lin = self._other_lobe([st], geo)[0] if mix is not None else None
+            z, d_f, d_b = self._lobe_at(st, geo, Q_lin)
+            values = [dr.select(q == k, z, v) for k, v in enumerate(values)]
+            if mix is not None:
+                m, p_f, p_b = mix
+                pdf = pdf + m * (p_f * d_f + p_b * d_b)
+            return q + 1, values, pdf
+
+        state = (dr.zeros(mi.UInt32, dr.width(zero)), [mi.Float(zero) for _ in range(n)], mi.Float(zero))
+        _, values, pdf = dr.while_loop(state, lambda q, *_: q < n, body, label="corona sphere wavelengths")
+        return values, (pdf if mix is not None else None)
+
+    def _other_lobe(self, states, geo):
+        """Per wavelength the other lobe's linear rows at its chord (the sampler's density of the lobe
         that ``wo`` is not in), nonzero only in the sliver past 90° its sampler reaches (``near``).  One
-        conditional for all wavelengths: a packet of lanes none of which is ``near`` (nearly all)
+        conditional for the wavelengths given: a packet of lanes none of which is ``near`` (nearly all)
         skips the reads."""
         keys = ("j", "t", "rj", "rj1")
         flat = tuple(st[k] for st in states for k in keys)
         n = len(states)
+        s_other, near, offset_other = geo["s_other"], geo["near"], geo["offset_other"]
 
         def reads(s_o, near_, off, *flat):
             out = []
@@ -681,13 +745,6 @@ class SphereBSDFMixin:
             return reads(s_other, near, offset_other, *flat) if near else (mi.Float(0.0),) * n
         return dr.if_stmt((s_other, near, offset_other) + flat, near, reads, zeros, label="corona other lobe")
 
-    @staticmethod
-    def _mix(dens, m, p_f, p_b):
-        pdf = mi.Float(0.0)
-        for d_f, d_b in dens:
-            pdf += m * (p_f * d_f + p_b * d_b)
-        return pdf
-
     # ------------------------------------------------------------------
     # BSDF interface
     # ------------------------------------------------------------------
@@ -697,19 +754,25 @@ class SphereBSDFMixin:
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
+        if cached is None and not self.has_pane:
+            lane = self._lane(si, active)
+            # literal wavelengths (RGB's channels, fixed ones) fold into each unrolled copy with
+            # roundings a traced loop variable does not get: unrolled there, the values bit for bit
+            folded = any(getattr(lam, "state", None) == dr.VarState.Literal for lam in lane[0])
+            if not folded and self._loopable(len(lane[0]), wi, wo, lane[3], lane[5]):
+                return self._looped_eval_pdf(ctx, si, wo, active, lane)
         states, m = cached if cached is not None else self._states(si, active)
         p_coh, p_f, p_b, *p_pane = self._selection(ctx, states, cos_i)
         on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
-        Z, dens = self._lobes(states, wi, wo, active, on_f, on_b)
-        pdf = self._mix(dens, m, p_f, p_b)
+        Z, pdf = self._lobes(states, wi, wo, active, on_f, on_b, (m, p_f, p_b))
         if self.has_pane:
             same_side = cos_i * cos_o > 0
             first, r_i, r_o = self._pane(cos_i, cos_o)
             wo_m = mi.Vector3f(wo.x, wo.y, -wo.z)          # the mirror image: the far side's lobe
             mirrored = active & same_side & first
             on_r = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
-            Z_m, dens_m = self._lobes(states, wi, wo_m, mirrored, True, True)
+            Z_m, pdf_m = self._lobes(states, wi, wo_m, mirrored, True, True, (m, p_f, p_b))
             values = []
             for st, z, zm in zip(states, Z, Z_m):
                 through, reflected, own_side = pane_smooth_factors(st["coherent"], r_i, r_o, first)
@@ -718,14 +781,51 @@ class SphereBSDFMixin:
                     v += dr.select(mirrored, zm * reflected, 0.0)
                 values.append(v * (st["fs"] * st["w"]))
             if self.sampling != "cosine":   # component 4: the lobes' sampler, mirrored
-                pdf += dr.select(mirrored, p_pane[1] * self._mix(dens_m, m, p_f, p_b)
-                                 / _positive(p_f + p_b), 0.0)
+                pdf += dr.select(mirrored, p_pane[1] * pdf_m / _positive(p_f + p_b), 0.0)
         else:
             values = [z * (st["fs"] * st["w"]) for st, z in zip(states, Z)]
         if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes
             smooth = p_f + p_b + (p_pane[1] if self.has_pane else 0.0)
             pdf = dr.select(active, smooth * (0.25 * dr.inv_pi), 0.0)
         return self._spectrum(values), dr.select(active, pdf, 0.0)
+
+    def _looped_eval_pdf(self, ctx, si, wo, active, lane):
+        """:meth:`_eval_pdf` without a pane (its lane's share ``lane``, :meth:`_lane`) as one symbolic
+        Dr.Jit loop over the wavelengths: each wavelength's state (:meth:`_state`) and its lobes
+        (:meth:`_lobe_at`) in one traced copy; the loop hands out per wavelength the value, the two
+        lobe densities and the energies, summed after it (the selection, the mixture) in the same
+        order and operations as unrolled."""
+        lams, m, mu_i, fa, hw, radius = lane
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
+        on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
+        geo = self._lobe_geometry(wi, wo, active, on_f, on_b)
+        with_pdf = self.sampling != "cosine"
+        n = len(lams)
+        keys = ("value", "dens_f", "dens_b", "coherent", "e_f", "e_b")
+
+        def body(q, *outs):
+            st = self._state(picked(q, list(lams)), mu_i, active, fa, hw, radius)
+            z, d_f, d_b = self._lobe_at(st, geo, self._other_lobe([st], geo)[0] if with_pdf else None)
+            new = dict(value=z * (st["fs"] * st["w"]), dens_f=d_f, dens_b=d_b,
+                       coherent=st["coherent"], e_f=st["e_f"], e_b=st["e_b"])
+            return (q + 1, *([dr.select(q == k, new[key], v) for k, v in enumerate(out)] if new[key] is not None
+                             else out for key, out in zip(keys, outs)))
+
+        zero = dr.zeros(mi.Float, dr.width(geo["s_any"]))
+        outs = [[mi.Float(zero) for _ in range(n)] for _ in keys]
+        _, *outs = dr.while_loop((dr.zeros(mi.UInt32, dr.width(zero)), *outs), lambda q, *_: q < n, body,
+                                 label="corona sphere wavelengths")
+        per = [dict(zip(keys, vals)) for vals in zip(*outs)]   # per wavelength, as the states
+        p_coh, p_f, p_b = self._selection(ctx, per, cos_i)
+        if with_pdf:
+            pdf = mi.Float(0.0)
+            for d in per:
+                pdf += m * (p_f * d["dens_f"] + p_b * d["dens_b"])
+        else:          # comparisons only: uniform sphere for the lobes
+            pdf = dr.select(active, (p_f + p_b) * (0.25 * dr.inv_pi), 0.0)
+        return self._spectrum([d["value"] for d in per]), dr.select(active, pdf, 0.0)
 
     def eval(self, ctx, si, wo, active=True):
         return self._eval_pdf(ctx, si, wo, mi.Bool(active))[0]
