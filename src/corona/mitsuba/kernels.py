@@ -331,19 +331,17 @@ class LobeKernel:
         base = mi.UInt32(iy) * m + mi.UInt32(ix)    # taps (-1 .. 2, -1) in the padded array
         acc = [mi.Float(0.0) for _ in grids]
         ng = len(grids)
-        if self.g_rows is not None and ng == dr.width(self.g_rows) // (4 * n * (n + 3)):
-            # a row's taps of every grid in one gather (the packets hold exactly these grids)
-            for b in range(4):
-                taps = dr.gather(mi.ArrayXf, self.g_rows, base + b * m, inside, shape=(4 * ng, dr.width(base)))
-                for g in range(ng):
-                    r = [taps[4 * g + c] for c in range(4)]
-                    racc = dr.fma(wx[0], r[0], dr.fma(wx[1], r[1], dr.fma(wx[2], r[2], wx[3] * r[3])))
-                    acc[g] = dr.fma(wy[b], racc, acc[g])
-            return [dr.select(inside, x, 0.0) for x in acc]
+        # a row's taps of every grid in one gather where the packets hold exactly these grids,
+        # else a packet of the row's four taps a grid
+        packed = self.g_rows is not None and ng == dr.width(self.g_rows) // (4 * n * (n + 3))
         for b in range(4):
-            for g, coef in enumerate(grids):
-                q = gather4(coef, base + b * m, inside)      # the row's four taps in one packet
-                racc = dr.fma(wx[0], q.x, dr.fma(wx[1], q.y, dr.fma(wx[2], q.z, wx[3] * q.w)))
+            if packed:
+                taps = dr.gather(mi.ArrayXf, self.g_rows, base + b * m, inside, shape=(4 * ng, dr.width(base)))
+                rows = [[taps[4 * g + c] for c in range(4)] for g in range(ng)]
+            else:
+                rows = [(q.x, q.y, q.z, q.w) for q in (gather4(coef, base + b * m, inside) for coef in grids)]
+            for g, r in enumerate(rows):
+                racc = dr.fma(wx[0], r[0], dr.fma(wx[1], r[1], dr.fma(wx[2], r[2], wx[3] * r[3])))
                 acc[g] = dr.fma(wy[b], racc, acc[g])
         return [dr.select(inside, x, 0.0) for x in acc]
 

@@ -514,8 +514,8 @@ class SphereBSDFMixin:
             fa = dr.clip(fa, self.fa_range[0], self.fa_range[1])
         return lams, m, mu_i, fa, self._fa_weights(fa), self._lane_radius(si, active)
 
-    def _states(self, si, active):
-        lams, m, mu_i, fa, hw, radius = self._lane(si, active)
+    def _states(self, si, active, lane=None):
+        lams, m, mu_i, fa, hw, radius = lane if lane is not None else self._lane(si, active)
         states = [self._state(lam, mu_i, active, fa, hw, radius) for lam in lams]
         return states, m
 
@@ -754,6 +754,7 @@ class SphereBSDFMixin:
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
+        lane = None
         if cached is None and not self.has_pane:
             lane = self._lane(si, active)
             # literal wavelengths (RGB's channels, fixed ones) fold into each unrolled copy with
@@ -761,7 +762,7 @@ class SphereBSDFMixin:
             folded = any(getattr(lam, "state", None) == dr.VarState.Literal for lam in lane[0])
             if not folded and self._loopable(len(lane[0]), wi, wo, lane[3], lane[5]):
                 return self._looped_eval_pdf(ctx, si, wo, active, lane)
-        states, m = cached if cached is not None else self._states(si, active)
+        states, m = cached if cached is not None else self._states(si, active, lane)
         p_coh, p_f, p_b, *p_pane = self._selection(ctx, states, cos_i)
         on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
@@ -803,15 +804,14 @@ class SphereBSDFMixin:
         geo = self._lobe_geometry(wi, wo, active, on_f, on_b)
         with_pdf = self.sampling != "cosine"
         n = len(lams)
-        keys = ("value", "dens_f", "dens_b", "coherent", "e_f", "e_b")
+        keys = ("value", "coherent", "e_f", "e_b") + (("dens_f", "dens_b") if with_pdf else ())
 
         def body(q, *outs):
             st = self._state(picked(q, list(lams)), mu_i, active, fa, hw, radius)
             z, d_f, d_b = self._lobe_at(st, geo, self._other_lobe([st], geo)[0] if with_pdf else None)
             new = dict(value=z * (st["fs"] * st["w"]), dens_f=d_f, dens_b=d_b,
                        coherent=st["coherent"], e_f=st["e_f"], e_b=st["e_b"])
-            return (q + 1, *([dr.select(q == k, new[key], v) for k, v in enumerate(out)] if new[key] is not None
-                             else out for key, out in zip(keys, outs)))
+            return (q + 1, *([dr.select(q == k, new[key], v) for k, v in enumerate(out)] for key, out in zip(keys, outs)))
 
         zero = dr.zeros(mi.Float, dr.width(geo["s_any"]))
         outs = [[mi.Float(zero) for _ in range(n)] for _ in keys]
