@@ -267,7 +267,8 @@ def guided_cdfs(cdfs) -> dict:
     G = int(min(max(n_bins, 16), 1 << 16))
     marks = (np.arange(G + 1) / G).astype(np.float32)
     cdf32 = np.empty(C.shape, dtype=np.float32)
-    guide = np.empty((n_rows, G + 1), dtype=np.int64)
+    guide = np.empty((n_rows, G + 1), dtype=np.uint32)
+    width = 1
     # every row's search at once: guide[j] + 1 counts a row's CDF values <= marks[j]; a value c counts
     # for the marks from pos(c) = searchsorted(marks, c) on, so the counts are the cumulated
     # histogram of those positions.  pos(c) is ceil(c G) up to the marks' float32 rounding: one
@@ -284,10 +285,12 @@ def guided_cdfs(cdfs) -> dict:
         pos += (pos <= G) & (marks[np.minimum(pos, G)] < c32)
         pos += (np.arange(b - a, dtype=np.int64) * (G + 2))[:, None]
         hist = np.bincount(pos.ravel(), minlength=(b - a) * (G + 2)).reshape(b - a, G + 2)
-        np.cumsum(hist[:, :G + 1], axis=1, out=guide[a:b])
-    guide -= 1
-    guide = np.clip(guide, 0, n_bins - 1)
-    width = int(np.max(guide[:, 1:] - guide[:, :-1])) + 1 if G > 0 else 1
+        # the block's guide (counts - 1, clipped to the bins) in int64, stored as uint32
+        gb = np.cumsum(hist[:, :G + 1], axis=1)
+        gb -= 1
+        np.clip(gb, 0, n_bins - 1, out=gb)
+        width = max(width, int(np.max(gb[:, 1:] - gb[:, :-1])) + 1)
+        guide[a:b] = gb
     return dict(cdf=cdf32.ravel(), guide=guide.ravel(), G=G, n_bins=n_bins,
                 steps=max(1, int(np.ceil(np.log2(max(width, 1) + 1)))))
 

@@ -98,6 +98,8 @@ FA_ROW_STEP = 0.05
 #: one Vector4f gather reads a row's interval; beyond it the plain rows are held instead, read by
 #: four scalar gathers).  One of the two is allocated.
 LOBE_PACKING_BYTES = 1 << 28
+#: Chord nodes per block of rows of the lobes' CDFs and guides (:func:`_guided_rows`).
+GUIDE_BLOCK = 1 << 18
 #: Marks the F_a weights of a layer with one F_a (:meth:`SphereBSDFMixin._fa_weights`).
 _CENTRE = "centre"
 
@@ -115,10 +117,12 @@ def _catmull_rom(*lobes):
     lobes = [np.asarray(rows, dtype=np.float64) for rows in lobes]
     out = np.empty((sum(rows.size for rows in lobes), 4), dtype=np.float32)
     start = 0
+    T = None
     for rows in lobes:
         J, K = rows.shape
         # node-major rows padded by an end node before and two after: node i-1 .. i+2 as slices
-        T = np.empty((K + 3, J))
+        # (one buffer for lobes of one shape: fresh memory is paid for page by page)
+        T = np.empty((K + 3, J)) if T is None or T.shape != (K + 3, J) else T
         T[1:K + 1] = rows.T
         T[0], T[K + 1], T[K + 2] = T[1], T[K], T[K]
         o = out[start:start + rows.size].reshape(K, J, 4)
@@ -150,10 +154,28 @@ def _guided_rows(material, rows) -> dict:
     ds = float(rows["ds"])
 
     def make():
-        cdfs = tables.radial_cdfs(ds, np.concatenate([rows["P_f"], rows["P_b"]]))
-        g = {k: np.asarray(v) for k, v in guided_cdfs(cdfs).items()}
-        g["guide"] = g["guide"].astype(np.uint32)            # as the plugin holds it (half the bytes)
-        return g
+        # block by block of rows (the CDFs and guides of a row depend on that row alone; the
+        # bisection steps are those of the widest guide cell, the most over the blocks): the
+        # float64 CDFs of a block stay in the caches and neither the rows nor their CDFs are
+        # copied whole
+        lobes = (rows["P_f"], rows["P_b"])
+        n_rows, K = sum(v.shape[0] for v in lobes), lobes[0].shape[1]
+        step = max(1, GUIDE_BLOCK // K)
+        cdf = guide = None
+        steps, r = 1, 0
+        for v in lobes:
+            for a in range(0, v.shape[0], step):
+                part = guided_cdfs(tables.radial_cdfs(ds, v[a:a + step]))
+                n = min(step, v.shape[0] - a)
+                if cdf is None:
+                    cdf = np.empty((n_rows, K), np.float32)
+                    guide = np.empty((n_rows, part["G"] + 1), np.uint32)   # as the plugin holds it
+                    G, n_bins = part["G"], part["n_bins"]
+                cdf[r:r + n] = part["cdf"].reshape(n, K)
+                guide[r:r + n] = part["guide"].reshape(n, G + 1)
+                steps, r = max(steps, part["steps"]), r + n
+        return {"cdf": cdf.ravel(), "guide": guide.ravel(), "G": np.array(G), "n_bins": np.array(n_bins),
+                "steps": np.array(steps)}
     key = {**material.table_params(), "guided_rows": tables.code_key(guided_cdfs, tables.radial_cdfs, make)}
     g = tables.cached(key, make, use_cache=material.use_cache)
     return {"cdf": np.asarray(g["cdf"]), "guide": np.asarray(g["guide"]),

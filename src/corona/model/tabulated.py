@@ -591,14 +591,15 @@ def _read(path: str, key: str) -> dict | None:
 
 
 def _write_atomic(path: str, key: str, arrays: dict) -> None:
+    """Write the table under a temporary name, then rename it over ``path`` (atomic): a reader sees
+    the old file or the whole new one.  No ``fsync``: a file that a crash of the system leaves
+    incomplete fails its checksum (:func:`_read`) and is rebuilt, never served."""
     meta = json.dumps({"format": FORMAT_VERSION, "key": key, "checksum": _checksum(arrays)})
     folder = os.path.dirname(path)
     fd, tmp = tempfile.mkstemp(prefix=f".tmp-{key}-", suffix=".npz", dir=folder)
     try:
         with os.fdopen(fd, "wb") as f:
             np.savez(f, __meta__=np.array(meta), **arrays)
-            f.flush()
-            os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -292,23 +292,53 @@ def _mono_sums(m, X, basis, amplitudes=False):
 def _blend_pair(Pa, Pb, xa, xb, x, ds, stride: int = 1):
     """The lookup's value between two rows (:func:`_scaled_blend`, Catmull–Rom) at the weight of
     ``x`` between ``xa`` and ``xb``, on every ``stride``-th chord node: arrays (n, K), (n,)."""
-    n, K = Pa.shape
+    n = Pa.shape[0]
+    rows = np.arange(n, dtype=np.int64)
+    return _blend_rows((np.concatenate([Pa, Pb]),), rows, rows + n, xa, xb, x, ds, stride)[0]
+
+
+#: Elements per block of :func:`_blend_rows` (its working arrays stay in the caches).
+BLEND_BLOCK = 1 << 13
+
+
+def _blend_rows(lobes, ja, jb, xa, xb, x, ds, stride: int = 1):
+    """:func:`_blend_pair` of several lobes at once, read in place: ``lobes`` arrays (R, K) of rows,
+    ``ja``, ``jb`` (n,) the two rows of each pair in them; one list of arrays (n, K / stride).
+
+    The same operations in the same order as :func:`_blend_pair` (the same bits), in blocks of
+    pairs that stay in the caches; the nodes each pair reads (the scaled chord, its interval and
+    weight) are found once for all the lobes, and the end nodes repeated past a row's ends come
+    from clamped indices (at the first interval ``max(k - 1, row start) = k``, at the last
+    ``min(k + 2, row end) = k + 1``)."""
+    K = lobes[0].shape[1]
     node = np.arange(0, K, stride, dtype=np.float64)
-    t = ((x - xa) / (xb - xa))[:, None]
-    base = (np.arange(n, dtype=np.int64) * K)[:, None]
-    out = 0.0
-    for P, xr, wgt in ((Pa, xa, 1.0 - t), (Pb, xb, t)):
-        c = (xr / x)[:, None]
-        g = node[None, :] / c                      # the node read at the chord scaled by x / x_row
-        i = np.minimum(g.astype(np.int64), K - 2)  # g >= 0: truncation is the floor
-        f = np.minimum(g - i, 1.0)
-        flat = P.ravel()
-        k = base + i
-        p1, p2 = flat[k], flat[k + 1]
-        p0 = np.where(i > 0, flat[np.maximum(k - 1, base)], p1)
-        p3 = np.where(i + 2 < K, flat[np.minimum(k + 2, base + K - 1)], p2)
-        v = p1 + 0.5 * f * (p2 - p0 + f * (2 * p0 - 5 * p1 + 4 * p2 - p3 + f * (3 * (p1 - p2) + p3 - p0)))
-        out = out + wgt * np.where(g <= K - 1, np.maximum(v, 0.0), 0.0) / (c * c)
+    n = np.shape(x)[0]
+    out = [np.empty((n, node.size)) for _ in lobes]
+    flats = [P.reshape(-1) for P in lobes]
+    ja, jb = np.asarray(ja, dtype=np.int64), np.asarray(jb, dtype=np.int64)
+    step = max(1, BLEND_BLOCK // node.size)
+    for r0 in range(0, n, step):
+        r = slice(r0, min(r0 + step, n))
+        t = ((x[r] - xa[r]) / (xb[r] - xa[r]))[:, None]
+        acc = [0.0] * len(lobes)
+        for j, xr, wgt in ((ja[r], xa[r], 1.0 - t), (jb[r], xb[r], t)):
+            c = (xr / x[r])[:, None]
+            g = node[None, :] / c                      # the node read at the chord scaled by x / x_row
+            i = np.minimum(g.astype(np.int64), K - 2)  # g >= 0: truncation is the floor
+            f = np.minimum(g - i, 1.0)
+            inside = g <= K - 1
+            cc = c * c
+            base = (j * K)[:, None]
+            k = base + i
+            k0 = np.maximum(k - 1, base)
+            k3 = np.minimum(k + 2, base + K - 1)
+            k2 = k + 1
+            for m, flat in enumerate(flats):
+                p0, p1, p2, p3 = flat[k0], flat[k], flat[k2], flat[k3]
+                v = p1 + 0.5 * f * (p2 - p0 + f * (2 * p0 - 5 * p1 + 4 * p2 - p3 + f * (3 * (p1 - p2) + p3 - p0)))
+                acc[m] = acc[m] + wgt * np.where(inside, np.maximum(v, 0.0), 0.0) / cc
+        for m in range(len(lobes)):
+            out[m][r] = acc[m]
     return out
 
 
@@ -332,8 +362,9 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
     ``rows``: per-row arrays keyed like :func:`_evaluate_rows`, normalised (P per steradian).
     Returns the same keys with the new rows, in increasing ``x``."""
     n0 = rows["x"].size
-    # every row kept and every midpoint still pending lives in one store (grown by doubling)
-    store = {k: np.empty((max(2 * n0, 2 * ROW_CHUNK),) + np.shape(v)[1:], np.asarray(v).dtype)
+    # every row kept and every midpoint still pending lives in one store, reserved for the cap and
+    # a batch's midpoints (memory is touched only where written; grown by doubling beyond)
+    store = {k: np.empty((max(2 * n0, MAX_ROWS + 2 * ROW_CHUNK),) + np.shape(v)[1:], np.asarray(v).dtype)
              for k, v in rows.items()}
     used = 0
 
@@ -365,8 +396,9 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
         xm = 0.5 * (xa + xb)
         new = _evaluate_rows(sphere, xm, basis)
         err = np.zeros(xm.size)
-        for key in ("P_f", "P_b"):
-            est = _blend_pair(store[key][pairs[:, 0]], store[key][pairs[:, 1]], xa, xb, xm, ds, ROW_TEST_STRIDE)
+        ests = _blend_rows([store[key] for key in ("P_f", "P_b")], pairs[:, 0], pairs[:, 1], xa, xb, xm, ds,
+                           ROW_TEST_STRIDE)
+        for key, est in zip(("P_f", "P_b"), ests):
             err = np.maximum(err, _lobe_error(est, new[key][:, ::ROW_TEST_STRIDE], ds * ROW_TEST_STRIDE))
         if bar is not None:
             bar.update(xm.size)
