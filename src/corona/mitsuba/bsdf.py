@@ -493,12 +493,11 @@ class CoronaBSDFMixin:
             warnings.simplefilter("ignore", CoronaWarning)
             low = material_from_parameters(**{**params, "area_fraction": max(float(fa), 1e-6)})
         table = low.table
-        tb = self.kernel.near
-        if not (table.n == tb["n"] and abs(float(table.lo) - tb["lo"]) <= 1e-9 * abs(tb["lo"])
+        own = self.kernel.sampling_source
+        if not (table.n == own.n and abs(float(table.lo) - float(own.lo)) <= 1e-9 * abs(float(own.lo))
                 and float(table.warp) == self.kernel.warp):
             return                                   # another grid: keep the material's own
-        self.kernel.near = dict(tb, total=float(table.total), values=self.kernel.corners(table.values))
-        self.kernel.set_sampling_table(table.values)
+        self.kernel.use_sampling_table(table)
 
     def _set_cdf(self, cdfs):
         """Normalised float32 CDFs of the rows and their guide tables (:func:`corona.mitsuba.common.guided_cdfs`)."""

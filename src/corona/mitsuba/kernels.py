@@ -35,6 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from corona._validation import check_range
 from corona.mitsuba.common import array as _array, gather as _gather, gather4
 from corona.tables.lobe import TAYLOR_ORDER, TAYLOR_U
 
@@ -165,10 +166,16 @@ def _alias_pick(table, n, offset, xi, active):
     return dr.select(stay, i, other), dr.clip(rest, 0.0, 0.99999994)
 
 
+#: Nodes a side of the anisotropic layers' sampling table (:meth:`LobeKernel.use_sampling_table`):
+#: the material's 512² table resampled to 256² (its interpolant at the new nodes): a quarter of
+#: the memory the pdf reads at each wavelength, the same noise (benchmarks/bench_sampling_table.py)
+SAMPLING_NODES = 256
+
+
 class LobeKernel:
     """The renderer's lobe of a non-radial material in Dr.Jit (see the module docstring)."""
 
-    def __init__(self, material):
+    def __init__(self, material, sampling_n=SAMPLING_NODES):
         rl = material.render_lobe
         self.kind = rl.kind
         self.R = float(rl.R)
@@ -204,11 +211,45 @@ class LobeKernel:
             # of the padded grids (a 4×4 block of all taps a cell would hold 16 × grids)
             self.g_rows = self._row_taps(padded) if dr.is_array_v(mi.Float) else None
         # --- the sampling table (bilinear, in u or in the warped t) -----------------------
-        t = material.table
-        self.near = dict(n=int(t.n), lo=float(t.lo), cell=float(t.cell), span=float(t.cell * (t.n - 1)),
-                         total=float(t.total), values=self.corners(t.values))
-        self.warp = float(t.warp)
-        self.set_sampling_table(t.values)
+        self.sampling_n = None if sampling_n is None else int(sampling_n)
+        self.use_sampling_table(material.table)
+
+    def use_sampling_table(self, table, n=None):
+        """Sample (:meth:`sample`, :meth:`pdf`) from the bilinear table ``table``
+        (:class:`corona.model.tabulated.GridTable`): with ``n`` (default :attr:`sampling_n`,
+        :data:`SAMPLING_NODES` unless the kernel was made with another; None: the table's own
+        nodes) below the table's nodes, on ``n`` nodes a side spanning the same square
+        (:meth:`resampled`).  A lattice's table (``kind == "table"``), the lobe's value too,
+        keeps its nodes."""
+        n = self.sampling_n if n is None else int(n)
+        if self.kind == "table":        # a lattice's table is its value too: sampled on its own nodes
+            n = None
+        self.sampling_source = table
+        values, cell, total = table.values, float(table.cell), float(table.total)
+        if n is not None and n < int(table.n):          # (never finer than the material's own)
+            values, cell, total = self.resampled(table, n)
+        else:
+            n = int(table.n)
+        self.near = dict(n=n, lo=float(table.lo), cell=cell, span=float(cell * (n - 1)),
+                         total=total, values=self.corners(values))
+        self.warp = float(table.warp)
+        self.set_sampling_table(values)
+
+    @staticmethod
+    def resampled(table, n):
+        """The bilinear sampling table ``table`` (:class:`corona.model.tabulated.GridTable`) on ``n``
+        nodes a side spanning the same vertex square (its interpolant at the new nodes):
+        ``(values, cell, total)``, ``total`` the new interpolant's integral (in t when warped)."""
+        n = int(check_range("sampling_n", n, 2, table.n))
+        span = table.cell * (table.n - 1)
+        cell = span / (n - 1)
+        c = table.lo + np.arange(n) * cell
+        c[-1] = table.lo + span * (1.0 - 1e-12)            # inside the fine table's last cell
+        gx, gy = np.meshgrid(c, c)                          # index [iy, ix]
+        values = np.maximum(table._eval_t(np.stack([gx, gy], -1)), 0.0)
+        seg = 0.5 * cell * (values[:, 1:] + values[:, :-1]).sum(axis=1)
+        total = float(0.5 * cell * (seg[1:] + seg[:-1]).sum())
+        return values, float(cell), total
 
     def set_sampling_table(self, values):
         """Sample the bilinear table ``values`` ``(n, n)`` (:meth:`sample`): alias tables
