@@ -71,6 +71,8 @@ off are refused.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -105,8 +107,13 @@ _CENTRE = "centre"
 
 
 def _catmull_rom(*lobes):
-    """The Catmull–Rom intervals of chord rows (each lobe (J, K)), four floats each, as one Dr.Jit
-    array, node-major (interval i of row j of lobe l at ``l J K + i J + j``: rows j and j+1 at one
+    """:func:`_catmull_rom_intervals` as one Dr.Jit array."""
+    return _array(mi.Float, _catmull_rom_intervals(*lobes).ravel())
+
+
+def _catmull_rom_intervals(*lobes):
+    """The Catmull–Rom intervals of chord rows (each lobe (J, K)), four floats each, as one float32
+    numpy array (n, 4), node-major (interval i of row j of lobe l at ``l J K + i J + j``: rows j and j+1 at one
     chord share a cache line mostly).  Interval i of row j is ``(p1, p2 - p1, c1, c2)`` with
     ``v(f) = p1 + f (c1 + f (c2 + f c3))``, ``c1 = (p2 - p0) / 2``, ``c2 = (2 p0 - 5 p1 + 4 p2 - p3) / 2``, ``c3 = p2 - p1 - c1 - c2``
     (``p0 .. p3`` the nodes i-1 .. i+2, an end node repeated past the row's ends); the linear
@@ -136,7 +143,7 @@ def _catmull_rom(*lobes):
             ob[..., 2] = 0.5 * (p2 - p0)
             ob[..., 3] = 0.5 * (2 * p0 - 5 * p1 + 4 * p2 - p3)
         start += rows.size
-    return _array(mi.Float, out.ravel())
+    return out
 
 
 def _corners(e):
@@ -325,10 +332,13 @@ class SphereBSDFMixin:
         # the lobes' rows: packed Catmull–Rom intervals where the memory allows, else the plain rows
         # (one of the two is allocated, the other is None)
         packing = self._lobe_packing(rows)
+        # the packed intervals (numpy, about a third of a cold load) are built on a second thread
+        # while this one builds (or reads) the guided CDFs below: numpy releases the GIL, so on two
+        # cores the two overlap; the same values
+        lobes = ([(rows["C_f"],)] if self.has_C else []) + [(rows["P_f"], rows["P_b"])]
+        pool = ThreadPoolExecutor(max_workers=1) if packing else None
+        splines = [pool.submit(_catmull_rom_intervals, *ls) for ls in lobes] if packing else None
         self.Cf = self.Cf_spline = None
-        if self.has_C:
-            self.Cf_spline = _catmull_rom(rows["C_f"]) if packing else None
-            self.Cf = None if packing else _array(mi.Float, rows["C_f"].ravel())
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
         self._setup_area_fraction_rows(material, fa_lo, fa_hi)
         # per-row scalars of both rows of an interval j, j+1 packed 16 to the interval (one 64-byte
@@ -344,11 +354,23 @@ class SphereBSDFMixin:
         # both lobes in one array: forward rows, then backward rows; as Catmull–Rom intervals, one
         # Vector4f each (where the memory allows), else plain
         self.back_offset = int(rows["P_f"].size)
-        self.P_spline = _catmull_rom(rows["P_f"], rows["P_b"]) if packing else None
-        self.P = None if packing else _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
         # the radial densities 2π s P(s) of both lobes' rows in one guided table: forward rows 0 .. J-1,
         # backward rows J .. 2J-1 (corona.mitsuba.common.guided_cdfs)
-        g = _guided_rows(material, rows)
+        try:
+            g = _guided_rows(material, rows)
+        finally:
+            if pool is not None:
+                pool.shutdown(wait=True)
+        if packing:
+            if self.has_C:
+                self.Cf_spline = _array(mi.Float, splines[0].result().ravel())
+            self.P_spline = _array(mi.Float, splines[-1].result().ravel())
+            self.P = None
+        else:
+            if self.has_C:
+                self.Cf = _array(mi.Float, rows["C_f"].ravel())
+            self.P_spline = None
+            self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
         self.cdf, self.guide = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
         self.G, self.n_bins, self.steps = g["G"], g["n_bins"], g["steps"]
         # the pane (docs/physics.md#the-layer-on-glass-substrateglass): incoherent glass only

@@ -68,6 +68,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -394,10 +395,13 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
         if not pairs.size:
             return pairs, np.zeros(0, np.int64), np.zeros(0)
         xm = 0.5 * (xa + xb)
+        # the lookup's estimate from the stored rows on a second thread while this one evaluates
+        # Mie theory at the midpoints (numpy releases the GIL: the two overlap on two cores)
+        blend = pool.submit(_blend_rows, [store[key] for key in ("P_f", "P_b")], pairs[:, 0], pairs[:, 1],
+                            xa, xb, xm, ds, ROW_TEST_STRIDE)
         new = _evaluate_rows(sphere, xm, basis)
+        ests = blend.result()
         err = np.zeros(xm.size)
-        ests = _blend_rows([store[key] for key in ("P_f", "P_b")], pairs[:, 0], pairs[:, 1], xa, xb, xm, ds,
-                           ROW_TEST_STRIDE)
         for key, est in zip(("P_f", "P_b"), ests):
             err = np.maximum(err, _lobe_error(est, new[key][:, ::ROW_TEST_STRIDE], ds * ROW_TEST_STRIDE))
         if bar is not None:
@@ -405,29 +409,30 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
         bad = err > ROW_TOLERANCE
         return pairs[bad], put({k: v[bad] for k, v in new.items()}), err[bad]
 
-    kept = [put(rows)]
-    n_kept = n0
-    dx_min, blocked = ROW_DX_MIN, []
-    pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1), False)
-    while n_kept < MAX_ROWS:
-        if not pend_err.size:
-            if dx_min == ROW_DX_FINE:
-                break
-            # under the cap: the intervals stopped at ROW_DX_MIN, down to ROW_DX_FINE
-            dx_min, stopped, blocked = ROW_DX_FINE, np.concatenate(blocked + [np.zeros((0, 2), np.int64)]), []
-            pend_pairs, pend_mid, pend_err = candidates(stopped)
-            continue
-        take = np.argsort(-pend_err)[:min(ROW_CHUNK, MAX_ROWS - n_kept)]
-        rest = np.setdiff1d(np.arange(pend_err.size), take)
-        idx = pend_mid[take]
-        kept.append(idx)
-        n_kept += idx.size
-        children = np.concatenate([np.stack([pend_pairs[take, 0], idx], -1),
-                                   np.stack([idx, pend_pairs[take, 1]], -1)])
-        c_pairs, c_mid, c_err = candidates(children)
-        pend_pairs = np.concatenate([pend_pairs[rest], c_pairs])
-        pend_mid = np.concatenate([pend_mid[rest], c_mid])
-        pend_err = np.concatenate([pend_err[rest], c_err])
+    with ThreadPoolExecutor(max_workers=1) as pool:   # (candidates' second thread)
+        kept = [put(rows)]
+        n_kept = n0
+        dx_min, blocked = ROW_DX_MIN, []
+        pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1), False)
+        while n_kept < MAX_ROWS:
+            if not pend_err.size:
+                if dx_min == ROW_DX_FINE:
+                    break
+                # under the cap: the intervals stopped at ROW_DX_MIN, down to ROW_DX_FINE
+                dx_min, stopped, blocked = ROW_DX_FINE, np.concatenate(blocked + [np.zeros((0, 2), np.int64)]), []
+                pend_pairs, pend_mid, pend_err = candidates(stopped)
+                continue
+            take = np.argsort(-pend_err)[:min(ROW_CHUNK, MAX_ROWS - n_kept)]
+            rest = np.setdiff1d(np.arange(pend_err.size), take)
+            idx = pend_mid[take]
+            kept.append(idx)
+            n_kept += idx.size
+            children = np.concatenate([np.stack([pend_pairs[take, 0], idx], -1),
+                                       np.stack([idx, pend_pairs[take, 1]], -1)])
+            c_pairs, c_mid, c_err = candidates(children)
+            pend_pairs = np.concatenate([pend_pairs[rest], c_pairs])
+            pend_mid = np.concatenate([pend_mid[rest], c_mid])
+            pend_err = np.concatenate([pend_err[rest], c_err])
     kept = np.concatenate(kept)
     kept = kept[np.argsort(store["x"][kept])]
     return {k: v[kept] for k, v in store.items()}
