@@ -258,3 +258,68 @@ def test_checksum_is_that_of_the_bytes():
     assert tables._checksum(arrays) == h.hexdigest()
     changed = dict(arrays, e=np.array([0, 1, 2, 3, 5], dtype=np.uint32))
     assert tables._checksum(changed) != h.hexdigest()
+
+
+def _background_build(cache, log):
+    os.environ["CORONA_CACHE_DIR"] = cache
+
+    def build():
+        with open(log, "a") as f:
+            f.write("built\n")
+        return {"values": np.linspace(0, 1, 2_000_000)}
+
+    out = tables.cached({"background": 1}, build, background=True)
+    return float(out["values"].sum())
+
+
+def test_background_write_is_waited_for_and_exact(tmp_path, monkeypatch):
+    """``cached(..., background=True)``: the table is written by the writer thread while the caller
+    goes on. A second call of the key in the same process, made at once, waits for the file (the
+    key's lock) and reads it back without building; processes started while it is written do too
+    (one build in all); the process's exit waits for the write; the file holds the table."""
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    made = []
+    first = tables.cached({"bg": 1}, lambda: made.append(1) or {"values": np.arange(3_000_000.0)}, background=True)
+    again = tables.cached({"bg": 1}, lambda: pytest.fail("built twice"), background=True)
+    assert made == [1] and np.array_equal(first["values"], again["values"])
+    tabulated.wait_for_writes()
+    path = tmp_path / (tables.cache_key({"bg": 1}) + ".npz")
+    assert tabulated._read(str(path), tables.cache_key({"bg": 1})) is not None
+    # other processes against a background writer: one build, every process the same table
+    cache, log = tmp_path / "procs", tmp_path / "log"
+    cache.mkdir()
+    pool = mp.get_context("spawn").Pool(3)
+    sums = pool.starmap(_background_build, [(str(cache), str(log))] * 6)
+    pool.close()
+    pool.join()                          # the workers exit normally: their writer threads are joined
+    assert len(set(sums)) == 1 and sums[0] == pytest.approx(1_000_000.0)
+    assert log.read_text().count("built") == 1
+    names = os.listdir(cache)
+    assert len([n for n in names if n.endswith(".npz")]) == 1 and not any(n.startswith(".tmp-") for n in names)
+
+
+def test_background_write_of_a_table_changed_meanwhile_is_not_served(tmp_path, monkeypatch):
+    """The checksum is the built table's: a caller that (against the rule) writes into the arrays
+    while the writer thread saves them leaves a file that fails its checksum, rebuilt when read,
+    never served with the changed values under the old checksum. Negative control: unchanged, the
+    file is read back."""
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    gate = __import__("threading").Event()
+    real = tabulated._write_atomic
+
+    def slow_write(*args, **kwargs):          # the write waits until the caller has changed the table
+        gate.wait(10)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(tabulated, "_write_atomic", slow_write)
+    out = tables.cached({"bg-changed": 1}, lambda: {"values": np.zeros(1000)}, background=True)
+    out["values"][:] = 5.0
+    gate.set()
+    tabulated.wait_for_writes()
+    monkeypatch.setattr(tabulated, "_write_atomic", real)
+    rebuilt = tables.cached({"bg-changed": 1}, lambda: {"values": np.full(1000, 2.0)})
+    assert np.all(rebuilt["values"] == 2.0)
+    # negative control: the same without the change is read back, not rebuilt
+    gate.set()
+    tables.cached({"bg-kept": 1}, lambda: {"values": np.ones(1000)}, background=True)
+    tabulated.wait_for_writes()
+    assert np.all(tables.cached({"bg-kept": 1}, lambda: pytest.fail("rebuilt"))["values"] == 1.0)

@@ -184,7 +184,7 @@ def _guided_rows(material, rows) -> dict:
         return {"cdf": cdf.ravel(), "guide": guide.ravel(), "G": np.array(G), "n_bins": np.array(n_bins),
                 "steps": np.array(steps)}
     key = {**material.table_params(), "guided_rows": tables.code_key(guided_cdfs, tables.radial_cdfs, make)}
-    g = tables.cached(key, make, use_cache=material.use_cache)
+    g = tables.cached(key, make, use_cache=material.use_cache, background=True)
     return {"cdf": np.asarray(g["cdf"]), "guide": np.asarray(g["guide"]),
             **{k: int(g[k]) for k in ("G", "n_bins", "steps")}}
 

@@ -590,11 +590,13 @@ def _read(path: str, key: str) -> dict | None:
         return None
 
 
-def _write_atomic(path: str, key: str, arrays: dict) -> None:
+def _write_atomic(path: str, key: str, arrays: dict, checksum: str | None = None) -> None:
     """Write the table under a temporary name, then rename it over ``path`` (atomic): a reader sees
     the old file or the whole new one.  No ``fsync``: a file that a crash of the system leaves
-    incomplete fails its checksum (:func:`_read`) and is rebuilt, never served."""
-    meta = json.dumps({"format": FORMAT_VERSION, "key": key, "checksum": _checksum(arrays)})
+    incomplete fails its checksum (:func:`_read`) and is rebuilt, never served.  ``checksum``: the
+    arrays' (:func:`_checksum`), taken when they were built (by default now)."""
+    checksum = _checksum(arrays) if checksum is None else checksum
+    meta = json.dumps({"format": FORMAT_VERSION, "key": key, "checksum": checksum})
     folder = os.path.dirname(path)
     fd, tmp = tempfile.mkstemp(prefix=f".tmp-{key}-", suffix=".npz", dir=folder)
     try:
@@ -607,11 +609,45 @@ def _write_atomic(path: str, key: str, arrays: dict) -> None:
         raise
 
 
-def cached(params: dict, build, *, use_cache: bool = True) -> dict:
+_writer = None
+
+
+def _background_writer():
+    """The process's one cache-writer thread (:func:`cached` with ``background=True``); Python joins
+    it at exit, so a table handed to it is written before the interpreter ends."""
+    global _writer
+    if _writer is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="corona-cache-writer")
+    return _writer
+
+
+def _write_and_release(lock, folder: str, path: str, key: str, arrays: dict, checksum: str) -> None:
+    """:func:`_write_atomic` on the writer thread, then release the key's lock (taken by the builder)."""
+    try:
+        _write_atomic(path, key, arrays, checksum)
+    except OSError as err:
+        _warn_once(folder, f"could not write {os.path.basename(path)}: {err.strerror or err}")
+    finally:
+        lock.release()
+
+
+def wait_for_writes() -> None:
+    """Block until every table handed to the background writer (:func:`cached`) is on disk."""
+    if _writer is not None:
+        _writer.submit(lambda: None).result()
+
+
+def cached(params: dict, build, *, use_cache: bool = True, background: bool = False) -> dict:
     """Return the arrays of the table ``params``, building them with ``build()`` on a miss.
 
     Concurrent builders of one key serialise on a file lock; a damaged,
     truncated or older-format file is detected by its checksum and rebuilt.
+    ``background``: a built table is written to disk by a writer thread while the caller goes on
+    (large tables of a cold scene load); its checksum is taken here, before the caller may touch
+    the arrays, and the key's lock is held until the file is in place, so a reader of the key in
+    this or another process waits for it, and a table changed meanwhile fails its checksum when
+    read (rebuilt, never served).  The caller must not write to the returned arrays.
     """
     if not use_cache:
         return build()
@@ -635,17 +671,28 @@ def cached(params: dict, build, *, use_cache: bool = True) -> dict:
     except OSError as err:
         _warn_once(folder, f"{os.path.basename(path)}.lock: {err.strerror or err}")
         return build()
-    with FileLock(path + ".lock", timeout=600):
+    # (not thread-local: the writer thread releases what this thread acquired)
+    lock = FileLock(path + ".lock", timeout=600, thread_local=False)
+    lock.acquire()
+    handed = False
+    try:
         data = _read(path, key) if os.path.isfile(path) else None
         if data is not None:
             return data
         _remove_stale_temporaries(folder, key)
         arrays = build()
+        if background:
+            _background_writer().submit(_write_and_release, lock, folder, path, key, arrays, _checksum(arrays))
+            handed = True
+            return arrays
         try:
             _write_atomic(path, key, arrays)
         except OSError as err:  # a full or read-only cache must not stop rendering
             _warn_once(folder, f"could not write {os.path.basename(path)}: {err.strerror or err}")
         return arrays
+    finally:
+        if not handed:
+            lock.release()
 
 
 def _remove_stale_temporaries(folder: str, key: str) -> None:

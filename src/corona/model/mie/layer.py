@@ -835,7 +835,7 @@ class SphereMaterial(MieMembers, Material):
         """The Mie rows (:func:`build_mie_rows`, cached on disk), float64."""
         arrays = tables.cached(self.table_params(),
                                lambda: build_mie_rows(self.sphere, self.sizes, self.radius_cover),
-                               use_cache=self.use_cache)
+                               use_cache=self.use_cache, background=True)
         return {k: np.asarray(v) for k, v in arrays.items()}
 
     def at_radius(self, radius: float) -> "SphereMaterial":
