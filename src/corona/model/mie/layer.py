@@ -125,8 +125,10 @@ SPHERE_SIZES_MAX = 50.0
 ANGULAR_DTYPE = np.float32
 #: Rows computed together (memory of the amplitudes: ROW_CHUNK x nodes complex values).
 ROW_CHUNK = 128
-#: Sizes of a size distribution computed together (fewer Python steps of the Mie recurrences).
-SIZE_CHUNK = 256
+#: Sizes of a size distribution computed together: the recurrences of a batch of ``SIZE_BATCH`` (all
+#: index nodes, fewer Python steps), the rest ``SIZE_CHUNK`` at a time (arrays that stay in the caches).
+SIZE_BATCH = 1536
+SIZE_CHUNK = 128
 #: Size distributions: step of the fine grid of size parameters the rows average (at most), the
 #: grid's steps per standard deviation of the sizes (at least), its most samples per index node,
 #: the part of the scattered power ``s² p(s)`` left out at each end of the distribution, and the
@@ -513,36 +515,93 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     nodes = _spread_chord_nodes(K, ds, spread)
     basis = mie.AngularBasis(mu[nodes], int(mie.n_terms(x_top)), ANGULAR_DTYPE)
     Ke = nodes.size
-    out = {k: np.zeros((J, Ke)) for k in ("P_f", "P_b")}
-    out.update({"s0": np.zeros(J, complex), "q_sca": np.zeros(J), "q_ext": np.zeros(J), "x2": np.zeros(J)})
-    out.update({"A1": np.zeros((2 * J, Ke)), "A2": np.zeros((2 * J, Ke))})   # mean forward S, [Re; Im]
     plan = _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi)
     total = sum(p[3].size for p in plan)
     with tqdm(total=total, unit="size", leave=False, delay=tables.PROGRESS_DELAY,
               desc="corona: building the Mie sphere table") as bar:
-        for rows_q, node_w, m_q, X, W in plan:
-            for a0 in range(0, X.size, SIZE_CHUNK):
-                c = slice(a0, min(a0 + SIZE_CHUNK, X.size))
-                sums = _mono_sums(np.full(c.stop - c.start, m_q), X[c], basis, amplitudes=True)
-                G = (W[:, c] * node_w[:, None]).astype(ANGULAR_DTYPE)    # (rows of this node, chunk)
-                for k in ("P_f", "P_b", "s0", "q_sca", "q_ext"):
-                    out[k][rows_q] += G @ sums[k]
-                B = c.stop - c.start
-                for k in ("A1", "A2"):                             # [Re; Im] rows
-                    out[k][rows_q] += G @ sums[k][:B]
-                    out[k][J + rows_q] += G @ sums[k][B:]
-                out["x2"][rows_q] += G @ (X[c] ** 2)
-                bar.update(c.stop - c.start)
-    x2 = out["x2"]
+        acc, s0, q_sca, q_ext, x2 = _average_sizes(plan, basis, J, Ke, bar)
     norm = 1.0 / (2 * np.pi * x2[:, None])
-    s0 = out["s0"]
-    P_f, P_b = out["P_f"] * norm, out["P_b"] * norm
-    C_f = (out["A1"][:J] ** 2 + out["A1"][J:] ** 2 + out["A2"][:J] ** 2 + out["A2"][J:] ** 2) * norm
+    P_f, P_b = acc[0] * norm, acc[1] * norm
+    C_f = (acc[2] ** 2 + acc[3] ** 2 + acc[4] ** 2 + acc[5] ** 2) * norm
     P_f, C_f, P_b = _fill_chord(nodes, K, P_f, C_f, P_b)
     return {"x": x_rows, "wavelength": lam, "ds": np.array(ds),
             "P_f": P_f, "P_b": P_b, "C_f": C_f,
             "s0": np.stack([2 * s0.real / x2, 2 * s0.imag / x2], -1),
-            "q_sca": out["q_sca"] / x2, "q_ext": out["q_ext"] / x2}
+            "q_sca": q_sca / x2, "q_ext": q_ext / x2}
+
+
+def _average_sizes(plan, basis, J: int, Ke: int, bar=None):
+    """The sums ``Σ_q w_jq Σ_k W_jk F(X_k, m_q)`` of a size distribution's rows over the plan's
+    evaluations (:func:`_size_plan`): F is ``|S|²`` forward and backward, the forward ``S1``, ``S2``
+    ([Re; Im]), ``S(0)``, the efficiencies' sums and ``x²`` (:func:`theory._power_both_ways`).
+
+    The evaluations of every index node are taken together in order of size, ``SIZE_BATCH`` at a
+    time: the recurrences of the Riccati–Bessel functions and of ``D_n`` run once for a batch (fewer
+    Python steps), the rest ``SIZE_CHUNK`` sizes of one node at a time, each added to the rows whose
+    weights reach it.
+
+    Returns
+    -------
+    acc : ndarray (6, J, Ke)
+        ``P_f``, ``P_b``, ``Re S1``, ``Im S1``, ``Re S2``, ``Im S2`` (forward) sums.
+    s0 : complex ndarray (J,); q_sca, q_ext, x2 : ndarrays (J,)
+    """
+    acc = np.zeros((6, J, Ke))
+    s0 = np.zeros(J, complex)
+    q_sca, q_ext, x2 = np.zeros(J), np.zeros(J), np.zeros(J)
+    # each node's rows reach the sizes [first, last] of its grid (the rows ascend in x)
+    reach = []
+    for rows_q, _, _, _, W in plan:
+        nz = W > 0.0
+        first = np.argmax(nz, axis=1)
+        last = W.shape[1] - 1 - np.argmax(nz[:, ::-1], axis=1)
+        monotone = bool(np.all(np.diff(first) >= 0) and np.all(np.diff(last) >= 0))
+        reach.append((first, last) if monotone else None)
+    node = np.concatenate([np.full(p[3].size, q) for q, p in enumerate(plan)])
+    index = np.concatenate([np.arange(p[3].size) for p in plan])
+    X_all = np.concatenate([p[3] for p in plan])
+    m_node = np.array([p[2] for p in plan], dtype=np.complex128)
+    order = np.argsort(X_all, kind="stable")
+    work = {}                                                       # scratch arrays, reused
+    for b0 in range(0, order.size, SIZE_BATCH):
+        sel = order[b0:b0 + SIZE_BATCH]
+        sel = sel[np.lexsort((index[sel], node[sel]))]          # by node, then size
+        X, q_b, k_b = X_all[sel], node[sel], index[sel]
+        m = m_node[q_b]
+        N = int(mie.n_terms(X.max()))
+        psi, chi = mie._riccati_bessel(X, N, by_order=True)
+        D = mie._log_derivative(m * X, N)
+        cuts = np.concatenate([[0], np.flatnonzero(np.diff(q_b)) + 1, [X.size]])
+        for g0, g1 in zip(cuts[:-1], cuts[1:]):
+            q = int(q_b[g0])
+            rows_q, node_w, _, _, W = plan[q]
+            for c0 in range(g0, g1, SIZE_CHUNK):
+                c = slice(c0, min(c0 + SIZE_CHUNK, g1))
+                ka, kb = int(k_b[c.start]), int(k_b[c.stop - 1]) + 1     # the node's sizes [ka, kb)
+                if kb - ka != c.stop - c.start:
+                    raise AssertionError("a batch holds a node's sizes out of order")
+                n = int(mie.n_terms(X[c].max())) + 1
+                R, s0_c, qs_c, qe_c = mie._power_both_ways(m[c], X[c], basis, psi[:n, c], chi[:n, c], D[:n, c],
+                                                           work)
+                if reach[q] is None:
+                    r = slice(0, rows_q.size)
+                else:
+                    first, last = reach[q]
+                    r = slice(int(np.searchsorted(last, ka)), int(np.searchsorted(first, kb)))
+                rows = rows_q[r]
+                if rows.size == 0:
+                    continue
+                if rows[-1] - rows[0] == rows.size - 1:
+                    rows = slice(int(rows[0]), int(rows[-1]) + 1)
+                G = (W[r, ka:kb] * node_w[r, None]).astype(ANGULAR_DTYPE)   # (rows, sizes)
+                acc[:, rows] += np.matmul(G, R, out=mie._work(work, "GR", (6, G.shape[0], R.shape[2]), R.dtype))
+                s0[rows] += G @ s0_c
+                q_sca[rows] += G @ qs_c
+                q_ext[rows] += G @ qe_c
+                x2[rows] += G @ (X[c] ** 2)
+        if bar is not None:
+            bar.update(X.size)
+    return acc, s0, q_sca, q_ext, x2
 
 
 def _spread_chord_nodes(K: int, ds: float, spread: float) -> np.ndarray:
