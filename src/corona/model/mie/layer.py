@@ -577,7 +577,8 @@ def _average_sizes(plan, basis, J: int, Ke: int, bar=None):
         X, q_b, k_b = X_all[sel], node[sel], index[sel]
         m = m_node[q_b]
         N = int(mie.n_terms(X.max()))
-        psi, chi = mie._riccati_bessel(X, N, by_order=True)
+        with np.errstate(over="ignore", invalid="ignore"):     # terms past a size's own N may overflow
+            psi, chi = mie._riccati_bessel(X, N, by_order=True)
         D = mie._log_derivative(m * X, N)
         cuts = np.concatenate([[0], np.flatnonzero(np.diff(q_b)) + 1, [X.size]])
         for g0, g1 in zip(cuts[:-1], cuts[1:]):
