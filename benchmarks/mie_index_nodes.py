@@ -25,7 +25,7 @@ sys.path.insert(0, HERE)
 
 def build(layer, sizes, dm: float, order: int):
     layer.SIZE_DM, layer.SIZE_INDEX_ORDER = dm, order
-    yq, pq = layer._size_quadrature(sizes)
+    yq, pq = layer._size_quadrature(sizes, layer.SIZE_TAIL_ROWS)
     s_lo, s_hi = math.exp(yq[0]), math.exp(yq[-1])
     r = float(sizes.shape.radius)
     x_rows, _, _ = layer._grid(r, r * min(s_hi, 1.0 + 3.0 * float(sizes.spread)), float(sizes.spread))

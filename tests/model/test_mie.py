@@ -199,3 +199,37 @@ def test_single_precision_products_keep_the_lobes():
             rms = np.sqrt(np.sum(w * (got / want - 1) ** 2) / np.sum(w))
             assert rms < 1e-5, rms
             assert rms > 1e-12        # single precision indeed (float64 agrees to ~1e-14)
+
+
+@pytest.mark.parametrize("m", [1.333, 1.5 + 0.01j])
+def test_power_both_ways_matches_amplitudes(m):
+    # the size spreads' kernel (coefficients by order, real arithmetic for a real index, the
+    # float64 products here) against the direct sums: |S|² at ±μ, the forward S1, S2, S(0) and the
+    # efficiencies; sizes spanning many terms in one block, so that the terms past each size's own N
+    # are left out as coefficients() leaves them out
+    x = np.array([3.2, 9.7, 25.0, 61.5, 140.0])
+    mm = np.full(x.size, m, dtype=complex)
+    mu = np.cos(np.linspace(0.0, 0.5 * np.pi, 151))
+    N = int(mie.n_terms(x.max()))
+    basis = mie.AngularBasis(mu, N)
+    psi, chi = mie._riccati_bessel(x, N, by_order=True)
+    D = mie._log_derivative(mm * x, N)
+    work = {}
+    for _ in range(2):                        # the second call reuses the scratch arrays
+        R, s0, q_sca, q_ext = mie._power_both_ways(mm, x, basis, psi, chi, D, work)
+    eff = mie.efficiencies(mm, x)
+    for i in range(x.size):
+        s1, s2 = mie.amplitudes(m, x[i], np.concatenate([mu, -mu]))
+        k = mu.size
+        pf = np.abs(s1[:k]) ** 2 + np.abs(s2[:k]) ** 2
+        pb = np.abs(s1[k:]) ** 2 + np.abs(s2[k:]) ** 2
+        np.testing.assert_allclose(R[0, i], pf, rtol=1e-9, atol=1e-12 * pf.max())
+        np.testing.assert_allclose(R[1, i], pb, rtol=1e-9, atol=1e-12 * pf.max())
+        top = np.abs(s1).max()
+        for got, want in ((R[2, i] + 1j * R[3, i], s1[:k]), (R[4, i] + 1j * R[5, i], s2[:k])):
+            assert np.max(np.abs(got - want)) < 1e-10 * top
+        assert abs(s0[i] - eff["s0"][i]) < 1e-10 * abs(eff["s0"][i])
+        np.testing.assert_allclose([q_sca[i], q_ext[i]] / x[i] ** 2, [eff["q_sca"][i], eff["q_ext"][i]], rtol=1e-10)
+    # negative control: the index of another sphere is far from these lobes
+    R2 = mie._power_both_ways(mm * 1.01, x, basis, psi, chi, mie._log_derivative(mm * 1.01 * x, N))[0]
+    assert np.max(np.abs(R2[1, -1] / R[1, -1] - 1)) > 0.1
