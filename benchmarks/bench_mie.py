@@ -132,7 +132,7 @@ def main():
         warnings.simplefilter("ignore")
         for layer in LAYERS.values():
             m = material_from_parameters(**{k: v for k, v in layer.items() if k != "type"})
-            getattr(m, "rows", None), getattr(m, "table", None)
+            m.rows if layer.get("shape") == "sphere" else m.table     # (a Mie layer has no single table)
     runs = {name: [] for name in LAYERS}
     for r in range(args.rounds):
         for name in LAYERS:

@@ -148,8 +148,10 @@ def headline() -> list[str]:
     mie = _load("mie")
     if mie:
         b = mie["table_build"]
-        rows.append(("Mie sphere tables, build for a new radius (water 2 / 5 / 10 / 20 µm)",
-                     " / ".join(f"{v['median_s']:.2f} s" for k, v in b.items() if k.startswith("water")),
+        water = {k: v for k, v in b.items() if k.startswith("water")}
+        names = " / ".join(k[len("water r="):] for k in water)
+        rows.append((f"Mie sphere tables with their energies, build for a new radius (water {names}; no cache)",
+                     " / ".join(f"{v['median_s']:.2f} s" for v in water.values()),
                      f"≤ {mie['build_goal_s']:g} s"))
         rows.append(("Render cost, sphere layer / opaque layer (5 µm, hard disk 0.4; BSDF call alone)",
                      f"{mie['render_ratio']:.2f}× (medians; minima {mie['render_ratio_minima']:.2f}×); "
