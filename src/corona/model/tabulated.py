@@ -39,6 +39,7 @@ import json
 import os
 import re
 import tempfile
+import threading
 import warnings
 from dataclasses import dataclass, field
 
@@ -609,25 +610,34 @@ def _write_atomic(path: str, key: str, arrays: dict, checksum: str | None = None
         raise
 
 
-_writer = None
-
-
-def _background_writer():
-    """The process's one cache-writer thread (:func:`cached` with ``background=True``); Python joins
-    it at exit, so a table handed to it is written before the interpreter ends."""
-    global _writer
-    if _writer is None:
-        from concurrent.futures import ThreadPoolExecutor
-        _writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="corona-cache-writer")
-    return _writer
-
-
-def _write_and_release(lock, folder: str, path: str, key: str, arrays: dict, checksum: str) -> None:
-    """:func:`_write_atomic` on the writer thread, then release the key's lock (taken by the builder)."""
+def _write_or_warn(folder: str, path: str, key: str, arrays: dict, checksum: str | None = None) -> None:
+    """:func:`_write_atomic`; a full or read-only cache must not stop rendering: one warning."""
     try:
         _write_atomic(path, key, arrays, checksum)
     except OSError as err:
         _warn_once(folder, f"could not write {os.path.basename(path)}: {err.strerror or err}")
+
+
+_writer = None
+_writer_lock = threading.Lock()
+
+
+def _background_writer():
+    """The process's one cache-writer thread (:func:`cached` with ``background=True``; made once,
+    whichever thread asks first); Python joins it at exit, so a table handed to it is written
+    before the interpreter ends."""
+    global _writer
+    with _writer_lock:
+        if _writer is None:
+            from concurrent.futures import ThreadPoolExecutor
+            _writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="corona-cache-writer")
+        return _writer
+
+
+def _write_and_release(lock, folder: str, path: str, key: str, arrays: dict, checksum: str) -> None:
+    """:func:`_write_or_warn` on the writer thread, then release the key's lock (taken by the builder)."""
+    try:
+        _write_or_warn(folder, path, key, arrays, checksum)
     finally:
         lock.release()
 
@@ -685,10 +695,7 @@ def cached(params: dict, build, *, use_cache: bool = True, background: bool = Fa
             _background_writer().submit(_write_and_release, lock, folder, path, key, arrays, _checksum(arrays))
             handed = True
             return arrays
-        try:
-            _write_atomic(path, key, arrays)
-        except OSError as err:  # a full or read-only cache must not stop rendering
-            _warn_once(folder, f"could not write {os.path.basename(path)}: {err.strerror or err}")
+        _write_or_warn(folder, path, key, arrays)
         return arrays
     finally:
         if not handed:

@@ -299,26 +299,19 @@ def _mono_sums(m, X, basis, amplitudes=False):
     return out
 
 
-def _blend_pair(Pa, Pb, xa, xb, x, ds, stride: int = 1):
-    """The lookup's value between two rows (:func:`_scaled_blend`, Catmull–Rom) at the weight of
-    ``x`` between ``xa`` and ``xb``, on every ``stride``-th chord node: arrays (n, K), (n,)."""
-    n = Pa.shape[0]
-    rows = np.arange(n, dtype=np.int64)
-    return _blend_rows((np.concatenate([Pa, Pb]),), rows, rows + n, xa, xb, x, ds, stride)[0]
-
-
 #: Elements per block of :func:`_blend_rows` (its working arrays stay in the caches).
 BLEND_BLOCK = 1 << 13
 
 
 def _blend_rows(lobes, ja, jb, xa, xb, x, ds, stride: int = 1):
-    """:func:`_blend_pair` of several lobes at once, read in place: ``lobes`` arrays (R, K) of rows,
-    ``ja``, ``jb`` (n,) the two rows of each pair in them; one list of arrays (n, K / stride).
+    """The lookup's value between two rows (:func:`_scaled_blend`, Catmull–Rom) at the weight of
+    ``x`` between ``xa`` and ``xb``, on every ``stride``-th chord node, for several lobes at once,
+    read in place: ``lobes`` arrays (R, K) of rows, ``ja``, ``jb`` (n,) the two rows of each pair in
+    them, ``xa``, ``xb``, ``x`` (n,); one list of arrays (n, K / stride).
 
-    The same operations in the same order as :func:`_blend_pair` (the same bits), in blocks of
-    pairs that stay in the caches; the nodes each pair reads (the scaled chord, its interval and
-    weight) are found once for all the lobes, and the end nodes repeated past a row's ends come
-    from clamped indices (at the first interval ``max(k - 1, row start) = k``, at the last
+    In blocks of pairs that stay in the caches; the nodes each pair reads (the scaled chord, its
+    interval and weight) are found once for all the lobes, and the end nodes repeated past a row's
+    ends come from clamped indices (at the first interval ``max(k - 1, row start) = k``, at the last
     ``min(k + 2, row end) = k + 1``)."""
     K = lobes[0].shape[1]
     node = np.arange(0, K, stride, dtype=np.float64)
