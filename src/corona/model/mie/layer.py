@@ -999,19 +999,13 @@ class SphereMaterial(MieMembers, Material):
         n_geo = 160
         ratio = math.log(u_top / 40.0) / (n_geo - 1)
         u_c = np.concatenate([np.arange(320) * 0.125, 40.0 * np.exp(np.arange(n_geo) * ratio)])
-
-        def at_u(table, uu):      # linear in u on that grid (arithmetic index, no search)
-            g = np.where(uu < 40.0, uu / 0.125, 320 + np.log(np.maximum(uu, 40.0) / 40.0) / ratio)
-            i = np.clip(np.floor(g).astype(np.int64), 0, u_c.size - 2)
-            fr = np.clip((uu - u_c[i]) / (u_c[i + 1] - u_c[i]), 0.0, 1.0)
-            return table[i] * (1 - fr) + table[i + 1] * fr
-
-        phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
+        # the azimuths of the half circle φ in (0, π): wi lies in the xz plane, so h(-φ) = h(φ) and the
+        # mean over the half is the mean over the whole circle's n_phi
+        phi = (np.arange(n_phi // 2) + 0.5) * (2 * np.pi / n_phi)
         cos_c, sin_c = 1 - 0.5 * s_c * s_c, s_c * np.sqrt(1 - 0.25 * s_c * s_c)
-        U = xs[:, None] * sk[None, :]                       # (J, K') the rows' u = x s
-        cell = np.clip(np.searchsorted(s_c, sk) - 1, 0, n_c - 2)
-        frac = np.clip((sk - s_c[cell]) / (s_c[cell + 1] - s_c[cell]), 0.0, 1.0)
-        out = np.empty((J, mus.size))
+        # ⟨S⟩_φ - 1 on the coarse (s_c, u_c) grid, one table per incidence
+        n_u = u_c.size
+        Kc = np.empty((n_c * n_u, mus.size))
         for k, mu in enumerate(mus):
             wi = np.array([math.sqrt(max(0.0, 1 - mu * mu)), 0.0, max(mu, 1e-9)])
             wi /= np.linalg.norm(wi)
@@ -1020,17 +1014,30 @@ class SphereMaterial(MieMembers, Material):
             wo = (cos_c[:, None, None] * wt + sin_c[:, None, None]
                   * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2))
             h = np.linalg.norm((wo - wt)[..., :2], axis=-1) / s_c[:, None]          # (n_c, n_phi)
-            Kc = np.mean(self.structure_factor(u_c[None, :, None] * h[:, None, :]), axis=-1) - 1.0
-            # ⟨S⟩_φ - 1 at each row's (s, u = x s): linear in s between the coarse cells, in u on u_c
+            Kc[:, k] = (np.mean(self.structure_factor(u_c[None, :, None] * h[:, None, :]), axis=-1) - 1.0).ravel()
+        # ∑_s C w (⟨S⟩_φ - 1) at each row's (s, u = x s), bilinear on the grid (linear in s between
+        # the coarse cells, in u on u_c), is linear in the grid's values: per row, the weights its
+        # chord nodes put on the grid's nodes (np.bincount over a block of rows), times the tables
+        # of all incidences at once; the same sums as interpolating at every node, reordered
+        cell = np.clip(np.searchsorted(s_c, sk) - 1, 0, n_c - 2)
+        frac = np.clip((sk - s_c[cell]) / (s_c[cell + 1] - s_c[cell]), 0.0, 1.0)
+        out = np.empty((J, mus.size))
+        block = max(1, (1 << 22) // (n_c * n_u))             # rows a block: 4 M grid weights
+        for j0 in range(0, J, block):
+            j1 = min(J, j0 + block)
+            U = xs[j0:j1, None] * sk[None, :]                   # the rows' u = x s
             g = np.where(U < 40.0, U / 0.125, 320 + np.log(np.maximum(U, 40.0) / 40.0) / ratio)
-            i = np.clip(np.floor(g).astype(np.int64), 0, u_c.size - 2)
+            i = np.clip(np.floor(g).astype(np.int64), 0, n_u - 2)
             fr = np.clip((U - u_c[i]) / (u_c[i + 1] - u_c[i]), 0.0, 1.0)
-            lo_c, hi_c = Kc[cell], Kc[cell + 1]                          # (K', n_u)
-            col = np.arange(sk.size)[None, :]
-            at_lo = lo_c[col, i] * (1 - fr) + lo_c[col, i + 1] * fr
-            at_hi = hi_c[col, i] * (1 - fr) + hi_c[col, i + 1] * fr
-            Kr = (1 - frac) * at_lo + frac * at_hi
-            out[:, k] = T_f + np.sum(Ck * Kr * w, axis=1)
+            a = Ck[j0:j1] * w
+            a_lo, a_hi = a * (1 - frac), a * frac                 # the two s cells' shares
+            node = (cell * n_u)[None, :] + i + (np.arange(j1 - j0) * (n_c * n_u))[:, None]
+            weights = np.bincount(np.concatenate([node.ravel(), (node + 1).ravel(),
+                                                  (node + n_u).ravel(), (node + n_u + 1).ravel()]),
+                                  np.concatenate([(a_lo * (1 - fr)).ravel(), (a_lo * fr).ravel(),
+                                                  (a_hi * (1 - fr)).ravel(), (a_hi * fr).ravel()]),
+                                  minlength=(j1 - j0) * n_c * n_u)
+            out[j0:j1] = T_f[j0:j1, None] + weights.reshape(j1 - j0, n_c * n_u) @ Kc
         return np.maximum(out, 0.0)
 
     def _forward(self, j, t, cos_theta_i):
