@@ -88,6 +88,7 @@ from corona.mitsuba.common import hermite_rows, read_props as _read_props
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from corona.tables.lobe import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
+from corona.model.mie.layer import share_forward_energies
 
 __all__ = ["NEWTON_STEPS", "SphereBSDFMixin", "sphere_bsdf_class"]
 
@@ -307,6 +308,7 @@ class SphereBSDFMixin:
         material = self._material(self.params)
         self.material = material
         rows = material.rows
+        fa_rows = self._area_fraction_layers(material, fa_lo, fa_hi)     # before any derives its energies
         der = material._derived
         self.fa = float(material.area_fraction)
         x = rows["x"]
@@ -340,7 +342,7 @@ class SphereBSDFMixin:
         splines = [pool.submit(_catmull_rom_intervals, *ls) for ls in lobes] if packing else None
         self.Cf = self.Cf_spline = None
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
-        self._setup_area_fraction_rows(material, fa_lo, fa_hi)
+        self._setup_area_fraction_rows(material, fa_rows)
         # per-row scalars of both rows of an interval j, j+1 packed 16 to the interval (one 64-byte
         # cache line), gathered as four Vector4f: (Re s0, Im s0) of j, j+1; e_b and T_f of j, j+1;
         # T_b and x of j, j+1; 1 / x of j, j+1 and 1 / (x_j+1 - x_j), 0
@@ -387,9 +389,37 @@ class SphereBSDFMixin:
         n = rows["P_f"].size + rows["P_b"].size + rows["C_f"].size
         return 16 * n <= LOBE_PACKING_BYTES
 
-    def _setup_area_fraction_rows(self, material, fa_lo, fa_hi):
-        """``S(u)`` and the forward energies ``e_f(x_j, μ)`` in rows of F_a (a hard core) with their
-        slopes in F_a, or the one F_a-independent energy table (Poisson)."""
+    def _area_fraction_layers(self, material, fa_lo, fa_hi):
+        """The F_a rows covering [fa_lo, fa_hi] (a hard core) and a layer at each (``material`` at its
+        own F_a), sharing its Mie rows and computing their forward energies together
+        (:func:`corona.model.mie.layer.share_forward_energies`); None without a hard core (Poisson)."""
+        if material.structure_table is None:
+            return None
+        top = material.process.area_fraction_limit(material.shape)
+        lo, hi = float(fa_lo), float(fa_hi)
+        if hi - lo < FA_ROW_STEP:                   # a uniform value (or a narrow range): a row at hi, one step either side
+            fas = hi + FA_ROW_STEP * np.array([-1.0, 0.0, 1.0])
+            fas = fas[(fas >= 1e-3) & (fas <= top * (1 + 1e-12))]
+        else:                                       # a texture's range, its ends on rows
+            n = int(np.ceil((hi - lo) / FA_ROW_STEP - 1e-9)) + 1
+            fas = np.linspace(lo, hi, n)
+        layers = []
+        import warnings
+        with warnings.catch_warnings():             # the unused-parameter warning was given once
+            warnings.simplefilter("ignore")
+            for fa in fas:
+                m = material if abs(fa - material.area_fraction) < 1e-12 else \
+                    self._material({**self.params, "area_fraction": float(fa)})
+                if m is not material and m.table_params() == material.table_params():
+                    m.__dict__.setdefault("rows", material.rows)   # the same Mie rows: not read again
+                layers.append(m)
+        share_forward_energies(layers)
+        return fas, layers, hi
+
+    def _setup_area_fraction_rows(self, material, fa_rows):
+        """``S(u)`` and the forward energies ``e_f(x_j, μ)`` in rows of F_a (a hard core; ``fa_rows``
+        and the range's top from :meth:`_area_fraction_layers`) with their slopes in F_a, or the one F_a-independent
+        energy table (Poisson)."""
         st = material.structure_table
         self.has_S = st is not None
         self.fa_centred = False
@@ -399,26 +429,9 @@ class SphereBSDFMixin:
             self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material._derived["e_f_mu"]).ravel()), None
             self.fa_cover = (0.0, 1.0)
             return
-        top = material.process.area_fraction_limit(material.shape)
-        lo, hi = float(fa_lo), float(fa_hi)
-        if hi - lo < FA_ROW_STEP:                   # a uniform value (or a narrow range): a row at hi, one step either side
-            fas = hi + FA_ROW_STEP * np.array([-1.0, 0.0, 1.0])
-            fas = fas[(fas >= 1e-3) & (fas <= top * (1 + 1e-12))]
-        else:                                       # a texture's range, its ends on rows
-            n = int(np.ceil((hi - lo) / FA_ROW_STEP - 1e-9)) + 1
-            fas = np.linspace(lo, hi, n)
-        S, E = [], []
-        import warnings
-        with warnings.catch_warnings():             # the unused-parameter warning was given once
-            warnings.simplefilter("ignore")
-            for fa in fas:
-                m = material if abs(fa - material.area_fraction) < 1e-12 else \
-                    self._material({**self.params, "area_fraction": float(fa)})
-                if m is not material and m.table_params() == material.table_params():
-                    m.__dict__.setdefault("rows", material.rows)   # the same Mie rows: not read again
-                S.append(m.structure_table[1])
-                E.append(m._derived["e_f_mu"])
-        S, E = np.array(S), np.array(E)
+        fas, layers, hi = fa_rows
+        S = np.array([m.structure_table[1] for m in layers])
+        E = np.array([m._derived["e_f_mu"] for m in layers])
         self.S_du, self.S_n = float(st[0]), int(S.shape[1])
         self.n_fa, self.fa0, self.dfa = int(fas.size), float(fas[0]), float(fas[1] - fas[0])
         self.fa_cover = (float(fas[0]), float(fas[-1]))

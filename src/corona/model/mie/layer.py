@@ -228,6 +228,17 @@ def index_phase_error(sphere: Sphere, r_lo: float, r_hi: float) -> float:
     return out
 
 
+def share_forward_energies(layers) -> None:
+    """Let sphere layers of one set of rows (the same spheres; hard cores of other F_a, as the
+    plugin's F_a rows) compute their forward energies with ``S(q)`` together: the first of them to
+    derive its tables computes those of the others not derived yet in the same pass over the rows
+    (the chord nodes' weights are the rows'; only ⟨S⟩_φ differs), and they take theirs when they
+    derive (a cached one is read as before)."""
+    layers = list(layers)
+    for m in layers:
+        m.__dict__["_energy_peers"] = layers
+
+
 def radius_span(sphere: Sphere, most: float) -> float:
     """The largest factor ``f <= most`` with rows of ``sphere`` serving ``[r/f, r f]`` within
     ``RADIUS_INDEX_PHASE`` (:func:`index_phase_error`; bisection)."""
@@ -965,13 +976,28 @@ class SphereMaterial(MieMembers, Material):
         else:   # seconds for a hard core: kept in the table cache, per process
             key = {**self.table_params(), "forward_energy": 1, "process": self.process.key(),
                    "incidence_mu": len(INCIDENCE_MU)}
-            e_mu = np.asarray(tables.cached(key, lambda: {"e_f_mu": self._forward_energy(s, C, T_f)},
+            e_mu = np.asarray(tables.cached(key, lambda: {"e_f_mu": self._forward_energy_of_peers(s, C, T_f)},
                                             use_cache=self.use_cache)["e_f_mu"])
         return {"T_f": T_f, "T_b": T_b, "e_f": e_mu[:, 0], "e_f_mu": e_mu, "e_b": T_b, "s": s}
 
-    def _forward_energy(self, s, C, T_f) -> np.ndarray:
+    def _forward_energy_of_peers(self, s, C, T_f) -> np.ndarray:
+        """:meth:`_forward_energy`, computed in one pass with the peers :func:`share_forward_energies`
+        named that share this layer's rows and have not derived theirs yet (handed to them for when
+        they do); or the one a peer handed to this layer."""
+        handed = self.__dict__.pop("_forward_energy_handed", None)
+        if handed is not None:
+            return handed
+        peers = [m for m in self.__dict__.get("_energy_peers", ()) if m is not self
+                 and m.__dict__.get("rows") is self.rows and "_derived" not in m.__dict__]
+        out = self._forward_energy(s, C, T_f, peers)
+        for m, e in zip(peers, out[1:]):
+            m.__dict__["_forward_energy_handed"] = e
+        return out[0]
+
+    def _forward_energy(self, s, C, T_f, peers=()) -> list[np.ndarray]:
         """``e_f(x_j, μ_i)`` (J, len(INCIDENCE_MU)): the forward lobe with ``S(q)`` integrated over
-        the sphere of directions for light from ``μ_i = |cos θi|`` (``T_f`` for Poisson).
+        the sphere of directions for light from ``μ_i = |cos θi|`` (``T_f`` for Poisson), of this
+        layer and of ``peers`` (layers of the same rows with other hard-core processes), a list.
 
         Since ``⟨C⟩ <= ⟨P⟩`` and ``S >= 0``, ``P + C (S - 1) >= 0`` and the lobe's energy is
         ``T_f + ∫ C (⟨S⟩_φ - 1) dΩ``, where ``⟨S⟩_φ(s, u)``, the mean over the azimuth about
@@ -982,8 +1008,9 @@ class SphereMaterial(MieMembers, Material):
         (14 % at F_a = 0.7 and 60°); the lobe weight's cap uses this energy (:meth:`energies`)."""
         mus = np.asarray(INCIDENCE_MU)
         J = T_f.size
+        layers = [self, *peers]
         if self.structure_table is None:
-            return np.repeat(T_f[:, None], mus.size, axis=1)
+            return [np.repeat(T_f[:, None], mus.size, axis=1)]
         r = self.rows
         xs = r["x"]
         keep = s <= CHORD_MAX + 1e-12
@@ -1003,9 +1030,9 @@ class SphereMaterial(MieMembers, Material):
         # mean over the half is the mean over the whole circle's n_phi
         phi = (np.arange(n_phi // 2) + 0.5) * (2 * np.pi / n_phi)
         cos_c, sin_c = 1 - 0.5 * s_c * s_c, s_c * np.sqrt(1 - 0.25 * s_c * s_c)
-        # ⟨S⟩_φ - 1 on the coarse (s_c, u_c) grid, one table per incidence
+        # ⟨S⟩_φ - 1 on the coarse (s_c, u_c) grid, one table per layer and incidence
         n_u = u_c.size
-        Kc = np.empty((n_c * n_u, mus.size))
+        Kc = np.empty((n_c * n_u, len(layers), mus.size))
         for k, mu in enumerate(mus):
             wi = np.array([math.sqrt(max(0.0, 1 - mu * mu)), 0.0, max(mu, 1e-9)])
             wi /= np.linalg.norm(wi)
@@ -1014,14 +1041,17 @@ class SphereMaterial(MieMembers, Material):
             wo = (cos_c[:, None, None] * wt + sin_c[:, None, None]
                   * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2))
             h = np.linalg.norm((wo - wt)[..., :2], axis=-1) / s_c[:, None]          # (n_c, n_phi)
-            Kc[:, k] = (np.mean(self.structure_factor(u_c[None, :, None] * h[:, None, :]), axis=-1) - 1.0).ravel()
+            for n, layer in enumerate(layers):
+                Kc[:, n, k] = (np.mean(layer.structure_factor(u_c[None, :, None] * h[:, None, :]), axis=-1)
+                               - 1.0).ravel()
+        Kc = Kc.reshape(n_c * n_u, -1)
         # ∑_s C w (⟨S⟩_φ - 1) at each row's (s, u = x s), bilinear on the grid (linear in s between
         # the coarse cells, in u on u_c), is linear in the grid's values: per row, the weights its
         # chord nodes put on the grid's nodes (np.bincount over a block of rows), times the tables
-        # of all incidences at once; the same sums as interpolating at every node, reordered
+        # of all layers and incidences at once; the same sums as interpolating at every node, reordered
         cell = np.clip(np.searchsorted(s_c, sk) - 1, 0, n_c - 2)
         frac = np.clip((sk - s_c[cell]) / (s_c[cell + 1] - s_c[cell]), 0.0, 1.0)
-        out = np.empty((J, mus.size))
+        out = np.empty((J, len(layers) * mus.size))
         block = max(1, (1 << 22) // (n_c * n_u))             # rows a block: 4 M grid weights
         for j0 in range(0, J, block):
             j1 = min(J, j0 + block)
@@ -1038,7 +1068,7 @@ class SphereMaterial(MieMembers, Material):
                                                   (a_hi * (1 - fr)).ravel(), (a_hi * fr).ravel()]),
                                   minlength=(j1 - j0) * n_c * n_u)
             out[j0:j1] = T_f[j0:j1, None] + weights.reshape(j1 - j0, n_c * n_u) @ Kc
-        return np.maximum(out, 0.0)
+        return [np.maximum(e, 0.0) for e in np.split(out, len(layers), axis=1)]
 
     def _forward(self, j, t, cos_theta_i):
         """``e_f`` at the row (j, t) and ``|cos θi|``: linear in both."""
