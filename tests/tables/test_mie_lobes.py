@@ -162,8 +162,7 @@ def test_large_droplet_spread_matches_brute_force_mie(ior, lam):
 def test_wide_spread_between_rows_matches_brute_force_mie(radius, spread):
     # half-way between the two rows about 551.9 nm, where a blend of rows read at the chord scaled
     # by x / x_j is furthest from either row: the backward lobe's rainbow sits at a fixed angle for
-    # any spread, and rows 12 % apart in x (before SIZE_ROW_DLNX) were 1.9-4.2 % RMS, +0.8-2.1 % in
-    # scale off Mie theory there
+    # any spread, and rows 12 % apart in x (before SIZE_ROW_DLNX) were 1.7-2.2 % RMS here
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sd = corona.SizeDistribution(corona.Sphere(radius), spread)

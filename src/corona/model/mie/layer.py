@@ -135,13 +135,15 @@ SIZE_CHUNK = 128
 #: the part of the scattered power ``s² p(s)`` beyond the largest droplet a table may hold, and the
 #: largest change of the index between the index nodes of a dispersive sphere.
 SIZE_DX = 0.06
-#: Size distributions: rows ``σ x_lo / 4`` apart in x (σ the spread), at least this.
+#: Size distributions: rows ``σ x / 4`` apart in x (σ the spread), at least this (and at most 2).
 SIZE_ROW_DX = 0.02
-#: Size distributions: rows at most this fraction of ``x_lo`` apart.  The rows are blended with the
+#: Size distributions: rows at most this fraction of x apart.  The rows are blended with the
 #: chord scaled by ``x / x_j`` (rings at a fixed ``x·s`` line up), which moves what sits at a fixed
 #: angle (the rainbow of the backward lobe, sharp for any spread) by the rows' relative step: at
 #: 2 µm / 50 % water, rows 12 % apart were 1.9 % RMS off Mie theory between rows (docs/mie.md).
-SIZE_ROW_DLNX = 0.03
+#: ``SIZE_ROW_RULE`` names the rule (relative steps) in the table key.
+SIZE_ROW_DLNX = 0.02
+SIZE_ROW_RULE = "relative"
 SIZE_PER_SIGMA = 4.0
 MAX_SIZE_SAMPLES = 8000
 SIZE_TAIL = 1e-6
@@ -193,7 +195,7 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0, cover=None):
     One size: rows ``ROW_DLNX`` apart in ln x (at most ``ROW_DX_START`` in x), refined by
     :func:`_refine_rows`.  A size distribution of
     relative spread σ smears the pattern over ``σ x`` in size parameter: its rows are
-    ``min(2, σ x_lo / 4, SIZE_ROW_DLNX x_lo)`` apart (at least ``SIZE_ROW_DX``; what sits at a fixed
+    ``min(2, σ x / 4, SIZE_ROW_DLNX x)`` apart at x (at least ``SIZE_ROW_DX``; what sits at a fixed
     angle, the rainbow, is not smeared).  The chord grid runs to
     ``√2 x_1 / x_0`` (a little past Θ = 90°): a row is read at the chord scaled by ``x / x_j``
     (see :func:`_scaled_blend`), up to ``√2 x_j+1 / x_j`` for the wavelengths above it."""
@@ -211,9 +213,14 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0, cover=None):
         if x_rows.size < MIN_ROWS:
             x_rows = np.geomspace(x_lo, x_hi, MIN_ROWS)
     else:
-        row_dx = max(SIZE_ROW_DX, min(2.0, 0.25 * spread * x_lo, SIZE_ROW_DLNX * x_lo))
-        n_rows = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
-        x_rows = np.linspace(x_lo, x_hi, n_rows)
+        # the step at x: min(σ/4, SIZE_ROW_DLNX) x, within [SIZE_ROW_DX, 2]; rows uniform in the
+        # coordinate g with dg/dx = 1 / step(x) (geometric where the relative step rules)
+        xf = np.geomspace(x_lo, x_hi, 4097) if x_hi > x_lo else np.array([x_lo, x_lo * (1 + 1e-9)])
+        step = np.clip(min(0.25 * spread, SIZE_ROW_DLNX) * xf, SIZE_ROW_DX, 2.0)
+        g = np.concatenate([[0.0], np.cumsum(0.5 * (1 / step[1:] + 1 / step[:-1]) * np.diff(xf))])
+        n_rows = int(np.clip(math.ceil(g[-1]) + 1, MIN_ROWS, MAX_ROWS))
+        x_rows = np.interp(np.linspace(0.0, g[-1], n_rows), g, xf)
+        x_rows[[0, -1]] = x_lo, x_hi
     x_top = 2 * np.pi * radius_max * (r_hi / radius) / lam_lo
     s_max = min(2.0, CHORD_MAX * x_rows[1] / x_rows[0] * (1.0 + 1e-9))
     chord_dx = CHORD_DX_SPREAD if spread >= SPREAD_COARSE_CHORD else CHORD_DX
@@ -911,7 +918,7 @@ class SphereMaterial(MieMembers, Material):
         key = {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
                "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_DX_FINE, ROW_TOLERANCE, ROW_TEST_STRIDE],
                "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
-               "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX, SIZE_ROW_DLNX,
+               "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX, SIZE_ROW_DLNX, SIZE_ROW_RULE,
                          SPREAD_CHORD_SMOOTH,
                          SIZE_INDEX_ORDER, SIZE_TAIL_ROWS, SPREAD_CHORD_RULE],
                "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
