@@ -201,15 +201,24 @@ class LobeKernel:
             self.g_n = int(rl.P.n)
             self.g_lo = float(rl.P.lo)
             self.g_cell = float(rl.P.cell)
+            coefs = [rl.P.coef] + ([] if rl.C is None else [rl.C.coef])
+            # the grids' symmetry (:meth:`_grid_fold`): u is folded into the quadrant u_x, u_y >= 0
+            # ("quadrant") or the half plane u_y >= 0 ("half"), and only the taps that part reads
+            # are kept: a quarter (half) of the memory, and of the cache lines the lookups touch
+            self.g_fold = self._grid_fold(coefs, self.g_n, self.g_lo, self.g_cell)
+            n, h = self.g_n, max((self.g_n - 1) // 2 - 1, 0)     # (one node of margin for rounding)
+            self.g_x0 = h if self.g_fold == "quadrant" else 0    # first packet column kept
+            self.g_y0 = h if self.g_fold in ("quadrant", "half") else 0       # first padded row kept
+            self.g_w = n - self.g_x0                              # packets a kept row
             # coefficients padded by their mirror images (1 before, 2 after each
             # axis): the 4×4 taps of any point inside index the array directly
-            padded = [self._padded(rl.P.coef)] + ([] if rl.C is None else [self._padded(rl.C.coef)])
-            self.g_P = self._taps(padded[0])
-            self.g_C = None if rl.C is None else self._taps(padded[1])
+            padded = [self._padded(c) for c in coefs]
+            self.g_P = self._taps(padded[0], self.g_y0, self.g_x0)
+            self.g_C = None if rl.C is None else self._taps(padded[1], self.g_y0, self.g_x0)
             # a row's four taps of all the grids side by side (vectorised variants): one packet
             # gather of 4 × grids floats a row of taps (four a lookup), 4 × grids floats a cell
             # of the padded grids (a 4×4 block of all taps a cell would hold 16 × grids)
-            self.g_rows = self._row_taps(padded) if dr.is_array_v(mi.Float) else None
+            self.g_rows = self._row_taps(padded, self.g_y0, self.g_x0) if dr.is_array_v(mi.Float) else None
         # --- the sampling table (bilinear, in u or in the warped t) -----------------------
         self.sampling_n = None if sampling_n is None else int(sampling_n)
         self.use_sampling_table(material.table)
@@ -270,19 +279,38 @@ class LobeKernel:
         return _array(mi.Float, np.stack([v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]], -1).ravel())
 
     @staticmethod
-    def _taps(padded):
-        """A padded coefficient grid ``(m, m)`` as packets of four neighbours along x:
-        ``packet[y, x] = padded[y, x : x + 4]`` (``x < m - 3``), one packet gather a row of 4×4 taps."""
-        m = padded.shape[0]
-        return _array(mi.Float, np.stack([padded[:, a:m - 3 + a] for a in range(4)], -1).ravel())
+    def _grid_fold(coefs, n, lo, cell):
+        """The symmetry the coefficient grids ``coefs`` (``[iy, ix]``, nodes ``lo + i cell`` on both
+        axes) all share, for folding u before a lookup: ``"quadrant"`` (mirror images in u_x and in
+        u_y: the B-spline at ``(|u_x|, |u_y|)`` is the one at u), ``"half"`` (the inversion
+        ``u -> -u`` only: every real aperture's ``|Â|²`` and ``|Σ w Â|²``, Friedel's law) or None
+        (nodes not symmetric about 0, or a grid that is not).  Symmetric means equal to 1e-12 of the
+        grid's largest coefficient (far below float32's rounding, so the folded lookup reads
+        the same float32 taps)."""
+        if abs(lo + 0.5 * (n - 1) * cell) > 1e-9 * cell:
+            return None
+
+        def same(flip):
+            return all(np.max(np.abs(c - flip(c))) <= 1e-12 * np.max(np.abs(c)) for c in coefs)
+        if same(lambda c: c[:, ::-1]) and same(lambda c: c[::-1, :]):
+            return "quadrant"
+        return "half" if same(lambda c: c[::-1, ::-1]) else None
 
     @staticmethod
-    def _row_taps(padded):
-        """Padded coefficient grids ``(m, m)`` as one packet per padded row ``y`` and column
-        ``x < m - 3`` (row-major): ``packet[g, a] = padded_g[y, x + a]``, ``4 × len(padded)`` floats:
-        one packet gather reads a row of 4 taps of every grid."""
+    def _taps(padded, y0=0, x0=0):
+        """A padded coefficient grid ``(m, m)`` as packets of four neighbours along x:
+        ``packet[y - y0, x - x0] = padded[y, x : x + 4]`` (``y >= y0``, ``x0 <= x < m - 3``), one packet
+        gather a row of 4×4 taps."""
+        m = padded.shape[0]
+        return _array(mi.Float, np.stack([padded[y0:, x0 + a:m - 3 + a] for a in range(4)], -1).ravel())
+
+    @staticmethod
+    def _row_taps(padded, y0=0, x0=0):
+        """Padded coefficient grids ``(m, m)`` as one packet per padded row ``y >= y0`` and column
+        ``x0 <= x < m - 3`` (row-major from ``(y0, x0)``): ``packet[g, a] = padded_g[y, x + a]``,
+        ``4 × len(padded)`` floats: one packet gather reads a row of 4 taps of every grid."""
         m = padded[0].shape[0]
-        win = [np.lib.stride_tricks.sliding_window_view(p, 4, axis=1)[:, :m - 3] for p in padded]
+        win = [np.lib.stride_tricks.sliding_window_view(p, 4, axis=1)[y0:, x0:m - 3] for p in padded]
         return _array(mi.Float, np.stack(win, axis=2).ravel())          # (y, x, grid, a)
 
     @staticmethod
@@ -349,8 +377,14 @@ class LobeKernel:
 
     def _cubic(self, grids, ux, uy, active):
         """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
-        and weights for all; mirror boundary by the padding); 0 outside."""
+        and weights for all; mirror boundary by the padding); 0 outside.  u is first folded
+        by the grids' symmetry (:meth:`_grid_fold`) into the part whose taps are kept."""
         n = self.g_n
+        if self.g_fold == "quadrant":
+            ux, uy = dr.abs(ux), dr.abs(uy)
+        elif self.g_fold == "half":                  # u -> -u where u_y < 0
+            flip = uy < 0
+            ux, uy = dr.select(flip, -ux, ux), dr.abs(uy)
         fx = (ux - self.g_lo) / self.g_cell
         fy = (uy - self.g_lo) / self.g_cell
         inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
@@ -368,13 +402,15 @@ class LobeKernel:
                     t3 * (1.0 / 6.0))
 
         wx, wy = weights(tx), weights(ty)
-        m = n                                       # packets a row of the padded array (n + 3 wide)
-        base = mi.UInt32(iy) * m + mi.UInt32(ix)    # taps (-1 .. 2, -1) in the padded array
+        m = self.g_w                                # packets a kept row of the padded array
+        # taps (-1 .. 2, -1) in the padded array, from its kept part's corner (g_y0, g_x0): the fold
+        # leaves iy >= g_y0, ix >= g_x0 inside (the max only guards rounding)
+        base = (mi.UInt32(dr.maximum(iy - self.g_y0, 0)) * m + mi.UInt32(dr.maximum(ix - self.g_x0, 0)))
         acc = [mi.Float(0.0) for _ in grids]
         ng = len(grids)
         # a row's taps of every grid in one gather where the packets hold exactly these grids,
         # else a packet of the row's four taps a grid
-        packed = self.g_rows is not None and ng == dr.width(self.g_rows) // (4 * n * (n + 3))
+        packed = self.g_rows is not None and ng == dr.width(self.g_rows) // (4 * m * (n + 3 - self.g_y0))
         for b in range(4):
             if packed:
                 taps = dr.gather(mi.ArrayXf, self.g_rows, base + b * m, inside, shape=(4 * ng, dr.width(base)))
