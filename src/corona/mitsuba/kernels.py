@@ -76,6 +76,46 @@ def sinc(x):
     return dr.select(tiny, 1.0 - dr.square(x) * (1.0 / 6.0), dr.sin(xs) / xs)
 
 
+def sinc_product(x, y):
+    """``sinc(x) sinc(y)`` (:func:`sinc`) as one quotient ``(sin x sin y) / (x y)``: one division
+    instead of two (a vector division costs as much as a dozen multiplications)."""
+    tiny_x, tiny_y = dr.abs(x) < 1e-3, dr.abs(y) < 1e-3
+    xs, ys = dr.select(tiny_x, 1.0, x), dr.select(tiny_y, 1.0, y)
+    nx = dr.select(tiny_x, 1.0 - dr.square(x) * (1.0 / 6.0), dr.sin(xs))
+    ny = dr.select(tiny_y, 1.0 - dr.square(y) * (1.0 / 6.0), dr.sin(ys))
+    return (nx * ny) / (xs * ys)
+
+
+#: Most denominators :func:`reciprocals` inverts with one division (their product stays far
+#: inside float32's range: each is at most ~1e4 in the kernels).
+RECIPROCAL_GROUP = 4
+
+
+def reciprocals(ds):
+    """``[1/d for d in ds]`` with one division per :data:`RECIPROCAL_GROUP` of them:
+    ``1/d_k = (Π_{j≠k} d_j) / Π_j d_j`` (prefix and suffix products), a few ulps from the
+    quotients themselves; every ``d`` must be nonzero (the callers put 1 where a term is not
+    divided)."""
+    out = []
+    for g in range(0, len(ds), RECIPROCAL_GROUP):
+        grp = ds[g:g + RECIPROCAL_GROUP]
+        if len(grp) == 1:
+            out.append(dr.rcp(grp[0]))
+            continue
+        prefix = [None, grp[0]]                      # prefix[k] = Π_{j<k} d_j (k >= 1)
+        for d in grp[1:-1]:
+            prefix.append(prefix[-1] * d)
+        suffix = [None] * len(grp)                   # suffix[k] = Π_{j>k} d_j (k <= n - 2)
+        suffix[-2] = grp[-1]
+        for k in range(len(grp) - 3, -1, -1):
+            suffix[k] = suffix[k + 1] * grp[k + 1]
+        r = dr.rcp(prefix[-1] * grp[-1])
+        for k in range(len(grp)):
+            others = suffix[0] if k == 0 else (prefix[k] if k == len(grp) - 1 else prefix[k] * suffix[k])
+            out.append(r * others)
+    return out
+
+
 def alias_tables(weights):
     """Walker's alias tables (Vose's construction) of each row of ``weights``, all rows at once.
 
@@ -437,7 +477,7 @@ class LobeKernel:
             ax, by = p["a"] * qxr, p["b"] * qyr
             re = area * airy(dr.sqrt(dr.fma(ax, ax, by * by)))
         elif kind == "rect":
-            re = area * sinc(0.5 * p["width"] * qxr) * sinc(0.5 * p["height"] * qyr)
+            re = area * sinc_product(0.5 * p["width"] * qxr, 0.5 * p["height"] * qyr)
         else:
             re, im = self._polygon(p, qx, qy)
         if blur > 0:
@@ -518,21 +558,25 @@ class LobeKernel:
                 phases.append(dr.sincos(0.5 * dr.fma(qx, vx, qy * vy)))
         s0, c0 = phases[0]
         phases.append((-s0, c0) if sym else (s0, c0))      # the closing vertex: -v_0 or v_0
+        # the edges' β = q·e/2, and 1/β (where |β| >= 1) with 1/|q|² from shared divisions
+        betas = [0.5 * dr.fma(qx, ex, qy * ey) for ex, ey in p["edges"]]
+        b2s = [dr.square(beta) for beta in betas]
+        inv_q, *inv_beta = reciprocals([dr.select(small, 1.0, qq)]
+                                       + [dr.select(b2 < 1.0, 1.0, beta) for beta, b2 in zip(betas, b2s)])
         sw = mi.Float(0.0)   # Σ w sin φ
         cw = mi.Float(0.0)   # Σ w cos φ
         for k, (ex, ey) in enumerate(p["edges"]):
             (sa, ca), (sb, cb) = phases[k], phases[k + 1]
-            beta = 0.5 * dr.fma(qx, ex, qy * ey)
-            b2 = dr.square(beta)
+            b2 = b2s[k]
             # sinc(β): Σ (-β²)^i / (2i + 1)! to β^10 below |β| = 1 (|error| < 2e-10), else sin β / β
             series = _poly(_SINC_SERIES, b2)
             sin_beta = dr.fma(sb, ca, -(cb * sa))
-            sinc_beta = dr.select(b2 < 1.0, series, sin_beta / dr.select(b2 < 1.0, 1.0, beta))
+            sinc_beta = dr.select(b2 < 1.0, series, sin_beta * inv_beta[k])
             w = (qx * ey - qy * ex) * sinc_beta
             sw = dr.fma(w, dr.fma(sa, cb, ca * sb), sw)                 # sin(ψ_k + ψ_{k+1})
             if not sym:
                 cw = dr.fma(w, dr.fma(ca, cb, -(sa * sb)), cw)             # cos(ψ_k + ψ_{k+1})
-        inv = (2.0 if sym else 1.0) / dr.select(small, 1.0, qq)
+        inv = (2.0 if sym else 1.0) * inv_q
         re_e, im_e = sw * inv, cw * inv
         # Taylor: (-i)^j cycles 1, -i, -1, i; c_j by Horner in q_x with the powers of q_y
         qy_pow = [mi.Float(1.0)]
@@ -599,7 +643,7 @@ class LobeKernel:
         inv_c = 1.0 / self.warp
         gx = dr.fma(dr.abs(ux), inv_c, 1.0)         # 1 + |u|/c = du/dt^(1/2)
         gy = dr.fma(dr.abs(uy), inv_c, 1.0)
-        rx, ry = dr.rcp(gx), dr.rcp(gy)
+        rx, ry = reciprocals([gx, gy])
         p = self._bilinear(self.near, ux * rx, uy * ry, active)      # t = u / (1 + |u|/c)
         return p * (1.0 / self.near["total"]) * dr.square(rx * ry)
 
