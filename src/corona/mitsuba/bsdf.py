@@ -681,7 +681,7 @@ class CoronaBSDFMixin:
         else:                                      # the exact density of the kernel's sampling table
             srow = None if layer["hermite"] is None else (j, *layer["hermite"])
             dfa = layer["fa"] - self.fa_centre if self.centred else None
-            v = self.kernel.value(ux, uy, active, srow, dfa)
+            v = self.kernel.value(dx, dy, active, srow, dfa, scale=k)      # (d and k: see value)
             p_u = self.kernel.pdf(ux, uy, active)
         # F_a (L/λ)² v; p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
         return layer["weight"] * dr.square(L_lam) * v, p_u * dr.square(k)

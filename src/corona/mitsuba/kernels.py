@@ -393,10 +393,11 @@ class LobeKernel:
         # one packet per node i: S(i), dS(i), S(i + 1), dS(i + 1)
         self.s_centre = _array(mi.Float, np.stack([s1[:-1], ds1[:-1], s1[1:], ds1[1:]], -1).ravel())
 
-    def _s_minus_one(self, ux, uy, active, srow=None, dfa=None):
-        """``S - 1`` at ``|u|``: linear in ``|u|``; with ``srow = (j, h00, h10, h01, h11)`` the cubic
-        Hermite in ``F_a`` between rows ``j`` and ``j + 1`` (``h10``, ``h11`` times the rows' spacing)."""
-        x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.s_du
+    def _s_minus_one(self, ux, uy, active, srow=None, dfa=None, r=None):
+        """``S - 1`` at ``|u|`` (``r`` when given, else from ``ux``, ``uy``): linear in ``|u|``; with
+        ``srow = (j, h00, h10, h01, h11)`` the cubic Hermite in ``F_a`` between rows ``j`` and ``j + 1``
+        (``h10``, ``h11`` times the rows' spacing)."""
+        x = (dr.sqrt(dr.fma(ux, ux, uy * uy)) if r is None else r) * (1.0 / self.s_du)
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.s_n - 1)
@@ -462,26 +463,27 @@ class LobeKernel:
                 acc[g] = dr.fma(wy[b], racc, acc[g])
         return [dr.select(inside, x, 0.0) for x in acc]
 
-    def _term_amplitude(self, term, qx, qy):
-        """(re, im) of ``Â`` of one outline at q [rad/µm] (im None when real)."""
+    def _term_amplitude(self, term, dx, dy, sq):
+        """(re, im) of ``Â`` of one outline at ``q = sq d`` [rad/µm] (im None when real): what
+        depends on ``d`` alone is written apart from the scale ``sq`` (:meth:`value`)."""
         kind, p, _, area, blur = term
         if "cos" in p:
             c, s = p["cos"], p["sin"]
-            qxr, qyr = c * qx + s * qy, -s * qx + c * qy
+            dxr, dyr = c * dx + s * dy, -s * dx + c * dy
         else:
-            qxr, qyr = qx, qy
+            dxr, dyr = dx, dy
         im = None
         if kind == "circle":
-            re = area * airy(dr.sqrt(dr.fma(qx, qx, qy * qy)) * p["radius"])
+            re = area * airy(dr.sqrt(dr.fma(dx, dx, dy * dy)) * (sq * p["radius"]))
         elif kind == "ellipse":
-            ax, by = p["a"] * qxr, p["b"] * qyr
-            re = area * airy(dr.sqrt(dr.fma(ax, ax, by * by)))
+            ax, by = p["a"] * dxr, p["b"] * dyr
+            re = area * airy(dr.sqrt(dr.fma(ax, ax, by * by)) * sq)
         elif kind == "rect":
-            re = area * sinc_product(0.5 * p["width"] * qxr, 0.5 * p["height"] * qyr)
+            re = area * sinc_product(sq * (0.5 * p["width"] * dxr), sq * (0.5 * p["height"] * dyr))
         else:
-            re, im = self._polygon(p, qx, qy)
+            re, im = self._polygon(p, dx, dy, sq)
         if blur > 0:
-            g = dr.exp(-0.5 * blur * blur * dr.fma(qx, qx, qy * qy))
+            g = dr.exp((-0.5 * blur * blur) * dr.square(sq) * dr.fma(dx, dx, dy * dy))
             re = re * g
             im = None if im is None else im * g
         return re, im
@@ -532,8 +534,8 @@ class LobeKernel:
         p["taylor"] = taylor
 
     @staticmethod
-    def _polygon(p, qx, qy):
-        """``Â`` of a polygon: the edge sum ``(i/|q|²) Σ (q × e) sinc(q·e/2) e^{-i q·m}``
+    def _polygon(p, dx, dy, sq):
+        """``Â`` of a polygon at ``q = sq d``: the edge sum ``(i/|q|²) Σ (q × e) sinc(q·e/2) e^{-i q·m}``
         (Lee & Mittra 1983), and its Taylor series near q = 0.
 
         An edge from ``v_k`` to ``v_{k+1}`` has ``q·m = ψ_k + ψ_{k+1}`` and ``q·e/2 = ψ_{k+1} - ψ_k``
@@ -543,8 +545,11 @@ class LobeKernel:
         ``sinc(q·e/2)`` is its Maclaurin series below 1 (with ``q·e/2`` itself, so no cancellation
         where q is nearly normal to an edge).  Near q = 0 the Taylor series of the fan of
         triangles ``Σ_j (-i)^j c_j(q)``, its homogeneous polynomials ``c_j`` precomputed
-        (:meth:`_polygon_setup`; odd ones vanish for centrosymmetric polygons)."""
-        qq = dr.fma(qx, qx, qy * qy)
+        (:meth:`_polygon_setup`; odd ones vanish for centrosymmetric polygons).  Every dot and
+        cross product is taken with ``d`` and then scaled (``q·v = sq (d·v)``, ``c_j(q) = sq^j c_j(d)``),
+        so a loop over wavelengths (one ``d``, a scale each) computes them once."""
+        sq2 = dr.square(sq)
+        qq = sq2 * dr.fma(dx, dx, dy * dy)
         small = qq * (p["circumradius"] ** 2) < TAYLOR_U**2
         sym = p["centrosymmetric"]
         phases = []
@@ -555,11 +560,11 @@ class LobeKernel:
                 sb = sign * sb
                 phases.append((dr.fma(sa, cb, ca * sb), dr.fma(ca, cb, -(sa * sb))))
             else:
-                phases.append(dr.sincos(0.5 * dr.fma(qx, vx, qy * vy)))
+                phases.append(dr.sincos(sq * dr.fma(dx, 0.5 * vx, dy * (0.5 * vy))))
         s0, c0 = phases[0]
         phases.append((-s0, c0) if sym else (s0, c0))      # the closing vertex: -v_0 or v_0
         # the edges' β = q·e/2, and 1/β (where |β| >= 1) with 1/|q|² from shared divisions
-        betas = [0.5 * dr.fma(qx, ex, qy * ey) for ex, ey in p["edges"]]
+        betas = [sq * dr.fma(dx, 0.5 * ex, dy * (0.5 * ey)) for ex, ey in p["edges"]]
         b2s = [dr.square(beta) for beta in betas]
         inv_q, *inv_beta = reciprocals([dr.select(small, 1.0, qq)]
                                        + [dr.select(b2 < 1.0, 1.0, beta) for beta, b2 in zip(betas, b2s)])
@@ -572,33 +577,35 @@ class LobeKernel:
             series = _poly(_SINC_SERIES, b2)
             sin_beta = dr.fma(sb, ca, -(cb * sa))
             sinc_beta = dr.select(b2 < 1.0, series, sin_beta * inv_beta[k])
-            w = (qx * ey - qy * ex) * sinc_beta
+            w = (sq * dr.fma(dx, ey, -(dy * ex))) * sinc_beta
             sw = dr.fma(w, dr.fma(sa, cb, ca * sb), sw)                 # sin(ψ_k + ψ_{k+1})
             if not sym:
                 cw = dr.fma(w, dr.fma(ca, cb, -(sa * sb)), cw)             # cos(ψ_k + ψ_{k+1})
         inv = (2.0 if sym else 1.0) * inv_q
         re_e, im_e = sw * inv, cw * inv
-        # Taylor: (-i)^j cycles 1, -i, -1, i; c_j by Horner in q_x with the powers of q_y
-        qy_pow = [mi.Float(1.0)]
-        for _ in range(TAYLOR_ORDER):
-            qy_pow.append(qy_pow[-1] * qy)
-        re_t = mi.Float(p["taylor"][0][0])
-        im_t = mi.Float(0.0)
-        for j in range(1, TAYLOR_ORDER + 1):
-            if sym and j % 2 == 1:
-                continue          # odd moments vanish
+        # Taylor: Σ_j (-i)^j sq^j c_j(d), (-i)^j cycling 1, -i, -1, i: the real part Σ_i (-1)^i sq^2i c_2i(d)
+        # and the imaginary -sq Σ_i (-1)^i sq^2i c_2i+1(d), Horner in sq²; c_j(d) by Horner in d_x
+        # with the powers of d_y (of d alone)
+        dy_pow = [1.0, dy]
+        for _ in range(TAYLOR_ORDER - 1):
+            dy_pow.append(dy_pow[-1] * dy)
+
+        def c_of_d(j):
             coef = p["taylor"][j]
             acc = mi.Float(coef[j])
             for i in range(j - 1, -1, -1):
-                acc = dr.fma(acc, qx, coef[i] * qy_pow[j - i])
-            if j % 4 == 0:
-                re_t += acc
-            elif j % 4 == 1:
-                im_t -= acc
-            elif j % 4 == 2:
-                re_t -= acc
-            else:
-                im_t += acc
+                acc = dr.fma(acc, dx, coef[i] * dy_pow[j - i])
+            return acc
+
+        def series(js):              # Σ_i (-1)^i sq^2i c_js[i](d), Horner in sq²
+            acc = None
+            for i in range(len(js) - 1, -1, -1):
+                c = c_of_d(js[i]) if js[i] > 0 else mi.Float(p["taylor"][0][0])
+                c = -c if i % 2 else c
+                acc = c if acc is None else dr.fma(acc, sq2, c)
+            return acc
+        re_t = series(list(range(0, TAYLOR_ORDER + 1, 2)))
+        im_t = None if sym else -sq * series(list(range(1, TAYLOR_ORDER + 1, 2)))
         if sym:
             return dr.select(small, re_t, re_e), None
         return dr.select(small, re_t, re_e), dr.select(small, im_t, im_e)
@@ -606,8 +613,19 @@ class LobeKernel:
     # ------------------------------------------------------------------
     # interface
     # ------------------------------------------------------------------
-    def value(self, ux, uy, active, srow=None, dfa=None):
-        """The renderer's ``v(u)`` (>= 0); ``srow`` picks rows of ``S - 1`` (:meth:`_s_minus_one`)."""
+    def value(self, ux, uy, active, srow=None, dfa=None, scale=None):
+        """The renderer's ``v(u)`` (>= 0); ``srow`` picks rows of ``S - 1`` (:meth:`_s_minus_one`).
+
+        With ``scale``, ``(ux, uy)`` is a direction ``d`` and ``u = scale d``: what depends on
+        ``d`` alone (its length, an outline's dot products and Taylor polynomials) is written
+        apart from the scale, so that in the plugin's loop over a lane's wavelengths (one ``d``, a
+        scale ``2π L/λ`` each) the compiler computes it once, before the loop."""
+        dx, dy = ux, uy
+        sq = 1.0 / self.R if scale is None else scale * (1.0 / self.R)      # q = sq d [rad/µm]
+        r = None
+        if scale is not None:
+            r = scale * dr.sqrt(dr.fma(dx, dx, dy * dy))                      # |u|
+            ux, uy = scale * dx, scale * dy
         if self.kind == "table":
             return self._bilinear(self.near, ux, uy, active)
         if self.kind == "grid":
@@ -618,12 +636,11 @@ class LobeKernel:
             else:
                 P, C = self._cubic([self.g_P, self.g_C], ux, uy, active)
         else:
-            qx, qy = ux * (1.0 / self.R), uy * (1.0 / self.R)
             inten = mi.Float(0.0)
             re = mi.Float(0.0)
             im = mi.Float(0.0)
             for term in self.terms:
-                a_re, a_im = self._term_amplitude(term, qx, qy)
+                a_re, a_im = self._term_amplitude(term, dx, dy, sq)
                 w = term[2]
                 if a_im is None:
                     inten = dr.fma(w * a_re, a_re, inten)
@@ -633,7 +650,7 @@ class LobeKernel:
                 re = dr.fma(w, a_re, re)
             P = inten * self.inv_area_R2
             C = dr.fma(re, re, im * im) * self.inv_area_R2
-        s1 = self._s_minus_one(ux, uy, active, srow, dfa) if self.has_s else 0.0
+        s1 = self._s_minus_one(ux, uy, active, srow, dfa, r) if self.has_s else 0.0
         return dr.select(active, dr.maximum(P + C * s1, 0.0), 0.0)
 
     def pdf(self, ux, uy, active):
