@@ -372,8 +372,8 @@ class LobeKernel:
         inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
         x0 = dr.clip(dr.floor(fx), 0, n - 2)
         y0 = dr.clip(dr.floor(fy), 0, n - 2)
-        tx = dr.clip(fx - x0, 0.0, 1.0)
-        ty = dr.clip(fy - y0, 0.0, 1.0)
+        tx = fx - x0                    # in [0, 1] where inside (the select below zeroes the rest)
+        ty = fy - y0
         q = gather4(tb["values"], mi.UInt32(y0) * (n - 1) + mi.UInt32(x0), inside)   # the cell's corners
         v = dr.lerp(dr.lerp(q.x, q.y, tx), dr.lerp(q.z, q.w, tx), ty)
         return dr.select(inside, dr.maximum(v, 0.0), 0.0)
