@@ -664,8 +664,8 @@ class CoronaBSDFMixin:
         """One wavelength's lobe ``F_a (L/λ)² v(u)`` at ``d = (dx, dy)`` and its d-space pdf ``p_u k²``."""
         j, t, L = layer["j"], layer["t"], layer["L"]
         interpolate = self.n_rows > 1
-        lam = lambda_um(lam_nm)
-        k = 2.0 * dr.pi * L / lam                  # u = 2π L d / λ
+        L_lam = L * dr.rcp(lambda_um(lam_nm))      # L/λ (one division a wavelength)
+        k = 2.0 * dr.pi * L_lam                    # u = 2π L d / λ
         ux, uy = dx * k, dy * k
         if self.isotropic:                         # each row is sampled exactly ∝ v
             if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
@@ -681,10 +681,10 @@ class CoronaBSDFMixin:
         else:                                      # the exact density of the kernel's sampling table
             srow = None if layer["hermite"] is None else (j, *layer["hermite"])
             dfa = layer["fa"] - self.fa_centre if self.centred else None
-            v = self.kernel.value(ux, uy, active, srow, dfa)
+            v = self.kernel.value(dx, dy, active, srow, dfa, scale=k)      # (d and k: see value)
             p_u = self.kernel.pdf(ux, uy, active)
         # F_a (L/λ)² v; p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
-        return layer["weight"] * dr.square(L / lam) * v, p_u * dr.square(k)
+        return layer["weight"] * dr.square(L_lam) * v, p_u * dr.square(k)
 
     @staticmethod
     def _differentiated(layer, dx, dy):

@@ -76,6 +76,46 @@ def sinc(x):
     return dr.select(tiny, 1.0 - dr.square(x) * (1.0 / 6.0), dr.sin(xs) / xs)
 
 
+def sinc_product(x, y):
+    """``sinc(x) sinc(y)`` (:func:`sinc`) as one quotient ``(sin x sin y) / (x y)``: one division
+    instead of two (a vector division costs as much as a dozen multiplications)."""
+    tiny_x, tiny_y = dr.abs(x) < 1e-3, dr.abs(y) < 1e-3
+    xs, ys = dr.select(tiny_x, 1.0, x), dr.select(tiny_y, 1.0, y)
+    nx = dr.select(tiny_x, 1.0 - dr.square(x) * (1.0 / 6.0), dr.sin(xs))
+    ny = dr.select(tiny_y, 1.0 - dr.square(y) * (1.0 / 6.0), dr.sin(ys))
+    return (nx * ny) / (xs * ys)
+
+
+#: Most denominators :func:`reciprocals` inverts with one division (their product stays far
+#: inside float32's range: each is at most ~1e4 in the kernels).
+RECIPROCAL_GROUP = 4
+
+
+def reciprocals(ds):
+    """``[1/d for d in ds]`` with one division per :data:`RECIPROCAL_GROUP` of them:
+    ``1/d_k = (Π_{j≠k} d_j) / Π_j d_j`` (prefix and suffix products), a few ulps from the
+    quotients themselves; every ``d`` must be nonzero (the callers put 1 where a term is not
+    divided)."""
+    out = []
+    for g in range(0, len(ds), RECIPROCAL_GROUP):
+        grp = ds[g:g + RECIPROCAL_GROUP]
+        if len(grp) == 1:
+            out.append(dr.rcp(grp[0]))
+            continue
+        prefix = [None, grp[0]]                      # prefix[k] = Π_{j<k} d_j (k >= 1)
+        for d in grp[1:-1]:
+            prefix.append(prefix[-1] * d)
+        suffix = [None] * len(grp)                   # suffix[k] = Π_{j>k} d_j (k <= n - 2)
+        suffix[-2] = grp[-1]
+        for k in range(len(grp) - 3, -1, -1):
+            suffix[k] = suffix[k + 1] * grp[k + 1]
+        r = dr.rcp(prefix[-1] * grp[-1])
+        for k in range(len(grp)):
+            others = suffix[0] if k == 0 else (prefix[k] if k == len(grp) - 1 else prefix[k] * suffix[k])
+            out.append(r * others)
+    return out
+
+
 def alias_tables(weights):
     """Walker's alias tables (Vose's construction) of each row of ``weights``, all rows at once.
 
@@ -201,15 +241,24 @@ class LobeKernel:
             self.g_n = int(rl.P.n)
             self.g_lo = float(rl.P.lo)
             self.g_cell = float(rl.P.cell)
+            coefs = [rl.P.coef] + ([] if rl.C is None else [rl.C.coef])
+            # the grids' symmetry (:meth:`_grid_fold`): u is folded into the quadrant u_x, u_y >= 0
+            # ("quadrant") or the half plane u_y >= 0 ("half"), and only the taps that part reads
+            # are kept: a quarter (half) of the memory, and of the cache lines the lookups touch
+            self.g_fold = self._grid_fold(coefs, self.g_n, self.g_lo, self.g_cell)
+            n, h = self.g_n, max((self.g_n - 1) // 2 - 1, 0)     # (one node of margin for rounding)
+            self.g_x0 = h if self.g_fold == "quadrant" else 0    # first packet column kept
+            self.g_y0 = h if self.g_fold in ("quadrant", "half") else 0       # first padded row kept
+            self.g_w = n - self.g_x0                              # packets a kept row
             # coefficients padded by their mirror images (1 before, 2 after each
             # axis): the 4×4 taps of any point inside index the array directly
-            padded = [self._padded(rl.P.coef)] + ([] if rl.C is None else [self._padded(rl.C.coef)])
-            self.g_P = self._taps(padded[0])
-            self.g_C = None if rl.C is None else self._taps(padded[1])
+            padded = [self._padded(c) for c in coefs]
+            self.g_P = self._taps(padded[0], self.g_y0, self.g_x0)
+            self.g_C = None if rl.C is None else self._taps(padded[1], self.g_y0, self.g_x0)
             # a row's four taps of all the grids side by side (vectorised variants): one packet
             # gather of 4 × grids floats a row of taps (four a lookup), 4 × grids floats a cell
             # of the padded grids (a 4×4 block of all taps a cell would hold 16 × grids)
-            self.g_rows = self._row_taps(padded) if dr.is_array_v(mi.Float) else None
+            self.g_rows = self._row_taps(padded, self.g_y0, self.g_x0) if dr.is_array_v(mi.Float) else None
         # --- the sampling table (bilinear, in u or in the warped t) -----------------------
         self.sampling_n = None if sampling_n is None else int(sampling_n)
         self.use_sampling_table(material.table)
@@ -270,19 +319,38 @@ class LobeKernel:
         return _array(mi.Float, np.stack([v[:-1, :-1], v[:-1, 1:], v[1:, :-1], v[1:, 1:]], -1).ravel())
 
     @staticmethod
-    def _taps(padded):
-        """A padded coefficient grid ``(m, m)`` as packets of four neighbours along x:
-        ``packet[y, x] = padded[y, x : x + 4]`` (``x < m - 3``), one packet gather a row of 4×4 taps."""
-        m = padded.shape[0]
-        return _array(mi.Float, np.stack([padded[:, a:m - 3 + a] for a in range(4)], -1).ravel())
+    def _grid_fold(coefs, n, lo, cell):
+        """The symmetry the coefficient grids ``coefs`` (``[iy, ix]``, nodes ``lo + i cell`` on both
+        axes) all share, for folding u before a lookup: ``"quadrant"`` (mirror images in u_x and in
+        u_y: the B-spline at ``(|u_x|, |u_y|)`` is the one at u), ``"half"`` (the inversion
+        ``u -> -u`` only: every real aperture's ``|Â|²`` and ``|Σ w Â|²``, Friedel's law) or None
+        (nodes not symmetric about 0, or a grid that is not).  Symmetric means equal to 1e-12 of the
+        grid's largest coefficient (far below float32's rounding, so the folded lookup reads
+        the same float32 taps)."""
+        if abs(lo + 0.5 * (n - 1) * cell) > 1e-9 * cell:
+            return None
+
+        def same(flip):
+            return all(np.max(np.abs(c - flip(c))) <= 1e-12 * np.max(np.abs(c)) for c in coefs)
+        if same(lambda c: c[:, ::-1]) and same(lambda c: c[::-1, :]):
+            return "quadrant"
+        return "half" if same(lambda c: c[::-1, ::-1]) else None
 
     @staticmethod
-    def _row_taps(padded):
-        """Padded coefficient grids ``(m, m)`` as one packet per padded row ``y`` and column
-        ``x < m - 3`` (row-major): ``packet[g, a] = padded_g[y, x + a]``, ``4 × len(padded)`` floats:
-        one packet gather reads a row of 4 taps of every grid."""
+    def _taps(padded, y0=0, x0=0):
+        """A padded coefficient grid ``(m, m)`` as packets of four neighbours along x:
+        ``packet[y - y0, x - x0] = padded[y, x : x + 4]`` (``y >= y0``, ``x0 <= x < m - 3``), one packet
+        gather a row of 4×4 taps."""
+        m = padded.shape[0]
+        return _array(mi.Float, np.stack([padded[y0:, x0 + a:m - 3 + a] for a in range(4)], -1).ravel())
+
+    @staticmethod
+    def _row_taps(padded, y0=0, x0=0):
+        """Padded coefficient grids ``(m, m)`` as one packet per padded row ``y >= y0`` and column
+        ``x0 <= x < m - 3`` (row-major from ``(y0, x0)``): ``packet[g, a] = padded_g[y, x + a]``,
+        ``4 × len(padded)`` floats: one packet gather reads a row of 4 taps of every grid."""
         m = padded[0].shape[0]
-        win = [np.lib.stride_tricks.sliding_window_view(p, 4, axis=1)[:, :m - 3] for p in padded]
+        win = [np.lib.stride_tricks.sliding_window_view(p, 4, axis=1)[y0:, x0:m - 3] for p in padded]
         return _array(mi.Float, np.stack(win, axis=2).ravel())          # (y, x, grid, a)
 
     @staticmethod
@@ -304,8 +372,8 @@ class LobeKernel:
         inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
         x0 = dr.clip(dr.floor(fx), 0, n - 2)
         y0 = dr.clip(dr.floor(fy), 0, n - 2)
-        tx = dr.clip(fx - x0, 0.0, 1.0)
-        ty = dr.clip(fy - y0, 0.0, 1.0)
+        tx = fx - x0                    # in [0, 1] where inside (the select below zeroes the rest)
+        ty = fy - y0
         q = gather4(tb["values"], mi.UInt32(y0) * (n - 1) + mi.UInt32(x0), inside)   # the cell's corners
         v = dr.lerp(dr.lerp(q.x, q.y, tx), dr.lerp(q.z, q.w, tx), ty)
         return dr.select(inside, dr.maximum(v, 0.0), 0.0)
@@ -325,10 +393,11 @@ class LobeKernel:
         # one packet per node i: S(i), dS(i), S(i + 1), dS(i + 1)
         self.s_centre = _array(mi.Float, np.stack([s1[:-1], ds1[:-1], s1[1:], ds1[1:]], -1).ravel())
 
-    def _s_minus_one(self, ux, uy, active, srow=None, dfa=None):
-        """``S - 1`` at ``|u|``: linear in ``|u|``; with ``srow = (j, h00, h10, h01, h11)`` the cubic
-        Hermite in ``F_a`` between rows ``j`` and ``j + 1`` (``h10``, ``h11`` times the rows' spacing)."""
-        x = dr.sqrt(dr.fma(ux, ux, uy * uy)) / self.s_du
+    def _s_minus_one(self, ux, uy, active, srow=None, dfa=None, r=None):
+        """``S - 1`` at ``|u|`` (``r`` when given, else from ``ux``, ``uy``): linear in ``|u|``; with
+        ``srow = (j, h00, h10, h01, h11)`` the cubic Hermite in ``F_a`` between rows ``j`` and ``j + 1``
+        (``h10``, ``h11`` times the rows' spacing)."""
+        x = (dr.sqrt(dr.fma(ux, ux, uy * uy)) if r is None else r) * (1.0 / self.s_du)
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.s_n - 1)
@@ -349,8 +418,14 @@ class LobeKernel:
 
     def _cubic(self, grids, ux, uy, active):
         """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
-        and weights for all; mirror boundary by the padding); 0 outside."""
+        and weights for all; mirror boundary by the padding); 0 outside.  u is first folded
+        by the grids' symmetry (:meth:`_grid_fold`) into the part whose taps are kept."""
         n = self.g_n
+        if self.g_fold == "quadrant":
+            ux, uy = dr.abs(ux), dr.abs(uy)
+        elif self.g_fold == "half":                  # u -> -u where u_y < 0
+            flip = uy < 0
+            ux, uy = dr.select(flip, -ux, ux), dr.abs(uy)
         fx = (ux - self.g_lo) / self.g_cell
         fy = (uy - self.g_lo) / self.g_cell
         inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
@@ -368,13 +443,15 @@ class LobeKernel:
                     t3 * (1.0 / 6.0))
 
         wx, wy = weights(tx), weights(ty)
-        m = n                                       # packets a row of the padded array (n + 3 wide)
-        base = mi.UInt32(iy) * m + mi.UInt32(ix)    # taps (-1 .. 2, -1) in the padded array
+        m = self.g_w                                # packets a kept row of the padded array
+        # taps (-1 .. 2, -1) in the padded array, from its kept part's corner (g_y0, g_x0): the fold
+        # leaves iy >= g_y0, ix >= g_x0 inside (the max only guards rounding)
+        base = (mi.UInt32(dr.maximum(iy - self.g_y0, 0)) * m + mi.UInt32(dr.maximum(ix - self.g_x0, 0)))
         acc = [mi.Float(0.0) for _ in grids]
         ng = len(grids)
         # a row's taps of every grid in one gather where the packets hold exactly these grids,
         # else a packet of the row's four taps a grid
-        packed = self.g_rows is not None and ng == dr.width(self.g_rows) // (4 * n * (n + 3))
+        packed = self.g_rows is not None and ng == dr.width(self.g_rows) // (4 * m * (n + 3 - self.g_y0))
         for b in range(4):
             if packed:
                 taps = dr.gather(mi.ArrayXf, self.g_rows, base + b * m, inside, shape=(4 * ng, dr.width(base)))
@@ -386,26 +463,27 @@ class LobeKernel:
                 acc[g] = dr.fma(wy[b], racc, acc[g])
         return [dr.select(inside, x, 0.0) for x in acc]
 
-    def _term_amplitude(self, term, qx, qy):
-        """(re, im) of ``Â`` of one outline at q [rad/µm] (im None when real)."""
+    def _term_amplitude(self, term, dx, dy, sq):
+        """(re, im) of ``Â`` of one outline at ``q = sq d`` [rad/µm] (im None when real): what
+        depends on ``d`` alone is written apart from the scale ``sq`` (:meth:`value`)."""
         kind, p, _, area, blur = term
         if "cos" in p:
             c, s = p["cos"], p["sin"]
-            qxr, qyr = c * qx + s * qy, -s * qx + c * qy
+            dxr, dyr = c * dx + s * dy, -s * dx + c * dy
         else:
-            qxr, qyr = qx, qy
+            dxr, dyr = dx, dy
         im = None
         if kind == "circle":
-            re = area * airy(dr.sqrt(dr.fma(qx, qx, qy * qy)) * p["radius"])
+            re = area * airy(dr.sqrt(dr.fma(dx, dx, dy * dy)) * (sq * p["radius"]))
         elif kind == "ellipse":
-            ax, by = p["a"] * qxr, p["b"] * qyr
-            re = area * airy(dr.sqrt(dr.fma(ax, ax, by * by)))
+            ax, by = p["a"] * dxr, p["b"] * dyr
+            re = area * airy(dr.sqrt(dr.fma(ax, ax, by * by)) * sq)
         elif kind == "rect":
-            re = area * sinc(0.5 * p["width"] * qxr) * sinc(0.5 * p["height"] * qyr)
+            re = area * sinc_product(sq * (0.5 * p["width"] * dxr), sq * (0.5 * p["height"] * dyr))
         else:
-            re, im = self._polygon(p, qx, qy)
+            re, im = self._polygon(p, dx, dy, sq)
         if blur > 0:
-            g = dr.exp(-0.5 * blur * blur * dr.fma(qx, qx, qy * qy))
+            g = dr.exp((-0.5 * blur * blur) * dr.square(sq) * dr.fma(dx, dx, dy * dy))
             re = re * g
             im = None if im is None else im * g
         return re, im
@@ -456,8 +534,8 @@ class LobeKernel:
         p["taylor"] = taylor
 
     @staticmethod
-    def _polygon(p, qx, qy):
-        """``Â`` of a polygon: the edge sum ``(i/|q|²) Σ (q × e) sinc(q·e/2) e^{-i q·m}``
+    def _polygon(p, dx, dy, sq):
+        """``Â`` of a polygon at ``q = sq d``: the edge sum ``(i/|q|²) Σ (q × e) sinc(q·e/2) e^{-i q·m}``
         (Lee & Mittra 1983), and its Taylor series near q = 0.
 
         An edge from ``v_k`` to ``v_{k+1}`` has ``q·m = ψ_k + ψ_{k+1}`` and ``q·e/2 = ψ_{k+1} - ψ_k``
@@ -467,8 +545,11 @@ class LobeKernel:
         ``sinc(q·e/2)`` is its Maclaurin series below 1 (with ``q·e/2`` itself, so no cancellation
         where q is nearly normal to an edge).  Near q = 0 the Taylor series of the fan of
         triangles ``Σ_j (-i)^j c_j(q)``, its homogeneous polynomials ``c_j`` precomputed
-        (:meth:`_polygon_setup`; odd ones vanish for centrosymmetric polygons)."""
-        qq = dr.fma(qx, qx, qy * qy)
+        (:meth:`_polygon_setup`; odd ones vanish for centrosymmetric polygons).  Every dot and
+        cross product is taken with ``d`` and then scaled (``q·v = sq (d·v)``, ``c_j(q) = sq^j c_j(d)``),
+        so a loop over wavelengths (one ``d``, a scale each) computes them once."""
+        sq2 = dr.square(sq)
+        qq = sq2 * dr.fma(dx, dx, dy * dy)
         small = qq * (p["circumradius"] ** 2) < TAYLOR_U**2
         sym = p["centrosymmetric"]
         phases = []
@@ -479,46 +560,52 @@ class LobeKernel:
                 sb = sign * sb
                 phases.append((dr.fma(sa, cb, ca * sb), dr.fma(ca, cb, -(sa * sb))))
             else:
-                phases.append(dr.sincos(0.5 * dr.fma(qx, vx, qy * vy)))
+                phases.append(dr.sincos(sq * dr.fma(dx, 0.5 * vx, dy * (0.5 * vy))))
         s0, c0 = phases[0]
         phases.append((-s0, c0) if sym else (s0, c0))      # the closing vertex: -v_0 or v_0
+        # the edges' β = q·e/2, and 1/β (where |β| >= 1) with 1/|q|² from shared divisions
+        betas = [sq * dr.fma(dx, 0.5 * ex, dy * (0.5 * ey)) for ex, ey in p["edges"]]
+        b2s = [dr.square(beta) for beta in betas]
+        inv_q, *inv_beta = reciprocals([dr.select(small, 1.0, qq)]
+                                       + [dr.select(b2 < 1.0, 1.0, beta) for beta, b2 in zip(betas, b2s)])
         sw = mi.Float(0.0)   # Σ w sin φ
         cw = mi.Float(0.0)   # Σ w cos φ
         for k, (ex, ey) in enumerate(p["edges"]):
             (sa, ca), (sb, cb) = phases[k], phases[k + 1]
-            beta = 0.5 * dr.fma(qx, ex, qy * ey)
-            b2 = dr.square(beta)
+            b2 = b2s[k]
             # sinc(β): Σ (-β²)^i / (2i + 1)! to β^10 below |β| = 1 (|error| < 2e-10), else sin β / β
             series = _poly(_SINC_SERIES, b2)
             sin_beta = dr.fma(sb, ca, -(cb * sa))
-            sinc_beta = dr.select(b2 < 1.0, series, sin_beta / dr.select(b2 < 1.0, 1.0, beta))
-            w = (qx * ey - qy * ex) * sinc_beta
+            sinc_beta = dr.select(b2 < 1.0, series, sin_beta * inv_beta[k])
+            w = (sq * dr.fma(dx, ey, -(dy * ex))) * sinc_beta
             sw = dr.fma(w, dr.fma(sa, cb, ca * sb), sw)                 # sin(ψ_k + ψ_{k+1})
             if not sym:
                 cw = dr.fma(w, dr.fma(ca, cb, -(sa * sb)), cw)             # cos(ψ_k + ψ_{k+1})
-        inv = (2.0 if sym else 1.0) / dr.select(small, 1.0, qq)
+        inv = (2.0 if sym else 1.0) * inv_q
         re_e, im_e = sw * inv, cw * inv
-        # Taylor: (-i)^j cycles 1, -i, -1, i; c_j by Horner in q_x with the powers of q_y
-        qy_pow = [mi.Float(1.0)]
-        for _ in range(TAYLOR_ORDER):
-            qy_pow.append(qy_pow[-1] * qy)
-        re_t = mi.Float(p["taylor"][0][0])
-        im_t = mi.Float(0.0)
-        for j in range(1, TAYLOR_ORDER + 1):
-            if sym and j % 2 == 1:
-                continue          # odd moments vanish
+        # Taylor: Σ_j (-i)^j sq^j c_j(d), (-i)^j cycling 1, -i, -1, i: the real part Σ_i (-1)^i sq^2i c_2i(d)
+        # and the imaginary -sq Σ_i (-1)^i sq^2i c_2i+1(d), Horner in sq²; c_j(d) by Horner in d_x
+        # with the powers of d_y (of d alone)
+        dy_pow = [1.0, dy]
+        for _ in range(TAYLOR_ORDER - 1):
+            dy_pow.append(dy_pow[-1] * dy)
+
+        def c_of_d(j):
             coef = p["taylor"][j]
             acc = mi.Float(coef[j])
             for i in range(j - 1, -1, -1):
-                acc = dr.fma(acc, qx, coef[i] * qy_pow[j - i])
-            if j % 4 == 0:
-                re_t += acc
-            elif j % 4 == 1:
-                im_t -= acc
-            elif j % 4 == 2:
-                re_t -= acc
-            else:
-                im_t += acc
+                acc = dr.fma(acc, dx, coef[i] * dy_pow[j - i])
+            return acc
+
+        def series(js):              # Σ_i (-1)^i sq^2i c_js[i](d), Horner in sq²
+            acc = None
+            for i in range(len(js) - 1, -1, -1):
+                c = c_of_d(js[i]) if js[i] > 0 else mi.Float(p["taylor"][0][0])
+                c = -c if i % 2 else c
+                acc = c if acc is None else dr.fma(acc, sq2, c)
+            return acc
+        re_t = series(list(range(0, TAYLOR_ORDER + 1, 2)))
+        im_t = None if sym else -sq * series(list(range(1, TAYLOR_ORDER + 1, 2)))
         if sym:
             return dr.select(small, re_t, re_e), None
         return dr.select(small, re_t, re_e), dr.select(small, im_t, im_e)
@@ -526,8 +613,19 @@ class LobeKernel:
     # ------------------------------------------------------------------
     # interface
     # ------------------------------------------------------------------
-    def value(self, ux, uy, active, srow=None, dfa=None):
-        """The renderer's ``v(u)`` (>= 0); ``srow`` picks rows of ``S - 1`` (:meth:`_s_minus_one`)."""
+    def value(self, ux, uy, active, srow=None, dfa=None, scale=None):
+        """The renderer's ``v(u)`` (>= 0); ``srow`` picks rows of ``S - 1`` (:meth:`_s_minus_one`).
+
+        With ``scale``, ``(ux, uy)`` is a direction ``d`` and ``u = scale d``: what depends on
+        ``d`` alone (its length, an outline's dot products and Taylor polynomials) is written
+        apart from the scale, so that in the plugin's loop over a lane's wavelengths (one ``d``, a
+        scale ``2π L/λ`` each) the compiler computes it once, before the loop."""
+        dx, dy = ux, uy
+        sq = 1.0 / self.R if scale is None else scale * (1.0 / self.R)      # q = sq d [rad/µm]
+        r = None
+        if scale is not None:
+            r = scale * dr.sqrt(dr.fma(dx, dx, dy * dy))                      # |u|
+            ux, uy = scale * dx, scale * dy
         if self.kind == "table":
             return self._bilinear(self.near, ux, uy, active)
         if self.kind == "grid":
@@ -538,12 +636,11 @@ class LobeKernel:
             else:
                 P, C = self._cubic([self.g_P, self.g_C], ux, uy, active)
         else:
-            qx, qy = ux * (1.0 / self.R), uy * (1.0 / self.R)
             inten = mi.Float(0.0)
             re = mi.Float(0.0)
             im = mi.Float(0.0)
             for term in self.terms:
-                a_re, a_im = self._term_amplitude(term, qx, qy)
+                a_re, a_im = self._term_amplitude(term, dx, dy, sq)
                 w = term[2]
                 if a_im is None:
                     inten = dr.fma(w * a_re, a_re, inten)
@@ -553,7 +650,7 @@ class LobeKernel:
                 re = dr.fma(w, a_re, re)
             P = inten * self.inv_area_R2
             C = dr.fma(re, re, im * im) * self.inv_area_R2
-        s1 = self._s_minus_one(ux, uy, active, srow, dfa) if self.has_s else 0.0
+        s1 = self._s_minus_one(ux, uy, active, srow, dfa, r) if self.has_s else 0.0
         return dr.select(active, dr.maximum(P + C * s1, 0.0), 0.0)
 
     def pdf(self, ux, uy, active):
@@ -563,7 +660,7 @@ class LobeKernel:
         inv_c = 1.0 / self.warp
         gx = dr.fma(dr.abs(ux), inv_c, 1.0)         # 1 + |u|/c = du/dt^(1/2)
         gy = dr.fma(dr.abs(uy), inv_c, 1.0)
-        rx, ry = dr.rcp(gx), dr.rcp(gy)
+        rx, ry = reciprocals([gx, gy])
         p = self._bilinear(self.near, ux * rx, uy * ry, active)      # t = u / (1 + |u|/c)
         return p * (1.0 / self.near["total"]) * dr.square(rx * ry)
 
