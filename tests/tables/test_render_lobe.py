@@ -33,6 +33,8 @@ FAMILIES = {
                     area_fraction=0.15),
     # form-factor grids (cubic B-splines)
     "size-spread": dict(shape="square", radius=0.5, size_spread=0.05, process="hard-disk", area_fraction=0.3),
+    "ellipse-spread": dict(shape="ellipse", radius=0.6, aspect=1.6, angle=20, size_spread=0.1, process="hard-disk",
+                           area_fraction=0.3),
     "many-sided": dict(shape="polygon", sides=24, radius=0.5, angle=3, process="poisson"),
     "mask": dict(shape="mask", pixel_size=0.03, process="rsa", area_fraction=0.2),
 }
@@ -64,7 +66,8 @@ def test_kernel_matches_model(mi_variant, mask_file, name):
     import mitsuba as mi
     from corona.mitsuba.kernels import LobeKernel
     m = _material(name, mask_file)
-    assert m.render_kind == ("grid" if name in ("size-spread", "many-sided", "mask") else "analytic")
+    grids = {"size-spread": "quadrant", "ellipse-spread": "half", "many-sided": "half", "mask": "half"}
+    assert m.render_kind == ("grid" if name in grids else "analytic")
     u, v = render_lobe.region_points(m, n=80000, scan=161, seed=1)
     # and the forward peak, where the polygon kernel switches to its Taylor series
     r = np.linspace(0.0, 0.3, 13) * m.length_scale / max(m.shape.length_scale, 1e-9)
@@ -72,6 +75,8 @@ def test_kernel_matches_model(mi_variant, mask_file, name):
     u = np.concatenate([u, near])
     v = np.concatenate([v, m.lobe_dimensionless(near)])
     kernel = LobeKernel(m)
+    if name in grids:       # the grid is read folded by its symmetry (a rotated ellipse: u -> -u only)
+        assert kernel.g_fold == grids[name]
     val = np.array(kernel.value(mi.Float(u[:, 0]), mi.Float(u[:, 1]), mi.Bool(True)))
     for got in (val, m.render_lobe.eval(u)):
         e = render_lobe.relative_error(got, v)
