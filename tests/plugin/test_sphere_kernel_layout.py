@@ -153,13 +153,13 @@ def test_guide_tables_are_the_last_bin_at_or_below_each_mark(mi_variant):
 
 
 def test_catmull_rom_intervals_are_the_cubic_through_the_rows(mi_variant):
-    """The packed intervals (:func:`corona.mitsuba.sphere._catmull_rom`), node-major, against the
+    """The packed intervals (:func:`corona.mitsuba.sphere._catmull_rom_intervals`), node-major, against the
     Catmull–Rom cubic written out from four nodes (end nodes repeated): its value at the nodes and
     at the interval's middle, for two lobes of different widths."""
     from corona.mitsuba import sphere
     rng = np.random.default_rng(3)
     lobes = [rng.random((5, 9)) * 10.0, rng.random((5, 9))]
-    packed = np.asarray(sphere._catmull_rom(*lobes), dtype=np.float64).reshape(-1, 4)
+    packed = np.asarray(sphere._catmull_rom_intervals(*lobes), dtype=np.float64).reshape(-1, 4)
     start = 0
     for rows in lobes:
         J, K = rows.shape

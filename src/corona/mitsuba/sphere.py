@@ -107,11 +107,6 @@ GUIDE_BLOCK = 1 << 18
 _CENTRE = "centre"
 
 
-def _catmull_rom(*lobes):
-    """:func:`_catmull_rom_intervals` as one Dr.Jit array."""
-    return _array(mi.Float, _catmull_rom_intervals(*lobes).ravel())
-
-
 def _catmull_rom_intervals(*lobes):
     """The Catmull–Rom intervals of chord rows (each lobe (J, K)), four floats each, as one float32
     numpy array (n, 4), node-major (interval i of row j of lobe l at ``l J K + i J + j``: rows j and j+1 at one
@@ -342,7 +337,7 @@ class SphereBSDFMixin:
         splines = [pool.submit(_catmull_rom_intervals, *ls) for ls in lobes] if packing else None
         self.Cf = self.Cf_spline = None
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
-        self._setup_area_fraction_rows(material, fa_rows)
+        self._setup_area_fraction_rows(material, fa_rows, fa_hi)
         # per-row scalars of both rows of an interval j, j+1 packed 16 to the interval (one 64-byte
         # cache line), gathered as four Vector4f: (Re s0, Im s0) of j, j+1; e_b and T_f of j, j+1;
         # T_b and x of j, j+1; 1 / x of j, j+1 and 1 / (x_j+1 - x_j), 0
@@ -384,7 +379,7 @@ class SphereBSDFMixin:
 
     @staticmethod
     def _lobe_packing(rows):
-        """Whether the lobes' rows are read as packed Catmull–Rom intervals (:func:`_catmull_rom`):
+        """Whether the lobes' rows are read as packed Catmull–Rom intervals (:func:`_catmull_rom_intervals`):
         while the packed arrays (four times the rows) stay within :data:`LOBE_PACKING_BYTES`."""
         n = rows["P_f"].size + rows["P_b"].size + rows["C_f"].size
         return 16 * n <= LOBE_PACKING_BYTES
@@ -414,12 +409,12 @@ class SphereBSDFMixin:
                     m.__dict__.setdefault("rows", material.rows)   # the same Mie rows: not read again
                 layers.append(m)
         share_forward_energies(layers)
-        return fas, layers, hi
+        return fas, layers
 
-    def _setup_area_fraction_rows(self, material, fa_rows):
+    def _setup_area_fraction_rows(self, material, fa_rows, fa_hi):
         """``S(u)`` and the forward energies ``e_f(x_j, μ)`` in rows of F_a (a hard core; ``fa_rows``
-        and the range's top from :meth:`_area_fraction_layers`) with their slopes in F_a, or the one F_a-independent
-        energy table (Poisson)."""
+        from :meth:`_area_fraction_layers`, ``fa_hi`` the top of the layer's F_a) with their slopes
+        in F_a, or the one F_a-independent energy table (Poisson)."""
         st = material.structure_table
         self.has_S = st is not None
         self.fa_centred = False
@@ -429,7 +424,7 @@ class SphereBSDFMixin:
             self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material._derived["e_f_mu"]).ravel()), None
             self.fa_cover = (0.0, 1.0)
             return
-        fas, layers, hi = fa_rows
+        fas, layers = fa_rows
         S = np.array([m.structure_table[1] for m in layers])
         E = np.array([m._derived["e_f_mu"] for m in layers])
         self.S_du, self.S_n = float(st[0]), int(S.shape[1])
@@ -440,7 +435,7 @@ class SphereBSDFMixin:
         self.Ef = self._packed(fas, E)
         if not self.fa_textured:      # one F_a: its rows at that value (:meth:`_centre_area_fraction`)
             self.fa_window = (fas, S, E)
-            self._centre_area_fraction(hi)
+            self._centre_area_fraction(float(fa_hi))
 
     def _centre_area_fraction(self, fa):
         """The layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the
@@ -679,7 +674,7 @@ class SphereBSDFMixin:
         table_row = dr.select(forward, row, row + self.n_rows)
         idx, c0, c1 = guided_search(self.cdf, self.guide, self.G, self.n_bins, self.steps, table_row, xi, active)
         k = row * self.K + idx + dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
-        if self.P_spline is not None:   # node-major (:func:`_catmull_rom`)
+        if self.P_spline is not None:   # node-major (:func:`_catmull_rom_intervals`)
             q = gather4(self.P_spline, idx * self.n_rows + row + (k - row * self.K - idx), active)
             a, b = q.x, q.y
         else:
