@@ -314,8 +314,9 @@ def test_chi2_stock_adapter(variant):
 
 
 @pytest.mark.parametrize("variant", ["llvm_ad_spectral"], indirect=True)
-def test_chi2_negative_control(variant):
-    """A pdf that is the table's with the forward peak 10 % too low is rejected."""
+def test_chi2_negative_control(variant, tmp_path, monkeypatch):
+    """A pdf that is the table's with the forward peak 10 % too low is rejected (Mitsuba writes the
+    failed test's chi2_data.py into the working directory: a temporary one)."""
     from mitsuba.chi2 import ChiSquareTest, SphericalDomain
     ph = mi.load_dict({"type": "corona_mie", "radius": 2.0})
     ctx = mi.PhaseFunctionContext()
@@ -332,7 +333,9 @@ def test_chi2_negative_control(variant):
 
     test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
                          sample_count=1_000_000, res=101, ires=16)
+    monkeypatch.chdir(tmp_path)
     assert not test.run()
+    assert (tmp_path / "chi2_data.py").exists()
 
 
 @pytest.mark.parametrize("variant", ["llvm_ad_spectral", "scalar_spectral"], indirect=True)
