@@ -390,8 +390,10 @@ class LobeKernel:
         """One row of ``S - 1`` (``s_n``) at a layer's uniform F_a and its slope in F_a:
         :meth:`value` then takes ``dfa`` (the lane's F_a minus that one: 0 in value)."""
         s1, ds1 = np.asarray(s1, dtype=np.float64), np.asarray(ds1, dtype=np.float64)
-        # one packet per node i: S(i), dS(i), S(i + 1), dS(i + 1)
+        # one packet per node i: S(i), dS(i), S(i + 1), dS(i + 1); and the row alone, read where no
+        # derivative flows through ``dfa`` (two plain gathers: the slope's lerp and fma are 0 there)
         self.s_centre = _array(mi.Float, np.stack([s1[:-1], ds1[:-1], s1[1:], ds1[1:]], -1).ravel())
+        self.s_centre_values = _array(mi.Float, s1)
 
     def _s_minus_one(self, ux, uy, active, srow=None, dfa=None, r=None):
         """``S - 1`` at ``|u|`` (``r`` when given, else from ``ux``, ``uy``): linear in ``|u|``; with
@@ -401,6 +403,10 @@ class LobeKernel:
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.s_n - 1)
+        if dfa is not None and not dr.grad_enabled(dfa):     # dfa = 0: the row alone, as below
+            v0 = _gather(mi.Float, self.s_centre_values, i, inside)
+            v1 = _gather(mi.Float, self.s_centre_values, i + 1, inside)
+            return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
         if dfa is not None:
             q = gather4(self.s_centre, i, inside)
             return dr.select(inside, dr.fma(dfa, dr.lerp(q.y, q.w, t), dr.lerp(q.x, q.z, t)), 0.0)
@@ -416,18 +422,27 @@ class LobeKernel:
              + h10 * dr.lerp(q0.z, q0.w, t) + h11 * dr.lerp(q1.z, q1.w, t))
         return dr.select(inside, v, 0.0)
 
-    def _cubic(self, grids, ux, uy, active):
+    def _cubic(self, grids, ux, uy, active, scale=None):
         """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
         and weights for all; mirror boundary by the padding); 0 outside.  u is first folded
-        by the grids' symmetry (:meth:`_grid_fold`) into the part whose taps are kept."""
+        by the grids' symmetry (:meth:`_grid_fold`) into the part whose taps are kept.
+
+        With ``scale`` (> 0), ``(ux, uy)`` is a direction d and ``u = scale d``: the fold and the
+        division by the cell act on d (the same signs as u), outside the plugin's wavelength loop,
+        and the grid coordinate is one ``fma`` of the scale a wavelength."""
         n = self.g_n
         if self.g_fold == "quadrant":
             ux, uy = dr.abs(ux), dr.abs(uy)
         elif self.g_fold == "half":                  # u -> -u where u_y < 0
             flip = uy < 0
             ux, uy = dr.select(flip, -ux, ux), dr.abs(uy)
-        fx = (ux - self.g_lo) / self.g_cell
-        fy = (uy - self.g_lo) / self.g_cell
+        if scale is None:
+            fx = (ux - self.g_lo) / self.g_cell
+            fy = (uy - self.g_lo) / self.g_cell
+        else:
+            inv, off = 1.0 / self.g_cell, -self.g_lo / self.g_cell
+            fx = dr.fma(scale, ux * inv, off)
+            fy = dr.fma(scale, uy * inv, off)
         inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
         ix = dr.clip(dr.floor(fx), 0, n - 1)
         iy = dr.clip(dr.floor(fy), 0, n - 1)
@@ -629,12 +644,14 @@ class LobeKernel:
         if self.kind == "table":
             return self._bilinear(self.near, ux, uy, active)
         if self.kind == "grid":
+            # the grids at u = scale d, or at u itself
+            at = (ux, uy, active) if scale is None else (dx, dy, active, scale)
             if not self.has_s or self.g_C is None:      # v = P (S = 1) or P S (C = P)
-                P = C = self._cubic([self.g_P], ux, uy, active)[0]
+                P = C = self._cubic([self.g_P], *at)[0]
                 if not self.has_s:
                     return dr.select(active, dr.maximum(P, 0.0), 0.0)
             else:
-                P, C = self._cubic([self.g_P, self.g_C], ux, uy, active)
+                P, C = self._cubic([self.g_P, self.g_C], *at)
         else:
             inten = mi.Float(0.0)
             re = mi.Float(0.0)
