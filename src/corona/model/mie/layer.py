@@ -145,6 +145,19 @@ SIZE_ROW_DX = 0.02
 SIZE_ROW_DLNX = 0.02
 SIZE_ROW_RULE = "relative"
 SIZE_PER_SIGMA = 4.0
+#: Size distributions: the sharp Mie resonances.  The size grid's local step at X is at most
+#: ``max(SIZE_RES_DX · sqrt(σ X), σ X / SIZE_RES_PER_SIGMA)`` (σ the spread of ln s): a resonance
+#: narrower than the step is sampled at random (aliased), and a narrow spread averages few of
+#: them, so the step shrinks with the spread's width σ X in size parameter; from σ X of 6 on
+#: ``SIZE_DX`` rules (the errors of many resonances average out).  On a grid 0.06 apart water's
+#: 2 µm / 1 % rows were up to 6.8 % RMS (+3.6 % in total) off Mie theory in the backward lobe
+#: (x = 34, 370 nm), 2 µm / 2 % 4.3 % at 360 nm; on this one 0.10 % and 0.30 % (the worst of
+#: water's 1-5 % spreads at 2-7 µm 0.57 %; the errors are not monotonic in the step: a 1.4x
+#: coarser linear term left 0.95 % at 5 µm / 3 %).  The grid is uniform in the coordinate u with
+#: ``dX/du`` the step (:func:`_size_grid`); ``SIZE_STEP_RULE`` names the rule in the table key.
+SIZE_RES_DX = 0.010
+SIZE_RES_PER_SIGMA = 100.0
+SIZE_STEP_RULE = "resonance"
 MAX_SIZE_SAMPLES = 8000
 SIZE_TAIL = 1e-6
 #: Size distributions: the part of the scattered power ``s² p(s)`` left out at each end of the sizes
@@ -493,8 +506,9 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
 
     One sphere: each row is Mie theory at its size parameter.  A size distribution: the rows
     share the evaluations of one fine grid of size parameters ``X`` (step ``SIZE_DX`` or finer,
-    see :func:`_size_plan`); row j (mean size ``x_j``, index ``m_j``) is the quadrature
-    ``Σ_k W_jk F(X_k)`` with ``W_jk ∝ p_y(ln(X_k/x_j)) ΔX/X_k`` (a convolution in ``ln x``; the
+    finer still where a narrow spread needs the sharp resonances resolved: :func:`_size_step`,
+    :func:`_size_grid`); row j (mean size ``x_j``, index ``m_j``) is the quadrature
+    ``Σ_k W_jk F(X_k)`` with ``W_jk ∝ p_y(ln(X_k/x_j)) ΔX_k/X_k`` (a convolution in ``ln x``; the
     trapezoid in X).  A dispersive index is handled by evaluating the grid at index nodes
     ``m(λ_q)`` at most ``SIZE_DM`` apart and interpolating the rows between them in the index
     (Lagrange cubics in its arc length, ``SIZE_INDEX_ORDER``; :func:`_size_plan`).
@@ -720,17 +734,42 @@ def _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi):
         if rows_q.size == 0:
             continue
         x_a, x_b = float(x_rows[rows_q].min()) * s_lo, float(x_rows[rows_q].max()) * s_hi
-        dX = min(SIZE_DX, sig_y * float(x_rows[rows_q].min()) * s_lo / SIZE_PER_SIGMA)
-        n = int(math.ceil((x_b - x_a) / dX)) + 1
-        if n > MAX_SIZE_SAMPLES:
-            n = MAX_SIZE_SAMPLES
-        X = np.linspace(x_a, x_b, n)
+        X, dX = _size_grid(x_a, x_b, sig_y)
         yy = np.log(X[None, :] / x_rows[rows_q, None])
-        W = np.interp(yy, yq, pq, left=0.0, right=0.0) / X[None, :]          # p_y dy = p_y dX / X
-        W[:, [0, -1]] *= 0.5
+        # the trapezoid on the grid's nodes: p_y dy = p_y dX / X
+        W = np.interp(yy, yq, pq, left=0.0, right=0.0) * (dX / X)[None, :]
         W /= W.sum(axis=1, keepdims=True)
         plan.append((rows_q, wq[rows_q], m_q[q], X, W))
     return plan
+
+
+def _size_step(X, sig_y: float):
+    """The size grid's local step at the size parameters X of a spread ``sig_y`` (std of ln s):
+    ``min(SIZE_DX, σ X / SIZE_PER_SIGMA, max(SIZE_RES_DX sqrt(σ X), σ X / SIZE_RES_PER_SIGMA))``."""
+    w = sig_y * np.asarray(X, dtype=np.float64)
+    return np.minimum(np.minimum(SIZE_DX, w / SIZE_PER_SIGMA),
+                      np.maximum(SIZE_RES_DX * np.sqrt(w), w / SIZE_RES_PER_SIGMA))
+
+
+def _size_grid(x_a: float, x_b: float, sig_y: float):
+    """The fine size parameters ``X`` on ``[x_a, x_b]`` at the local step :func:`_size_step`
+    (uniform in the coordinate ``u = ∫ dX / step``; at most ``MAX_SIZE_SAMPLES``, then uniformly
+    coarser in u) and their trapezoid weights ``dX`` (half steps at the ends).
+
+    >>> X, dX = _size_grid(30.0, 40.0, 0.02)           # a 2 % spread at x = 30-40: steps 0.008-0.009
+    >>> bool(np.allclose(np.diff(X), _size_step(0.5 * (X[1:] + X[:-1]), 0.02), rtol=0.02)), bool(np.isclose(dX.sum(), 10.0))
+    (True, True)
+    """
+    xf = np.linspace(x_a, x_b, 2049) if x_b > x_a else np.array([x_a, x_a * (1 + 1e-9)])
+    inv = 1.0 / _size_step(xf, sig_y)
+    u = np.concatenate([[0.0], np.cumsum(0.5 * (inv[1:] + inv[:-1]) * np.diff(xf))])
+    n = min(int(math.ceil(u[-1])) + 1, MAX_SIZE_SAMPLES)
+    X = np.interp(np.linspace(0.0, u[-1], max(n, 2)), u, xf)
+    X[[0, -1]] = xf[0], xf[-1]
+    dX = np.empty_like(X)
+    dX[1:-1] = 0.5 * (X[2:] - X[:-2])
+    dX[0], dX[-1] = 0.5 * (X[1] - X[0]), 0.5 * (X[-1] - X[-2])
+    return X, dX
 
 
 def _lerp_rows(values, j, t, i, f):
@@ -920,7 +959,8 @@ class SphereMaterial(MieMembers, Material):
                "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
                "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX, SIZE_ROW_DLNX, SIZE_ROW_RULE,
                          SPREAD_CHORD_SMOOTH,
-                         SIZE_INDEX_ORDER, SIZE_TAIL_ROWS, SPREAD_CHORD_RULE],
+                         SIZE_INDEX_ORDER, SIZE_TAIL_ROWS, SPREAD_CHORD_RULE,
+                         SIZE_RES_DX, SIZE_RES_PER_SIGMA, SIZE_STEP_RULE],
                "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
         if self.radius_cover is not None:
             key["radius_cover"] = list(self.radius_cover)
