@@ -422,27 +422,18 @@ class LobeKernel:
              + h10 * dr.lerp(q0.z, q0.w, t) + h11 * dr.lerp(q1.z, q1.w, t))
         return dr.select(inside, v, 0.0)
 
-    def _cubic(self, grids, ux, uy, active, scale=None):
+    def _cubic(self, grids, ux, uy, active):
         """Cubic B-splines of the padded grids ``grids`` at u (the same 4×4 taps
         and weights for all; mirror boundary by the padding); 0 outside.  u is first folded
-        by the grids' symmetry (:meth:`_grid_fold`) into the part whose taps are kept.
-
-        With ``scale`` (> 0), ``(ux, uy)`` is a direction d and ``u = scale d``: the fold and the
-        division by the cell act on d (the same signs as u), outside the plugin's wavelength loop,
-        and the grid coordinate is one ``fma`` of the scale a wavelength."""
+        by the grids' symmetry (:meth:`_grid_fold`) into the part whose taps are kept."""
         n = self.g_n
         if self.g_fold == "quadrant":
             ux, uy = dr.abs(ux), dr.abs(uy)
         elif self.g_fold == "half":                  # u -> -u where u_y < 0
             flip = uy < 0
             ux, uy = dr.select(flip, -ux, ux), dr.abs(uy)
-        if scale is None:
-            fx = (ux - self.g_lo) / self.g_cell
-            fy = (uy - self.g_lo) / self.g_cell
-        else:
-            inv, off = 1.0 / self.g_cell, -self.g_lo / self.g_cell
-            fx = dr.fma(scale, ux * inv, off)
-            fy = dr.fma(scale, uy * inv, off)
+        fx = (ux - self.g_lo) / self.g_cell
+        fy = (uy - self.g_lo) / self.g_cell
         inside = active & (fx >= 0) & (fx <= n - 1) & (fy >= 0) & (fy <= n - 1)
         ix = dr.clip(dr.floor(fx), 0, n - 1)
         iy = dr.clip(dr.floor(fy), 0, n - 1)
@@ -644,14 +635,12 @@ class LobeKernel:
         if self.kind == "table":
             return self._bilinear(self.near, ux, uy, active)
         if self.kind == "grid":
-            # the grids at u = scale d, or at u itself
-            at = (ux, uy, active) if scale is None else (dx, dy, active, scale)
             if not self.has_s or self.g_C is None:      # v = P (S = 1) or P S (C = P)
-                P = C = self._cubic([self.g_P], *at)[0]
+                P = C = self._cubic([self.g_P], ux, uy, active)[0]
                 if not self.has_s:
                     return dr.select(active, dr.maximum(P, 0.0), 0.0)
             else:
-                P, C = self._cubic([self.g_P, self.g_C], *at)
+                P, C = self._cubic([self.g_P, self.g_C], ux, uy, active)
         else:
             inten = mi.Float(0.0)
             re = mi.Float(0.0)
