@@ -403,16 +403,13 @@ class LobeKernel:
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.s_n - 2)
         t = x - mi.Float(i)
         inside = active & (x <= self.s_n - 1)
-        if dfa is not None and not dr.grad_enabled(dfa):     # dfa = 0: the row alone, as below
-            v0 = _gather(mi.Float, self.s_centre_values, i, inside)
-            v1 = _gather(mi.Float, self.s_centre_values, i + 1, inside)
-            return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
-        if dfa is not None:
+        if dfa is not None and dr.grad_enabled(dfa):         # the centre row and its slope in F_a
             q = gather4(self.s_centre, i, inside)
             return dr.select(inside, dr.fma(dfa, dr.lerp(q.y, q.w, t), dr.lerp(q.x, q.z, t)), 0.0)
-        if srow is None:
-            v0 = _gather(mi.Float, self.s_values, i, inside)
-            v1 = _gather(mi.Float, self.s_values, i + 1, inside)
+        if dfa is not None or srow is None:     # one row: the centre's (dfa = 0 in value), else the material's
+            row = self.s_values if dfa is None else self.s_centre_values
+            v0 = _gather(mi.Float, row, i, inside)
+            v1 = _gather(mi.Float, row, i + 1, inside)
             return dr.select(inside, dr.lerp(v0, v1, t), 0.0)
         j, h00, h10, h01, h11 = srow
         k = j * (self.s_n - 1) + i
