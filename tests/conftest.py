@@ -126,9 +126,14 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.fixture(scope="session")
 def mi_variant():
-    """The default variant (llvm_ad_spectral here), with the plugin registered."""
+    """The default variant (llvm_ad_spectral here), with the plugin registered; the environment
+    variable ``CORONA_TEST_VARIANT`` names another (``cuda_ad_spectral`` on a GPU machine:
+    scripts/device_check.sh).  CI never sets it: no test depends on a GPU."""
     import mitsuba as mi
-    variant = corona.default_variant(prefer_gpu=False)
+    variant = os.environ.get("CORONA_TEST_VARIANT") or corona.default_variant(prefer_gpu=False)
+    if variant not in mi.variants():
+        raise pytest.UsageError(f"CORONA_TEST_VARIANT={variant!r}: not a Mitsuba variant here "
+                                f"(one of {', '.join(mi.variants())})")
     mi.set_variant(variant)
     corona.register()
     return variant
