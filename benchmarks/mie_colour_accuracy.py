@@ -104,23 +104,15 @@ def table_lobe(material, lam: np.ndarray, ang: np.ndarray) -> np.ndarray:
 
 
 def _rms(tab, ref, w):
-    w = w / w.sum()
+    """Weighted RMS of ``tab/ref - 1`` along the last axis (one figure per row of a (B, M) array)."""
     ok = ref > 0
     rel = np.where(ok, tab / np.where(ok, ref, 1) - 1, 0)
-    return float(np.sqrt(np.sum(w * rel ** 2)))
-
-
-def _rms_rows(tab, ref, sinw):
-    """:func:`_rms` of each row (one wavelength) of ``tab`` against ``ref`` (B, M)."""
-    w = ref * sinw
-    ok = ref > 0
-    rel = np.where(ok, tab / np.where(ok, ref, 1) - 1, 0)
-    return np.sqrt(np.sum(w * rel ** 2, 1) / np.sum(w, 1))
+    return np.sqrt(np.sum(w * rel ** 2, -1) / np.sum(w, -1))
 
 
 def colour_figures(tab, ref, sinw, noise_eps=None) -> dict:
     """Figures of one lobe from XYZ (3, M) of the table and of Mie theory; ``sinw = sin Θ dΘ``."""
-    out = {f"rms_{c}": _rms(tab[k], ref[k], ref[k] * sinw) for k, c in enumerate("XYZ")}
+    out = {f"rms_{c}": float(_rms(tab[k], ref[k], ref[k] * sinw)) for k, c in enumerate("XYZ")}
     out["scale_Y"] = float(np.sum(tab[1] * sinw) / np.sum(ref[1] * sinw) - 1)
     keep = ref[1] > 1e-3 * ref[1].max()
     ct, cr = tab[:, keep] / tab[:, keep].sum(0), ref[:, keep] / ref[:, keep].sum(0)
@@ -163,7 +155,7 @@ def measure(radius: float, n: int, reps: int, seed: int) -> dict:
             xyz_mie[k] += cmf.T @ P_mie
             for which in (0, 1):
                 sel = lobe == which
-                per_lam[which].append(_rms_rows(P_tab[:, sel], P_mie[:, sel], sinw[sel]))
+                per_lam[which].append(_rms(P_tab[:, sel], P_mie[:, sel], P_mie[:, sel] * sinw[sel]))
     lams_all = np.concatenate(lams_all)
     ybar = cie1931_xyz(lams_all)[:, 1]
     out = {"radius": radius, "ior": "water", "n": n, "reps": reps, "seed": seed,
@@ -178,11 +170,10 @@ def measure(radius: float, n: int, reps: int, seed: int) -> dict:
                f"{reps}N": colour_figures(t.sum(0), r.sum(0), sinw[sel], se2)}
         if reps >= 4:
             fig["2N"] = colour_figures(t[:2].sum(0), r[:2].sum(0), sinw[sel])
-        if reps > 1:
-            scales = [colour_figures(t[j], r[j], sinw[sel])["scale_Y"] for j in range(reps)]
-            fig[f"{reps}N"]["scale_Y_se"] = float(np.std(scales, ddof=1) / np.sqrt(reps))
-            fig["N_each"] = {key: [colour_figures(t[j], r[j], sinw[sel])[key] for j in range(reps)]
-                             for key in ("rms_Y", "scale_Y", "dx", "dy")}
+        if reps > 1:                  # each replicate's figures (the first is fig["N"])
+            each = [fig["N"]] + [colour_figures(t[j], r[j], sinw[sel]) for j in range(1, reps)]
+            fig[f"{reps}N"]["scale_Y_se"] = float(np.std([e["scale_Y"] for e in each], ddof=1) / np.sqrt(reps))
+            fig["N_each"] = {key: [e[key] for e in each] for key in ("rms_Y", "scale_Y", "dx", "dy")}
         pl = np.concatenate(per_lam[which])
         fig["per_lambda_rms_mean"] = float(pl.mean())
         fig["per_lambda_rms_ybar"] = float(np.sum(pl * ybar) / np.sum(ybar))
@@ -239,8 +230,7 @@ def main(argv=None):
         results.append(res)
         print("\n".join(row(res)), f"<!-- cpu {res['cpu_s']:.0f} s -->", flush=True)
         if not args.no_write:
-            write(args.name, {"results": results, "goal": {"rms": 0.01, "scale": 0.005},
-                                          "argv": sys.argv[1:]})
+            write(args.name, {"results": results, "goal": {"rms": 0.01, "scale": 0.005}, "argv": sys.argv[1:]})
 
 
 if __name__ == "__main__":
