@@ -177,3 +177,25 @@ def test_catmull_rom_intervals_are_the_cubic_through_the_rows(mi_variant):
                 for f in (0.0, 0.5, 1.0):
                     assert abs(cubic(f) - ref(f)) <= 1e-5 * max(1.0, abs(ref(f))), (j, i, f)
         start += rows.size
+
+
+def test_packed_rows_written_in_place_are_the_intervals(mi_variant):
+    """The plugin writes its packed intervals straight into its Dr.Jit arrays where the backend keeps
+    them on the host (:func:`corona.mitsuba.common.host_buffer`): they are, value for value, the
+    intervals :func:`corona.mitsuba.sphere._catmull_rom_intervals` builds in numpy; and the buffer's
+    numpy view is the array's memory (a write through it is read back by Dr.Jit), where elsewhere
+    it is a plain numpy array to upload."""
+    import mitsuba as mi
+    from corona.mitsuba import common, sphere
+    bsdf = _load(LAYERS["hard-disk"])
+    if bsdf.P_spline is None:
+        pytest.skip("the vectorised variants pack the rows")
+    rows = bsdf.material.rows
+    want = sphere._catmull_rom_intervals(rows["P_f"], rows["P_b"]).ravel()
+    np.testing.assert_array_equal(np.asarray(bsdf.P_spline), want)
+    buf, view = common.host_buffer(mi.Float, 8)
+    if buf is None:                                 # CUDA: filled in numpy, uploaded
+        assert isinstance(view, np.ndarray) and view.dtype == np.float32 and view.size == 8
+        return
+    view[:] = np.arange(8, dtype=np.float32)
+    np.testing.assert_array_equal(np.asarray(buf + 0.0), np.arange(8, dtype=np.float32))

@@ -189,6 +189,26 @@ def array(dtype, values):
     return out
 
 
+def host_buffer(dtype, n):
+    """An array of ``n`` float32 values to fill in place: ``(array, view)``, ``view`` a writable
+    numpy view of the Dr.Jit ``array``'s own memory where the backend keeps it on the host (LLVM):
+    a large table is then written once, not built in numpy and copied (:func:`array`).  Elsewhere
+    (CUDA, scalar variants, or a backend that hands numpy a copy) ``(None, view)``, ``view`` a
+    numpy array: upload it with :func:`array` once filled."""
+    n = int(n)
+    if dtype is mi.Float and dr.is_array_v(dtype) and dr.backend_v(dtype) == dr.JitBackend.LLVM and n > 0:
+        out = dr.empty(dtype, n)
+        dr.eval(out)
+        view = np.asarray(out)
+        if view.dtype == np.float32 and view.flags.writeable and view.size == n:
+            view[0] = 1.0                           # the view is the array's memory, not a copy
+            if dr.slice(out, 0) == 1.0:
+                view[0] = -1.0
+                if dr.slice(out, 0) == -1.0:
+                    return out, view
+    return None, np.empty(n, dtype=np.float32)
+
+
 def gather(dtype, source, index, active=True):
     """``dr.gather`` that also works in scalar variants (Python scalars there)."""
     if dr.is_array_v(dtype):
