@@ -10,7 +10,10 @@ variants that give wrong images and right costs:
 * ``hero``: the lane's first wavelength at all four (each lane one row of x, the lanes' rows random);
 * ``N wavelengths``: each wavelength rounded to the nearest of N evenly spaced over 360–830 nm (the
   render reads only the rows of N size parameters);
-* ``550 nm``: all four at 550 nm (every lane the same row).
+* ``550 nm``: all four at 550 nm (every lane the same row);
+* ``plain rows``: the lane's own wavelengths, the lobes' rows held plain (four scalar gathers a row's
+  Catmull–Rom taps, a quarter of the memory) instead of packed (one ``Vector4f`` a row's interval:
+  ``corona.mitsuba.sphere.LOBE_PACKING_BYTES`` set to 0 while the scene loads); the same image.
 
 Each variant's render over the opaque circle layer (``corona``) on the same scene, in one process,
 its renders interleaved round by round (the medians over the rounds; JIT untimed: a warm-up render
@@ -79,10 +82,21 @@ def main():
                 "hero": ("corona-mie", "hero", None)}
     variants.update({f"{n} wavelengths": ("corona-mie", "levels", n) for n in args.levels})
     variants["550 nm"] = ("corona-mie", "550", None)
+    variants["plain rows"] = ("corona-mie", "plain", None)
     scenes = {}
+    import corona.mitsuba.sphere as sphere_module
     for name, (key, mode, levels) in variants.items():
-        scene = mi.load_dict(street_light_scene(resolution=args.res, bsdf=BSDFS[key]))
-        if mode is not None:
+        packing = sphere_module.LOBE_PACKING_BYTES
+        if mode == "plain":
+            sphere_module.LOBE_PACKING_BYTES = 0
+        try:
+            scene = mi.load_dict(street_light_scene(resolution=args.res, bsdf=BSDFS[key]))
+        finally:
+            sphere_module.LOBE_PACKING_BYTES = packing
+        if mode == "plain":
+            found = [s.bsdf() for s in scene.shapes() if hasattr(s.bsdf(), "P_spline")]
+            assert found and all(b.P_spline is None for b in found), "the rows are still packed"
+        elif mode is not None:
             found = [s.bsdf() for s in scene.shapes() if hasattr(s.bsdf(), "_wavelengths")]
             assert found, "no sphere layer in the scene"
             for bsdf in found:
