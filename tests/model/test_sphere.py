@@ -108,6 +108,23 @@ def test_tables_match_mie(poisson):
     assert rel[deg > 90].max() < 0.10
 
 
+def test_rows_sorted_in_place(poisson):
+    # the refinement sorts its rows into place (corona.model.mie.layer._gather_rows_in_place, no copy
+    # of the table): the permutation against numpy's fancy indexing, and a built table's rows in
+    # strictly increasing x, each the lobe of its own x (test_tables_match_mie checks a row's values)
+    from corona.model.mie.layer import _gather_rows_in_place
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 500):
+        a, b = rng.random((n, 5)), rng.random(n)
+        src = rng.permutation(n)
+        want_a, want_b = a[src], b[src]
+        _gather_rows_in_place([a, b], src)
+        assert np.array_equal(a, want_a) and np.array_equal(b, want_b)
+    x = poisson.rows["x"]
+    assert np.all(np.diff(x) > 0)
+    assert np.allclose(poisson.rows["wavelength"], 2e3 * np.pi * poisson.sphere.radius / x)
+
+
 def test_row_energies_are_q_sca(poisson):
     # the rows' ∫ P dΩ over both hemispheres is Q_sca of the series (to the tables' accuracy)
     d = poisson._derived

@@ -490,7 +490,37 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
             pend_err = np.concatenate([pend_err[rest], c_err])
     kept = np.concatenate(kept)
     kept = kept[np.argsort(store["x"][kept])]
-    return {k: v[kept] for k, v in store.items()}
+    # the kept rows moved to the front of the store in increasing x, in place: a sorted copy of
+    # the table would be as much fresh memory again, paid for page by page on a cold load
+    # (0.1-0.2 s at 8 µm); the rows returned are the store's first rows
+    _gather_rows_in_place(list(store.values()), np.concatenate(
+        [kept, np.setdiff1d(np.arange(used), kept, assume_unique=True)]))
+    return {k: v[:kept.size] for k, v in store.items()}
+
+
+def _gather_rows_in_place(arrays, src):
+    """``a[i] = a[src[i]]`` for ``i < len(src)`` in each of ``arrays`` (rows along the first axis),
+    ``src`` a permutation of ``range(len(src))``: the permutation's cycles followed once, one row
+    of scratch per array, no copy of the arrays."""
+    src = np.asarray(src, dtype=np.int64)
+    done = src == np.arange(src.size)
+    tmp = [np.empty(a.shape[1:], a.dtype) for a in arrays]
+    for start in np.flatnonzero(~done):
+        if done[start]:
+            continue
+        for a, t in zip(arrays, tmp):
+            t[...] = a[start]
+        i = start
+        while True:
+            j = src[i]
+            done[i] = True
+            if j == start:
+                for a, t in zip(arrays, tmp):
+                    a[i] = t
+                break
+            for a in arrays:
+                a[i] = a[j]
+            i = j
 
 
 def _evaluate_rows(sphere, x, basis) -> dict:
