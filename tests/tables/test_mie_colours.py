@@ -8,8 +8,8 @@ miss the issue's 1 % between rows (resonances narrower than the rows: docs/mie.m
 (energy-weighted RMS of X, Y and Z ≤ 1 %, the scale of Y within 0.5 %, per lobe) over the whole
 radius range, 0.5-25 µm, water with its dispersion.
 
-The table side is ``SphereMaterial._lobes`` (what the plugin evaluates, within float32 of it:
-tests/plugin/test_plugin_sphere.py); the reference is ``corona.model.mie.theory.amplitudes``
+The table side is ``SphereMaterial._lobes`` (what the plugin evaluates, to 1e-4 of the lobe's
+peak: tests/plugin/test_plugin_sphere.py); the reference is ``corona.model.mie.theory.amplitudes``
 (checked against miepython in tests/model/test_mie.py) at water's index ``theory.water_ior``,
 ``P = (|S1|² + |S2|²) / (2π x²)`` per steradian: nothing of the table builder.  The wavelength
 integral is stratified Monte Carlo over 360-830 nm (equal-energy illuminant), the same draws for
