@@ -43,10 +43,12 @@ test: venv chromium $(DOCS_STAMP)
 	$(PY) -m pytest -n 2 -q $(PYTEST_ARGS)
 
 # the physics and the plugin's pointwise checks (-m "not slow": no chi-square runs, renders,
-# browser, reference simulations, processes or clusters; markers: tests/conftest.py), with the
-# tables in a cache kept between runs (.pytest-tables), so that a warm run is quick
+# browser, reference simulations, processes or clusters; markers set where each test is defined,
+# checked by tests/conftest.py). Both targets keep the tables in the tests' cache outside the
+# clone, one folder per fingerprint of the table-building code (scripts/suite_cache.py; the root
+# is $CORONA_TEST_CACHE or ~/.cache/corona-tests), so a second run reads them back
 test-fast: venv
-	CORONA_CACHE_DIR=$(CURDIR)/.pytest-tables $(PY) -m pytest -n 2 -q -m "not slow" tests $(PYTEST_ARGS)
+	$(PY) -m pytest -n 2 -q -m "not slow" tests $(PYTEST_ARGS)
 
 # every scene of scenes/ at modest spp -> docs/gallery/*.png and docs/gallery.md
 # (make gallery VARIANT=llvm_ad_rgb: another Mitsuba variant; default the fastest spectral one)
@@ -91,8 +93,10 @@ docs: $(DOCS_STAMP)
 docs-check: $(DOCS_STAMP)
 	$(PY) scripts/check_docs.py
 
+# the user's table cache (corona tables clear) and every test cache (scripts/suite_cache.py)
 clean-cache: venv
 	$(PY) -m corona.apps.cli tables clear
+	$(PY) scripts/suite_cache.py clear
 
 clean:
 	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache .pytest-tables docs/_build

@@ -1,9 +1,19 @@
 """pytest setup shared by tests/ and the doctests of src/corona (see testpaths in pyproject.toml)."""
 import os
-import tempfile
+import sys
 
-# Tables built by the tests and the doctests go to a private cache, never the user's.
-os.environ.setdefault("CORONA_CACHE_DIR", tempfile.mkdtemp(prefix="corona-test-cache-"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "scripts"))
+import suite_cache  # noqa: E402  (scripts/suite_cache.py)
+
+# Tables built by the tests and the doctests go to the tests' cache, never the user's: one
+# folder per fingerprint of the code that builds tables, outside the clone and kept between
+# runs, so a run builds each table once and a later run of the same code reads them back
+# (scripts/suite_cache.py says what the fingerprint holds; CORONA_TEST_CACHE moves the root;
+# `make clean-cache` deletes it).  It replaces any CORONA_CACHE_DIR of the environment: a cache
+# keyed by parameters alone could serve a table of older code.  The xdist workers inherit it.
+os.environ["CORONA_CACHE_DIR"] = suite_cache.folder()
+os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(suite_cache.root(), "numba"))
+suite_cache.prune()
 
 import corona  # noqa: E402,F401  (sets DRJIT_LIBLLVM_PATH before drjit loads)
 import pytest  # noqa: E402
