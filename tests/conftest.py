@@ -1,6 +1,7 @@
-"""Fixtures shared by the tests, and the markers of each collected test.
+"""Fixtures shared by the tests, and the check of each collected test's markers.
 
-Markers (registered in pyproject.toml, ``[tool.pytest.ini_options]``):
+Markers (registered in pyproject.toml, ``[tool.pytest.ini_options]``), set by hand where the
+test is defined (a decorator, or ``pytestmark`` where the whole file is slow):
 
 ``chi2``
     runs Mitsuba's chi-square test (:func:`bsdf_checks.run_chi2`);
@@ -12,12 +13,14 @@ Markers (registered in pyproject.toml, ``[tool.pytest.ini_options]``):
     uses the reference tier (``corona.reference``) or an outside reference (miepython);
 ``slow``
     any of these, or starts Python processes, a Dask cluster or a render through the CLI,
-    or is a property test (hypothesis: random materials, a table each).
+    or is a property test (hypothesis: random materials, a table each), or takes more than
+    about 3 s on two shared cores.
 
-A test file may set them itself (``pytestmark``, decorators); for the others they are set
-here from what the test's code names (the names its function and the module's functions
-it calls use), so that a new chi-square or render test is marked without a list to keep.
 ``make test-fast`` runs ``-m "not slow"``: the physics and the plugin's pointwise checks.
+The collection checks the marks (:func:`pytest_collection_modifyitems`): a test whose code
+names a chi-square run, a render, the reference tier, a process or cluster, or that takes a
+costly fixture, and lacks the mark that says so, stops the session with one error listing
+the test ids and the marks to add, so that a new slow test never slips into ``test-fast``.
 """
 import os
 import sys
@@ -38,25 +41,6 @@ SLOW_NAMES = {"subprocess", "Executor", "LocalCluster", "running"}
 #: fixtures that cost seconds to set up (a cluster, rendered photographs, built layers)
 SLOW_FIXTURES = {"cluster", "photographs", "fits", "layers", "driver", "browser",
                  "hd03", "short_run", "reverse", "forward", "dist"}
-#: tests measured above 3 s warm on two shared cores that the rules above miss (a fit, lobe
-#: pictures, brute-force lattices, a lattice table, processes building one cache file)
-SLOW_TESTS = {"test_fit_window_recovers_radius_area_fraction_and_bitmap", "test_lobe_picture",
-              "test_lobe_picture_anisotropic", "test_lattice_table_keeps_each_bragg_peak_weight",
-              "test_warped_table_covers_every_evaluated_direction", "test_many_processes_build_one_valid_file",
-              "test_extinction_paradox", "test_lattice_matches_brute_force_jittered_lattice",
-              # the sphere furnace's numpy sweep (252 incidences each), Percus-Yevick against a
-              # simulation, a small `corona validate`, Mie tables between rows, large droplets,
-              # RSA to jamming
-              "test_furnace_sweep_numpy", "test_percus_yevick_against_simulation", "test_cli_validate",
-              "test_table_between_nodes_and_rows_matches_mie", "test_large_droplets_coherent_is_one_minus_fa_squared",
-              "test_rsa_saturates_at_jamming_limit",
-              # 20 µm droplets with a size spread against brute-force Mie (6000 sizes)
-              "test_large_droplet_spread_matches_brute_force_mie",
-              # reverse and forward AD of a textured or anisotropic layer (a kernel compiled per
-              # case: 1-17 s each on two idle cores)
-              "test_derivatives_match_central_differences",
-              # spheres on a lattice: an order near grazing exit integrated on a fine polar grid
-              "test_grazing_order_energy_and_furnace"}
 BROWSER_FILES = {"test_designer_browser.py"}
 #: a CLI test (CliRunner.invoke, subprocess.run) of one of these commands renders
 CLI_RENDERS = {"str:render", "str:sweep"}
@@ -92,36 +76,68 @@ def _uses_reference(names: set[str], module) -> bool:
     return "miepython" in names
 
 
+def required_marks(item) -> set[str]:
+    """The marks the code of ``item`` calls for (see the module docstring); empty for doctests."""
+    fn = getattr(item, "function", None)
+    module = getattr(item, "module", None)
+    if fn is None or module is None:
+        return set()
+    names = _names(fn, module)
+    need = set()
+    if names & CHI2_NAMES:
+        need.add("chi2")
+    if names & RENDER_NAMES or ({"invoke", "run"} & names and CLI_RENDERS & names):
+        need.add("render")
+    if os.path.basename(str(item.fspath)) in BROWSER_FILES:
+        need.add("browser")
+    if _uses_reference(names, module):
+        need.add("reference")
+    if need or names & SLOW_NAMES or set(getattr(item, "fixturenames", ())) & SLOW_FIXTURES \
+            or getattr(fn, "is_hypothesis_test", False):
+        need.add("slow")
+    return need
+
+
 def pytest_collection_modifyitems(config, items):
-    """Marks from the code (see the module docstring), and the session's chi-square count."""
+    """Check every test's marks against its code (no mark is added here), and count the
+    session's chi-square runs (the Sidak correction of :mod:`bsdf_checks`)."""
     import bsdf_checks
-    n_chi2 = 0
+    n_chi2, missing = 0, []
     for item in items:
-        fn = getattr(item, "function", None)
-        module = getattr(item, "module", None)
-        if fn is None or module is None:
-            continue
-        names = _names(fn, module)
         marks = {m.name for m in item.iter_markers()}
-        new = set()
-        if names & CHI2_NAMES:
-            new.add("chi2")
-        if names & RENDER_NAMES or ({"invoke", "run"} & names and CLI_RENDERS & names):
-            new.add("render")
-        if os.path.basename(str(item.fspath)) in BROWSER_FILES:
-            new.add("browser")
-        if _uses_reference(names, module):
-            new.add("reference")
-        if (new | marks) & {"chi2", "render", "browser", "reference"} or names & SLOW_NAMES \
-                or set(getattr(item, "fixturenames", ())) & SLOW_FIXTURES \
-                or getattr(fn, "is_hypothesis_test", False) \
-                or item.originalname in SLOW_TESTS:
-            new.add("slow")
-        for m in sorted(new - marks):
-            item.add_marker(getattr(pytest.mark, m))
-        if "chi2" in new | marks:
+        lacking = required_marks(item) - marks
+        if "slow" not in marks and marks & {"chi2", "render", "browser", "reference"}:
+            lacking.add("slow")
+        if lacking:
+            missing.append(f"  {item.nodeid}: add " + ", ".join(f"@pytest.mark.{m}" for m in sorted(lacking)))
+        if "chi2" in marks:
             n_chi2 += 1
+    if missing:
+        message = (f"{len(missing)} test(s) lack the marks their code calls for (chi-square runs, "
+                   "renders, the reference tier, processes, clusters or costly fixtures are slow; "
+                   "tests/conftest.py):\n" + "\n".join(missing)
+                   + "\nMark each where it is defined (a decorator, or pytestmark for a whole file).")
+        if not hasattr(config, "workerinput"):
+            raise pytest.UsageError(message)
+        # an xdist worker's UsageError reaches the terminal as a bare INTERNALERROR: there the
+        # check is a test of its own that fails with the message, first in every selection
+        items.insert(0, MarksCheck.from_parent(items[0].session, name="test_marks_match_the_code",
+                                               message=message))
     bsdf_checks.CHI2_SESSION_COUNT = n_chi2
+
+
+class MarksCheck(pytest.Item):
+    """The failed marks check (:func:`pytest_collection_modifyitems`) under pytest-xdist."""
+
+    def __init__(self, *, message: str, **kwargs):
+        super().__init__(**kwargs)
+        self.message = message
+
+    def runtest(self):
+        pytest.fail(self.message, pytrace=False)
+
+    def reportinfo(self):
+        return self.path, None, "tests/conftest.py: the marks of the collected tests"
 
 
 @pytest.fixture(scope="session")

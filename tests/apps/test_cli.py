@@ -47,10 +47,14 @@ def assert_one_line_error(result, *words):
 # ----------------------------------------------------------------------------
 # errors: missing file, unknown option, bad parameter
 # ----------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.render
 def test_render_missing_file(tmp_path):
     assert_one_line_error(run("render", tmp_path / "nope.xml"), "nope.xml", "does not exist")
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_render_missing_file_from_the_console_script(tmp_path):
     """The real entry point (a separate process), not only click's test runner."""
     p = subprocess.run([sys.executable, "-m", "corona.apps.cli", "render", str(tmp_path / "nope.xml")],
@@ -81,6 +85,8 @@ def test_bad_parameter_on_the_command_line(args, words):
     assert_one_line_error(run(*args), *words)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("define,words", [
     ("area_fraction=1.5", ["area_fraction=1.5", "teaser.xml", "line"]),
     ("radius=-1", ["radius", "teaser.xml"]),
@@ -93,11 +99,15 @@ def test_bad_scene_parameter_is_one_line(define, words, variant, tmp_path):
     assert_one_line_error(run("render", TEASER, "-D", define, "-D", "spp=1", "--out", tmp_path), *words)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_bad_variant(tmp_path):
     assert_one_line_error(run("render", TEASER, "--variant", "no_such_variant", "--out", tmp_path),
                           "no_such_variant")
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_bad_plugin_parameter_in_a_scene_file(tmp_path, variant):
     bad = tmp_path / "bad.xml"
     bad.write_text(open(TEASER, encoding="utf-8").read().replace(
@@ -109,6 +119,8 @@ def test_bad_plugin_parameter_in_a_scene_file(tmp_path, variant):
 # ----------------------------------------------------------------------------
 # render
 # ----------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.render
 def test_render_writes_linear_exr_and_png(tmp_path, variant):
     import imageio.v3 as iio
     import mitsuba as mi
@@ -126,6 +138,8 @@ def test_render_writes_linear_exr_and_png(tmp_path, variant):
     assert p.shape == (16, 16, 3) and p.dtype == np.uint8
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_render_default_variant_and_scene_spp(tmp_path, variant):
     """Without --variant the fastest one is picked and named; without --spp the scene's spp is used."""
     r = run("render", TEASER, "-D", "res=8", "-D", "spp=3", "--out", tmp_path)
@@ -134,6 +148,8 @@ def test_render_default_variant_and_scene_spp(tmp_path, variant):
     assert "3 spp" in r.stdout
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_render_converts_xyz_film_to_linear_srgb(tmp_path, variant):
     """Whatever the film's pixel format, the EXR holds linear sRGB."""
     import mitsuba as mi
@@ -217,6 +233,7 @@ def test_lobe_json_anisotropic_material():
     assert o["form_factor_Ta"][0] == pytest.approx(16.0 / 0.55**2, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_lobe_picture(tmp_path, monkeypatch):
     import imageio.v3 as iio
     import matplotlib
@@ -233,6 +250,7 @@ def test_lobe_picture(tmp_path, monkeypatch):
     assert img.ndim == 3 and img.shape[1] > 2 * img.shape[0]    # the panels side by side
 
 
+@pytest.mark.slow
 def test_lobe_picture_anisotropic(tmp_path):
     out = tmp_path / "sq.png"
     r = run("lobe", "--shape", "square", "--radius", "20", "--area-fraction", "0.25",

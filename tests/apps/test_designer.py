@@ -60,6 +60,7 @@ def one_line_400(res, *words, status=400):
 # ----------------------------------------------------------------------
 # the package boundary
 # ----------------------------------------------------------------------
+@pytest.mark.slow
 def test_import_corona_does_not_import_the_web_libraries():
     code = ("import sys, corona; bad = [m for m in ('starlette', 'uvicorn', 'corona.apps.designer', 'PIL') "
             "if m in sys.modules]; print(','.join(bad))")
@@ -477,6 +478,7 @@ def _slow_corona(monkeypatch, seconds):
     return state
 
 
+@pytest.mark.slow
 def test_timed_out_computations_keep_their_slot(monkeypatch):
     """A request past the time limit is answered 503 at once, but its computation holds its
     slot until it ends: requests that time out one after another never run more than
@@ -601,6 +603,7 @@ def test_designer_command_on_a_taken_port_is_one_line_error():
     assert "designer" in CliRunner().invoke(main, ["--help"]).stdout
 
 
+@pytest.mark.slow
 def test_served_over_http_on_loopback():
     """A real uvicorn server on 127.0.0.1 (what `corona designer` runs)."""
     import urllib.request

@@ -9,6 +9,8 @@ import shutil
 
 import pytest
 
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
 pytest.importorskip("starlette")
 pytest.importorskip("selenium")
 

@@ -85,6 +85,7 @@ def fits(photographs):
     return [fit_photograph(path, fov, source_diameter_deg=lamp) for _, fov, lamp, path, _ in photographs]
 
 
+@pytest.mark.slow
 def test_the_photographs_are_hard_enough(photographs):
     """Off-centre lamp, a saturated core, and the corona visible around it."""
     import imageio.v3 as iio
@@ -96,6 +97,7 @@ def test_the_photographs_are_hard_enough(photographs):
         assert math.hypot(xs.mean() - RES / 2, ys.mean() - RES / 2) > 3, "lamp off-centre"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("i", range(len(CASES)))
 def test_fit_recovers_radius_and_spread(photographs, fits, i):
     c = photographs[i][0]
@@ -110,6 +112,7 @@ def test_fit_recovers_radius_and_spread(photographs, fits, i):
     assert r.residual < 0.1 and 0.2 < r.chi2_reduced < 5
 
 
+@pytest.mark.slow
 def test_red_first_ring_follows_the_rule_of_thumb(photographs, fits):
     """Cowley's rule: droplet diameter [µm] ≈ 250 moon diameters / red first ring's
     diameter.  The ring is measured on the photograph (maximum of the red
@@ -125,6 +128,7 @@ def test_red_first_ring_follows_the_rule_of_thumb(photographs, fits):
     assert r.red_ring_diameter_deg == pytest.approx(2 * r.red_rings_deg[0], rel=0.03)
 
 
+@pytest.mark.slow
 def test_linear_exr_without_clipping(photographs, tmp_path):
     """A linear EXR (no saturation: the lamp is found by its half-maximum
     centroid) through the command line, one JSON object on stdout."""
@@ -146,6 +150,7 @@ def test_linear_exr_without_clipping(photographs, tmp_path):
     assert (tmp_path / "out" / "corona_fit.xml").read_text().strip() == out["xml"].strip()
 
 
+@pytest.mark.slow
 def test_fitted_xml_loads_as_the_fitted_material(fits, mi_variant):
     """The XML snippet is a working plugin BSDF with the fitted parameters (a
     monodisperse copy of a fit, whose table builds fast)."""
@@ -167,6 +172,7 @@ def test_fitted_xml_loads_as_the_fitted_material(fits, mi_variant):
     assert f"Circle(radius={float(values['radius']):g})" in loaded and "particle" in loaded, loaded
 
 
+@pytest.mark.slow
 def test_bootstrap_uncertainties(photographs):
     """Errors from refits over resampled sectors are finite and of the covariance's order."""
     c, fov, lamp, path, _ = photographs[2]
@@ -177,6 +183,7 @@ def test_bootstrap_uncertainties(photographs):
     assert 0 < boot.radius_err < 10 * cov.radius_err + 1e-3 * cov.radius
 
 
+@pytest.mark.slow
 def test_diagnostic_png(fits, tmp_path, monkeypatch):
     """Profiles and rings with matplotlib; without it the image with the rings, and a note."""
     import sys

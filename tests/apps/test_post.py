@@ -180,6 +180,8 @@ def test_bad_input_one_line(bad, match):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_render_through_the_pane_equals_post_of_the_render_without_it():
     """Mitsuba (RGB variant, box filter): a small bright light seen through the corona pane
     right in front of the camera, against the same scene without the pane passed through
@@ -255,6 +257,7 @@ def images(tmp_path_factory):
     return folder, img
 
 
+@pytest.mark.slow
 def test_cli_exr_and_png(images):
     import mitsuba as mi
     folder, img = images
@@ -271,6 +274,7 @@ def test_cli_exr_and_png(images):
     assert (folder / "out.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_cli_refuses_8_bit_input_without_srgb_input(images):
     folder, _ = images
     r = _cli("post", str(folder / "in.png"), "--fov", "30", "--out", str(folder / "o.exr"))
@@ -281,6 +285,7 @@ def test_cli_refuses_8_bit_input_without_srgb_input(images):
     assert r.returncode == 0, r.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args, match", [
     (["--fov", "200"], "fov=200.0 is out of range"),
     (["--fov", "30", "-D", "radius=-1"], "radius='-1' is out of range"),
@@ -296,6 +301,7 @@ def test_cli_errors_one_line(images, args, match):
     assert match in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
 
 
+@pytest.mark.slow
 def test_cli_bad_output_name(images):
     folder, _ = images
     r = _cli("post", str(folder / "in.exr"), "--fov", "30", "--out", str(folder / "o.tif"))

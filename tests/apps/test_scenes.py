@@ -58,6 +58,8 @@ def test_scene_declares_its_parameters_and_units(path):
     assert 'type="corona"' in text or 'type="corona_mie"' in text    # the BSDF or the phase function
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("path", SCENES, ids=os.path.basename)
 def test_scene_renders_finite(path, variant):
     rgb, _ = _render(path, {})
@@ -80,6 +82,8 @@ def _gallery_panels():
     return out
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("scene,defines", _gallery_panels())
 def test_gallery_panel_renders_finite(scene, defines, variant):
     rgb, _ = _render(os.path.join(ROOT, "scenes", scene), defines)
@@ -117,6 +121,8 @@ def test_gallery_tile_and_page(tmp_path):
     assert gallery.STRIPS[1].title not in text
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_incidence_scene_tilts_the_layer(variant):
     """elevation=30 stretches the corona along the tilt (x), not along y."""
     path = os.path.join(ROOT, "scenes", "sweep_incidence.xml")
@@ -137,6 +143,8 @@ def test_incidence_scene_tilts_the_layer(variant):
 RGB_VARIANTS = [("llvm_ad_rgb", 16, 2), ("scalar_rgb", 8, 1)]   # scalar: Python per sample, keep it tiny
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("name,res,spp", RGB_VARIANTS, ids=[v[0] for v in RGB_VARIANTS])
 @pytest.mark.parametrize("path", SCENES, ids=os.path.basename)
 def test_scene_renders_in_rgb_variants(path, name, res, spp, mi_variant):
@@ -155,6 +163,8 @@ def test_scene_renders_in_rgb_variants(path, name, res, spp, mi_variant):
     assert rgb.max() > 0, "the light (or its corona) is in view"
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_street_light_scene_renders_in_rgb(mi_variant):
     import mitsuba as mi
     from corona.apps.render import setup_variant

@@ -74,6 +74,7 @@ def test_malformed_defines(bad, match):
         parse_defines(bad)
 
 
+@pytest.mark.slow
 def test_import_corona_does_not_import_dask():
     code = ("import sys, corona, corona.apps.sweep, corona.apps.cli, corona.apps.render; "
             "print(any(m.split('.')[0] in ('distributed', 'dask') for m in sys.modules))")
@@ -88,6 +89,8 @@ def _sweep_cli(*args):
     return CliRunner().invoke(main, ["sweep", SCENE, *args])
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("defines,words", [
     (["-D", "radius"], ["-D 'radius'", "NAME=V1,V2"]),
     (["-D", "radius=1,,2"], ["empty value"]),
@@ -100,6 +103,8 @@ def test_cli_bad_defines(tmp_path, defines, words):
     assert not list(tmp_path.glob("o/*.exr"))
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_cli_output_folder_not_writable(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
@@ -107,6 +112,8 @@ def test_cli_output_folder_not_writable(tmp_path):
     _one_line_error(r, "--out", "not a writable folder")
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_cli_unreachable_scheduler(tmp_path):
     address = f"tcp://127.0.0.1:{_free_port()}"        # nothing listens there
     r = _sweep_cli("-D", "radius=2.5,5", "-D", "res=16", "--out", str(tmp_path / "o"),
@@ -119,6 +126,8 @@ def test_cli_unreachable_scheduler(tmp_path):
     _one_line_error(r, "exclude each other")
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_scheduler_without_workers(tmp_path):
     from distributed import LocalCluster
     with LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address=None) as empty:
@@ -128,6 +137,8 @@ def test_scheduler_without_workers(tmp_path):
     assert not list((tmp_path / "o").glob("*.exr"))
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_cli_sweep_on_an_existing_scheduler(tmp_path, cluster):
     """--scheduler: the fixture's cluster seen as a remote one (its workers get the thread plan)."""
     address = cluster.cluster.scheduler_address
@@ -143,6 +154,8 @@ def test_cli_sweep_on_an_existing_scheduler(tmp_path, cluster):
 # ----------------------------------------------------------------------
 # a sweep: serial vs 2-worker cluster, failures, skipping, --force
 # ----------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.render
 def test_sweep_cluster_matches_serial_then_skips_and_forces(tmp_path, cluster, mi_variant):
     grid = {"radius": ["5", "-1", "2.5"], **TINY}       # radius=-1: a bad point among good ones
     serial = run_sweep(SCENE, grid, str(tmp_path / "serial"), executor=Executor(workers=0),
@@ -177,6 +190,8 @@ def test_sweep_cluster_matches_serial_then_skips_and_forces(tmp_path, cluster, m
     assert exr.stat().st_mtime_ns > before
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_cli_sweep_in_process_reports_the_failed_point(tmp_path):
     out = tmp_path / "o"
     r = _sweep_cli("-D", "radius=5,-1", "-D", "res=16", "-D", "spp=2", "--out", str(out),
@@ -200,6 +215,7 @@ def _strip_times(obj):
     return obj
 
 
+@pytest.mark.slow
 def test_validate_on_cluster_identical_to_serial(tmp_path, cluster):
     from corona.reference import validate as v
     kw = dict(cases=["circle-poisson-0.30-add"], realisations=2, n_scatterers=64, progress=False,
@@ -222,6 +238,7 @@ def _tiny_hard_disk_settings(eta):
                 q_sigma_max=42.0, bin_width=0.05, seed=11 + int(round(1000 * eta)))
 
 
+@pytest.mark.slow
 def test_hard_disk_rows_on_cluster_identical_to_serial(tmp_path, cluster):
     import make_hard_disk_table as T
     etas = [0.3, 0.5]
@@ -238,6 +255,7 @@ def test_hard_disk_rows_on_cluster_identical_to_serial(tmp_path, cluster):
             np.testing.assert_array_equal(z["S"], ra["S"])
 
 
+@pytest.mark.slow
 def test_rsa_chunks_on_cluster_identical_to_serial(cluster):
     import make_rsa_table as T
     args = types.SimpleNamespace(box=10.0, runs=4, chunk=2, kcut=4.5, dr=0.05, rmax=3.0, seed=5)
@@ -278,6 +296,8 @@ def silent_listener():
         c.close()
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_a_scheduler_that_accepts_and_never_answers(tmp_path, silent_listener):
     """Dask's Client waited without end (or a TimeoutError traceback from client.close())."""
     import time
@@ -289,6 +309,8 @@ def test_a_scheduler_that_accepts_and_never_answers(tmp_path, silent_listener):
     assert not list((tmp_path / "o").glob("*.exr"))
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("address", ["http://127.0.0.1:9", "https://example.com/dask", "ftp://h:1"])
 def test_a_non_dask_scheduler_address_is_refused_at_once(tmp_path, address):
     import time
@@ -300,6 +322,8 @@ def test_a_non_dask_scheduler_address_is_refused_at_once(tmp_path, address):
         Executor(scheduler=address)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("value", ["inf", "-inf", "nan", "0", "-1", "1e308"])
 def test_timeout_must_be_finite_and_positive(tmp_path, value):
     r = _sweep_cli("-D", "radius=5", "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9",
@@ -309,6 +333,8 @@ def test_timeout_must_be_finite_and_positive(tmp_path, value):
         Executor(scheduler="tcp://127.0.0.1:9", timeout=float(value))
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_many_local_workers_are_capped_at_the_points_and_cores(tmp_path, monkeypatch):
     """--workers 1000 on a two-point sweep started 1000 processes on 2 cores (a hang): the local
     cluster gets at most one worker per point and WORKERS_PER_CORE per core, said in one line."""

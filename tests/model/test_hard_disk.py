@@ -54,6 +54,8 @@ def pair_distances_ok(pos, L):
 # --------------------------------------------------------------------------
 # the shipped table
 # --------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.reference
 def test_table_file_and_metadata():
     from corona.model.processes.hard_disk import _table_path
     path = _table_path()
@@ -70,6 +72,8 @@ def test_table_file_and_metadata():
     assert np.all(t["min_distance"][1:] >= 1.0 - 1e-9)      # no overlaps in any run
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("eta, rel_tol", [(0.3, 0.03), (0.5, 0.04)])
 def test_table_compressibility_limit_vs_henderson(eta, rel_tol):
     # docs/physics.md#hard-disk-thermodynamics: S(0) = 1/(d(ηZ)/dη) ≈ 0.258 at η=0.3, 0.079 at η=0.5
@@ -79,6 +83,8 @@ def test_table_compressibility_limit_vs_henderson(eta, rel_tol):
     assert abs(S0 / ref - 1) < rel_tol, (S0, ref)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_table_pressure_and_contact_value_vs_henderson():
     t = hd.load_table()
     eta, Z = t["eta"], t["Z"]
@@ -111,6 +117,8 @@ def test_table_tends_to_one_at_large_q_and_is_continuous_at_the_join():
         assert abs(a - b) < 1e-6
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_table_rows_have_no_spikes():
     t = hd.load_table()
     q = t["q_sigma"]
@@ -131,6 +139,8 @@ def test_table_rows_have_no_spikes():
             assert np.all(np.diff(row[: int(0.8 * k)]) > -1e-4), eta
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_interpolation_between_rows_is_bounded_by_the_rows():
     t = hd.load_table()
     q = t["q_sigma"][::7]
@@ -158,6 +168,8 @@ def test_sum_rule_quadrature_itself():
 # --------------------------------------------------------------------------
 # Percus–Yevick route
 # --------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.reference
 def test_percus_yevick_low_density_limits():
     q = np.linspace(0, 40, 801)
     # compressibility limit and contact value close to Henderson at low η
@@ -174,6 +186,8 @@ def test_percus_yevick_low_density_limits():
     assert abs(sum_rule(PY()) / 0.5 - 1) < 1e-3
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("eta, tol", [(0.1, 0.006), (0.2, 0.01)])
 def test_percus_yevick_agrees_with_simulation_at_low_density(eta, tol):
     q = np.linspace(0, 40, 1601)
@@ -190,6 +204,7 @@ def short_run():
                                   sample_every=50, seed=7, progress=False)
 
 
+@pytest.mark.slow
 def test_simulation_has_no_overlaps(short_run):
     r = short_run
     assert r.min_distance >= 1.0 - 1e-9
@@ -199,6 +214,8 @@ def test_simulation_has_no_overlaps(short_run):
     assert abs(r.n_disks * np.pi / 4 / r.box_length**2 - 0.5) < 1e-12
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_simulation_thermodynamics_vs_henderson(short_run):
     r = short_run
     # pressure: Henderson's Z is within ~0.5 % of the exact one at η = 0.5
@@ -218,6 +235,8 @@ def test_simulation_thermodynamics_vs_henderson(short_run):
     assert np.all(np.isfinite(r.S_err[r.q_sigma > 1]))
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_simulation_is_reproducible():
     kw = dict(n_disks=100, n_sweeps=200, n_equilibration=100, sample_every=50, progress=False)
     a = hd.simulate_hard_disks(0.4, seed=3, **kw)
@@ -227,6 +246,8 @@ def test_simulation_is_reproducible():
     assert not np.array_equal(a.positions, c.positions)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_compressed_start_is_a_valid_configuration():
     r = hd.simulate_hard_disks(0.68, n_disks=150, n_sweeps=100, n_equilibration=50,
                                sample_every=50, seed=1, progress=False, start="compressed")
@@ -251,6 +272,8 @@ def test_process_geometry_and_radial_lookup():
     assert "HardDisk" in repr(p2) and p2.key()["type"] == "HardDisk"
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_bad_inputs():
     for bad in (0.0, 1.0, -0.1, float("nan"), "x"):
         with pytest.raises(CoronaError):

@@ -182,6 +182,7 @@ def test_mixture_parameter_follows_the_decoupling_formula():
     assert m.process.packing_fraction(m.shape) == pytest.approx(0.4 * np.pi * 3.0**2 / 4 / (w @ area))
 
 
+@pytest.mark.slow
 def test_lattice_table_keeps_each_bragg_peak_weight():
     """The 2D table of a lattice transmits what the exact lobe does into |d| <= 1.
 

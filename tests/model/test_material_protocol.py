@@ -32,6 +32,7 @@ def _public_methods(cls):
             if not name.startswith("_") and inspect.isfunction(member)}
 
 
+@pytest.mark.slow
 def test_a_sphere_layer_is_a_material(layers):
     assert issubclass(SphereMaterial, Material)
     for name in ("sphere", "sphere on glass"):
@@ -59,6 +60,7 @@ def test_every_property_is_there_for_both():
         assert hasattr(SphereMaterial, name), name
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cos_i", [1.0, 0.6, -0.8])
 def test_directional_albedo_has_the_same_keys_for_every_layer(layers, cos_i):
     for name, m in layers.items():
@@ -69,6 +71,7 @@ def test_directional_albedo_has_the_same_keys_for_every_layer(layers, cos_i):
         assert all(np.isfinite(v) and v >= -1e-12 for v in e.values()), (name, e)
 
 
+@pytest.mark.slow
 def test_a_flat_layers_forward_lobe_is_its_transmitted_lobe_without_a_pane(layers):
     """forward: the lobe through the layer without the pane's factors; a planar screen has no
     backward lobe.  On a pane the transmitted lobe is the forward one times T' < 1."""
@@ -78,6 +81,7 @@ def test_a_flat_layers_forward_lobe_is_its_transmitted_lobe_without_a_pane(layer
     assert 0.8 * g["forward"] < g["lobe_transmission"] < g["forward"]
 
 
+@pytest.mark.slow
 def test_pane_false_is_the_layer_alone(layers):
     """Negative control included: with its pane the answer differs."""
     on_glass = layers["square on glass"]
@@ -88,6 +92,7 @@ def test_pane_false_is_the_layer_alone(layers):
     assert on_glass.substrate is not None        # the pane of the material itself is kept
 
 
+@pytest.mark.slow
 def test_the_shared_parameters_a_flat_layer_does_not_need_change_nothing(layers):
     m = layers["circle"]
     wi = np.array([0.3, 0.0, np.sqrt(1 - 0.09)])
@@ -106,6 +111,7 @@ REFUSED = [("table", None), ("render_lobe", None), ("analytic_terms", None), ("d
            ("area_fraction_rows", ()), ("sample", ([[0.5, 0.5]], 550.0)), ("pdf", ([[0.01, 0.0]], 550.0))]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("member, args", REFUSED)
 def test_what_means_nothing_for_spheres_is_refused_in_one_line(layers, member, args):
     m = layers["sphere"]
@@ -125,6 +131,7 @@ def test_every_refusal_is_listed():
     assert flat.render_kind == "radial" and flat.table.total > 0 and flat.opaque_fraction == pytest.approx(0.8)
 
 
+@pytest.mark.slow
 def test_a_sphere_layer_says_what_it_is(layers):
     m = layers["sphere"]
     assert m.render_kind == "mie" and m.opaque_fraction == 0.0

@@ -12,6 +12,8 @@ CASES = [(1.33, 0.5), (1.33, 5.0), (1.33, 57.1), (1.5, 10.0), (1.55 + 0.1j, 3.0)
          (1.5 + 1.0j, 1.0), (1.33 + 1e-5j, 100.0), (0.75, 10.0), (2.5 + 0.3j, 25.0)]
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("m,x", CASES)
 def test_amplitudes_match_miepython(m, x):
     # miepython uses m = n - iκ (e^{+iωt}): its amplitudes are the complex conjugates of ours
@@ -23,6 +25,8 @@ def test_amplitudes_match_miepython(m, x):
     assert np.max(np.abs(s2 - np.conj(r2))) < 1e-9 * scale
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("m,x", CASES)
 def test_efficiencies_match_miepython(m, x):
     e = mie.efficiencies(m, x)
@@ -80,6 +84,7 @@ def test_wiscombe_amplitude_table():
     assert np.max(np.abs(s2 - np.conj(s2_ref))) < 1.5e-6
 
 
+@pytest.mark.slow
 def test_extinction_paradox():
     # Q_ext -> 2 at large x (van de Hulst §8.2), approached like x^(-2/3) (edge term)
     xs = [100.0, 1000.0, 10000.0]

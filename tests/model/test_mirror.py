@@ -203,6 +203,8 @@ def test_reciprocal(params):
 
 
 # --- the brute-force wave reference -------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("theta_s,back,t", [(0.0, 0.97, 4000.0), (10.0, 0.97, 2000.0), (0.0, "glass", 4000.0)])
 def test_wave_reference(theta_s, back, t):
     """Double-pass intensity over C times the single pass of the same screens, per direction,
@@ -263,6 +265,8 @@ def test_wave_reference_2d_rings():
     assert np.mean(np.abs(ratio - wrong) <= tol) < 0.7                      # negative control: thickness
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("area_fraction", [0.03, 0.2])
 def test_wave_reference_front_face_once(area_fraction):
     """A screen on the front face, no back reflection: the face's reflection crosses the screen
@@ -283,6 +287,8 @@ def test_wave_reference_front_face_once(area_fraction):
     assert abs(ref["specular"] / (c * c * r0) - 1) > 0.05                    # negative control
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_wave_reference_bare_glass_with_its_front_face():
     """Bare glass with a thickness, every path: front face once plus the round trips (within the
     noise of the front face's interference with the round trips, averaged over the band); the
@@ -301,6 +307,8 @@ def test_wave_reference_bare_glass_with_its_front_face():
     assert ref["specular"] == pytest.approx(float(spec), rel=0.03)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_babinet_and_binary_screen_per_pass():
     """Per pass the screen scatters F_a (1 - F_a) (binary screen, wave reference), and the
     aperture and particle layers of the same F_a share one lobe (Babinet): the reflected lobe
@@ -380,6 +388,7 @@ def test_plugin_matches_reference_spectral(mi_variant):
             assert np.all(np.array(w) == 0)
 
 
+@pytest.mark.slow
 def test_rgb_channels_average_the_fringes():
     """RGB: each channel's modulation (the mirror's reflected lobe over that of the same layer on
     plain glass, both as the plugin renders them) is the modulation averaged over the channel's
@@ -435,6 +444,8 @@ def test_rgb_channels_average_the_fringes():
     assert np.max(np.abs(naive - ref) / ref) > 0.2
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("theta", [0, 25, 60])
 def test_chi2_reflected_lobe(mi_variant, theta):
     import mitsuba as mi
@@ -562,6 +573,7 @@ def test_plugin_silvering_spectrum_per_wavelength(mi_variant, reflectance):
     np.testing.assert_allclose(np.array(w).ravel(), [m.specular_reflection(wi[2], lam) for lam in lams], rtol=1e-4)
 
 
+@pytest.mark.slow
 def test_rgb_silvering_spectrum(mi_variant):
     """RGB variants take a metal's name, 'nm:value' text or a <spectrum> of wavelength:value pairs
     (each response wavelength gets its R_m); a texture object, already a colour there, is refused

@@ -35,6 +35,7 @@ def min_periodic_distance(points, L):
 # ---------------------------------------------------------------------------
 # random sequential adsorption
 # ---------------------------------------------------------------------------
+@pytest.mark.slow
 def test_rsa_saturates_at_jamming_limit():
     L = 40.0
     cov = []
@@ -226,6 +227,7 @@ def test_lattice_background_away_from_peaks():
     assert lat.structure_factor_at(qq)[0] == pytest.approx(1.0, abs=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["square", "hexagonal"])
 def test_lattice_matches_brute_force_jittered_lattice(kind):
     """Finite periodic jittered lattice, S on box wave vectors, averaged over

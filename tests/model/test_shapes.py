@@ -596,6 +596,7 @@ def _moments(dist, spread):
     return (k + 1) / k, (k + 1) * (k + 2) * (k + 3) / k**3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dist", ["lognormal", "schulz"])
 def test_size_distribution(dist):
     c = Circle(1.0)

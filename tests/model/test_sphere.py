@@ -157,6 +157,7 @@ def test_energy_closure_dilute_absorbing():
     assert e["total"] == pytest.approx(1 - fa * q["q_abs"], abs=3 * fa * fa + 2e-6)
 
 
+@pytest.mark.slow
 def test_large_droplets_coherent_is_one_minus_fa_squared():
     # optical theorem: t = 1 - F_a s0 with s0 -> 1 for large spheres: (1 - F_a)² like opaque disks
     m = corona.Material(corona.Sphere(12.0), corona.HardDisk(0.3))

@@ -27,6 +27,7 @@ def _material(params):
         return material_from_parameters(**params)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("params", LAYERS, ids=lambda p: ",".join(f"{k}={v}" for k, v in p.items()))
 def test_furnace_sweep_numpy(params):
     m = _material(params)

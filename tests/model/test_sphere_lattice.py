@@ -44,6 +44,8 @@ def _wi(theta_deg, phi_deg):
     return np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("kind,delta,theta,phi", [("hexagonal", 0.2, 0.0, 0.0), ("hexagonal", 0.2, 30.0, 20.0),
                                                  ("square", 0.0, 0.0, 0.0), ("square", 0.0, 140.0, 50.0)])
 def test_orders_match_the_grating_equation_and_efficiency(kind, delta, theta, phi):
@@ -104,6 +106,8 @@ def test_orders_match_the_grating_equation_and_efficiency(kind, delta, theta, ph
     assert checked >= 8
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_diffuse_part_matches_a_brute_force_patch_sum():
     """Between the orders, the layer's eval equals the mean far-field intensity of jittered
     finite patches of spheres, ``(1 / (A μ_i)) |f(Θ)|² ⟨|Σ_j e^{i q·r_j}|²⟩ / N``."""
@@ -192,6 +196,7 @@ def test_refusals_name_the_reason():
     assert isinstance(corona.Material(corona.Sphere(1.0), corona.Lattice("square", 3.0)), SphereMaterial)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rho", [0.97, 0.995, 0.999, 1.001])
 def test_grazing_order_energy_and_furnace(rho):
     """An order leaving near grazing (a Rayleigh anomaly, ``|cos θ_G| → 0``): its energy from

@@ -109,6 +109,8 @@ def test_index_one_is_no_pane():
     assert clear.coherent_transmission(-0.3) == pytest.approx(plain.coherent_transmittance)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("cos_i", [1.0, 0.3, -0.6])
 def test_reference_matches_brute_force_paths(pane_material, cos_i):
     """Each component = the energy of the paths it stands for in a random walk through the stack;
@@ -203,6 +205,8 @@ def test_delta_weights_match_reference(mi_variant, pane_material):
             np.testing.assert_allclose(np.array(w).ravel(), float(ref), rtol=1e-5)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("extra,theta", [
     ({}, 0), ({}, 60), ({"albedo": 0.0}, 30),                     # meets the layer first
     ({"substrate_side": "back"}, 45),                              # meets the glass first

@@ -13,6 +13,7 @@ import pytest
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
 
 
+@pytest.mark.slow
 def test_tutorial_runs_and_says_what_it_should(tmp_path):
     """examples/tutorial.py end to end (docs/tutorial.md shows it): the fit finds the
     rendered radius, the gradient points back towards it."""

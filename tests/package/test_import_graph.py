@@ -269,6 +269,7 @@ def test_the_checker_sees_function_level_cycles(tmp_path, source, cycle):
     assert found == ([cycle] if cycle else [])
 
 
+@pytest.mark.slow
 def test_importing_the_model_imports_no_higher_tier():
     """``import corona.model.material`` (which runs the package root) loads the model and the shared
     infrastructure only; the applications' names of the root come on first use (PEP 562)."""

@@ -34,6 +34,7 @@ def test_an_unknown_name_is_still_an_import_error():
         importlib.import_module("corona.no_such_module")
 
 
+@pytest.mark.slow
 def test_python_m_old_cli_name_runs_the_cli():
     r = subprocess.run([sys.executable, "-m", "corona.cli", "--version"], capture_output=True, text=True)
     assert r.returncode == 0 and "version" in r.stdout

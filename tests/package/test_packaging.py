@@ -16,6 +16,8 @@ import pytest
 
 import corona
 
+pytestmark = [pytest.mark.slow]
+
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
 
 

@@ -3,6 +3,10 @@ material imports none of the reference tier's heavy dependencies."""
 import subprocess
 import sys
 
+import pytest
+
+pytestmark = [pytest.mark.slow]
+
 HEAVY = ("numba", "llvmlite", "matplotlib", "skimage", "dask", "distributed", "starlette", "uvicorn")
 
 SCRIPT = r"""

@@ -16,6 +16,9 @@ import sys
 import warnings
 
 import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.slow, pytest.mark.render]
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, os.pardir)
 DOC = os.path.join(ROOT, "docs", "combinations.md")

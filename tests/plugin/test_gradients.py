@@ -181,6 +181,7 @@ CASES = [(f, k, tex) for f in FAMILIES for k in ("area_fraction", "radius", "alb
          if not (f == "mixture" and k == "radius" and not tex)]     # a mixture's float radius is unused
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("family,key,textured", CASES)
 def test_derivatives_match_central_differences(mi_variant, family, key, textured):
     import mitsuba as mi
@@ -421,6 +422,7 @@ def reverse(mi_variant):
     return ad, {"area_fraction": uniform, "radius": uniform, "albedo": uniform, "area_fraction texel": textured}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["area_fraction", "radius", "albedo", "area_fraction texel"])
 def test_reverse_mode_render_gradient_matches_finite_differences(reverse, name):
     ad, setups = reverse
@@ -445,12 +447,15 @@ def forward(mi_variant):
         mi.set_variant(mi_variant)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["radius", "area_fraction texel"])
 def test_forward_mode_render_gradient_matches_finite_differences(forward, name):
     fd, ad = forward[name]
     _agree(name, fd, ad)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_coherent_paths_add_nothing_spurious(mi_variant):
     """The pane against a uniformly bright sky: every pixel sees the sky through the coherent beam.
 
@@ -487,6 +492,7 @@ def test_coherent_paths_add_nothing_spurious(mi_variant):
 # --------------------------------------------------------------------------------------------------
 # inverse rendering: examples/fit_window.py, reduced
 # --------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_fit_window_recovers_radius_area_fraction_and_bitmap(mi_variant):
     sys.path.insert(0, os.path.join(ROOT, "examples"))
     try:

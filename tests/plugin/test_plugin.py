@@ -16,12 +16,16 @@ ANGLES = [0, 30, 60, 80]
 CIRCLE_POISSON = {"process": "poisson", "radius": 0.4, "area_fraction": 0.3}
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("theta", ANGLES)
 def test_chi2_lobe_circle_poisson(mi_variant, theta):
     ok, test = chi2_test(CIRCLE_POISSON, theta, smooth_context())
     assert ok, test.messages
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("theta", [0, 60])
 def test_chi2_full_bsdf_with_reflection(mi_variant, theta):
     ok, test = chi2_test({**CIRCLE_POISSON, "albedo": 0.8}, theta, smooth_context())
@@ -38,6 +42,8 @@ BACK_MATERIALS = {
 }
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("theta", [180, 150, 100])   # wi from below: 0°, 30°, 80° from -z
 @pytest.mark.parametrize("name", list(BACK_MATERIALS))
 def test_chi2_back_side(mi_variant, name, theta):
@@ -135,6 +141,8 @@ def test_sample_weight_is_eval_over_pdf_and_constant(mi_variant):
     np.testing.assert_allclose(w[ok], m.tabulated_transmittance, rtol=2e-3)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("theta", [0, 60])
 def test_cosine_sampling_follows_its_pdf(mi_variant, theta):
     # the comparison strategy of the talk: wo cosine-distributed on the far side
@@ -187,6 +195,8 @@ def test_white_furnace(mi_variant, mode):
             assert mean[0] == pytest.approx(expected, abs=5e-3)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 def test_stock_chi2_adapter(mi_variant):
     """Mitsuba's own BSDFAdapter (zero wavelengths, no `active`) passes."""
     import mitsuba as mi
@@ -197,6 +207,8 @@ def test_stock_chi2_adapter(mi_variant):
     assert run_chi2(test), test.messages
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 def test_a_failing_chi2_writes_its_data_outside_the_working_directory(mi_variant, tmp_path, monkeypatch):
     """A wrong pdf (uniform instead of the lobe) is rejected, and Mitsuba's chi2_data.py
     goes to a temporary directory, not the working directory."""
@@ -238,6 +250,8 @@ def test_bad_parameters_fail_at_load(mi_variant, params, word):
         mi.load_dict({"type": "corona", "process": "poisson", **params})
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_render_has_no_nan(mi_variant):
     import mitsuba as mi
     from corona.apps.scenes import street_light_scene
@@ -309,6 +323,8 @@ def test_other_variants_agree_with_reference(mi_variant, variant):
         mi.set_variant(mi_variant)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_mono"])
 @pytest.mark.parametrize("params", [
     {"process": "hard-disk", "radius": 0.4, "area_fraction": 0.4, "mode": "particle"},   # one row at F_a

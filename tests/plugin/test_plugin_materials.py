@@ -53,6 +53,8 @@ def _params(name, files):
     return p
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("theta", [0, 30, 60, 80])
 @pytest.mark.parametrize("name", list(CONFIGS))
 def test_chi2(mi_variant, data_files, name, theta):

@@ -40,6 +40,7 @@ def _directions(wi, rng, n=3000):
     return np.concatenate(out)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["hd", "sd", "poisson"])
 def test_eval_matches_numpy_reference(layers, name):
     bsdf = layers[name]
@@ -59,6 +60,8 @@ def test_eval_matches_numpy_reference(layers, name):
         assert np.max(np.abs(np.asarray(pdf) - ref_pdf)) < 1e-4 * ref_pdf.max(), deg
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("component", [1, 2])
 @pytest.mark.parametrize("deg", [0, 30, 60, 80])
 def test_chi2_lobes(layers, component, deg):
@@ -72,6 +75,8 @@ def test_chi2_lobes(layers, component, deg):
     assert ok, test.messages
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 def test_chi2_size_distribution_both_lobes(layers):
     import mitsuba as mi
     ctx = mi.BSDFContext()
@@ -80,6 +85,7 @@ def test_chi2_size_distribution_both_lobes(layers):
     assert ok, test.messages
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["hd", "poisson"])
 def test_white_furnace_by_sampling(layers, name):
     # E[weight] of sample() is the directional albedo: <= 1, and the numpy reference's integral
@@ -136,6 +142,8 @@ def test_area_fraction_texture_poisson(mi_variant):
         np.testing.assert_allclose(np.asarray(w), np.asarray(wr), rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 def test_chi2_wide_spread_small_spheres(mi_variant):
     # rows far apart in x (a 40 % spread of 0.5 µm droplets, the widest relative row step a table
     # has: SIZE_ROW_DX at the smallest x): each lobe's sampler reaches past 90° (chords up to 1.47

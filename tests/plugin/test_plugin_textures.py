@@ -79,6 +79,8 @@ def test_energies_follow_the_local_area_fraction(textured):
         assert total <= 1.0 + 3e-3
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("fa", [0.2, 0.37])
 def test_chi2_at_local_values_of_a_textured_area_fraction(textured, fa):
     """0.2 sits on a hard-disk table row, 0.37 between two: the mixture of rows is sampled exactly."""
@@ -87,6 +89,8 @@ def test_chi2_at_local_values_of_a_textured_area_fraction(textured, fa):
     assert ok, test.messages
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 def test_chi2_with_a_textured_radius(mi_variant):
     import mitsuba as mi
     bsdf = mi.load_dict({"type": "corona", "process": "hard-disk", "area_fraction": 0.3,
@@ -161,6 +165,8 @@ def _scene(bsdf_fa):
     })
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_update_rerenders_without_recompiling_and_matches_a_fresh_load(mi_variant):
     import mitsuba as mi
     scene = _scene(0.3)
@@ -270,6 +276,8 @@ def test_energy_per_texel(family):
         assert total <= 1.0 + 3e-3
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("name", ["ellipse", "mixture"])
 def test_chi2_between_rows(mi_variant, name):
     """F_a = 0.26 lies between two rows; the lobe is sampled from the table at the lowest F_a."""
@@ -306,6 +314,8 @@ def test_mixture_radius_texture_scales_every_size(mi_variant):
     assert np.max(np.abs(val[0] - ref)) > 0.05 * ref.max()
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 def test_chi2_with_a_mixture_radius_texture(mi_variant):
     import mitsuba as mi
     bsdf = mi.load_dict({"type": "corona", "shape": "mixture", "mixture": MIXTURE, "process": "hard-disk",

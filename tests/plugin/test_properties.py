@@ -164,6 +164,7 @@ def _lobe_directions(wi, n, rng):
 # --------------------------------------------------------------------------
 # the numpy reference (Material)
 # --------------------------------------------------------------------------
+@pytest.mark.slow
 @settings(max_examples=int(40 * SCALE), **SETTINGS)
 @given(p=materials(), inc=incidence(), lams=wavelengths(), seed=st.integers(0, 2**31))
 def test_material_properties(p, inc, lams, seed):
@@ -218,6 +219,7 @@ def _plugin(p):
         return mi.load_dict({"type": "corona", **p})
 
 
+@pytest.mark.slow
 @pytest.mark.usefixtures("mi_variant")
 @settings(max_examples=int(25 * SCALE), **SETTINGS)
 @given(p=materials(), inc=incidence(), lams=wavelengths(), seed=st.integers(0, 2**31))

@@ -78,6 +78,8 @@ def _order_sampler_pair(lat, theta_deg, lam_um=0.55):
     return sample, pdf, sampler
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("kind, jitter", [("square", 0.0), ("square", 0.15), ("hexagonal", 0.0),
                                           ("hexagonal", 0.15)])
 @pytest.mark.parametrize("theta", [0.0, 30.0, 60.0])
@@ -176,6 +178,8 @@ def _mixture(kind, jitter, domain=3.0):
     return bsdf, lat, LatticeSampler(bsdf, lat)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("kind, jitter", [("square", 0.0), ("hexagonal", 0.15)])
 @pytest.mark.parametrize("theta", [0.0, 30.0, 60.0])
 def test_lattice_sampler_chi2(mi_variant, kind, jitter, theta):
@@ -413,6 +417,8 @@ def test_eval_matches_the_numpy_model_at_and_between_orders(mi_variant, params, 
         assert np.max(val[m] - want[m]) > 0.5 * (1 / w[m] - 1) * want[m].max()
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("params, theta", [(HEX4, 0.0), (SQUARE3, 30.0)])
 def test_plugin_chi2(mi_variant, params, theta):
     """The plugin's sample against its pdf (smooth components; crystallites 3 spacings wide so
@@ -463,6 +469,8 @@ def test_furnace_through_a_rayleigh_anomaly(mi_variant):
     assert np.all(raw - 3 * raw_err > 1.0), (raw, raw_err)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_render_has_no_nan(mi_variant):
     import mitsuba as mi
     from bsdf_checks import layer_scene

@@ -77,6 +77,8 @@ def test_glass_white_furnace_by_sampling(panes, side):
             assert set(np.unique(comps)) == {0, 1, 2, 3, 4}
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("component,deg", [(1, 30), (2, 30), (4, 0), (4, 40), (1, 140)])
 def test_glass_chi2_per_component(panes, component, deg):
     import mitsuba as mi

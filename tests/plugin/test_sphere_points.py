@@ -49,6 +49,8 @@ def test_eval_matches_numpy(bsdf, deg):
     assert_eval_matches(bsdf, bsdf.material.eval, wi, wo, rtol=2e-3, atol=2e-5)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("deg", [0.0, 30.0, 60.0])
 def test_chi2(bsdf, deg):
     from bsdf_checks import smooth_context

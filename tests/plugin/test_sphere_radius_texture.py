@@ -115,6 +115,8 @@ def test_furnace_at_each_texel(textured, process):
             assert mean == pytest.approx(ref, abs=5e-3), (uv, deg, mean, ref)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("uv,deg", [((0.25, 0.75), 0), ((0.75, 0.75), 40)])
 def test_chi2_at_a_textured_point(textured, uv, deg):
     import mitsuba as mi

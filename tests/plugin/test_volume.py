@@ -48,6 +48,7 @@ def test_percus_yevick_second_virial():
     assert np.allclose(percus_yevick_3d(q, 1.0, phi), 1 - n * ft, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_percus_yevick_against_simulation():
     sim = pytest.importorskip("corona.reference.hard_sphere")
     q, S = sim.structure_factor_mc(volume_fraction=0.3, n=400, sweeps=300, seed=1)
@@ -58,6 +59,7 @@ def test_percus_yevick_against_simulation():
     assert S[(q > 6.5) & (q < 7.5)].mean() > 1.15
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dist", ["lognormal", "gamma", "modified_gamma"])
 def test_size_nodes_reproduce_effective_radius_and_variance(dist):
     r, w = size_nodes(8.0, dist, 0.15, gamma_exponent=1.0 if dist != "modified_gamma" else 0.5)
@@ -103,6 +105,8 @@ def _miepython_phase(m, radius, lam, mu):
     return (np.abs(s1) ** 2 + np.abs(s2) ** 2) / (2 * np.pi * x * x * qsca)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("radius", [1.0, 20.0])
 def test_exact_phase_matches_miepython(radius):
     v = MieVolume(radius)
@@ -125,6 +129,7 @@ def _between_rows(v):
     return [2 * np.pi * v.radius / (xx * 1e-3) for xx in (0.6 * x[3] + 0.4 * x[4], 0.3 * x[-6] + 0.7 * x[-5])]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kwargs, fwd_tol, all_tol", [
     (dict(radius=1.0), 0.01, 0.02),
     (dict(radius=5.0, distribution="gamma", variance=0.05), 0.01, 0.02),
@@ -149,6 +154,8 @@ def test_table_between_nodes_and_rows_matches_mie(kwargs, fwd_tol, all_tol):
         assert np.median(np.abs(tb / eb - 1)) < all_tol, (lam, tb / eb)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("coherent", [False, True])
 def test_size_averaged_scattering_is_the_sum_over_sizes(coherent):
     """The table build's size average (S1 ± S2 in real products, pairs in blocks by series
@@ -213,6 +220,8 @@ HOSTS = [  # (radius µm, particle ior, ior_imag, host ior): latex in water, wat
 ]
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("radius, ior, kappa, host", HOSTS)
 def test_host_medium_matches_miepython(radius, ior, kappa, host):
     """miepython with n_env (its own conversion to x = π d n_env / λ0 and m / n_env) for the
@@ -289,6 +298,8 @@ CHI2_CASES = [
 ]
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("variant", ["llvm_ad_spectral"], indirect=True)
 @pytest.mark.parametrize("params, wavelengths", CHI2_CASES)
 def test_chi2_spectral(variant, params, wavelengths):
@@ -296,6 +307,8 @@ def test_chi2_spectral(variant, params, wavelengths):
     assert ok, test.messages
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_mono"], indirect=True)
 @pytest.mark.parametrize("params", [{"radius": 1.0}, {"radius": 10.0, "distribution": "gamma", "variance": 0.1}])
 def test_chi2_rgb_mono(variant, params):
@@ -303,6 +316,8 @@ def test_chi2_rgb_mono(variant, params):
     assert ok, test.messages
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb"], indirect=True)
 def test_chi2_stock_adapter(variant):
     from mitsuba.chi2 import ChiSquareTest, PhaseFunctionAdapter, SphericalDomain
@@ -313,6 +328,8 @@ def test_chi2_stock_adapter(variant):
     assert run_chi2(test), test.messages
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("variant", ["llvm_ad_spectral"], indirect=True)
 def test_chi2_negative_control(variant, tmp_path, monkeypatch):
     """A pdf that is the table's with the forward peak 10 % too low is rejected (Mitsuba writes the
@@ -426,6 +443,8 @@ def test_bad_medium_one_clear_error(kwargs, word):
         volume.homogeneous_medium(5.0, **kwargs)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_heterogeneous_medium_renders(mi_variant):
     z, y, x = np.mgrid[0:8, 0:8, 0:8] / 7.0
     dens = np.exp(-((x - 0.5) ** 2 + (y - 0.5) ** 2 + (z - 0.5) ** 2) / 0.05)
@@ -504,6 +523,8 @@ def test_truncated_medium_helper(mi_variant):
     assert med["phase"]["truncation"] == 5.0
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("variant", ["llvm_ad_spectral"], indirect=True)
 @pytest.mark.parametrize("params, wavelengths", [
     ({"radius": 10.0, "distribution": "gamma", "variance": 0.01, "truncation": 5.0}, (450.0, 520.0, 600.0, 700.0)),
@@ -543,6 +564,8 @@ def _medium(radius, tau, thickness, **kw):
     return med, N
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "llvm_ad_spectral"], indirect=True)
 def test_white_furnace_closed_volume(variant):
     T = mi.ScalarTransform4f
@@ -567,6 +590,8 @@ def test_white_furnace_closed_volume(variant):
         assert base == pytest.approx(1.0, abs=1e-6)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("variant", ["llvm_ad_spectral"], indirect=True)
 def test_thin_slab_equals_corona_layer(variant):
     """volpath through a slab of τ = 0.05 (single scattering) against the corona sphere layer of
@@ -627,6 +652,8 @@ def ring_contrast(image, fov, rows, theta, lo_deg=2.5, hi_deg=11.5):
     return float((hi - lo) / (hi + lo))
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb"], indirect=True)
 def test_ring_contrast_falls_with_optical_depth(variant):
     from corona.mitsuba.phase import channel_response
@@ -644,6 +671,8 @@ def test_ring_contrast_falls_with_optical_depth(variant):
     assert all(a > b for a, b in zip(contrast, contrast[1:])), contrast
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb"], indirect=True)
 def test_truncation_removes_fireflies_of_a_cloud_deck(variant):
     """The glory's view from above a thick deck (τ = 10, 10 µm droplets, multiple scattering):

@@ -38,6 +38,8 @@ def _bound(m):
 # ----------------------------------------------------------------------
 # the rasteriser: one scatterer against its analytic transform
 # ----------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("shape,exact", [
     (shapes.Circle(1.0), False),
     (shapes.RegularPolygon(6, 1.0), False),
@@ -66,6 +68,8 @@ def test_single_scatterer_matches_form_factor(shape, exact):
         assert abs(ratio - 1) < 5e-3, (lo, hi, ratio)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_random_shape_draws():
     rng = np.random.default_rng(0)
     sd = shapes.SizeDistribution(shapes.Circle(1.0), 0.2)
@@ -94,6 +98,7 @@ def hd03():
                                                          mode="particle"))
 
 
+@pytest.mark.slow
 def test_hard_disk_lobe_matches_model(hd03):
     m, bf, res = hd03
     assert bf.pixel_transfer == "ramp-deconvolved" and bf.samples_per_radius >= 16
@@ -110,6 +115,7 @@ def test_hard_disk_lobe_matches_model(hd03):
     assert res["particle_lobe_equal"]
 
 
+@pytest.mark.slow
 def test_coherent_weights_and_babinet(hd03):
     m, bf, _ = hd03
     fa = m.area_fraction
@@ -123,6 +129,8 @@ def test_coherent_weights_and_babinet(hd03):
     assert bf.coherent_weight + bf.diffuse_weight == pytest.approx(fa * (1 - h / (3 * R)), rel=2e-3)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_wrong_factor_would_fail():
     """Poisson screens with linear superposition (the model's own assumption,
     S = 1): ``⟨|T̂|²⟩/(Aλ²) = n|Â|²/λ²`` exactly, for a square (|A| ≠ πR²) at two
@@ -158,6 +166,8 @@ class _Scaled:
         return self._f * self._m.lobe(d, lam)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_poisson_overlaps_are_a_model_limitation():
     """With the physical union (t = min(1, Σ A)) the coherent weight is that of
     the Boolean model, (1 - e^{-F_a})², not F_a²; the report states this."""
@@ -169,6 +179,8 @@ def test_poisson_overlaps_are_a_model_limitation():
     assert bf.overlap_loss == pytest.approx(1 - (1 - math.exp(-0.3)) / 0.3, abs=0.02)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_lattice_positions_are_periodic():
     lat = Lattice("hexagonal", 6.0, jitter=0.0)
     src = wave.positions_source(lat, shapes.Circle(2.0), n_scatterers=300)
@@ -199,6 +211,8 @@ def small():
     return Material(shapes.Circle(R), HardDisk(0.2))
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("kwargs,word", [
     ({"realisations": 0}, "realisations"),
     ({"overlaps": "merge"}, "overlaps"),
@@ -211,6 +225,8 @@ def test_bad_arguments(small, kwargs, word):
         wave.brute_force(small, progress=False, n_scatterers=64, **kwargs)
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_bad_material_shape_and_process():
     with pytest.raises(CoronaError, match="material"):
         wave.brute_force("circle")
@@ -222,6 +238,8 @@ def test_bad_material_shape_and_process():
         wave.positions_source(Lattice("square", 3.0, angle=17.0), shapes.Circle(1.0))
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_bad_wavelength_and_cases(hd03):
     _, bf, _ = hd03
     with pytest.raises(CoronaError, match="wavelength"):
@@ -230,6 +248,7 @@ def test_bad_wavelength_and_cases(hd03):
         select_cases(all_cases(quick=True), ["no-such-case"])
 
 
+@pytest.mark.slow
 def test_cli_validate(tmp_path):
     runner = CliRunner()
     out = tmp_path / "rep"

@@ -148,6 +148,8 @@ def test_white_furnace_of_a_large_aperture_layer(variant):
 # --------------------------------------------------------------------------
 # 3. scalar variants render (value / pdf raised ZeroDivisionError in dr.select)
 # --------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("scalar", ["scalar_spectral", "scalar_rgb"])
 def test_render_in_a_scalar_variant(tmp_path, scalar):
     import mitsuba as mi
@@ -181,6 +183,7 @@ def test_size_average_outside_the_rotation_average_is_the_same_ensemble():
     assert isinstance(m.shape, corona.SizeDistribution) and isinstance(m.shape.shape, corona.RandomOrientation)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dist", ["lognormal", "schulz"])
 @pytest.mark.parametrize("spread", [0.02, 0.2, 0.5])
 def test_log_grid_size_average_matches_the_direct_quadrature(dist, spread):
@@ -305,12 +308,16 @@ def test_unreadable_mask_image_is_one_line(tmp_path, variant):
 # --------------------------------------------------------------------------
 # 10–15, 20: the render and lobe commands
 # --------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.render
 def test_scene_with_sample_count_zero(tmp_path, variant):
     scene = tmp_path / "zero.xml"
     scene.write_text(SCENE)
     one_line(cli("render", scene, "-D", "spp=0", "--out", tmp_path), "sample_count=0", "[1, ")
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("out", ["@file/sub", "/proc/x", "@file", ""])
 def test_unusable_out_folder(tmp_path, out):
     scene = tmp_path / "s.xml"
@@ -320,6 +327,8 @@ def test_unusable_out_folder(tmp_path, out):
     one_line(cli("render", scene, "--spp", "1", "--out", out), "--out")
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("args,words", [
     (["--exposure", "nan"], ["--exposure", "finite"]),
     (["--exposure", "inf"], ["--exposure", "finite"]),
@@ -339,6 +348,8 @@ def test_render_options_out_of_range(tmp_path, args, words):
     assert not os.path.exists("/abs/path.png")
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_largest_seed_renders(tmp_path, variant):
     scene = tmp_path / "s.xml"
     scene.write_text(SCENE)
@@ -421,6 +432,8 @@ def test_tables_clear_deletes_only_the_cache_files(tmp_path, monkeypatch):
 # --------------------------------------------------------------------------
 # 18. Ctrl-C: exit 130 during a render and during the scene load
 # --------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.render
 def test_ctrl_c_during_the_render_exits_130(tmp_path, monkeypatch, variant):
     from corona.apps import render
 
@@ -433,6 +446,8 @@ def test_ctrl_c_during_the_render_exits_130(tmp_path, monkeypatch, variant):
     assert r.exit_code == 130 and "interrupted" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_ctrl_c_during_the_scene_load_exits_130(tmp_path, monkeypatch, variant):
     """The interrupt lands inside the plugin's constructor: Mitsuba wraps it in a RuntimeError."""
     from corona.mitsuba import bsdf as mitsuba_bsdf
@@ -624,6 +639,7 @@ def test_building_the_bsdf_never_calls_the_scene_parser(variant, monkeypatch, pa
         assert {"area_fraction.value", "radius.value", "albedo.value"} <= keys, keys
 
 
+@pytest.mark.slow
 def test_a_pane_scene_loads_in_scalar_spectral_every_time(tmp_path):
     """PANE_LOADS fresh-cache loads of a corona pane, an area light and a constant sky written
     after the pane, each in its own process (the crash needed a fresh process: plugin libraries

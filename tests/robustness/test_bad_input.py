@@ -340,6 +340,8 @@ def test_cli_rejects(files, name):
     assert result.stdout == ""
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("scene,fragments", [
     ("corrupt_xml", ["corrupt.xml", "Error parsing"]),
     ("bad_bsdf_xml", ["bad_bsdf.xml (line 3", "radius=-1.0 is out of range", "[0.001, 1000] µm"]),
@@ -355,6 +357,8 @@ def test_cli_render_bad_scene_one_line(files, scene, fragments):
     _check_line(err, fragments)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_cli_unusable_variant_is_one_line(files):
     import corona._environment as env
     if env.has_cuda():

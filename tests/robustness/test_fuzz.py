@@ -141,6 +141,8 @@ def _stderr_lines(text: str):
     return lines
 
 
+@pytest.mark.slow
+@pytest.mark.render
 @pytest.mark.parametrize("case", range(N_CASES))
 def test_fuzz(case, tmp_path, monkeypatch, inputs, mi_variant):
     import mitsuba as mi
@@ -336,6 +338,7 @@ def _sweep_cases():
 SWEEP_CASES = _sweep_cases()
 
 
+@pytest.mark.render
 @pytest.mark.slow
 @pytest.mark.parametrize("case", range(N_SWEEP))
 def test_fuzz_sweep(case, tmp_path):

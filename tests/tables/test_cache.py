@@ -25,6 +25,7 @@ def _build_in_process(args):
     return float(out["values"].sum())
 
 
+@pytest.mark.slow
 def test_many_processes_build_one_valid_file(tmp_path):
     cache = tmp_path / "cache"
     cache.mkdir()
@@ -140,6 +141,7 @@ def _cached_with_timeout(params, build, seconds=60):
         return ex.submit(tables.cached, params, build).result(timeout=seconds)
 
 
+@pytest.mark.slow
 def test_writer_killed_mid_write_leaves_no_table(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     _start_and_kill(tmp_path, "write")
@@ -165,6 +167,7 @@ def test_cache_clear_counts_tables_not_temporaries(tmp_path, monkeypatch):
     assert tables.cache_clear() == 1 and os.listdir(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_builder_killed_while_holding_the_lock(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     _start_and_kill(tmp_path, "build")

@@ -42,6 +42,8 @@ def test_rows_store_their_error_bars():
         assert err[i].max() > 1e-4      # a real error bar, not a placeholder
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("eta", [float(e) for e in load_table()["eta"] if 0 < e <= 0.69 + 1e-9])
 def test_smoothing_keeps_the_peaks(eta):
     for w in hd.raw_minus_smoothed(eta):
@@ -53,6 +55,8 @@ def _runs():
         return json.load(f)["runs"]
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 @pytest.mark.parametrize("eta", [0.3, 0.5, 0.65])
 def test_table_agrees_with_independent_metropolis(eta):
     run = next(r for r in _runs() if abs(r["eta"] - eta) < 1e-9)
@@ -64,6 +68,8 @@ def test_table_agrees_with_independent_metropolis(eta):
         assert abs(c["z"]) < 3.0, c
 
 
+@pytest.mark.slow
+@pytest.mark.reference
 def test_metropolis_agrees_with_an_exact_limit():
     """The checker on its own, where the answer is known: at η = 0.05 the
     Percus-Yevick S is exact to O(η²) (a few 1e-3)."""

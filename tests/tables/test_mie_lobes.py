@@ -137,6 +137,7 @@ def test_size_distribution_lobes_match_brute_force_mie(radius, spread, distribut
                 assert rms > 0.03, (name, rms)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ior,lam", [(None, 551.9), (1.5, 452.7)])
 def test_large_droplet_spread_matches_brute_force_mie(ior, lam):
     # 20 µm, 10 % lognormal (a cloud's droplets): the rows are Mie theory on a subset of the chord

@@ -102,6 +102,8 @@ def test_old_bilinear_table_fails_the_bound(mask_file):
     np.testing.assert_allclose(m3.lobe_tabulated(d, 550.0), m3.lobe(d, 550.0), rtol=1e-4)
 
 
+@pytest.mark.slow
+@pytest.mark.chi2
 @pytest.mark.parametrize("theta", [0, 70])
 def test_chi2_warped_sampling_table(mi_variant, theta):
     """Scatterers larger than ~1.75 µm: the sampling table is uniform in
@@ -114,6 +116,7 @@ def test_chi2_warped_sampling_table(mi_variant, theta):
     assert ok, test.messages
 
 
+@pytest.mark.slow
 def test_warped_table_covers_every_evaluated_direction():
     """Where the kernel's lobe is positive (anywhere the reachable disk), the
     sampling pdf is positive too: eval / pdf is unbiased."""
