@@ -1,7 +1,9 @@
 """Regenerate docs/benchmarks.md from the JSON files in benchmarks/results/.
 
 The page opens with the headline figures (each against its goal), then one
-section per benchmark: its machine and a table of its results.
+section per benchmark (:data:`BENCHMARKS`): its command, its machine and a table of its
+results; the other results files (earlier and A/B runs) are listed at the end.  Nothing on the
+page is written by hand: tests/package/test_docs.py checks it equals :func:`page`.
 """
 from __future__ import annotations
 
@@ -297,77 +299,120 @@ def kernels_summary() -> list[str]:
     return out + [""]
 
 
-def section(name: str, data: dict) -> list[str]:
-    out = [f"## {name}", "", f"Machine: {_machine(data.get('machine', {}))}", ""]
+#: One current section per benchmark: (results file, the command that writes it, what it measures).
+#: The other files of benchmarks/results/ are earlier or A/B runs, listed at the end of the page
+#: (the dated notes about them live in git history and in the files' own ``note``).
+BENCHMARKS = [
+    ("render", "python benchmarks/bench_render.py", "render cost of each layer against roughdielectric"),
+    ("gradient", "python benchmarks/bench_gradient.py", "prb gradient renders, reverse and forward mode"),
+    ("kernels", "python benchmarks/bench_kernels.py", "the BSDF's Dr.Jit kernels per family (spectral)"),
+    ("kernels_rgb", "python benchmarks/bench_kernels.py --variant llvm_ad_rgb --name kernels_rgb",
+     "the same in the RGB variant"),
+    ("bsdf_pieces", "python benchmarks/bench_bsdf.py --pieces --name bsdf_pieces",
+     "the BSDF alone and the anisotropic kernels' pieces"),
+    ("sphere_kernel", "python benchmarks/bench_sphere_kernel.py", "the sphere layer's BSDF alone"),
+    ("tables", "python benchmarks/bench_tables.py", "table builds, and every scene's tables cold"),
+    ("spread_build_idle", "python benchmarks/bench_spread_build.py --name spread_build_idle",
+     "size-spread Mie tables' build"),
+    ("mie", "python benchmarks/bench_mie.py", "Mie sphere tables: build time and render cost"),
+    ("mie_accuracy", "python benchmarks/mie_accuracy.py", "Mie sphere lobes against Mie theory between rows"),
+    ("mie_colour_accuracy", "python benchmarks/mie_colour_accuracy.py",
+     "Mie lobes' colours (CIE XYZ) against Mie theory"),
+    ("mie_colour_fractions", "python benchmarks/mie_colour_accuracy.py --name mie_colour_fractions",
+     "share of single wavelengths above the colour goal"),
+    ("mie_coherence", "python benchmarks/bench_mie_coherence.py", "Mie rows' memory layouts"),
+    ("mie_index_nodes", "python benchmarks/mie_index_nodes.py", "index nodes of dispersive size spreads"),
+    ("lobe_accuracy", "python benchmarks/bench_lobe_accuracy.py", "the renderer's lobe against Material.lobe"),
+    ("rows", "python benchmarks/bench_rows.py", "rows of area fraction (F_a textures)"),
+    ("sampling", "python benchmarks/bench_sampling.py", "importance sampling against cosine sampling"),
+    ("sampling_table_opaque_large_lamp", "python benchmarks/bench_sampling_table.py --name "
+     "sampling_table_opaque_large_lamp", "the anisotropic layers' sampling table"),
+    ("scaling", "python benchmarks/bench_scaling.py", "cost against image size"),
+    ("slow_inputs", "python benchmarks/bench_slow_inputs.py", "the slowest accepted inputs' table builds"),
+    ("hard_disk", "python benchmarks/bench_hard_disk.py", "the hard-disk S(q) table: lookup, error bars"),
+    ("wave", "python benchmarks/bench_wave.py", "the brute-force wave reference against the model"),
+    ("volume", "python benchmarks/bench_volume.py", "corona_mie volumes"),
+    ("sweep", "python benchmarks/bench_sweep.py", "corona sweep on a local Dask cluster"),
+    ("fit", "python benchmarks/bench_fit.py", "corona fit"),
+    ("designer", "python benchmarks/bench_designer.py", "the designer's updates"),
+    ("post", "python benchmarks/bench_post.py", "corona post on a 4K frame"),
+    ("gpu", "python benchmarks/bench_gpu.py", "the render benchmark on a GPU"),
+    ("suite_times", "make test / make test-fast (timed by hand: see the file's machine_load)",
+     "the test suite's wall time"),
+]
+
+#: the longest a section's "more figures" may be (the full data: the results file)
+MORE_CHARS = 1500
+
+
+def section(name: str, data: dict, command: str, what: str) -> list[str]:
+    argv = data.get("argv")
+    if isinstance(argv, list) and argv:      # the arguments the run recorded, after its script
+        script = " ".join(command.split()[:2])
+        command = " ".join([script, *argv[1:]] if str(argv[0]).endswith(".py") else [script, *argv])
+    out = [f"## {name}", "", f"{what[0].upper()}{what[1:]}.", "",
+           f"Command: `{command}`", "",
+           f"Machine: {_machine(data.get('machine', {}))}", ""]
     if "goal" in data:
         out += [f"Goal: {data['goal']}", ""]
+    if isinstance(data.get("note"), str):
+        out += [f"Note: {data['note']}", ""]
     res = data.get("results")
     if isinstance(res, dict) and res and all(isinstance(v, dict) for v in res.values()):
         out += _table(res) + [""]
     scenes = data.get("scenes")
     if isinstance(scenes, dict) and scenes and all(isinstance(v, dict) for v in scenes.values()):
         out += ["Scenes (each cold: a fresh process, an empty cache):", ""] + _table(scenes) + [""]
-    rest = {k: v for k, v in data.items() if k not in ("machine", "results", "goal", "scenes")}
+    rest = {k: v for k, v in data.items() if k not in ("machine", "results", "goal", "scenes", "note", "argv")}
     if rest:
         text = json.dumps(rest, indent=1)
-        if len(text) > 4000:
-            text = text[:4000] + "\n… (truncated; full data in benchmarks/results/" + name + ".json)"
+        if len(text) > MORE_CHARS:
+            text = text[:MORE_CHARS] + f"\n… (truncated; full data in benchmarks/results/{name}.json)"
         out += ["<details><summary>more figures</summary>", "", "```json", text, "```", "", "</details>", ""]
     return out
 
 
-def hand_written(generated: set[str]) -> dict:
-    """The hand-written parts of the page as it stands, so that regenerating keeps them: every
-    ``## `` section whose title is not one this script writes, and every ``### `` subsection whose
-    title says ``(by hand``, each with its lines up to the next heading of either kind (a hand
-    section keeps its own plain ``### `` subsections).  Keyed by the title of the generated
-    section they follow (None: before any), in the page's order."""
-    if not os.path.exists(DOC):
-        return {}
-    with open(DOC) as f:
-        lines = f.read().split("\n")
-    blocks, anchor, current = {}, None, None
-    for line in lines:
-        top = line.startswith("## ")
-        if top or (line.startswith("### ") and "(by hand" in line):
-            if top and line[3:].strip() in generated:
-                anchor, current = line[3:].strip(), None
-                continue
-            current = [line]
-            blocks.setdefault(anchor, []).append(current)
-        elif current is not None:
-            current.append(line)
-    return blocks
+def earlier(names: list[str]) -> list[str]:
+    """One line per results file that is not a current section: an earlier or A/B run."""
+    if not names:
+        return []
+    out = ["## Earlier and A/B runs", "",
+           "Kept in `benchmarks/results/` for comparison (each file holds its machine and, where",
+           "written, a `note`; the notes once here are in git history). Not current figures.", "",
+           "| file | date | machine |", "|---|---|---|"]
+    for name in names:
+        m = (_load(name) or {}).get("machine", {})
+        out.append(f"| `{name}.json` | {str(m.get('date', '?'))[:10]} | {m.get('cpu', '?')}, "
+                   f"{m.get('cores', m.get('cpu_count', '?'))} cores |")
+    return out + [""]
+
+
+def page() -> str:
+    """The page, generated from benchmarks/results/*.json alone."""
+    lines = ["# Benchmarks", "",
+             "Generated by `benchmarks/report.py` (`make bench` runs every `benchmarks/bench_*.py`, then",
+             "the report) from `benchmarks/results/*.json`: do not edit by hand, a test compares this",
+             "page with the report. A headline table, then one section per benchmark with its command",
+             "and the machine it ran on. Timings are medians of repeated runs; ratios measured in one",
+             "run are the figures to compare. Timings are never asserted in tests.", ""]
+    names = [os.path.splitext(os.path.basename(p))[0] for p in sorted(glob.glob(os.path.join(RESULTS, "*.json")))]
+    lines += headline()
+    lines += kernels_summary()
+    current = []
+    for name, command, what in BENCHMARKS:
+        data = _load(name)
+        if data is not None:
+            lines += section(name, data, command, what)
+            current.append(name)
+    lines += earlier([n for n in names if n not in current])
+    return "\n".join(lines).rstrip("\n") + "\n"
 
 
 def main():
-    lines = ["# Benchmarks", "",
-             "Generated by `make bench` (`benchmarks/run_all.py`, then `benchmarks/report.py`) from",
-             "`benchmarks/results/*.json`; each `benchmarks/bench_*.py` writes one JSON file",
-             "with the machine it ran on. Timings are medians of repeated runs; ratios",
-             "measured in one run are the figures to compare. Timings are never asserted",
-             "in tests. Sections and `###` subsections written by hand (a section not named",
-             "after a results file, a subsection titled `(by hand ...)`) are kept where they stand.", ""]
-    names = [os.path.splitext(os.path.basename(p))[0] for p in sorted(glob.glob(os.path.join(RESULTS, "*.json")))]
-    hand = hand_written({"Headline figures", "The BSDF's kernels per family", *names})
-
-    def keep(anchor):
-        for block in hand.pop(anchor, []):
-            lines.extend(block)
-
-    keep(None)
-    lines += headline()
-    keep("Headline figures")
-    lines += kernels_summary()
-    keep("The BSDF's kernels per family")
-    for name in names:
-        lines += section(name, _load(name))
-        keep(name)
-    for anchor in list(hand):          # what followed a section whose results file is gone
-        keep(anchor)
+    text = page()
     os.makedirs(os.path.dirname(DOC), exist_ok=True)
     with open(DOC, "w") as f:
-        f.write("\n".join(lines))
+        f.write(text)
     print(f"wrote {os.path.normpath(DOC)}")
 
 

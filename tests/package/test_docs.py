@@ -59,3 +59,29 @@ def test_docs_pages_are_listed():
     assert "/tutorial" in index and "corona.apps.post" in index
     conf = open(os.path.join(ROOT, "docs", "api", "conf.py"), encoding="utf-8").read()
     assert '"tutorial.md"' in conf and 'mathjax_path = "mathjax/tex-chtml.js"' in conf
+
+
+def _report():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("corona_bench_report", os.path.join(ROOT, "benchmarks", "report.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_benchmarks_page_is_what_the_report_generates():
+    """docs/benchmarks.md is generated from benchmarks/results/*.json (benchmarks/report.py) and
+    written by nothing else: a results file added or changed without regenerating, or a hand edit
+    of the page, fails here (regenerate: python benchmarks/report.py)."""
+    report = _report()
+    with open(os.path.join(ROOT, "docs", "benchmarks.md"), encoding="utf-8") as f:
+        page = f.read()
+    assert page == report.page(), "docs/benchmarks.md is stale: run python benchmarks/report.py"
+    # one section per current benchmark with its command and machine; every other results file listed
+    names = {os.path.splitext(n)[0] for n in os.listdir(report.RESULTS) if n.endswith(".json")}
+    current = [b[0] for b in report.BENCHMARKS if b[0] in names]
+    for name in current:
+        body = page.split(f"\n## {name}\n", 1)[1].split("\n## ", 1)[0]
+        assert "\nCommand: `" in body and "\nMachine: " in body, name
+    for name in names - set(current):
+        assert f"| `{name}.json` |" in page, name
