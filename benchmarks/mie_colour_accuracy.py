@@ -2,7 +2,7 @@
 
 A spectral render integrates each pixel over wavelength with the camera's colour matching
 functions, so the ripple of a large droplet's lobes in x (narrower than the rows of the table, a
-fraction of a nanometre; docs/mie.md, "Why 12–25 µm still miss") is averaged.  This script
+fraction of a nanometre; docs/mie.md, "Why 12–25 µm miss at single wavelengths") is averaged.  This script
 measures the lobes' colours: for one-size water spheres in a dilute Poisson layer (F_a = 0.01,
 normal incidence; the set-up of benchmarks/mie_accuracy.py), per scattering angle Θ
 

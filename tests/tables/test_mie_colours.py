@@ -3,8 +3,8 @@
 A render integrates each pixel over wavelength with the camera's colour matching functions, so
 what reaches an image of a sphere layer is the lobes' colour, ``X(Θ) = ∫ P(λ, Θ) x̄(λ) dλ`` (and
 Y, Z), not one wavelength's lobe.  For one-size droplets of 8 µm and more the single wavelengths
-miss the issue's 1 % between rows (resonances narrower than the rows: docs/mie.md, "2026-12-03
-(night)"), while the colours meet it at every radius.  This file holds the colours to the goals
+miss the issue's 1 % between rows (resonances narrower than the rows: docs/mie.md, "Where the goals
+stand"), while the colours meet it at every radius.  This file holds the colours to the goals
 (energy-weighted RMS of X, Y and Z ≤ 1 %, the scale of Y within 0.5 %, per lobe) over the whole
 radius range, 0.5-25 µm, water with its dispersion.
 
