@@ -80,8 +80,10 @@ def _order_sampler_pair(lat, theta_deg, lam_um=0.55):
 
 @pytest.mark.slow
 @pytest.mark.chi2
-@pytest.mark.parametrize("kind, jitter", [("square", 0.0), ("square", 0.15), ("hexagonal", 0.0),
-                                          ("hexagonal", 0.15)])
+# the lattice's kind is data (its Bragg vectors and weights), the jitter a branch (LatticeS.peaks'
+# Debye-Waller factor): a fixed square lattice and a jittered hexagonal one take every path that
+# (square, 0.15) and (hexagonal, 0) take, as in test_lattice_sampler_chi2
+@pytest.mark.parametrize("kind, jitter", [("square", 0.0), ("hexagonal", 0.15)])
 @pytest.mark.parametrize("theta", [0.0, 30.0, 60.0])
 def test_order_sampler_chi2(mi_variant, kind, jitter, theta):
     """The order sampler against its own pdf (Mitsuba's chi-square test).  The crystallites are
