@@ -337,7 +337,7 @@ BENCHMARKS = [
     ("designer", "python benchmarks/bench_designer.py", "the designer's updates"),
     ("post", "python benchmarks/bench_post.py", "corona post on a 4K frame"),
     ("gpu", "python benchmarks/bench_gpu.py", "the render benchmark on a GPU"),
-    ("suite_times", "make test / make test-fast (timed by hand: see the file's machine_load)",
+    ("suite_times", "python benchmarks/suite_times.py [--full]",
      "the test suite's wall time"),
 ]
 
