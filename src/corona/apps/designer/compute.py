@@ -862,9 +862,10 @@ def _lobe_square_energy(m):
     _, factor = _substrate_terms(m, lams)
     # radial resolution: a quarter of the rings' spacing in |d| at the shortest wavelength
     step = 0.25 * lams[0] * 1e-3 / (2 * m.length_scale)
-    n_rho = int(np.clip(math.ceil(1.0 / step) + 1, 1025, 16385 if m.isotropic else 2049))
+    n_rho = int(np.clip(math.ceil(1.0 / step) + 1, 1025 if m.isotropic else 513, 16385 if m.isotropic else 2049))
     rho = np.linspace(0.0, 1.0, n_rho)
-    n_phi = 128 if m.isotropic else 64
+    # azimuths: a 2-D table's narrow peaks (a lattice's orders) need many; closed-form outlines are smooth
+    n_phi = 48 if not m.isotropic and m.render_kind != "table" else 128
     phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
     if m.isotropic:
         f = _kernel_lobe(m, np.stack([rho, 0 * rho], -1), lams, factor)[:, None, :]   # (n_rho, 1, 3)
@@ -907,9 +908,13 @@ def kernel_plan(params: dict, opts: dict) -> dict:
     needed = float(theta[np.argmax(ok)]) if ok.any() else math.inf
     half_needed = min(max(needed, 0.05), KERNEL_MAX_HALF_WIDTH)
     scale, n = opts.get("pixel_scale"), opts.get("kernel_size")
-    ring = math.degrees(math.pi * _kernel_lams(m)[0] * 1e-3 / (2 * math.pi * m.length_scale))
+    lam0 = _kernel_lams(m)[0] * 1e-3
+    fine = math.degrees(math.pi * lam0 / (2 * math.pi * m.length_scale)) / KERNEL_PIXELS_PER_RING
+    if not m.isotropic and m.render_kind == "table":
+        # a 2-D table's narrow peaks (a lattice's orders) are one cell wide: half a cell per pixel
+        fine = min(fine, math.degrees(0.5 * m.render_lobe.table.cell * lam0 / (2 * math.pi * m.length_scale)))
     if scale is None and n is None:
-        scale = ring / KERNEL_PIXELS_PER_RING
+        scale = fine
         n = 2 * math.ceil(half_needed / scale - 0.5) + 1
         n = int(np.clip(n, KERNEL_SIZE_MIN, KERNEL_SIZE_MAX))
         scale = half_needed / (n // 2 + 0.5)
