@@ -798,7 +798,8 @@ def _substrate_terms(m, lams: np.ndarray):
     the lobe as a function of ``|cos θo|`` per channel (a callable, or None for 1), at normal
     incidence (the model's :meth:`corona.Material.eval` and delta weights):
 
-    * no substrate: ``T_c``, factor 1;
+    * no substrate: ``T_c`` (:meth:`corona.Material.coherent_transmission`: a Mie layer's at each
+      wavelength), factor 1;
     * glass: ``T_c T'(0)``; the lobe times ``T'(θo)`` (layer on the lit face) or ``T'(0)``;
     * mirror (the reflection): the specular weight :meth:`corona.Material.specular_reflection`;
       the lobe times ``min(R(0), R(θo)) + T_c [P(0) + P(θo)]``.  The double pass's Quetelet
@@ -811,9 +812,12 @@ def _substrate_terms(m, lams: np.ndarray):
     from corona.model.substrate import Mirror
     sub = m.substrate
     c = float(m.coherent_transmittance)
-    if sub is None:
-        return np.full(3, c), None
     wch = _channel_weights(lams)
+    if not isinstance(sub, Mirror):          # the beam through (a Mie layer's depends on λ)
+        through = np.array([float(np.asarray(m.coherent_transmission(1.0, float(lam))).ravel()[0])
+                            for lam in lams]) @ wch
+    if sub is None:
+        return through, None
     if isinstance(sub, Mirror):
         if _is_sphere(m):
             raise CoronaError("the kernel of shape='sphere' on substrate='mirror' is not available")
@@ -825,7 +829,7 @@ def _substrate_terms(m, lams: np.ndarray):
         table = front[:, None] + c * ((p0[None, :] + po) @ wch)                               # (n, 3)
     else:
         t0 = float(sub.transmittance(1.0))
-        centre = np.full(3, c * t0)
+        centre = through
         cos_grid = np.linspace(0.0, 1.0, 1025)
         first = bool(np.all(m._layer_first(1.0)))
         t = sub.transmittance(cos_grid) if first else np.full(cos_grid.shape, t0)
@@ -902,9 +906,10 @@ def kernel_plan(params: dict, opts: dict) -> dict:
 
     def share(half):                          # the lobe's share inside max(|θx|, |θy|) <= half
         i = int(np.searchsorted(theta, half, side="right"))
-        return np.ones(3) if i == 0 and not np.any(total > 0) else (cum[i - 1] if i else np.zeros(3)) / tot
+        got = (cum[i - 1] if i else np.zeros(3)) / tot
+        return np.where(total > 0, got, 1.0)  # no lobe in a channel: nothing to miss
 
-    ok = np.all(cum / tot >= KERNEL_SHARE_TARGET, axis=1)
+    ok = np.all((cum / tot >= KERNEL_SHARE_TARGET) | (total <= 0), axis=1)
     needed = float(theta[np.argmax(ok)]) if ok.any() else math.inf
     half_needed = min(max(needed, 0.05), KERNEL_MAX_HALF_WIDTH)
     scale, n = opts.get("pixel_scale"), opts.get("kernel_size")
