@@ -94,8 +94,17 @@ def test_page_follows_the_spec_keeps_the_look_in_the_url_and_shows_progress(monk
             driver.get(url)
             wait_for(driver, picture_ready("a"), timeout=60, what="the first corona picture")
             # -- relevance: the page's rule is the specification's, for every combination it offers
-            combos = [{"shape": s, "process": p, "size_spread": sp, "substrate": sub}
-                      for s, p, sp, sub in itertools.product(SHAPES, PROCESSES, ("0", "0.2"), SUBSTRATES)]
+            # every knob the conditions read, at each of its choices (a threshold: below and above)
+            axes = {}
+            for p in PARAMETERS:
+                for cond in p.applies:
+                    name, sep, value = cond.partition(">") if ">" in cond else cond.partition("=")
+                    axes[name] = (list(SPEC[name].choices) if SPEC[name].kind == "choice"
+                                  else ["0", str(float(value) + 0.2), "abc"])
+            assert {"shape", "process", "size_spread", "substrate"} <= set(axes)
+            assert set(axes["shape"]) == set(SHAPES) and set(axes["process"]) == set(PROCESSES)
+            assert set(axes["substrate"]) == set(SUBSTRATES)
+            combos = [dict(zip(axes, values)) for values in itertools.product(*axes.values())]
             page = driver.execute_script("""
                 const c = window.corona, base = {...c.state.values};
                 return arguments[0].map((v) => c.relevantNames({...base, ...v}));""", combos)
@@ -103,7 +112,7 @@ def test_page_follows_the_spec_keeps_the_look_in_the_url_and_shows_progress(monk
             base = {**DEFAULTS, **{k: v for k, v in driver.execute_script(
                 "return window.corona.state.values").items() if k in DEFAULTS and SPEC[k].kind == "choice"}}
             for combo, got in zip(combos, page):
-                params = {**base, **combo, "size_spread": float(combo["size_spread"])}
+                params = {**base, **combo}
                 expected = {n: SPEC[n].applies_to(params) for n in names}
                 assert {n: got[n] for n in names} == expected, combo
             # a mixture can be rotated: angle is active (and sent), aspect and sides too
