@@ -278,6 +278,8 @@ def sweep(scene, defines, spp, out_dir, workers, scheduler, timeout, force, vari
 def _spec_option(p):
     """The ``--name`` option of one :data:`corona.parameters.PARAMETERS` entry."""
     kind = {"float": float, "int": int, "choice": click.Choice(p.choices)}.get(p.kind, str)
+    if p.name == "mirror_reflectance":      # a number, a metal or a spectrum (checked by the material)
+        kind = str
     unit = f" [{p.unit}]" if p.unit else ""
     return click.option(f"--{p.name.replace('_', '-')}", p.name, type=kind, default=p.default,
                         show_default=p.default is not None, help=f"{p.meaning}{unit}")
@@ -313,9 +315,21 @@ def lobe(out_path, as_json, wavelength, **params):
         from corona.parameters import material_from_parameters
         m = material_from_parameters(**params)
         from corona.model.mie.layer import SphereMaterial
-        if isinstance(m, SphereMaterial):            # a Mie layer (shape=sphere): no lobe tables here
-            _fail("corona lobe does not draw or tabulate shape='sphere' (Mie droplets) yet; "
-                  "render it with corona render, or use corona.Material(corona.Sphere(r), ...) in Python")
+        if isinstance(m, SphereMaterial) and not as_json:   # a Mie layer: no lobe tables to draw
+            _fail("corona lobe draws no picture of shape='sphere' (Mie droplets) yet; add --json for "
+                  "its numbers, or render it with corona render")
+        if as_json and isinstance(m, SphereMaterial):       # the Mie lobe along d_x and its energies
+            from corona._validation import check_range
+            from corona.tables import WAVELENGTH_MAX, WAVELENGTH_MIN
+            wavelength = check_range("wavelength", wavelength, WAVELENGTH_MIN, WAVELENGTH_MAX, unit="nm")
+            d = np.linspace(0.0, 0.999, 201)
+            e = m.directional_albedo(1.0, wavelength, n_phi=4)
+            click.echo(json.dumps({
+                "material": repr(m), "area_fraction": m.area_fraction, "wavelength_nm": wavelength,
+                "coherent_transmittance": e["coherent"], "diffuse_transmittance": e["lobe_transmission"],
+                "reflectance": e["lobe_reflection"], "length_scale_um": m.length_scale,
+                "d": d.tolist(), "lobe": m.lobe(np.stack([d, 0 * d], -1), wavelength).tolist()}))
+            return
         if as_json:
             from corona._validation import check_range
             from corona.tables import WAVELENGTH_MAX, WAVELENGTH_MIN

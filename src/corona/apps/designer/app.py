@@ -86,6 +86,9 @@ class _App:
     def __init__(self, timeout: float):
         self.timeout = timeout
         self.slots = _Slots(MAX_CONCURRENT)
+        self.jobs: dict[int, tuple[str, float]] = {}      # running computations: id -> (what, start)
+        self._job_ids = iter(range(1, 2**62))
+        self._jobs_lock = threading.Lock()
 
     # -- helpers ------------------------------------------------------------
     def _query(self, request: Request) -> dict:
@@ -98,7 +101,7 @@ class _App:
             q[k] = v
         return q
 
-    async def _run(self, fn, *args):
+    async def _run(self, fn, *args, what: str = "computing"):
         """``fn(*args)`` in a thread of its own holding one of the slots; one-line errors; a time limit.
 
         The slot is taken here (waiting for one at most until the time limit) and given back
@@ -122,11 +125,16 @@ class _App:
 
         def job():
             result = error = None
+            with self._jobs_lock:
+                job_id = next(self._job_ids)
+                self.jobs[job_id] = (what, time.monotonic())
             try:
                 result = fn(*args)
             except BaseException as err:  # noqa: BLE001 - handed to the request that waits
                 error = err
             finally:
+                with self._jobs_lock:
+                    self.jobs.pop(job_id, None)
                 self.slots.give_back()
             try:
                 loop.call_soon_threadsafe(settle, result, error)
@@ -161,11 +169,27 @@ class _App:
     async def parameters(self, request: Request):
         return JSONResponse(compute.spec_json())
 
+    async def progress(self, request: Request):
+        """What the server computes now (GET /api/progress, polled by the page while it waits):
+        ``jobs`` (what, seconds) and ``bars``, the progress bars of the table builds running in
+        this process (every ``tqdm`` bar: description, count, total or null, unit, seconds)."""
+        now = time.monotonic()
+        with self._jobs_lock:
+            jobs = [{"what": w, "seconds": round(now - t0, 2)} for w, t0 in self.jobs.values()]
+        return JSONResponse({"jobs": jobs, "bars": _progress_bars()},
+                            headers={"Cache-Control": "no-store"})
+
+    async def kernel_info(self, request: Request):
+        async def go():
+            material, _, opts = compute.parse(self._query(request), designer_dir("uploads"))
+            return JSONResponse(await self._run(compute.kernel_plan, material, opts, what="sizing the kernel"))
+        return await self._guard(go)
+
     async def corona_png(self, request: Request):
         async def go():
             material, view, _ = compute.parse(self._query(request), designer_dir("uploads"))
             t0 = time.perf_counter()
-            png, used = await self._run(compute.corona_png, material, view)
+            png, used = await self._run(compute.corona_png, material, view, what="the corona picture")
             headers = {"X-Corona-Exposure": f"{used['exposure']:.4f}", "X-Corona-Field": f"{used['field']:.6g}",
                        "X-Corona-Seconds": f"{time.perf_counter() - t0:.4f}", "Cache-Control": "no-store",
                        "X-Corona-Preview": "1" if used.get("preview") else "0",
@@ -177,7 +201,7 @@ class _App:
     async def profiles(self, request: Request):
         async def go():
             material, view, _ = compute.parse(self._query(request), designer_dir("uploads"))
-            return JSONResponse(await self._run(compute.profiles, material, view))
+            return JSONResponse(await self._run(compute.profiles, material, view, what="the profiles"))
         return await self._guard(go)
 
     async def material(self, request: Request):
@@ -188,7 +212,7 @@ class _App:
                 return {**compute.energy(material), **compute.exports(material, view),
                         "parameters": {k: os.path.basename(v) if compute.SPEC[k].kind == "file" else v
                                        for k, v in material.items()}}
-            return JSONResponse(await self._run(both))
+            return JSONResponse(await self._run(both, what="the energy split"))
         return await self._guard(go)
 
     async def kernel(self, request: Request):
@@ -200,12 +224,16 @@ class _App:
             material, _, opts = compute.parse(self._query(request), designer_dir("uploads"))
 
             def make():
-                k = compute.kernel(material, opts)
-                return compute.kernel_png(k) if fmt == "png" else compute.kernel_exr(k, designer_dir("tmp"))
-            data = await self._run(make)
+                plan = compute.kernel_plan(material, opts)
+                k = compute.kernel(material, opts, plan)
+                return (compute.kernel_png(k) if fmt == "png" else compute.kernel_exr(k, designer_dir("tmp"))), plan
+            data, plan = await self._run(make, what="the kernel")
             media = "image/png" if fmt == "png" else "image/x-exr"
             return Response(data, media_type=media, headers={
-                "Content-Disposition": f'attachment; filename="corona_kernel.{fmt}"'})
+                "Content-Disposition": f'attachment; filename="corona_kernel.{fmt}"',
+                "X-Corona-Kernel-Share": ",".join(f"{x:.5f}" for x in plan["share"]),
+                "X-Corona-Pixel-Scale": f"{plan['pixel_scale']:.6g}",
+                "Access-Control-Expose-Headers": "X-Corona-Kernel-Share, X-Corona-Pixel-Scale"})
         return await self._guard(go)
 
     async def upload(self, request: Request):
@@ -225,7 +253,7 @@ class _App:
                 chunks.append(chunk)
             data = b"".join(chunks)
             name = request.query_params.get("name", "")
-            info = await self._run(_check_upload, kind, data, name)
+            info = await self._run(_check_upload, kind, data, name, what="checking the upload")
             upload_id = hashlib.sha256(data).hexdigest()[:32] + "." + info.pop("suffix")
             folder = designer_dir("uploads")
             path = os.path.join(folder, upload_id)
@@ -253,10 +281,31 @@ class _App:
             from corona.apps.fit import fit_photograph
             photo = compute._upload_path("photo", req.get("photo", ""), designer_dir("uploads"))
             fov = compute.check_fov(req.get("fov"))
-            result = (await self._run(lambda: fit_photograph(photo, fov_deg=fov))).to_dict()
+            result = (await self._run(lambda: fit_photograph(photo, fov_deg=fov), what="fitting")).to_dict()
             fitted = {k: v for k, v in result.items() if k in compute.DEFAULTS}
             return JSONResponse({"parameters": fitted, "result": _jsonable(result)})
         return await self._guard(go)
+
+
+def _progress_bars() -> list[dict]:
+    """The ``tqdm`` progress bars alive in this process (the table builds report through them:
+    :mod:`corona.model.mie.layer`, :mod:`corona.model.material`), read without touching them."""
+    import sys
+    if "tqdm" not in sys.modules:
+        return []
+    from tqdm import tqdm
+    out = []
+    with tqdm.get_lock():
+        bars = list(tqdm._instances)
+    for bar in bars:
+        try:
+            total = bar.total
+            out.append({"desc": str(bar.desc or "").rstrip(": "), "n": float(bar.n), "unit": str(bar.unit),
+                        "total": float(total) if total else None,
+                        "seconds": round(max(0.0, bar._time() - bar.start_t), 2)})
+        except Exception:  # noqa: BLE001 - a bar closing meanwhile: left out
+            continue
+    return out
 
 
 class _Timeout(Exception):
@@ -370,6 +419,8 @@ def create_app(allowed_hosts=LOOPBACK, timeout: float = COMPUTE_TIMEOUT) -> Star
         Route("/api/profiles", a.profiles),
         Route("/api/material", a.material),
         Route("/api/kernel.{fmt:str}", a.kernel),
+        Route("/api/kernel_info", a.kernel_info),
+        Route("/api/progress", a.progress),
         Route("/api/upload", a.upload, methods=["POST"]),
         Route("/api/fit", a.fit, methods=["POST"]),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),

@@ -57,16 +57,23 @@ VIEW_PARAMETERS: tuple[Parameter, ...] = (
 )
 VIEW_SPEC = {p.name: p for p in VIEW_PARAMETERS}
 
-#: Kernel (PSF) export options.
+#: Kernel (PSF) export options (empty: sized from the lobe, :func:`kernel_plan`).
 KERNEL_PARAMETERS: tuple[Parameter, ...] = (
-    Parameter("pixel_scale", "float", "degree", 0.02, "angle per pixel of the kernel",
-              low=1e-4, high=1.0),
-    Parameter("kernel_size", "int", "pixel", 255, "width and height of the kernel (odd)",
-              low=3, high=1023),
+    Parameter("pixel_scale", "float", "degree", None, "angle per pixel of the kernel; empty: sized from "
+              "the lobe", low=1e-4, high=1.0),
+    Parameter("kernel_size", "int", "pixel", None, "width and height of the kernel (odd); empty: sized "
+              "from the lobe", low=3, high=1023),
 )
 KERNEL_SPEC = {p.name: p for p in KERNEL_PARAMETERS}
-#: Largest half-width of a kernel [degree] (a tangent plane beyond it distorts too much).
-KERNEL_MAX_HALF_WIDTH = 60.0
+#: Largest half-width of a kernel [degree] (its pixels are even in angle; beyond, grazing directions).
+KERNEL_MAX_HALF_WIDTH = 80.0
+#: Share of the lobe's energy a kernel should hold: below it the page warns.
+KERNEL_SHARE_MIN = 0.99
+#: Share a kernel sized from the lobe aims at (a margin over :data:`KERNEL_SHARE_MIN` for the
+#: pixel quadrature), its smallest and largest default size [pixel], and its pixels per ring.
+KERNEL_SHARE_TARGET = 0.995
+KERNEL_SIZE_MIN, KERNEL_SIZE_MAX = 255, 1023
+KERNEL_PIXELS_PER_RING = 8
 
 #: Upper bounds the designer adds to the specification's ranges, so that no
 #: request can ask for unbounded work (a server must answer every request in time).
@@ -121,13 +128,34 @@ def _limit_error(p: Parameter, value, limit) -> CoronaError:
     return CoronaError(f"{p.name}={value!r} is out of range for the designer; allowed {lo}, {limit:g}]{unit}")
 
 
+def _number(x):
+    """A number for JSON: ±inf as None (JSON has no infinity)."""
+    return None if isinstance(x, float) and math.isinf(x) else x
+
+
+def parameter_json(p: Parameter) -> dict:
+    """One :class:`corona.parameters.Parameter` whole, as JSON: every field of the dataclass
+    (``applies`` the conditions of :meth:`corona.parameters.Parameter.applies_to`), plus its
+    ``allowed`` and ``used_with`` texts."""
+    import dataclasses
+    d = {f.name: getattr(p, f.name) for f in dataclasses.fields(p)}
+    d.update(choices=list(p.choices), applies=list(p.applies), low=_number(p.low), high=_number(p.high),
+             allowed=p.allowed, used_with=p.used_with)
+    return d
+
+
 def spec_json() -> dict:
     """The parameters of the page: the material's (from the one specification), the
     light and view, the kernel export, slider ranges and presets (GET /api/parameters)."""
     def one(p: Parameter, group: str) -> dict:
         d = {"name": p.name, "kind": p.kind, "unit": p.unit, "default": p.default,
              "meaning": p.meaning, "allowed": p.allowed, "group": group,
-             "choices": list(p.choices) if p.kind == "choice" else None}
+             "choices": list(p.choices) if p.kind == "choice" else None,
+             "applies": list(p.applies), "used_with": p.used_with}
+        if p.name in TEXT_OR_NUMBER:
+            from corona.model.substrate import METALS
+            d["text"] = TEXT_OR_NUMBER[p.name].format(metals=", ".join(METALS))
+            d["suggestions"] = list(dict.fromkeys(METALS))
         if p.kind in ("float", "int"):
             lo = None if p.low == -math.inf else p.low
             hi = None if p.high == math.inf else p.high
@@ -142,7 +170,7 @@ def spec_json() -> dict:
     out = [one(p, "material") for p in PARAMETERS if not p.plugin_only]
     out += [one(p, "light") for p in VIEW_PARAMETERS if p.name != "preview"]   # the page sets preview itself
     out += [one(p, "kernel") for p in KERNEL_PARAMETERS]
-    return {"parameters": out, "presets": PRESETS,
+    return {"parameters": out, "spec": [parameter_json(p) for p in PARAMETERS], "presets": PRESETS,
             "ring_wavelengths": list(RING_WAVELENGTHS), "profile_wavelength": PROFILE_WAVELENGTH}
 
 
@@ -185,6 +213,9 @@ def parse(query: dict, upload_dir: str | None = None) -> tuple[dict, dict, dict]
             if p.kind == "string" and len(str(value)) > MIXTURE_MAX_CHARS:
                 raise CoronaError(f"{name} is {len(str(value))} characters long; allowed at most "
                                   f"{MIXTURE_MAX_CHARS} for the designer")
+            if name in TEXT_OR_NUMBER and isinstance(value, str):
+                material[name] = _text_value(name, value)
+                continue
             v = p.check(value)
             if name in LIMITS and v > LIMITS[name]:
                 raise _limit_error(p, value, LIMITS[name])
@@ -193,6 +224,22 @@ def parse(query: dict, upload_dir: str | None = None) -> tuple[dict, dict, dict]
         raise CoronaError(f"kernel_size={kernel['kernel_size']} is even; allowed odd integers in [3, 1023] "
                           "(the light sits on the centre pixel)")
     return material, view, kernel
+
+
+#: Numbers that may also be a text (as the plugin takes them): a metal's name or a spectrum.
+TEXT_OR_NUMBER = {"mirror_reflectance": "a number in [0, 1], a metal ({metals}) or a spectrum "
+                                        "'nm:value, ...'"}
+
+
+def _text_value(name: str, value: str) -> str:
+    """``mirror_reflectance`` as text: a metal of :data:`corona.model.substrate.METALS` or a
+    ``'nm:value, ...'`` spectrum, checked here as :class:`corona.Mirror` will read it."""
+    from corona.model.substrate import METALS, Mirror
+    if len(value) > MIXTURE_MAX_CHARS:
+        raise CoronaError(f"{name} is {len(value)} characters long; allowed at most {MIXTURE_MAX_CHARS} "
+                          "for the designer")
+    Mirror(reflectance=value.strip().lower() if value.strip().lower() in METALS else value)   # one line if bad
+    return value
 
 
 def check_fov(fov) -> float:
@@ -675,14 +722,25 @@ def ring_radii(m, n_rings: int = 4) -> dict:
 # energy split and exports
 # ----------------------------------------------------------------------
 def energy(params: dict) -> dict:
-    """Coherent, lobe (diffuse) and reflected fractions at normal incidence, and the
-    absorbed rest (the energy of :class:`corona.Material`, from its table)."""
+    """Where the light of a light at normal incidence goes, at 550 nm: the model's white furnace
+    (:meth:`corona.Material.directional_albedo`, the substrate included).
+
+    ``coherent_transmittance`` (the delta beam through the layer and its pane),
+    ``specular_reflection`` (the pane's or the mirror's mirror image), ``diffuse_transmittance``
+    (the lobe through), ``lobe_reflection`` (the lobe back: off a pane or a mirror, a sphere's
+    backward lobe), ``reflectance`` (the opaque part's diffuse reflection) and the ``absorbed``
+    rest (what the model drops or the layer absorbs); every lobe over the propagating directions.
+    """
     m = material(params)
-    c, t, r = m.coherent_transmittance, m.diffuse_transmittance(), m.reflectance
-    return {"coherent_transmittance": float(c), "diffuse_transmittance": float(t),
-            "reflectance": float(r), "absorbed": float(max(0.0, 1.0 - c - t - r)),
+    e = m.directional_albedo(1.0, 550.0, n_phi=4 if m.isotropic else None)   # normal incidence: radial
+    parts = {"coherent_transmittance": e["coherent"], "specular_reflection": e["specular"],
+             "diffuse_transmittance": e["lobe_transmission"], "lobe_reflection": e["lobe_reflection"],
+             "reflectance": e["diffuse"]}
+    parts = {k: float(v) for k, v in parts.items()}
+    return {**parts, "absorbed": float(max(0.0, 1.0 - sum(parts.values()))),
             "area_fraction": float(m.area_fraction), "length_scale": float(m.length_scale),
-            "isotropic": bool(m.isotropic), "material": repr(m)}
+            "isotropic": bool(m.isotropic), "substrate": params.get("substrate") or "none",
+            "material": repr(m)}
 
 
 def _export_value(p: Parameter, v):
@@ -699,14 +757,17 @@ def exports(params: dict, view: dict) -> dict:
     tag = {"float": "float", "int": "integer"}
     xml = ['<bsdf type="corona">']
     for p, v in items:
-        value = f"{v:.10g}" if p.kind == "float" else str(v)
-        xml.append(f'    <{tag.get(p.kind, "string")} name="{p.name}" value="{_xml_escape(value)}"/>')
+        value = f"{v:.10g}" if p.kind == "float" and not isinstance(v, str) else str(v)
+        kind = "string" if isinstance(v, str) else tag.get(p.kind, "string")
+        xml.append(f'    <{kind} name="{p.name}" value="{_xml_escape(value)}"/>')
     xml.append("</bsdf>")
     d = {"type": "corona", **{p.name: v for p, v in items}}
     cmd = ["corona", "lobe"]
     for p, v in items:
-        cmd += [f"--{p.name.replace('_', '-')}", f"{v:.10g}" if p.kind == "float" else str(v)]
-    cmd += ["--out", "lobe.png"]
+        cmd += [f"--{p.name.replace('_', '-')}", f"{v:.10g}" if p.kind == "float" and not isinstance(v, str)
+                else str(v)]
+    # corona lobe draws no Mie picture: for spheres the command prints the lobe's numbers
+    cmd += ["--json"] if params.get("shape") == "sphere" else ["--out", "lobe.png"]
     return {"xml": "\n".join(xml), "load_dict": d, "load_dict_python": "mi.load_dict(" + repr(d) + ")",
             "command": " ".join(shlex.quote(c) for c in cmd)}
 
@@ -718,37 +779,200 @@ def _xml_escape(s: str) -> str:
 # ----------------------------------------------------------------------
 # the kernel (point-spread function) for compositing
 # ----------------------------------------------------------------------
-def kernel(params: dict, opts: dict) -> np.ndarray:
-    """The corona kernel: the image of a point light through the layer (linear sRGB,
-    float32, (n, n, 3)), on a tangent-plane grid of ``pixel_scale`` [degree] per pixel.
+def _channel_weights(lams: np.ndarray) -> np.ndarray:
+    """(nλ, 3) weights of each wavelength in each linear sRGB channel for an equal-energy light,
+    each column normalised to sum 1 (a wavelength-independent layer gives equal channels)."""
+    w = spectrum_to_linear_srgb(np.eye(lams.size), lams)
+    return w / w.sum(0)
 
-    Each pixel holds the fraction of the light's energy it receives,
-    ``f(d) Ω_pixel`` (the lobe at the pixel centre times its solid angle),
-    and the centre pixel adds the coherent transmittance ``T_c``.  Colour: each
-    channel is normalised by an equal-energy light, so a wavelength-independent
-    layer gives equal channels; convolving a linear plate with the kernel
-    puts the corona around every light of the plate.  Sum over the kernel:
-    ``T_c`` + the lobe's energy within its field.
+
+def kernel_view(m) -> str:
+    """What the kernel shows: the light seen through the layer (``transmission``), or its
+    reflection in the layer on a mirror (``reflection``: a mirror transmits nothing)."""
+    from corona.model.substrate import Mirror
+    return "reflection" if isinstance(m.substrate, Mirror) else "transmission"
+
+
+def _substrate_terms(m, lams: np.ndarray):
+    """The kernel's delta weight on the centre pixel per channel (3,) and the substrate's factor on
+    the lobe as a function of ``|cos θo|`` per channel (a callable, or None for 1), at normal
+    incidence (the model's :meth:`corona.Material.eval` and delta weights):
+
+    * no substrate: ``T_c`` (:meth:`corona.Material.coherent_transmission`: a Mie layer's at each
+      wavelength), factor 1;
+    * glass: ``T_c T'(0)``; the lobe times ``T'(θo)`` (layer on the lit face) or ``T'(0)``;
+    * mirror (the reflection): the specular weight :meth:`corona.Material.specular_reflection`;
+      the lobe times ``min(R(0), R(θo)) + T_c [P(0) + P(θo)]``.  The double pass's Quetelet
+      fringes (``2 T_c V Q``) are finer than a pixel beyond a fraction of a degree and average
+      out over one; the kernel holds the fringe-averaged lobe.
+
+    Wavelength-dependent factors (a metal's or a spectrum's silvering) are averaged over each
+    channel's equal-energy weights (:func:`_channel_weights`).
     """
-    scale_deg = opts.get("pixel_scale") or KERNEL_SPEC["pixel_scale"].default
-    n = int(opts.get("kernel_size") or KERNEL_SPEC["kernel_size"].default)
-    h = n // 2
-    if scale_deg * h > KERNEL_MAX_HALF_WIDTH:
-        raise CoronaError(f"pixel_scale={scale_deg:g} degree with kernel_size={n} spans ±{scale_deg * h:g}°; "
-                          f"allowed at most ±{KERNEL_MAX_HALF_WIDTH:g}° (pixel_scale × (kernel_size - 1)/2)")
+    from corona.model.substrate import Mirror
+    sub = m.substrate
+    c = float(m.coherent_transmittance)
+    wch = _channel_weights(lams)
+    if not isinstance(sub, Mirror):          # the beam through (a Mie layer's depends on λ)
+        through = np.array([float(np.asarray(m.coherent_transmission(1.0, float(lam))).ravel()[0])
+                            for lam in lams]) @ wch
+    if sub is None:
+        return through, None
+    if isinstance(sub, Mirror):
+        if _is_sphere(m):
+            raise CoronaError("the kernel of shape='sphere' on substrate='mirror' is not available")
+        centre = np.asarray(m.specular_reflection(1.0, lams), dtype=np.float64) @ wch
+        cos_grid = np.linspace(0.0, 1.0, 1025)
+        front = np.minimum(sub.face_reflectance(1.0), sub.face_reflectance(cos_grid))
+        p0 = np.asarray(sub.inner_reflectance(1.0, lams), dtype=np.float64)                 # (nλ,)
+        po = sub.inner_reflectance(cos_grid[:, None], lams[None, :])                          # (n, nλ)
+        table = front[:, None] + c * ((p0[None, :] + po) @ wch)                               # (n, 3)
+    else:
+        t0 = float(sub.transmittance(1.0))
+        centre = through
+        cos_grid = np.linspace(0.0, 1.0, 1025)
+        first = bool(np.all(m._layer_first(1.0)))
+        t = sub.transmittance(cos_grid) if first else np.full(cos_grid.shape, t0)
+        table = np.repeat(t[:, None], 3, axis=1)
+
+    def factor(cos_o):
+        cos_o = np.asarray(cos_o, dtype=np.float64)
+        return np.stack([np.interp(cos_o, cos_grid, table[:, k]) for k in range(3)], -1)
+    return centre, factor
+
+
+def _kernel_lobe(m, d: np.ndarray, lams: np.ndarray, factor) -> np.ndarray:
+    """The lobe per channel at offsets ``d`` (..., 2) for an equal-energy light [1/sr] (..., 3),
+    times the substrate's factor at ``cos θo = sqrt(1 - |d|²)``."""
+    flat = np.ones_like(lams)
+    white = spectrum_to_linear_srgb(flat, lams)
+    f = lobe_rgb(m, d, flat, lams) / white
+    if factor is not None:
+        f = f * factor(np.sqrt(np.maximum(0.0, 1.0 - np.sum(d * d, -1))))
+    return f
+
+
+def _kernel_lams(m) -> np.ndarray:
+    return WAVELENGTHS if m.isotropic else np.linspace(WAVELENGTHS[0], WAVELENGTHS[-1], N_WAVELENGTHS_2D)
+
+
+def _lobe_square_energy(m):
+    """The lobe's energy per channel leaving the layer at normal incidence, as a function of the
+    half-width [degree] of a square kernel (``max(|θx|, |θy|) <= H``): (Θ sorted [degree],
+    cumulative energy (n, 3), total (3,)), from the lobe on a polar grid in ``d`` over every
+    propagating direction (``|d| <= 1``), ``∫ f d²d`` (the same lobe and substrate factor as the
+    kernel, an independent quadrature)."""
+    lams = _kernel_lams(m)
+    _, factor = _substrate_terms(m, lams)
+    # radial resolution: a quarter of the rings' spacing in |d| at the shortest wavelength
+    step = 0.25 * lams[0] * 1e-3 / (2 * m.length_scale)
+    n_rho = int(np.clip(math.ceil(1.0 / step) + 1, 1025 if m.isotropic else 513, 16385 if m.isotropic else 2049))
+    rho = np.linspace(0.0, 1.0, n_rho)
+    # azimuths: a 2-D table's narrow peaks (a lattice's orders) need many; closed-form outlines are smooth
+    n_phi = 48 if not m.isotropic and m.render_kind != "table" else 128
+    phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
+    if m.isotropic:
+        f = _kernel_lobe(m, np.stack([rho, 0 * rho], -1), lams, factor)[:, None, :]   # (n_rho, 1, 3)
+        f = np.broadcast_to(f, (n_rho, n_phi, 3))
+    else:
+        d = np.stack([rho[:, None] * np.cos(phi), rho[:, None] * np.sin(phi)], -1)
+        f = _kernel_lobe(m, d, lams, factor)
+    w = np.full(n_rho, rho[1] - rho[0])
+    w[0] = w[-1] = 0.5 * (rho[1] - rho[0])
+    w = (w * rho)[:, None] * (2 * np.pi / n_phi)                                         # d²d
+    z = np.sqrt(np.maximum(1.0 - rho * rho, 1e-300))[:, None]
+    big = np.degrees(np.maximum(np.abs(np.arctan2(rho[:, None] * np.cos(phi), z)),
+                                np.abs(np.arctan2(rho[:, None] * np.sin(phi), z))))      # (n_rho, n_phi)
+    e = (np.nan_to_num(f) * w[..., None]).reshape(-1, 3)
+    order = np.argsort(big, axis=None, kind="stable")
+    return big.ravel()[order], np.cumsum(e[order], axis=0), e.sum(0)
+
+
+def kernel_plan(params: dict, opts: dict) -> dict:
+    """The kernel's size and what it holds (GET /api/kernel_info; the kernel files use it too).
+
+    ``pixel_scale`` [degree] and ``kernel_size`` [pixel] as given; either one left out is sized
+    from the lobe: the square of half-width ``H`` holding :data:`KERNEL_SHARE_TARGET` of the lobe's
+    energy in every channel (at most ±:data:`KERNEL_MAX_HALF_WIDTH`°), with
+    :data:`KERNEL_PIXELS_PER_RING` pixels per ring at the shortest wavelength, between
+    :data:`KERNEL_SIZE_MIN` and :data:`KERNEL_SIZE_MAX` pixels.  ``share``: the lobe's energy inside
+    the kernel over its whole energy per channel (R, G, B); ``warning`` when the least is below
+    :data:`KERNEL_SHARE_MIN`.
+    """
     m = material(params)
-    scale = math.radians(scale_deg)
+    view = kernel_view(m)
+    theta, cum, total = _lobe_square_energy(m)
+    tot = np.where(total > 0, total, 1.0)
+
+    def share(half):                          # the lobe's share inside max(|θx|, |θy|) <= half
+        i = int(np.searchsorted(theta, half, side="right"))
+        got = (cum[i - 1] if i else np.zeros(3)) / tot
+        return np.where(total > 0, got, 1.0)  # no lobe in a channel: nothing to miss
+
+    ok = np.all((cum / tot >= KERNEL_SHARE_TARGET) | (total <= 0), axis=1)
+    needed = float(theta[np.argmax(ok)]) if ok.any() else math.inf
+    half_needed = min(max(needed, 0.05), KERNEL_MAX_HALF_WIDTH)
+    scale, n = opts.get("pixel_scale"), opts.get("kernel_size")
+    lam0 = _kernel_lams(m)[0] * 1e-3
+    fine = math.degrees(math.pi * lam0 / (2 * math.pi * m.length_scale)) / KERNEL_PIXELS_PER_RING
+    if not m.isotropic and m.render_kind == "table":
+        # a 2-D table's narrow peaks (a lattice's orders) are one cell wide: half a cell per pixel
+        fine = min(fine, math.degrees(0.5 * m.render_lobe.table.cell * lam0 / (2 * math.pi * m.length_scale)))
+    if scale is None and n is None:
+        scale = fine
+        n = 2 * math.ceil(half_needed / scale - 0.5) + 1
+        n = int(np.clip(n, KERNEL_SIZE_MIN, KERNEL_SIZE_MAX))
+        scale = half_needed / (n // 2 + 0.5)
+    elif scale is None:
+        scale = half_needed / (int(n) // 2 + 0.5)
+    elif n is None:
+        n = int(np.clip(2 * math.ceil(half_needed / scale - 0.5) + 1, 3, KERNEL_SIZE_MAX))
+    n = int(n)
+    h = n // 2
+    if scale * h > KERNEL_MAX_HALF_WIDTH * (1 + 1e-9):
+        raise CoronaError(f"pixel_scale={scale:g} degree with kernel_size={n} spans ±{scale * h:g}°; "
+                          f"allowed at most ±{KERNEL_MAX_HALF_WIDTH:g}° (pixel_scale × (kernel_size - 1)/2)")
+    got = share((h + 0.5) * scale)
+    out = {"pixel_scale": float(scale), "kernel_size": n, "half_width": float((h + 0.5) * scale),
+           "share": [float(x) for x in got], "share_min": float(got.min()),
+           "needed_half_width": None if not math.isfinite(needed) else needed, "view": view,
+           "lobe_energy": [float(x) for x in total]}
+    if got.min() < KERNEL_SHARE_MIN:
+        need = (f"±{needed:.3g}°" if math.isfinite(needed) and needed <= KERNEL_MAX_HALF_WIDTH
+                else f"more than ±{KERNEL_MAX_HALF_WIDTH:g}°, the widest kernel")
+        out["warning"] = (f"the kernel (±{out['half_width']:.3g}°) holds {100 * got.min():.1f} % of the lobe's "
+                          f"energy; {100 * KERNEL_SHARE_MIN:g} % needs {need}")
+    return out
+
+
+def kernel(params: dict, opts: dict, plan: dict | None = None) -> np.ndarray:
+    """The corona kernel: the image of a point light through the layer (or, on a mirror, in it),
+    linear sRGB, float32, (n, n, 3), on a grid of ``pixel_scale`` [degree] per pixel along each
+    axis (pixel ``(i, j)`` looks along ``(tan(i s), tan(j s), 1)``), sized by :func:`kernel_plan`.
+
+    Each pixel holds the fraction of the light's energy it receives: the lobe at the pixel
+    centre times the pixel's projected solid angle ``cos θ dΩ`` (the lobe ``f`` is per unit
+    ``d²d = cos θ dΩ``), times the substrate's factor (:func:`_substrate_terms`); the centre
+    pixel adds the delta weight (the coherent transmission, or the mirror's specular
+    reflection).  Colour: each channel is normalised by an equal-energy light, so a
+    wavelength-independent layer gives equal channels.  The sum over the kernel is the delta
+    weight plus the lobe's energy inside it (``plan["share"]`` of the whole).
+    """
+    m = material(params)
+    plan = plan or kernel_plan(params, opts)
+    scale = math.radians(plan["pixel_scale"])
+    h = plan["kernel_size"] // 2
     t = np.arange(-h, h + 1) * scale
     tx, ty = np.meshgrid(t, t[::-1], indexing="xy")
-    # tangent plane x = tan θ: direction (x, y, 1)/|.|, d = its xy part
-    norm = np.sqrt(1 + np.tan(tx) ** 2 + np.tan(ty) ** 2)
-    d = np.stack([np.tan(tx) / norm, np.tan(ty) / norm], -1)
-    solid = scale * scale / norm**3                          # Ω of a pixel of the tangent plane
-    lams = WAVELENGTHS if m.isotropic else np.linspace(WAVELENGTHS[0], WAVELENGTHS[-1], N_WAVELENGTHS_2D)
-    flat = np.ones_like(lams)
-    white = spectrum_to_linear_srgb(flat, lams)              # equal-energy light, per channel
-    k = lobe_rgb(m, d, flat, lams) / white * solid[..., None]
-    k[h, h] += m.coherent_transmittance
+    # direction (tan θx, tan θy, 1)/norm: d is its xy part; dΩ = sec²θx sec²θy dθx dθy / norm³
+    x, y = np.tan(tx), np.tan(ty)
+    norm = np.sqrt(1 + x * x + y * y)
+    d = np.stack([x / norm, y / norm], -1)
+    projected = scale * scale * (1 + x * x) * (1 + y * y) / norm**4          # cos θ dΩ of a pixel
+    lams = _kernel_lams(m)
+    centre, factor = _substrate_terms(m, lams)
+    k = _kernel_lobe(m, d, lams, factor) * projected[..., None]
+    k[h, h] += centre
     return np.nan_to_num(k, nan=0.0, posinf=0.0).astype(np.float32)
 
 

@@ -19,24 +19,29 @@ const state = {
 };
 
 // ---------------------------------------------------------------------------
-// which controls matter for the current material
+// which controls matter: the specification's own conditions (Parameter.applies), evaluated
+// as corona.parameters.Parameter.applies_to does; the page knows no shape or process itself
 // ---------------------------------------------------------------------------
-function relevant(name, v) {
-  const shape = v.shape || "circle", process = v.process || "hard-disk";
-  switch (name) {
-    case "radius": return shape !== "mask" && shape !== "mixture";
-    case "aspect": return shape === "ellipse" || shape === "rectangle";
-    case "sides": return shape === "polygon";
-    case "angle": return ["ellipse", "square", "rectangle", "polygon", "mask"].includes(shape);
-    case "filename": return shape === "mask" || process === "points";
-    case "points_filename": return shape === "mask" && process === "points";
-    case "pixel_size": return shape === "mask";
-    case "mixture": return shape === "mixture";
-    case "size_distribution": return parseFloat(v.size_spread || "0") > 0;
-    case "exclusion_diameter": return process === "hard-disk" || process === "rsa";
-    case "jitter": return process.startsWith("lattice");
-    default: return true;
+function appliesTo(p, v) {
+  if (!p.applies || p.applies.length === 0) return true;
+  for (const cond of p.applies) {
+    if (cond.includes(">")) {
+      const [name, limit] = cond.split(">");
+      const raw = v[name];
+      const x = (raw === undefined || raw === null || String(raw).trim() === "") ? 0 : Number(raw);
+      if (Number.isNaN(x) || x > Number(limit)) return true;     // a bad value is reported by its own check
+    } else {
+      const [name, value] = cond.split("=");
+      if (String(v[name] ?? "") === value) return true;
+    }
   }
+  return false;
+}
+
+function relevantNames(v) {
+  const out = {};
+  for (const p of state.spec) out[p.name] = appliesTo(p, v);
+  return out;
 }
 
 // ---------------------------------------------------------------------------
@@ -66,7 +71,7 @@ function makeControl(p) {
   const label = document.createElement("label");
   label.className = "name";
   label.textContent = p.name.replace(/_/g, " ");
-  label.htmlFor = (p.kind === "choice" ? "sel-" : p.kind === "file" ? "file-" : p.kind === "string" ? "txt-" : "num-") + p.name;
+  label.htmlFor = (p.kind === "choice" ? "sel-" : p.kind === "file" ? "file-" : (p.kind === "string" || p.text) ? "txt-" : "num-") + p.name;
   row.appendChild(label);
   const unit = document.createElement("span");
   unit.className = "unit";
@@ -77,13 +82,21 @@ function makeControl(p) {
     sel.id = "sel-" + p.name;
     sel.className = "wide";
     for (const c of p.choices) sel.add(new Option(c, c));
-    sel.addEventListener("change", () => { state.values[p.name] = sel.value; changed(); });
+    sel.addEventListener("change", () => { state.values[p.name] = sel.value; userChanged(); });
     row.appendChild(sel);
-  } else if (p.kind === "string") {
+  } else if (p.kind === "string" || p.text) {     // text, or a number that may be a text (a metal, a spectrum)
     const txt = document.createElement("input");
     txt.type = "text"; txt.id = "txt-" + p.name; txt.className = "wide";
-    txt.placeholder = "circle:5:0.5, square:4.43:0.5";
-    txt.addEventListener("change", () => { state.values[p.name] = txt.value; changed(); });
+    txt.placeholder = p.text ? (p.default === null ? "default" : String(p.default)) : "circle:5:0.5, square:4.43:0.5";
+    if (p.text) {
+      txt.title = p.text;
+      const list = document.createElement("datalist");
+      list.id = "list-" + p.name;
+      for (const c of p.suggestions || []) list.appendChild(new Option(c, c));
+      row.appendChild(list);
+      txt.setAttribute("list", list.id);
+    }
+    txt.addEventListener("change", () => { state.values[p.name] = txt.value; userChanged(); });
     row.appendChild(txt);
   } else if (p.kind === "file") {
     const wrap = document.createElement("span");
@@ -100,9 +113,9 @@ function makeControl(p) {
     input.addEventListener("change", async () => {
       const f = input.files[0];
       if (!f) return;
-      const kind = (p.name === "filename" && (state.values.shape || "circle") === "mask") ? "mask" : "points";
+      const kind = (p.name === "filename" && state.values.shape === "mask") ? "mask" : "points";
       const ans = await upload(f, kind);
-      if (ans) { state.values[p.name] = ans.id; shown.textContent = " " + f.name; changed(); }
+      if (ans) { state.values[p.name] = ans.id; shown.textContent = " " + f.name; userChanged(); }
     });
     row.appendChild(wrap);
   } else {
@@ -118,9 +131,9 @@ function makeControl(p) {
       range.setAttribute("aria-label", p.name);
       range.addEventListener("input", () => {      // while it moves: a preview of 2-D pictures
         state.values[p.name] = num.value = sliderToValue(p, range.value);
-        changed(true);
+        userChanged(true);
       });
-      range.addEventListener("change", () => changed());   // let go: the exact picture
+      range.addEventListener("change", () => userChanged());   // let go: the exact picture
       row.appendChild(range);
     } else {
       const gap = document.createElement("span");
@@ -129,16 +142,16 @@ function makeControl(p) {
     num.addEventListener("change", () => {
       state.values[p.name] = num.value;
       if (p.slider) $("slider-" + p.name).value = valueToSlider(p, num.value);
-      changed();
+      userChanged();
     });
     row.appendChild(num);
   }
-  if (p.kind === "float" || p.kind === "int") {
+  if ((p.kind === "float" || p.kind === "int") && !p.text) {
     if (p.default === null) {
       const clear = document.createElement("button");
       clear.type = "button"; clear.className = "clear"; clear.textContent = "×";
       clear.title = "not set: " + p.meaning;
-      clear.addEventListener("click", () => { state.values[p.name] = ""; showValue(p); changed(); });
+      clear.addEventListener("click", () => { state.values[p.name] = ""; showValue(p); userChanged(); });
       row.appendChild(clear);
     } else {
       row.appendChild(unit);
@@ -146,7 +159,7 @@ function makeControl(p) {
   } else if (p.kind === "file") {
     const clear = document.createElement("button");
     clear.type = "button"; clear.className = "clear"; clear.textContent = "×"; clear.title = "no file";
-    clear.addEventListener("click", () => { state.values[p.name] = ""; showValue(p); changed(); });
+    clear.addEventListener("click", () => { state.values[p.name] = ""; showValue(p); userChanged(); });
     row.appendChild(clear);
   } else {
     row.appendChild(document.createElement("span"));
@@ -157,7 +170,7 @@ function makeControl(p) {
 function showValue(p) {
   const v = state.values[p.name] ?? "";
   if (p.kind === "choice") $("sel-" + p.name).value = v || p.default;
-  else if (p.kind === "string") $("txt-" + p.name).value = v;
+  else if (p.kind === "string" || p.text) $("txt-" + p.name).value = v;
   else if (p.kind === "file") $("shown-" + p.name).textContent = v ? " " + v : " (none)";
   else {
     $("num-" + p.name).value = v;
@@ -175,8 +188,12 @@ function applyValues(obj) {
 
 function showAll() {
   for (const p of state.spec) showValue(p);
-  for (const p of state.spec) {
-    if (p.group === "material") $("ctl-" + p.name).hidden = !relevant(p.name, state.values);
+  for (const p of state.spec) {       // knobs that mean nothing for this layer: dimmed, and not sent
+    const row = $("ctl-" + p.name), on = appliesTo(p, state.values);
+    row.classList.toggle("inactive", !on);
+    row.dataset.active = on ? "1" : "0";
+    row.title = `${p.meaning} — allowed ${p.allowed}${p.unit ? " " + p.unit : ""}` +
+      (on ? "" : ` — not used here (used with ${p.used_with})`);
   }
 }
 
@@ -189,7 +206,7 @@ function query(groups, values, extra) {
     if (!groups.includes(p.group)) continue;
     const v = values[p.name];
     if (v === undefined || v === "" || v === null) continue;
-    if (p.group === "material" && !relevant(p.name, values)) continue;
+    if (p.group === "material" && !appliesTo(p, values)) continue;
     if (String(v) === String(p.default)) continue;   // the server knows the defaults
     qs.set(p.name, v);
   }
@@ -209,6 +226,7 @@ class Channel {
   request(url, ctx) {
     if (this.busy) { this.next = [url, ctx]; return; }
     this.busy = true;
+    busy.start();
     const t0 = performance.now();
     fetch(url).then(async (res) => {
       const ms = performance.now() - t0;
@@ -222,10 +240,53 @@ class Channel {
     }).catch((err) => showError("the designer server did not answer (" + err.message + ")"))
       .finally(() => {
         this.busy = false;
+        busy.end();
         if (this.next) { const [u, c] = this.next; this.next = null; this.request(u, c); }
       });
   }
 }
+
+// ---------------------------------------------------------------------------
+// busy indicator: while requests are in flight for more than a moment, the server's
+// progress (GET /api/progress: what it computes, and the table builds' progress bars)
+// ---------------------------------------------------------------------------
+const busy = {
+  inflight: 0, timer: null, since: 0,
+  start() {
+    if (this.inflight++ === 0) { this.since = performance.now(); this.schedule(400); }
+  },
+  end() {
+    if (--this.inflight <= 0) {
+      this.inflight = 0;
+      clearTimeout(this.timer); this.timer = null;
+      $("busy").hidden = true;
+    }
+  },
+  schedule(ms) { clearTimeout(this.timer); this.timer = setTimeout(() => this.poll(), ms); },
+  async poll() {
+    if (this.inflight === 0) return;
+    try {
+      const res = await fetch("/api/progress", { cache: "no-store" });
+      if (res.ok && this.inflight > 0) this.show(await res.json());
+    } catch (e) { /* the next poll tries again */ }
+    if (this.inflight > 0) this.schedule(300);
+  },
+  show(data) {
+    const bars = data.bars || [], jobs = data.jobs || [];
+    const bar = bars.find((b) => b.total) || bars[0];
+    const secs = ((performance.now() - this.since) / 1000).toFixed(0);
+    let text = jobs.length ? "computing " + [...new Set(jobs.map((j) => j.what))].join(", ") : "waiting for the server";
+    const prog = $("busy-bar");
+    if (bar) {
+      const what = bar.desc || "building tables";
+      const count = `${Math.round(bar.n)}${bar.total ? " / " + Math.round(bar.total) : ""} ${bar.unit}`;
+      text = `${what}: ${count}`;
+      if (bar.total) { prog.max = bar.total; prog.value = bar.n; } else prog.removeAttribute("value");
+    } else prog.removeAttribute("value");         // indeterminate
+    $("busy-text").textContent = `${text} · ${secs} s`;
+    $("busy").hidden = false;
+  },
+};
 
 const timings = {};
 function showTiming(what, ms) {
@@ -310,6 +371,12 @@ function requestB() {
   $("energy-b").classList.add("stale");
 }
 
+// the preset menu says "custom" once a knob is edited by hand
+function userChanged(preview = false) {
+  $("preset").value = "custom";
+  changed(preview);
+}
+
 let scheduled = false;
 function changed(preview = false) {
   showAll();
@@ -328,7 +395,22 @@ function update() {
   const kq = query(["material", "kernel"], state.values);
   $("kernel-png").href = "/api/kernel.png?" + kq;
   $("kernel-exr").href = "/api/kernel.exr?" + kq;
+  chanKernel.request("/api/kernel_info?" + kq, "a");
+  // the look in the address: copy it to share it, load it to restore it
+  const look = query(["material", "light", "kernel"], state.values);
+  history.replaceState(null, "", look ? "?" + look : location.pathname);
 }
+
+const chanKernel = new Channel(async (res) => {
+  const k = await res.json();
+  const share = Math.floor(1000 * k.share_min) / 10;
+  const view = k.view === "reflection" ? "reflection in the mirror" : "seen through the layer";
+  $("kernel-info").textContent = `${k.kernel_size} × ${k.kernel_size} px at ${Number(k.pixel_scale.toPrecision(3))}°/px ` +
+    `(±${Number(k.half_width.toPrecision(3))}°, ${view}): holds ${share.toFixed(1)} % of the lobe's energy`;
+  $("kernel-warning").textContent = k.warning || "";
+  $("kernel-warning").hidden = !k.warning;
+  $("kernel-info").dataset.share = String(k.share_min);
+});
 
 // ---------------------------------------------------------------------------
 // energy split, profiles, exports
@@ -336,7 +418,9 @@ function update() {
 function drawEnergy(side, m) {
   const row = $("energy-" + side);
   const parts = [["coherent", m.coherent_transmittance], ["lobe", m.diffuse_transmittance],
-                 ["reflected", m.reflectance], ["absorbed", m.absorbed]];
+                 ["specular", m.specular_reflection], ["lobe-reflected", m.lobe_reflection],
+                 ["diffuse-reflected", m.reflectance], ["absorbed", m.absorbed]]
+    .filter(([k, v]) => v > 0 || ["coherent", "lobe", "absorbed"].includes(k));
   row.innerHTML = "";
   const tag = document.createElement("b");
   tag.textContent = side.toUpperCase();
@@ -352,8 +436,8 @@ function drawEnergy(side, m) {
   const legend = document.createElement("div");
   legend.className = "legend";
   legend.id = "energy-legend-" + side;
-  legend.textContent = parts.map(([k, v]) => `${k} ${v.toFixed(3)}`).join(" · ") +
-    ` · F_a ${m.area_fraction.toFixed(3)}`;
+  legend.textContent = parts.map(([k, v]) => `${k.replace("-", " ")} ${v.toFixed(3)}`).join(" · ") +
+    ` · F_a ${m.area_fraction.toFixed(3)}` + (m.substrate && m.substrate !== "none" ? ` · on ${m.substrate}` : "");
   row.append(tag, bar, legend);
 }
 
@@ -491,6 +575,7 @@ async function fit() {
   const data = await res.json();
   if (!res.ok) { $("fit-status").textContent = data.error; return; }
   applyValues(data.parameters);
+  $("preset").value = "custom";
   $("fit-status").textContent = "fitted: " + Object.entries(data.parameters).map(([k, v]) => `${k} ${typeof v === "number" ? v.toPrecision(4) : v}`).join(", ");
   changed();
 }
@@ -512,6 +597,9 @@ async function start() {
   for (const [name, pr] of Object.entries(spec.presets)) {
     const o = new Option(name, name); o.title = pr.about; sel.add(o);
   }
+  const custom = new Option("custom", "custom");
+  custom.title = "the knobs as edited (not a preset)";
+  sel.add(custom);
   sel.addEventListener("change", () => {
     const pr = spec.presets[sel.value];
     if (!pr) return;
@@ -521,6 +609,20 @@ async function start() {
   });
   sel.value = Object.keys(spec.presets)[0];
   applyValues(spec.presets[sel.value].material); applyValues(spec.presets[sel.value].view);
+  // a look from the address (?radius=8&...): the defaults and these values, as the page wrote it
+  const given = [...new URLSearchParams(location.search)].filter(([k]) => k in state.byName);
+  if (given.length) {
+    setDefaults();
+    for (const [k, v] of given) state.values[k] = v;
+    const here = query(["material", "light", "kernel"], state.values);
+    sel.value = "custom";
+    for (const [name, pr] of Object.entries(spec.presets)) {
+      const vals = {};
+      for (const p of state.spec) vals[p.name] = p.default === null ? "" : String(p.default);
+      for (const [k, v] of Object.entries({ ...pr.material, ...pr.view })) vals[k] = v === null ? "" : String(v);
+      if (query(["material", "light", "kernel"], vals) === here) sel.value = name;
+    }
+  }
 
   $("pin").addEventListener("click", () => {
     state.pinned = materialOf(state.values);
@@ -550,5 +652,8 @@ async function start() {
   $("fit").addEventListener("click", fit);
   changed();
 }
+
+// for tests and scripts: the page's own relevance rule, from the specification
+window.corona = { appliesTo: (name, values) => appliesTo(state.byName[name], values), relevantNames, state };
 
 start().catch((err) => showError("the page could not start: " + err.message));
