@@ -388,7 +388,7 @@ def write_markdown(md_path: str, out_dir: str, commands: dict, failed: dict, var
     """Rewrite the gallery page: every strip whose picture exists, with its commands."""
     rel = os.path.relpath(out_dir, os.path.dirname(md_path))
     lines = ["# Gallery", "",
-             "Every scene of [`scenes/`](../scenes) as a figure of the reference talk (docs/gallery.md), "
+             "Every scene of `scenes/` as a figure of the reference talk (docs/gallery.md), "
              "rendered at modest resolution and sample count by `make gallery` "
              f"(variant `{variant}`). Each panel comes from the command under it; the EXRs land in "
              "`out/gallery/`. Scene units are metres, the corona BSDF's lengths micrometres; each "

@@ -58,11 +58,13 @@ extensions = [
     "sphinx.ext.viewcode",    # [source] links
 ]
 
-root_doc = "api/index"
+root_doc = "index"                 # docs/index.md: the landing page
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 # docs/ holds more than the site: only the pages below are built
-include_patterns = ["api/**", "physics.md", "tutorial.md", "layer.md", "tables.md", "mie.md", "volumes.md",
-                    "combinations.md", "robustness.md", "validation/README.md", "benchmarks.md"]
+include_patterns = ["index.md", "api/**", "install.md", "tutorial.md", "cli.md", "designer.md", "parameters.md",
+                    "gallery.md", "physics.md", "layer.md", "tables.md", "mie.md", "volumes.md",
+                    "combinations.md", "robustness.md", "validation/README.md", "benchmarks.md",
+                    "contributing.md"]
 exclude_patterns = ["_build", "**/.ipynb_checkpoints"]
 
 # MyST: $...$ / $$...$$ math as on GitHub, and GitHub-style anchors for headings
@@ -173,17 +175,6 @@ def _napoleon_except_attributes(app, what, name, obj, options, lines):
     _process_docstring(app, what, name, obj, options, lines)
 
 
-def _redirect_root(app, exception):
-    """``docs/_build/html/index.html`` -> ``api/index.html`` (the root page)."""
-    if exception is not None or app.builder.format != "html":
-        return
-    with open(os.path.join(app.outdir, "index.html"), "w", encoding="utf-8") as f:
-        f.write('<!DOCTYPE html><html><head><meta charset="utf-8">'
-                '<meta http-equiv="refresh" content="0; url=api/index.html">'
-                '<title>corona</title></head>'
-                '<body><a href="api/index.html">corona documentation</a></body></html>\n')
-
-
 def _allow_reexports() -> None:
     """A class re-exported by two pages (``corona.Circle`` on the top-level
     page, ``corona.model.shapes.Circle`` on its package's page) is documented twice
@@ -219,7 +210,6 @@ def setup(app):
             replaced = True
     if replaced:
         app.connect("autodoc-process-docstring", _napoleon_except_attributes)
-    app.connect("build-finished", _redirect_root)
     app.connect("build-finished", _copy_mathjax)
 
 

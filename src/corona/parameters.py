@@ -3,7 +3,7 @@
 :data:`PARAMETERS` lists every parameter once: name, type, unit, default,
 allowed values and a one-line meaning.  The Mitsuba plugin reads its
 properties through it (and its docstring table is generated from it), the
-CLI's ``corona lobe`` options are generated from it, and the README's table
+CLI's ``corona lobe`` options are generated from it, and the table of docs/parameters.md
 is checked against it by the tests (``python -m corona.parameters`` prints
 the Markdown table).  :func:`material_from_parameters` validates each value
 here, at the boundary, with one clear error (name, value, allowed range).
@@ -263,7 +263,7 @@ def _cell(text: str) -> str:
 
 
 def markdown_table(plugin: bool = True) -> str:
-    """The parameter table in Markdown (the README's)."""
+    """The parameter table in Markdown (docs/parameters.md's)."""
     rows = ["| parameter | unit | default | allowed | used with | meaning |", "|---|---|---|---|---|---|"]
     for p in PARAMETERS:
         if p.plugin_only and not plugin:
@@ -553,5 +553,5 @@ def material_from_parameters(**params):
     return material
 
 
-if __name__ == "__main__":   # python -m corona.parameters: the README's table
+if __name__ == "__main__":   # python -m corona.parameters: docs/parameters.md's table
     print(markdown_table())

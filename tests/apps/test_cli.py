@@ -251,6 +251,16 @@ def test_lobe_picture(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
+def test_lobe_picture_into_a_new_folder(tmp_path):
+    """--out in a folder that does not exist yet (the gallery's documented command run from
+    a fresh folder: docs/gallery/lobe_tables.png) makes the folder, as corona render does."""
+    out = tmp_path / "docs" / "gallery" / "lobe.png"
+    r = run("lobe", "--radius", "5", "--area-fraction", "0.4", "--out", out)
+    assert r.exit_code == 0, r.stderr
+    assert out.is_file() and out.stat().st_size > 0
+
+
+@pytest.mark.slow
 def test_lobe_picture_anisotropic(tmp_path):
     out = tmp_path / "sq.png"
     r = run("lobe", "--shape", "square", "--radius", "20", "--area-fraction", "0.25",

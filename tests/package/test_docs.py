@@ -53,12 +53,59 @@ def test_bars_in_docstrings_are_escaped_outside_literals():
     assert lines[9] == "   |A| = 1" and lines[13] == "   a |b|"
 
 
-def test_docs_pages_are_listed():
-    """Every page of the site is built: the tutorial and the corona.apps.post API page."""
-    index = open(os.path.join(ROOT, "docs", "api", "index.md"), encoding="utf-8").read()
-    assert "/tutorial" in index and "corona.apps.post" in index
+def _toctree_entries(page: str) -> list[str]:
+    text = open(os.path.join(ROOT, "docs", page), encoding="utf-8").read()
+    entries = []
+    for block in re.findall(r"```\{toctree\}\n(.*?)```", text, re.S):
+        entries += [line.strip() for line in block.splitlines() if line.strip() and not line.startswith(":")]
+    return entries
+
+
+def test_docs_open_on_the_index_and_list_every_page():
+    """The site opens on docs/index.md (not a redirect to the API page), its table of
+    contents reaches every page the build includes (the gallery, the command line, the
+    parameters, the contributors' page, the tutorial, the API pages), and each exists."""
     conf = open(os.path.join(ROOT, "docs", "api", "conf.py"), encoding="utf-8").read()
-    assert '"tutorial.md"' in conf and 'mathjax_path = "mathjax/tex-chtml.js"' in conf
+    assert re.search(r'^root_doc = "index"', conf, re.M)
+    assert "_redirect_root" not in conf and 'mathjax_path = "mathjax/tex-chtml.js"' in conf
+    included = re.search(r"include_patterns = \[(.*?)\]", conf, re.S).group(1)
+    pages = {p[:-3] for p in re.findall(r'"([^"*]+\.md)"', included)}
+    listed = set(_toctree_entries("index.md")) | {"index"}
+    listed |= {"api/" + e for e in _toctree_entries(os.path.join("api", "index.md"))}
+    for page in ("gallery", "cli", "designer", "parameters", "install", "contributing", "tutorial", "physics"):
+        assert page in pages and page in listed, page
+    assert pages <= listed, pages - listed
+    assert "api/corona.apps.post" in listed
+    for page in listed:
+        assert os.path.exists(os.path.join(ROOT, "docs", page + ".md")) or \
+            os.path.exists(os.path.join(ROOT, "docs", page + ".rst")), page
+
+
+def _tutorial_sections() -> list[str]:
+    """examples/tutorial.py cut at its ``# --- `` lines: the code after the docstring,
+    then each section without its marker line."""
+    import ast
+    source = open(os.path.join(ROOT, "examples", "tutorial.py"), encoding="utf-8").read()
+    lines = source.splitlines()[ast.parse(source).body[0].end_lineno:]
+    chunks = [[]]
+    for line in lines:
+        if line.startswith("# --- "):
+            chunks.append([])
+        else:
+            chunks[-1].append(line)
+    return ["\n".join(c).strip("\n") for c in chunks]
+
+
+def test_tutorial_page_shows_the_script_as_it_is():
+    """docs/tutorial.md shows its code as plain Markdown blocks (readable on a forge, no
+    ``{literalinclude}``), and those blocks are examples/tutorial.py, section by section,
+    in order: the script that test_tutorial_runs_and_says_what_it_should runs."""
+    page = open(os.path.join(ROOT, "docs", "tutorial.md"), encoding="utf-8").read()
+    assert "literalinclude" not in page
+    blocks = [b.strip("\n") for b in re.findall(r"^```python\n(.*?)^```$", page, re.S | re.M)]
+    sections = _tutorial_sections()
+    assert len(sections) == 7, "examples/tutorial.py: a preamble and six '# --- ' sections"
+    assert blocks == sections, "docs/tutorial.md's code blocks differ from examples/tutorial.py's sections"
 
 
 def _report():

@@ -29,7 +29,7 @@ REFERENCE_IMPORTERS = {
 }
 
 
-#: The tiers, low to high (README, "What is in the package"): an import may only point to the
+#: The tiers, low to high (docs/contributing.md, "The tiers and the import policy"): an import may only point to the
 #: same tier or a lower one.  The shared infrastructure sits below the model; corona.parameters
 #: (the one parameter spec, which builds materials and reads the tables' settings) above the
 #: tables; corona.reference beside the runtime, above the spec (it may use the model, the tables

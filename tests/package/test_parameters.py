@@ -1,4 +1,4 @@
-"""The one parameter specification: the plugin, the CLI and the README agree with it."""
+"""The one parameter specification: the plugin, the CLI and docs/parameters.md agree with it."""
 import os
 import re
 
@@ -12,12 +12,16 @@ from corona.parameters import DEFAULTS, PARAMETERS, SPEC, markdown_table, materi
 ROOT = os.path.join(os.path.dirname(__file__), os.pardir, os.pardir)
 
 
-def test_readme_table_is_the_specification():
-    text = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+def test_docs_table_is_the_specification():
+    """docs/parameters.md (where the README and the docs' index send readers) carries
+    the generated table, as the specification has it."""
+    text = open(os.path.join(ROOT, "docs", "parameters.md"), encoding="utf-8").read()
     m = re.search(r"<!-- parameters:[^\n]*-->\n(.*?)\n<!-- /parameters -->", text, re.S)
-    assert m, "README.md lost its generated parameter table"
+    assert m, "docs/parameters.md lost its generated parameter table"
     assert m.group(1).strip() == markdown_table().strip(), \
-        "README's parameter table drifted: regenerate it with `python -m corona.parameters`"
+        "docs/parameters.md's parameter table drifted: regenerate it with `python -m corona.parameters`"
+    readme = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+    assert "docs/parameters.md" in readme, "the README no longer links the parameter table"
 
 
 def test_corona_lobe_has_every_material_parameter_with_the_spec_default():

@@ -355,6 +355,7 @@ def lobe(out_path, as_json, wavelength, **params):
             click.echo(json.dumps(out))
             return
         from corona.apps.pictures import lobe_figure
+        os.makedirs(os.path.dirname(out_path) or ".", exist_ok=True)   # as render's --out: made if new
         path = lobe_figure(m, out_path)
     except (CoronaError, ValueError, OSError) as err:
         _fail(err)

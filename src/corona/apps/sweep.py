@@ -14,7 +14,7 @@ per task) and ``make gallery`` use:
   worker) with Dr.Jit's thread pool set to ``cores // workers_on_the_host``
   so that the workers together use the cores once, not ``workers`` times;
 * ``scheduler="tcp://host:8786"``: an existing Dask cluster (``dask
-  scheduler`` + ``dask worker`` on several machines; README "Sweeps on
+  scheduler`` + ``dask worker`` on several machines; docs/cli.md "Sweeps on
   several machines").  The same thread rule applies per host.
 
 Workers compute and send results back; only this process writes files, so

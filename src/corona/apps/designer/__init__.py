@@ -9,7 +9,7 @@ JavaScript: controls for every material parameter of
 corona, T_a / T_s / lobe profiles, the energy split, a comparison of two
 materials), a photograph with the ring radii, and exports (XML, ``load_dict``,
 ``corona lobe``, the corona kernel as PNG/EXR).  The HTTP API is documented
-in the README ("The designer").
+in docs/designer.md ("The HTTP API").
 
 ``import corona`` does not import this package; this package imports the web
 libraries only in :func:`create_app` and :func:`serve`.
