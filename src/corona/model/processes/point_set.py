@@ -6,6 +6,7 @@ import os
 import numpy as np
 
 from corona._validation import CoronaError, check_range
+from corona.model import registry
 from corona.model.processes.base import Process
 
 
@@ -332,3 +333,21 @@ def _is_number(t) -> bool:
     except ValueError:
         return False
 
+
+
+def points_file(p: dict) -> str:
+    """The point file of process='points': ``points_filename``, else ``filename``
+    unless that names the mask image of shape='mask'."""
+    if p.get("points_filename"):
+        return p["points_filename"]
+    if p.get("shape") == "mask":
+        raise CoronaError("process='points' with shape='mask' needs points_filename=<point file> "
+                          "(filename is the mask image)")
+    if not p.get("filename"):
+        raise CoronaError("process='points' needs filename=<point file> (or points_filename=)")
+    return p["filename"]
+
+
+# --- the family (corona.model.registry): process=points ------------------------------------------
+registry.add_process(registry.ProcessFamily("points", lambda p, shape: PointSet.from_file(points_file(p)),
+                                            ("filename", "points_filename"), cls=PointSet, absolute=True))

@@ -187,6 +187,20 @@ class Shape:
         """
         raise NotImplementedError
 
+    def kernel_terms(self):
+        """The shape as closed-form outlines for the render kernel (a list of
+        :class:`corona.model.render_lobe.Term`), or None: then the renderer tabulates the numpy
+        form factor (a radial table, or the B-spline grid of a 2D one), as for a mask."""
+        return None
+
+    def signed_distance(self, x, y) -> np.ndarray:
+        """Signed distance [µm] of the points (x, y) [µm] to the outline, negative inside.
+
+        Optional: a binary shape that defines it can be rasterised by the brute-force reference
+        (:mod:`corona.reference.wave`, antialiased over a pixel).  Random shapes and masks do not.
+        """
+        raise NotImplementedError
+
     def form_factor(self, q) -> np.ndarray:
         """``⟨|Â(q)|²⟩ / ⟨|A|⟩`` [µm²] at ``q`` [rad/µm] of shape (..., 2)."""
         return np.abs(self.amplitude(q)) ** 2 / self.area

@@ -128,6 +128,15 @@ class SoftEdge(Modifier):
         i, a = self.shape._both_radial(q_abs)
         return i * g * g, a * g
 
+    def kernel_terms(self):
+        """The inner shape's kernel terms with the Gaussian edge (``blur``), or None."""
+        from corona.model.render_lobe import Term
+        inner = self.shape.kernel_terms()
+        if inner is None:
+            return None
+        return [Term(t.kind, t.params, t.weight, t.area, math.hypot(t.blur, self.edge_width), shape=t.shape)
+                for t in inner]
+
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
         return self.shape.amplitude(q) * self._gauss(q[..., 0] ** 2 + q[..., 1] ** 2)
@@ -522,6 +531,10 @@ class SizeDistribution(Modifier):
     def _intensity_radial(self, q_abs):
         return self._average(q_abs, radial=True)[0]
 
+    def kernel_terms(self):
+        """The shape's kernel terms at zero spread; None for a true size average (the grid)."""
+        return self.shape.kernel_terms() if self.spread == 0.0 else None
+
     def amplitude(self, q) -> np.ndarray:
         return self._average(q, radial=False)[1]
 
@@ -653,6 +666,17 @@ class Mixture(Shape):
             i, a = sh._both_radial(q_abs)
             I, A = I + wt * i, A + wt * a
         return I, A
+
+    def kernel_terms(self):
+        """One kernel term per component outline (their number weights), or None."""
+        from corona.model.render_lobe import Term
+        out = []
+        for sh, w in self.components:
+            inner = sh.kernel_terms()
+            if inner is None:
+                return None
+            out += [Term(t.kind, t.params, t.weight * w, t.area, t.blur, shape=t.shape) for t in inner if w > 0]
+        return out
 
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)

@@ -6,6 +6,7 @@ import math
 import numpy as np
 
 from corona._validation import CoronaError, check_positive
+from corona.model import registry
 from corona.model.shapes.base import _TWO_PI, Shape, _check_finite, _check_int, _g, _q_array, _warn_old_spelling
 
 
@@ -205,6 +206,34 @@ class Polygon(Shape):
         """Perimeter [µm]."""
         return float(np.sum(np.hypot(self._edges[:, 0], self._edges[:, 1])))
 
+    def kernel_terms(self):
+        """The edge sum for the render kernel (:mod:`corona.mitsuba.kernels`), up to
+        :data:`corona.model.render_lobe.EDGE_MAX` edges (more: None, the form-factor grid)."""
+        from corona.model.render_lobe import EDGE_MAX, Term
+        if len(self.vertices) > EDGE_MAX:
+            return None
+        if type(self).amplitude is not Polygon.amplitude:      # a subclass with a form factor of its own
+            return None
+        return [Term("polygon", {"vertices": np.array(self.vertices)}, 1.0, self.area, shape=self)]
+
+    def signed_distance(self, x, y) -> np.ndarray:
+        """Signed distance [µm] of the points (x, y) [µm] to the outline (negative inside; the
+        crossing-number rule, so non-convex outlines too)."""
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+        v = self.vertices
+        d2 = np.full(x.shape, np.inf)
+        inside = np.zeros(x.shape, dtype=bool)
+        for (ax, ay), (bx, by) in zip(v, np.roll(v, -1, axis=0)):
+            ex, ey = bx - ax, by - ay
+            wx, wy = x - ax, y - ay
+            t = np.clip((wx * ex + wy * ey) / (ex * ex + ey * ey), 0.0, 1.0)
+            np.minimum(d2, (wx - t * ex) ** 2 + (wy - t * ey) ** 2, out=d2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                cross = ((ay > y) != (by > y)) & (x < ax + (y - ay) * ex / ey)
+            inside ^= cross
+        d = np.sqrt(d2)
+        return np.where(inside, -d, d)
+
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
         shape = q.shape[:-1]
@@ -324,3 +353,10 @@ class RegularPolygon(Polygon):
                 "angle": self.angle}
 
 
+
+
+# --- the family (corona.model.registry): shape=polygon -------------------------------------------
+registry.add_shape(registry.ShapeFamily(
+    "polygon", lambda p: RegularPolygon(p["sides"], p["radius"], angle=p["angle"]),
+    ("radius", "sides", "angle") + registry.FLAT + registry.ROTATABLE, cls=RegularPolygon,
+    mixable=True))
