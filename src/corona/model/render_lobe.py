@@ -50,10 +50,9 @@ import numpy as np
 from scipy import ndimage
 
 from corona.model.layer import decoupled_lobe
+from corona.model.shapes.base import Term
+from corona.model.shapes.polygon import EDGE_MAX
 
-#: Polygons with more edges go to the form-factor grid (the edge sum costs one
-#: sincos per edge and wavelength in the kernel).
-EDGE_MAX = 16
 #: Sub-samples per axis of each vertex's local mean in warped sampling tables.
 SUPERSAMPLE = 2
 #: Below ``|q| R_c`` (R_c the circumradius) the polygon kernel uses the Taylor
@@ -66,32 +65,6 @@ TAYLOR_ORDER = 5
 # --------------------------------------------------------------------------
 # analytic terms
 # --------------------------------------------------------------------------
-@dataclass
-class Term:
-    """One deterministic outline of the kernel.
-
-    ``kind`` is ``"circle"`` (``radius``), ``"ellipse"`` (semi-axes ``a``,
-    ``b``, ``angle``), ``"rect"`` (``width``, ``height``, ``angle``; the
-    kernel's ``angle`` in radians) or
-    ``"polygon"`` (``vertices`` (n, 2), centred on the centroid,
-    counter-clockwise); ``weight`` is the number weight, ``area`` [µm²] the
-    outline's area, ``blur`` [µm] the rms width of the Gaussian soft edge
-    (``Â`` times ``exp(-q² blur² / 2)``), ``shape`` the outline (a :class:`corona.Shape`).
-    """
-
-    kind: str
-    params: dict
-    weight: float = 1.0
-    area: float = 0.0
-    blur: float = 0.0
-    #: the outline itself (its numpy ``amplitude`` is the kernel's twin; not part of the key)
-    shape: object = field(default=None, compare=False, repr=False)
-
-    def key(self):
-        p = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v) for k, v in self.params.items()}
-        return {"kind": self.kind, "params": p, "weight": self.weight, "blur": self.blur}
-
-
 def analytic_terms(shape) -> list[Term] | None:
     """The shape as a list of closed-form outlines, or None when it has none.
 
@@ -105,6 +78,19 @@ def analytic_terms(shape) -> list[Term] | None:
     return shape.kernel_terms()
 
 
+def _outline(t: Term):
+    """The outline of a term made without its shape (by its kind and parameters)."""
+    from corona.model.shapes import Circle, Ellipse, Polygon, Rectangle
+    p = t.params
+    if t.kind == "circle":
+        return Circle(p["radius"])
+    if t.kind == "ellipse":
+        return Ellipse(p["a"], aspect=p["b"] / p["a"], angle=math.degrees(p["angle"]))
+    if t.kind == "rect":
+        return Rectangle(0.5 * p["width"], aspect=p["height"] / p["width"], angle=math.degrees(p["angle"]))
+    return Polygon(p["vertices"])
+
+
 def terms_amplitudes(terms: list[Term], q) -> tuple[np.ndarray, np.ndarray]:
     """(``Σ w_i |Â_i|²``, ``Σ w_i Â_i``) at q (..., 2) [rad/µm], float64.
 
@@ -116,7 +102,7 @@ def terms_amplitudes(terms: list[Term], q) -> tuple[np.ndarray, np.ndarray]:
     inten = np.zeros(q.shape[:-1])
     amp = np.zeros(q.shape[:-1], dtype=np.complex128)
     for t in terms:
-        a = t.shape.amplitude(q)
+        a = (t.shape if t.shape is not None else _outline(t)).amplitude(q)
         if t.blur > 0:
             a = a * np.exp(-0.5 * (q[..., 0] ** 2 + q[..., 1] ** 2) * t.blur**2)
         inten += t.weight * np.abs(a) ** 2

@@ -10,6 +10,7 @@ from corona._validation import CoronaError, check_positive
 from corona.model import registry
 from corona.model.shapes.base import (
     Shape,
+    Term,
     _check_finite,
     _g,
     _gauss_legendre,
@@ -85,7 +86,6 @@ class Circle(Shape):
 
     def kernel_terms(self):
         """The shape's closed-form outline(s) for the render kernel (:mod:`corona.mitsuba.kernels`)."""
-        from corona.model.render_lobe import Term
         if type(self).amplitude is not Circle.amplitude:      # a subclass with a form factor of its own
             return None
         return [Term("circle", {"radius": self.radius}, 1.0, self.area, shape=self)]
@@ -247,7 +247,6 @@ class Ellipse(Shape):
 
     def kernel_terms(self):
         """The shape's closed-form outline(s) for the render kernel (:mod:`corona.mitsuba.kernels`)."""
-        from corona.model.render_lobe import Term
         if type(self).amplitude is not Ellipse.amplitude:      # a subclass with a form factor of its own
             return None
         return [Term("ellipse", {"a": self.semi_axis_x, "b": self.semi_axis_y, "angle": math.radians(self.angle)},
@@ -354,7 +353,6 @@ class Rectangle(Shape):
 
     def kernel_terms(self):
         """The shape's closed-form outline(s) for the render kernel (:mod:`corona.mitsuba.kernels`)."""
-        from corona.model.render_lobe import Term
         if type(self).amplitude is not Rectangle.amplitude:      # a subclass with a form factor of its own
             return None
         return [Term("rect", {"width": self.width, "height": self.height, "angle": math.radians(self.angle)},

@@ -8,7 +8,7 @@ import numpy as np
 from scipy import special
 
 from corona._validation import CoronaError, check_choice, check_range
-from corona.model.shapes.base import (_ORIENTATION_MAX_POINTS, _TWO_PI, Shape, _check_int, _check_shape, _groups,
+from corona.model.shapes.base import (_ORIENTATION_MAX_POINTS, _TWO_PI, Shape, Term, _check_int, _check_shape, _groups,
                    _orientation_average, _q_array, _radial_array)
 
 
@@ -130,7 +130,6 @@ class SoftEdge(Modifier):
 
     def kernel_terms(self):
         """The inner shape's kernel terms with the Gaussian edge (``blur``), or None."""
-        from corona.model.render_lobe import Term
         inner = self.shape.kernel_terms()
         if inner is None:
             return None
@@ -669,7 +668,6 @@ class Mixture(Shape):
 
     def kernel_terms(self):
         """One kernel term per component outline (their number weights), or None."""
-        from corona.model.render_lobe import Term
         out = []
         for sh, w in self.components:
             inner = sh.kernel_terms()

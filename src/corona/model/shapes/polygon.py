@@ -7,7 +7,7 @@ import numpy as np
 
 from corona._validation import CoronaError, check_positive
 from corona.model import registry
-from corona.model.shapes.base import _TWO_PI, Shape, _check_finite, _check_int, _g, _q_array, _warn_old_spelling
+from corona.model.shapes.base import _TWO_PI, Shape, Term, _check_finite, _check_int, _g, _q_array, _warn_old_spelling
 
 
 def _orient(ax, ay, bx, by, cx, cy):
@@ -97,6 +97,11 @@ def _check_simple(v: np.ndarray) -> None:
             e1, e2 = sorted((int(i[k]), int(j[k])))
             raise CoronaError(f"vertices: polygon is not simple (edges {e1} and {e2} "
                               "intersect); expected a simple polygon")
+
+
+#: Polygons with more edges go to the form-factor grid (the edge sum costs one
+#: sincos per edge and wavelength in the kernel).
+EDGE_MAX = 16
 
 
 class Polygon(Shape):
@@ -208,8 +213,7 @@ class Polygon(Shape):
 
     def kernel_terms(self):
         """The edge sum for the render kernel (:mod:`corona.mitsuba.kernels`), up to
-        :data:`corona.model.render_lobe.EDGE_MAX` edges (more: None, the form-factor grid)."""
-        from corona.model.render_lobe import EDGE_MAX, Term
+        :data:`EDGE_MAX` edges (more: None, the form-factor grid)."""
         if len(self.vertices) > EDGE_MAX:
             return None
         if type(self).amplitude is not Polygon.amplitude:      # a subclass with a form factor of its own
