@@ -61,7 +61,7 @@ extensions = [
 root_doc = "api/index"
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 # docs/ holds more than the site: only the pages below are built
-include_patterns = ["api/**", "physics.md", "tutorial.md", "layer.md", "tables.md", "mie.md", "volumes.md",
+include_patterns = ["api/**", "physics.md", "tutorial.md", "adding_a_scatterer.md", "layer.md", "tables.md", "mie.md", "volumes.md",
                     "combinations.md", "robustness.md", "validation/README.md", "benchmarks.md"]
 exclude_patterns = ["_build", "**/.ipynb_checkpoints"]
 

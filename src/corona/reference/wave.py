@@ -894,9 +894,10 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
     if not isinstance(material, Material):
         raise CoronaError(f"material={material!r} is not a corona.Material")
     if isinstance(material, SphereMaterial):
+        from corona.model import registry
+        flat = ", ".join(f.name for f in registry.SHAPE_FAMILIES.values() if f.material is None)
         raise CoronaError(f"material={material!r} is out of range for the brute force: it sums the far "
-                          "fields of planar screens (Fraunhofer); allowed a flat layer (circle, ellipse, "
-                          "square, rectangle, polygon, mask, mixture)")
+                          f"fields of planar screens (Fraunhofer); allowed a flat layer ({flat})")
     M = int(check_range("realisations", realisations, 1, 1e7))
     n_sc = int(check_range("n_scatterers", n_scatterers, 1, 1e8))
     check_choice("overlaps", overlaps, _OVERLAPS)
