@@ -337,12 +337,13 @@ def _is_number(t) -> bool:
 
 def points_file(p: dict) -> str:
     """The point file of process='points': ``points_filename``, else ``filename``
-    unless that names the mask image of shape='mask'."""
+    unless the shape reads that (the mask image of shape='mask')."""
     if p.get("points_filename"):
         return p["points_filename"]
-    if p.get("shape") == "mask":
-        raise CoronaError("process='points' with shape='mask' needs points_filename=<point file> "
-                          "(filename is the mask image)")
+    shape = registry.SHAPE_FAMILIES.get(p.get("shape")) if isinstance(p.get("shape"), str) else None
+    if shape is not None and "filename" in shape.parameters:     # the shape's own file (a mask's image)
+        raise CoronaError(f"process='points' with shape={shape.name!r} needs points_filename=<point file> "
+                          f"(filename is the {shape.name} image)")
     if not p.get("filename"):
         raise CoronaError("process='points' needs filename=<point file> (or points_filename=)")
     return p["filename"]
