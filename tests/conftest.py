@@ -153,3 +153,23 @@ def mi_variant():
     mi.set_variant(variant)
     corona.register()
     return variant
+
+
+@pytest.fixture
+def restored_registry():
+    """The registry of families and the spec as they were before the test (a test may register
+    families: corona.register_shape)."""
+    from corona import parameters
+    from corona.model import registry
+    SPEC, DEFAULTS = parameters.SPEC, parameters.DEFAULTS
+    saved = (dict(registry.SHAPE_FAMILIES), dict(registry.PROCESS_FAMILIES), dict(SPEC), dict(DEFAULTS),
+             parameters.PARAMETERS, parameters.SHAPES, parameters.PROCESSES, parameters.MIXTURE_SHAPES,
+             set(parameters._FAMILY_SCOPED))
+    yield
+    for table, old in ((registry.SHAPE_FAMILIES, saved[0]), (registry.PROCESS_FAMILIES, saved[1]),
+                       (SPEC, saved[2]), (DEFAULTS, saved[3])):
+        table.clear()
+        table.update(old)
+    (parameters.PARAMETERS, parameters.SHAPES, parameters.PROCESSES, parameters.MIXTURE_SHAPES) = saved[4:8]
+    parameters._FAMILY_SCOPED.clear()
+    parameters._FAMILY_SCOPED.update(saved[8])

@@ -64,7 +64,7 @@ source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 include_patterns = ["index.md", "api/**", "install.md", "tutorial.md", "cli.md", "designer.md", "parameters.md",
                     "gallery.md", "physics.md", "layer.md", "tables.md", "mie.md", "volumes.md",
                     "combinations.md", "robustness.md", "validation/README.md", "benchmarks.md",
-                    "contributing.md"]
+                    "contributing.md", "adding_a_scatterer.md"]
 exclude_patterns = ["_build", "**/.ipynb_checkpoints"]
 
 # MyST: $...$ / $$...$$ math as on GitHub, and GitHub-style anchors for headings

@@ -23,6 +23,7 @@ from corona._environment import default_variant, set_default_variant
 from corona._validation import CoronaError, CoronaWarning
 from corona.model.material import Material
 from corona.model.mie import layer as _mie_layer  # noqa: F401  (Material(corona.Sphere(r)) returns its class)
+from corona.model.registry import register_process, register_shape
 from corona.model.processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
                      RegularPolygon, Shape, SizeDistribution, SoftEdge, Sphere, Square)
@@ -53,7 +54,15 @@ __all__ = ["CoronaError", "CoronaWarning",
            "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture", "Sphere",
            "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk",
            "Material", "GlassPane", "Mirror", "from_micrograph", "fit_photograph", "default_variant",
-           "set_default_variant", "register"]
+           "set_default_variant", "register", "register_shape", "register_process", "scatterer"]
+
+
+def scatterer(shape):
+    """``shape`` (a :class:`corona.Shape` instance, a user's subclass too) as the value of the
+    plugin's ``shape`` property: ``mi.load_dict({'type': 'corona', 'shape': corona.scatterer(s)})``
+    (:func:`corona.mitsuba.common.scatterer`; docs/adding_a_scatterer.md)."""
+    from corona.mitsuba.common import scatterer as _scatterer
+    return _scatterer(shape)
 
 
 def register() -> None:

@@ -14,9 +14,13 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from corona._validation import CoronaError, check_choice, check_positive, check_range
+import corona.model.mie.layer  # noqa: F401  (the built-in families register themselves at import)
+import corona.model.processes  # noqa: F401
+import corona.model.shapes  # noqa: F401
+from corona._validation import CoronaError, check_choice, check_range
+from corona.model import registry
 
 
 @dataclass(frozen=True)
@@ -133,8 +137,34 @@ def _is_bool(value) -> bool:
     return isinstance(value, (bool, np.bool_))
 
 
-SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon", "mask", "mixture", "sphere")
-PROCESSES = ("poisson", "hard-disk", "rsa", "lattice-square", "lattice-hex", "points")
+def _mixture_from(p: dict):
+    """The factory of ``shape=mixture``: each component carries the edge / spread / orientation
+    modifiers; the layer's lobe follows the decoupling approximation (docs/physics.md#the-model)
+    (types of weight 0 are left out: they would still set the exclusion diameter)."""
+    from corona.model import shapes
+    comps = [(_check_size(_outline(k, r, p), {**p, "shape": k, "radius": r}), w)
+             for k, r, w in parse_mixture(p["mixture"]) if w > 0]
+    return shapes.Mixture([(_modified(sh, p), w) for sh, w in comps])
+
+
+# the mixture of outlines is defined here, with its 'SHAPE:RADIUS:WEIGHT, ...' text
+registry.add_shape(registry.ShapeFamily("mixture", _mixture_from, ("mixture",) + registry.FLAT + registry.ROTATABLE,
+                                        of_components=True))
+
+
+def _uses(name: str) -> tuple:
+    """The ``applies`` conditions of a parameter of families: ``shape=X`` / ``process=Y`` for each
+    registered family that reads ``name`` (:mod:`corona.model.registry`)."""
+    shapes = registry.SHAPE_FAMILIES.values()
+    # a mixture reads its components' parameters (their sizes are its own text's radii)
+    of_parts = name != "radius" and any(name in f.parameters for f in shapes if f.mixable)
+    return (tuple(f"shape={f.name}" for f in shapes if name in f.parameters or (f.of_components and of_parts))
+            + tuple(f"process={f.name}" for f in registry.PROCESS_FAMILIES.values() if name in f.parameters))
+
+
+#: The registered shape and process families (corona.model.registry), in their order of registration.
+SHAPES = tuple(registry.SHAPE_FAMILIES)
+PROCESSES = tuple(registry.PROCESS_FAMILIES)
 ORIENTATIONS = ("fixed", "random")
 SIZE_DISTRIBUTIONS = ("lognormal", "schulz")
 MODES = ("aperture", "particle")
@@ -177,12 +207,11 @@ SIZE_AVERAGE_WORK_MAX = 1.2e9
 #: Largest lengths of the layer that are not sizes of the scatterer [µm].
 LENGTH_MAX = 2 * RADIUS_MAX
 
-_SHAPES_WITH_RADIUS = tuple(f"shape={s}" for s in ("circle", "ellipse", "square", "rectangle", "polygon",
-                                                   "sphere"))
-_ORIENTED = tuple(f"shape={s}" for s in ("ellipse", "square", "rectangle", "polygon", "mixture"))
+_SHAPES_WITH_RADIUS = _uses("radius")
+_ORIENTED = _uses("angle")
 #: Every flat (Fraunhofer) scatterer: all but the Mie sphere.
-_FLAT = tuple(f"shape={s}" for s in SHAPES if s != "sphere")
-_ANISOTROPIC = tuple(f"shape={s}" for s in ("ellipse", "square", "rectangle", "polygon", "mask", "mixture"))
+_FLAT = _uses("edge_width")
+_ANISOTROPIC = _uses("orientation")
 
 #: Every parameter of a corona layer, in the order of the tables.
 PARAMETERS: tuple[Parameter, ...] = (
@@ -192,22 +221,22 @@ PARAMETERS: tuple[Parameter, ...] = (
               f"{RADIUS_MAX:g} µm; a sphere's radius <= 25 µm, the Mie tables' range)", low=RADIUS_MIN, high=RADIUS_MAX, applies=_SHAPES_WITH_RADIUS),
     Parameter("ior", "float", "", None, "shape=sphere: refractive index n of the droplets relative to "
               "air; default water at 20 °C with its dispersion (Daimon & Masumura 2007)",
-              low=0.0, high=IOR_MAX, low_open=True, applies=("shape=sphere",)),
+              low=0.0, high=IOR_MAX, low_open=True, applies=_uses("ior")),
     Parameter("ior_imag", "float", "", 0.0, "shape=sphere: absorption index κ (m = n + iκ; needs ior)",
-              low=0.0, high=IOR_MAX, applies=("shape=sphere",)),
+              low=0.0, high=IOR_MAX, applies=_uses("ior_imag")),
     Parameter("aspect", "float", "", 1.0, "ellipse / rectangle: extent along y over x",
               low=ASPECT_MIN, high=ASPECT_MAX,
-              applies=("shape=ellipse", "shape=rectangle", "shape=mixture")),
+              applies=_uses("aspect")),
     Parameter("sides", "int", "", 6, "polygon: number of sides", low=3, high=MAX_SIDES,
-              applies=("shape=polygon", "shape=mixture")),
+              applies=_uses("sides")),
     Parameter("angle", "float", "degree", 0.0, "rotation of anisotropic shapes", low=-360.0, high=360.0,
               applies=_ORIENTED),
     Parameter("filename", "file", "", None, "mask image (shape=mask), or point file (process=points "
-              "with any other shape)", applies=("shape=mask", "process=points")),
+              "with any other shape)", applies=_uses("filename")),
     Parameter("points_filename", "file", "", None, "point file of process=points; needed with "
-              "shape=mask, where filename is the image", applies=("process=points",)),
+              "shape=mask, where filename is the image", applies=_uses("points_filename")),
     Parameter("pixel_size", "float", "µm", None, "mask: size of one image pixel",
-              low=RADIUS_MIN, high=RADIUS_MAX, applies=("shape=mask",)),
+              low=RADIUS_MIN, high=RADIUS_MAX, applies=_uses("pixel_size")),
     Parameter("edge_width", "float", "µm", 0.0, "soft edge: std of a Gaussian apodisation "
               "(at most the scatterer's circumradius)", low=0.0, high=RADIUS_MAX, applies=_FLAT),
     Parameter("orientation", "choice", "", "fixed", "fixed, or random (rotational average: radial lobe; "
@@ -219,19 +248,19 @@ PARAMETERS: tuple[Parameter, ...] = (
               "size_spread > 0)", SIZE_DISTRIBUTIONS, applies=("size_spread>0",)),
     Parameter("area_fraction", "float", "", 0.3, "F_a = n |A|, the fraction of the layer covered",
               low=0.0, high=1.0, low_open=True, high_open=True,
-              applies=tuple(f"process={p}" for p in PROCESSES if p != "points")),
+              applies=_uses("area_fraction")),
     Parameter("process", "choice", "", "hard-disk", "point process of the centres", PROCESSES),
     Parameter("exclusion_diameter", "float", "µm", None, "hard-core diameter σ (hard-disk, rsa); "
               "default the shape's circumscribed diameter", low=0.0, high=LENGTH_MAX, low_open=True,
-              applies=("process=hard-disk", "process=rsa")),
+              applies=_uses("exclusion_diameter")),
     Parameter("jitter", "float", "µm", 0.0, "lattice: rms displacement per axis", low=0.0, high=LENGTH_MAX,
-              applies=("process=lattice-square", "process=lattice-hex")),
+              applies=_uses("jitter")),
     Parameter("mode", "choice", "", "aperture", "aperture: scatterers transmit in an opaque screen; "
               "particle: they block light in a clear layer", MODES),
     Parameter("albedo", "float", "", 0.0, "diffuse reflectance of the opaque part", low=0.0, high=1.0,
-              applies=_FLAT),
+              applies=_uses("albedo")),
     Parameter("mixture", "string", "", None, "shape=mixture: 'SHAPE:RADIUS:WEIGHT, ...' (radius µm, "
-              "number weights; decoupling approximation)", applies=("shape=mixture",)),
+              "number weights; decoupling approximation)", applies=_uses("mixture")),
     Parameter("substrate", "choice", "", "none", "none; glass: the layer sits on a thin non-absorbing pane "
               "(Fresnel reflection of both faces, thin-slab inter-reflections); mirror: on the front face of "
               "a back-silvered pane", SUBSTRATES),
@@ -256,6 +285,47 @@ PARAMETERS: tuple[Parameter, ...] = (
 SPEC: dict[str, Parameter] = {p.name: p for p in PARAMETERS}
 #: Defaults of the material parameters (the plugin-only ones left out).
 DEFAULTS = {p.name: p.default for p in PARAMETERS if not p.plugin_only}
+#: The parameters whose ``applies`` name families: kept in step with the registry.
+_FAMILY_SCOPED = {p.name for p in PARAMETERS if any(c.startswith(("shape=", "process=")) for c in p.applies)}
+
+
+def _on_register(family) -> None:
+    """Keep the spec in step with a family registered after this module (a user's): the shape /
+    process choices, the ``applies`` of the parameters it reads, the parameters it brings."""
+    global SHAPES, PROCESSES, PARAMETERS, MIXTURE_SHAPES
+    news = tuple(q if isinstance(q, Parameter) else Parameter(**q) for q in family.new_parameters)
+    for new in news:
+        old = SPEC.get(new.name)
+        if old is not None and replace(old, applies=()) != replace(new, applies=()):
+            raise CoronaError(f"{family.name}: parameter {new.name!r} clashes with the spec's {new.name!r} "
+                              f"({old.meaning}); give it another name, or the name alone to read the spec's")
+    for name in family.parameters:
+        if name not in SPEC and name not in {q.name for q in news}:
+            raise CoronaError(f"{family.name}: parameter {name!r} is not in the spec; give a "
+                              "corona.parameters.Parameter for it (known: " + ", ".join(sorted(SPEC)) + ")")
+    PARAMETERS = PARAMETERS + tuple(q for q in news if q.name not in SPEC)
+    _FAMILY_SCOPED.update(q.name for q in news)
+    SHAPES, PROCESSES = tuple(registry.SHAPE_FAMILIES), tuple(registry.PROCESS_FAMILIES)
+    MIXTURE_SHAPES = tuple(f.name for f in registry.SHAPE_FAMILIES.values() if f.mixable)
+    fresh = []
+    for p in PARAMETERS:
+        if p.name == "shape":
+            p = replace(p, choices=SHAPES)
+        elif p.name == "process":
+            p = replace(p, choices=PROCESSES)
+        elif p.name in _FAMILY_SCOPED:
+            own = tuple(c for c in p.applies if not c.startswith(("shape=", "process=")))
+            p = replace(p, applies=own + _uses(p.name))
+        fresh.append(p)
+    PARAMETERS = tuple(fresh)
+    SPEC.update((p.name, p) for p in PARAMETERS)      # in place: the modules holding SPEC see it
+    DEFAULTS.update((p.name, p.default) for p in PARAMETERS if not p.plugin_only and p.name not in DEFAULTS)
+
+
+registry.listen(_on_register)
+for _family in (*registry.SHAPE_FAMILIES.values(), *registry.PROCESS_FAMILIES.values()):
+    if _family.new_parameters:        # a user's family registered before this module was imported
+        _on_register(_family)
 
 
 def _cell(text: str) -> str:
@@ -288,23 +358,22 @@ def rst_table() -> str:
 __doc__ = __doc__.replace("{table}", rst_table())
 
 
-MIXTURE_SHAPES = ("circle", "ellipse", "square", "rectangle", "polygon")
+#: The shapes a mixture may hold (the families registered ``mixable``).
+MIXTURE_SHAPES = tuple(f.name for f in registry.SHAPE_FAMILIES.values() if f.mixable)
+
+
+def _checked(family, p: dict) -> dict:
+    """``p`` with the values of the parameters ``family`` reads checked by their spec (None: not
+    given, left as it is)."""
+    return {**p, **{k: SPEC[k].check(p[k]) for k in family.parameters if p.get(k) is not None and k in SPEC
+                    and k != "mirror_reflectance"}}
 
 
 def _outline(kind: str, r: float, p: dict):
     """The bare shape ``kind`` of size ``r`` [µm] (aspect, sides, angle from ``p``)."""
-    from corona.model import shapes
     # the Python classes take the plugin's parameters as they are (radius, aspect, angle [degree])
-    angle = SPEC["angle"].check(p["angle"])
-    if kind == "circle":
-        return shapes.Circle(r)
-    if kind == "ellipse":
-        return shapes.Ellipse(r, aspect=SPEC["aspect"].check(p["aspect"]), angle=angle)
-    if kind == "square":
-        return shapes.Square(r, angle=angle)
-    if kind == "rectangle":
-        return shapes.Rectangle(r, aspect=SPEC["aspect"].check(p["aspect"]), angle=angle)
-    return shapes.RegularPolygon(SPEC["sides"].check(p["sides"]), r, angle=angle)
+    family = registry.shape_family(kind)
+    return family.factory(_checked(family, {**p, "radius": r}))
 
 
 def parse_mixture(spec) -> list[tuple[str, float, float]]:
@@ -412,91 +481,42 @@ def make_shape(p: dict):
 
 def _make_shape(p: dict):
     from corona.model import shapes
+    if isinstance(p["shape"], shapes.Shape):    # an instance: complete as given (corona.scatterer)
+        p = {**p, "edge_width": DEFAULTS["edge_width"], "orientation": DEFAULTS["orientation"]}
+        return _modified(_check_size(p["shape"], p), p)
     kind = check_choice("shape", p["shape"], SHAPES)
+    family = registry.shape_family(kind)
     SPEC["angle"].check(p["angle"])
-    if kind == "mixture":
-        # each component carries the edge / spread / orientation modifiers; the
-        # layer's lobe follows the decoupling approximation (docs/physics.md#the-model)
-        # (types of weight 0 are left out: they would still set the exclusion diameter)
-        comps = [(_check_size(_outline(k, r, p), {**p, "shape": k, "radius": r}), w)
-                 for k, r, w in parse_mixture(p["mixture"]) if w > 0]
-        return shapes.Mixture([(_modified(sh, p), w) for sh, w in comps])
-    if p.get("mixture"):
-        raise CoronaError(f"mixture={p['mixture']!r} needs shape='mixture' (got shape={kind!r})")
-    if kind != "sphere" and (p.get("ior") is not None or p.get("ior_imag")):
-        raise CoronaError(f"ior={p.get('ior')!r}, ior_imag={p.get('ior_imag')!r} need shape='sphere' "
-                          f"(got shape={kind!r})")
-    if kind == "sphere":
-        if p.get("ior") is None and p.get("ior_imag"):
-            raise CoronaError(f"ior_imag={p['ior_imag']!r} needs ior=<real part> (the default, water, "
-                              "does not absorb)")
-        # edge_width, orientation, angle, aspect and albedo mean nothing for a Mie sphere (a sharp
-        # surface, the same from every side, reflecting by Mie theory): their "applies" leave it out,
-        # so a given value gets the one unused-parameter warning and is ignored here
-        p = {**p, "edge_width": 0.0, "orientation": "fixed"}
-        ior = None if p.get("ior") is None else complex(p["ior"], p.get("ior_imag") or 0.0)
-        from corona.model.mie.layer import SPHERE_RADIUS_MAX
-        if p["radius"] > SPHERE_RADIUS_MAX:   # the Mie tables' range (their build time)
-            raise CoronaError(f"radius={p['radius']!r} is out of range for shape='sphere'; allowed "
-                              f"(0, {SPHERE_RADIUS_MAX:g}] µm (larger droplets: use shape='circle', "
-                              "whose Fraunhofer corona theirs approaches)")
-        return _modified(shapes.Sphere(check_positive("radius", p["radius"], "µm"), ior=ior), p)
-    if kind == "mask":
-        if not p.get("filename"):
-            raise CoronaError("shape='mask' needs filename=<image file>")
-        if p.get("pixel_size") is None:
-            raise CoronaError("shape='mask' needs pixel_size=<µm per pixel>")
-        base = shapes.Mask(p["filename"], SPEC["pixel_size"].check(p["pixel_size"]))
-    else:
-        base = _outline(kind, SPEC["radius"].check(p["radius"]), p)
+    # values that only another family reads: an error (a warning would hide a wrong shape)
+    for name, needs in (("mixture", p.get("mixture")), ("ior", p.get("ior") is not None or p.get("ior_imag"))):
+        if needs and not SPEC[name].applies_to(p):
+            given = (f"mixture={p['mixture']!r}" if name == "mixture"
+                     else f"ior={p.get('ior')!r}, ior_imag={p.get('ior_imag')!r}")
+            need = " or ".join(f"shape={c.split('=')[1]!r}" for c in SPEC[name].applies)
+            raise CoronaError(f"{given} need{'s' if name == 'mixture' else ''} {need} (got shape={kind!r})")
+    p = _checked(family, p)
+    # the soft edge and the random orientation of a family that does not read them (a Mie sphere:
+    # a sharp surface, the same from every side) are off: a given value got the unused warning
+    p = {**p, **{k: DEFAULTS[k] for k in ("edge_width", "orientation") if not SPEC[k].applies_to(p)}}
+    base = family.factory(p)
+    if isinstance(base, shapes.Mixture):       # its components carry the modifiers
+        return base
     return _modified(_check_size(base, p), p)
 
 
 def make_process(p: dict, shape):
-    from corona.model import processes
-    kind = check_choice("process", p["process"], PROCESSES)
-    if kind == "points":
-        return processes.PointSet.from_file(points_file(p))
-    fa = SPEC["area_fraction"].check(p["area_fraction"])
-    sigma = p.get("exclusion_diameter")
-    if sigma is not None:
-        sigma = SPEC["exclusion_diameter"].check(sigma)
-    if kind == "poisson":
-        return processes.Poisson(fa)
-    if kind == "hard-disk":
-        return processes.HardDisk(fa, exclusion_diameter=sigma)
-    if kind == "rsa":
-        return processes.SequentialAdsorption(fa, exclusion_diameter=sigma)
-    jitter = SPEC["jitter"].check(p["jitter"])
-    # spacing from the area fraction: cell area = |A| / F_a; neighbours at
-    # the shape's exclusion diameter σ give the largest F_a without overlaps
-    sd = shape.exclusion_diameter
-    fmax = shape.area / (sd * sd) if kind == "lattice-square" else 2 * shape.area / (math.sqrt(3) * sd * sd)
-    if fa > fmax * (1.0 + 1e-12):
-        raise CoronaError(f"area_fraction={fa:g} is out of range for process={kind!r} with this shape; "
-                          f"allowed (0, {fmax:.4g}] (neighbours would overlap)")
-    cell = shape.area / fa
-    if kind == "lattice-square":
-        return processes.Lattice("square", math.sqrt(cell), jitter=jitter)
-    return processes.Lattice("hexagonal", math.sqrt(2 * cell / math.sqrt(3)), jitter=jitter)
-
-
-def points_file(p: dict) -> str:
-    """The point file of process='points': ``points_filename``, else ``filename``
-    unless that names the mask image of shape='mask'."""
-    if p.get("points_filename"):
-        return p["points_filename"]
-    if p.get("shape") == "mask":
-        raise CoronaError("process='points' with shape='mask' needs points_filename=<point file> "
-                          "(filename is the mask image)")
-    if not p.get("filename"):
-        raise CoronaError("process='points' needs filename=<point file> (or points_filename=)")
-    return p["filename"]
+    from corona.model.processes import Process
+    if isinstance(p["process"], Process):       # an instance, as given
+        return p["process"]
+    family = registry.process_family(check_choice("process", p["process"], PROCESSES))
+    return family.factory(_checked(family, p), shape)
 
 
 def unused_parameters(given, p: dict) -> list[str]:
     """The names in ``given`` that the layer ``p`` (all parameters) does not use."""
-    return [k for k in given if k in SPEC and not SPEC[k].applies_to(p)]
+    # a shape instance (corona.scatterer) is complete; the layer's albedo still applies to it
+    keep = () if isinstance(p.get("shape"), str) else ("albedo",)
+    return [k for k in given if k in SPEC and not SPEC[k].applies_to(p) and k not in keep]
 
 
 def warn_unused(given, p: dict, stacklevel: int = 3) -> None:
@@ -515,8 +535,12 @@ def _check_given(name, value):
     """A given value checked by its spec; ``mirror_reflectance`` may also be a metal's name or a
     spectrum (``'λ:value, ...'`` text or a (wavelengths, values) pair: :class:`corona.Mirror`)."""
     import numpy as np
+    from corona.model.processes import Process
+    from corona.model.shapes import Shape
     if name == "mirror_reflectance" and (isinstance(value, str) or np.ndim(value) > 0):
         return value
+    if name in ("shape", "process") and isinstance(value, Shape if name == "shape" else Process):
+        return value              # an instance (corona.scatterer; the model's own classes)
     return SPEC[name].check(value)
 
 
@@ -542,11 +566,9 @@ def material_from_parameters(**params):
                                p["substrate_thickness"], p["mirror_reflectance"])
     shape = make_shape(p)
     process = make_process(p, shape)
-    if p["shape"] == "sphere":   # droplets in air: particles; the mode given must say so
-        from corona.model.mie.layer import SphereMaterial
-        # every process: a fixed lattice (the plugin's own path, corona.mitsuba.sphere_lattice),
-        # a point file's S(q) is radial (an isotropic corona.PointSet)
-        material = SphereMaterial(shape, process, mode=params.get("mode") or "particle", substrate=substrate)
+    family = registry.shape_family(p["shape"]) if isinstance(p["shape"], str) else None
+    if family is not None and family.material is not None:      # a layer of its own (the Mie sphere's)
+        material = family.material(shape, process, p, params, substrate)
     else:
         material = Material(shape, process, mode=p["mode"], albedo=p["albedo"], substrate=substrate)
     warn_unused(given, p)

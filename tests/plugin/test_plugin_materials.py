@@ -33,6 +33,7 @@ CONFIGS = {
     "square-random": {"shape": "square", "radius": 0.3, "orientation": "random", "process": "poisson"},
     "circle-soft-spread": {"radius": 0.35, "edge_width": 0.03, "size_spread": 0.2, "process": "poisson"},
     "mask": {"shape": "mask", "pixel_size": 0.03, "process": "poisson", "area_fraction": 0.2},
+    "annulus": {"shape": "annulus", "radius": 0.4, "inner_ratio": 0.5, "process": "hard-disk", "area_fraction": 0.3},
     "hard-disk": {"radius": 0.35, "process": "hard-disk", "area_fraction": 0.5},
     "rsa": {"radius": 0.35, "process": "rsa", "area_fraction": 0.4},
     "lattice-square": {"radius": 0.3, "process": "lattice-square", "area_fraction": 0.3, "jitter": 0.1},
@@ -106,6 +107,10 @@ def test_eval_matches_reference_table_and_model(mi_variant, data_files, name):
     limit = (1e-4, 1e-3) if m.isotropic else (5e-3, 2e-2)
     if name == "points":
         limit = (5e-3, 2e-2)  # the measured S is itself interpolated from a q grid with kinks
+    if name == "annulus":
+        # a ring's dark rings lie closer together than a disk's: the radial table's linear
+        # interpolation (du = 0.01) reaches 1.7e-3 relative just beside them (rms unchanged)
+        limit = (1e-4, 2.5e-3)
     if name.startswith("lattice"):
         limit = None  # tables hold cell means of the Bragg peaks, not point values
     if limit is not None:

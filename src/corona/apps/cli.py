@@ -22,6 +22,7 @@ import sys
 import click
 
 from corona._validation import CoronaError
+from corona.apps.fit import FIT_PROCESSES, FIT_SHAPES
 from corona.parameters import PARAMETERS
 
 
@@ -473,11 +474,11 @@ def validate(out_dir, quick, cases, realisations, scatterers, seed, no_progress,
               help="Colour temperature of the light [K] (black body); fitted when not given.")
 @click.option("--area-fraction", type=float, default=None, help="Hold the area fraction F_a fixed.")
 @click.option("--size-spread", type=float, default=None, help="Hold the relative size spread fixed.")
-@click.option("--process", type=click.Choice(["hard-disk", "rsa", "poisson"]), default="hard-disk",
+@click.option("--process", type=click.Choice(FIT_PROCESSES), default="hard-disk",
               show_default=True, help="Point process of the scatterers.")
 @click.option("--mode", type=click.Choice(["particle", "aperture"]), default="particle", show_default=True,
               help="Written to the material (the lobe is the same, by Babinet's principle).")
-@click.option("--shape", type=click.Choice(["circle", "sphere"]), default="circle", show_default=True,
+@click.option("--shape", type=click.Choice(tuple(FIT_SHAPES)), default="circle", show_default=True,
               help="Scatterer model (sphere: transparent droplets, planned).")
 @click.option("--source-diameter", type=float, default=0.0, show_default=True,
               help="Angular diameter of the light [degree] (the moon: 0.52).")

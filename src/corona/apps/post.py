@@ -152,9 +152,10 @@ def layer(material=None, **params):
         raise CoronaError(f"give either a material or parameters, not both (got {', '.join(sorted(params))})")
     from corona.model.mie.layer import SphereMaterial
     if isinstance(material, SphereMaterial):
+        from corona.model import registry
+        flat = ", ".join(f.name for f in registry.SHAPE_FAMILIES.values() if f.material is None)
         raise CoronaError("shape='sphere' is out of range for corona post: the Mie lobe depends on the "
-                          "scattering angle, not on d alone (render it); allowed circle, ellipse, square, "
-                          "rectangle, polygon, mask, mixture")
+                          f"scattering angle, not on d alone (render it); allowed {flat}")
     sub = getattr(material, "substrate", None)
     if sub is not None:
         raise CoronaError("substrate='glass' is out of range for corona post: the pane's Fresnel factors "

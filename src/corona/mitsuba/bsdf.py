@@ -111,7 +111,8 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                              read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
                              wavelength_mixture)
 from corona.mitsuba.common import hermite_rows, pane_sample
-from corona.parameters import SPEC, material_from_parameters, parse_mixture, rst_table
+from corona.model.registry import process_family, shape_family
+from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
 from corona.tables.lobe import row_slopes
 from corona.model.substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
 
@@ -210,8 +211,11 @@ class CoronaBSDFMixin:
             self.mixture_largest = max(r for _, r, w in self.mixture_items if w > 0)
         # sizes that do not follow `radius`: a mask's pixels, a point file's positions, a mixture's
         # radii (unless the radius is a texture)
-        self.fixed_radius = ((params.get("shape") == "mask" or params.get("process") == "points"
-                              or params.get("shape") == "mixture") and not self.mixture_scaled)
+        # (the families that do not read `radius`, or whose positions are absolute: corona.model.registry)
+        full = {**DEFAULTS, **params}
+        self.fixed_radius = ((not SPEC["radius"].applies_to(full)
+                              or isinstance(full["process"], str) and process_family(full["process"]).absolute)
+                             and not self.mixture_scaled)
         if self.fixed_radius and "radius" in self._textured:
             raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or "
                               "process='points' (their sizes and positions are absolute); give a float")
@@ -285,7 +289,7 @@ class CoronaBSDFMixin:
         # tables in u = 2π L |d| / λ cover the largest radius (uniform: 25 % headroom, so that
         # an optimiser can grow it without a rebuild); a smaller one scales L down
         cover = radius_range[1] * (1.0 if "radius" in self._textured else 1.25)
-        if params.get("process") != "points":       # (a point file sets its own area fraction)
+        if SPEC["area_fraction"].applies_to({**DEFAULTS, **params}):   # (a point file sets its own)
             params["area_fraction"] = min(max(fa_hi, 1e-6), 1.0 - 1e-6)
         params["albedo"] = albedo_range[1]
         lengths = ("edge_width", "exclusion_diameter", "jitter")
@@ -1148,10 +1152,13 @@ def register() -> None:
     cls = bsdf_class()
 
     def make(props):
-        # shape=sphere: the Mie layer's own code path (corona.mitsuba.sphere, docs/physics.md#transparent-droplets-mie-spheres)
-        if "shape" in props and str(props["shape"]) == "sphere":
-            from corona.mitsuba.sphere import sphere_bsdf_class
-            return sphere_bsdf_class()(props)
+        # a family with a plugin of its own (shape=sphere: the Mie layer's code path, corona.mitsuba.sphere,
+        # docs/physics.md#transparent-droplets-mie-spheres); a Shape instance is a flat layer
+        value = props["shape"] if "shape" in props else None
+        if isinstance(value, str) and value in SPEC["shape"].choices and shape_family(value).bsdf:
+            import importlib
+            module, function = shape_family(value).bsdf.split(":")
+            return getattr(importlib.import_module(module), function)()(props)
         return cls(props)
     mi.register_bsdf("corona", make)
     _REGISTERED.add(variant)

@@ -52,6 +52,9 @@ def read_props(props) -> tuple[dict, dict]:
         if name not in SPEC:
             raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(SPEC))}")
         value = props.get(name)
+        if name == "shape" and isinstance(value, ScattererObject):
+            out[name] = value.shape          # a corona.Shape instance (corona.scatterer)
+            continue
         if name in TEXTURED and isinstance(value, mi.Texture):
             textures[name] = value
             continue
@@ -75,6 +78,34 @@ def read_props(props) -> tuple[dict, dict]:
             value = str(value)
         out[name] = SPEC[name].check(value)
     return out, textures
+
+
+class ScattererObject(mi.Object):
+    """A :class:`corona.Shape` instance as a Mitsuba property (:func:`scatterer`)."""
+
+    def __init__(self, shape):
+        super().__init__()
+        self.shape = shape
+
+    def to_string(self):
+        return f"ScattererObject[{self.shape!r}]"
+
+
+def scatterer(shape) -> ScattererObject:
+    """``shape`` (any :class:`corona.Shape`, a user's subclass too) as the value of the plugin's
+    ``shape`` property: ``mi.load_dict({'type': 'corona', 'shape': corona.scatterer(my_shape)})``.
+
+    Mitsuba 3.9's properties hold only its own (nanobind) types, so a plain Python object is
+    refused by ``mi.load_dict`` before any plugin sees it; this wraps it in an ``mi.Object``.
+    The shape is complete as given (its own size, soft edge, orientation, size spread): the layer
+    adds the process, the mode, the albedo and the substrate.  Without a kernel term the plugin
+    tabulates its numpy form factor, as it tabulates a mask.
+    """
+    from corona.model.shapes.base import Shape
+    if not isinstance(shape, Shape):
+        raise CoronaError(f"corona.scatterer: shape={shape!r} is not a corona.Shape instance (a subclass of "
+                          "corona.Shape implementing area, length_scale and amplitude)")
+    return ScattererObject(shape)
 
 
 def spectrum_samples(texture, wavelengths=None):

@@ -35,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from corona._validation import check_range
+from corona._validation import CoronaError, check_range
 from corona.mitsuba.common import array as _array, gather as _gather, gather4
 from corona.tables.lobe import TAYLOR_ORDER, TAYLOR_U
 
@@ -47,6 +47,9 @@ _J1_TH = (-2.35619449, 0.12499612, 0.00005650, -0.00637879, 0.00074348, 0.000798
 
 
 #: sinc(x) = Σ (-x²)^i / (2i + 1)!, i = 0 .. 5 (in x²)
+#: The outlines the kernel evaluates in closed form (:class:`corona.model.render_lobe.Term`'s ``kind``,
+#: given by the shapes' ``kernel_terms``: circle; ellipse; rect for rectangles and squares; polygon).
+TERM_KINDS = ("circle", "ellipse", "rect", "polygon")
 _SINC_SERIES = tuple((-1.0) ** i / math.factorial(2 * i + 1) for i in range(6))
 
 
@@ -230,6 +233,10 @@ class LobeKernel:
         self.terms = []
         if rl.kind == "analytic":
             for t in rl.terms:
+                if t.kind not in TERM_KINDS:
+                    raise CoronaError(f"corona BSDF: a kernel term of kind {t.kind!r} ({t.shape!r}) has no "
+                                      f"kernel; allowed {', '.join(TERM_KINDS)} (a shape without one returns "
+                                      "None from kernel_terms: the form factor is tabulated)")
                 p = dict(t.params)
                 if "angle" in p:
                     p["cos"], p["sin"] = math.cos(p["angle"]), math.sin(p["angle"])

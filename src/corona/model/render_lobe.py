@@ -50,10 +50,9 @@ import numpy as np
 from scipy import ndimage
 
 from corona.model.layer import decoupled_lobe
+from corona.model.shapes.base import Term
+from corona.model.shapes.polygon import EDGE_MAX
 
-#: Polygons with more edges go to the form-factor grid (the edge sum costs one
-#: sincos per edge and wavelength in the kernel).
-EDGE_MAX = 16
 #: Sub-samples per axis of each vertex's local mean in warped sampling tables.
 SUPERSAMPLE = 2
 #: Below ``|q| R_c`` (R_c the circumradius) the polygon kernel uses the Taylor
@@ -66,68 +65,30 @@ TAYLOR_ORDER = 5
 # --------------------------------------------------------------------------
 # analytic terms
 # --------------------------------------------------------------------------
-@dataclass
-class Term:
-    """One deterministic outline of the kernel.
-
-    ``kind`` is ``"circle"`` (``radius``), ``"ellipse"`` (semi-axes ``a``,
-    ``b``, ``angle``), ``"rect"`` (``width``, ``height``, ``angle``; the
-    kernel's ``angle`` in radians) or
-    ``"polygon"`` (``vertices`` (n, 2), centred on the centroid,
-    counter-clockwise); ``weight`` is the number weight, ``area`` [µm²] the
-    outline's area, ``blur`` [µm] the rms width of the Gaussian soft edge
-    (``Â`` times ``exp(-q² blur² / 2)``).
-    """
-
-    kind: str
-    params: dict
-    weight: float = 1.0
-    area: float = 0.0
-    blur: float = 0.0
-
-    def key(self):
-        p = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v) for k, v in self.params.items()}
-        return {"kind": self.kind, "params": p, "weight": self.weight, "blur": self.blur}
-
-
 def analytic_terms(shape) -> list[Term] | None:
     """The shape as a list of closed-form outlines, or None when it has none.
 
-    Mixtures of deterministic outlines give one term per component (their
-    number weights); :class:`SoftEdge` multiplies the amplitudes by its
-    Gaussian; a :class:`SizeDistribution` of zero spread is its shape.  Random
-    shapes (orientation, size), masks and polygons of more than
-    :data:`EDGE_MAX` edges return None.
+    Each shape family gives its own (``Shape.kernel_terms``, :mod:`corona.model.registry`):
+    the outlines with closed forms (circle, ellipse, rectangle, polygons of at most
+    :data:`EDGE_MAX` edges); mixtures of them one term per component (their number weights);
+    :class:`SoftEdge` multiplies the amplitudes by its Gaussian; a :class:`SizeDistribution` of
+    zero spread is its shape.  Random shapes (orientation, size), masks, polygons of more than
+    :data:`EDGE_MAX` edges and shapes without a kernel term return None.
     """
-    from corona.model.shapes import Circle, Ellipse, Mixture, Polygon, Rectangle, SizeDistribution, SoftEdge
-    if isinstance(shape, SoftEdge):
-        inner = analytic_terms(shape.shape)
-        if inner is None:
-            return None
-        return [Term(t.kind, t.params, t.weight, t.area, math.hypot(t.blur, shape.edge_width)) for t in inner]
-    if isinstance(shape, SizeDistribution):
-        return analytic_terms(shape.shape) if shape.spread == 0.0 else None
-    if isinstance(shape, Mixture):
-        out = []
-        for sh, w in shape.components:
-            inner = analytic_terms(sh)
-            if inner is None:
-                return None
-            out += [Term(t.kind, t.params, t.weight * w, t.area, t.blur) for t in inner if w > 0]
-        return out
-    if type(shape) is Circle:
-        return [Term("circle", {"radius": shape.radius}, 1.0, shape.area)]
-    if type(shape) is Ellipse:
-        return [Term("ellipse", {"a": shape.semi_axis_x, "b": shape.semi_axis_y,
-                                 "angle": math.radians(shape.angle)},
-                     1.0, shape.area)]
-    if isinstance(shape, Rectangle):
-        return [Term("rect", {"width": shape.width, "height": shape.height,
-                                  "angle": math.radians(shape.angle)},
-                     1.0, shape.area)]
-    if isinstance(shape, Polygon) and len(shape.vertices) <= EDGE_MAX:
-        return [Term("polygon", {"vertices": np.array(shape.vertices)}, 1.0, shape.area)]
-    return None
+    return shape.kernel_terms()
+
+
+def _outline(t: Term):
+    """The outline of a term made without its shape (by its kind and parameters)."""
+    from corona.model.shapes import Circle, Ellipse, Polygon, Rectangle
+    p = t.params
+    if t.kind == "circle":
+        return Circle(p["radius"])
+    if t.kind == "ellipse":
+        return Ellipse(p["a"], aspect=p["b"] / p["a"], angle=math.degrees(p["angle"]))
+    if t.kind == "rect":
+        return Rectangle(0.5 * p["width"], aspect=p["height"] / p["width"], angle=math.degrees(p["angle"]))
+    return Polygon(p["vertices"])
 
 
 def terms_amplitudes(terms: list[Term], q) -> tuple[np.ndarray, np.ndarray]:
@@ -137,21 +98,11 @@ def terms_amplitudes(terms: list[Term], q) -> tuple[np.ndarray, np.ndarray]:
     shapes' own closed forms; used to check the kernel and by
     :meth:`RenderLobe.eval`.
     """
-    from corona.model.shapes import Circle, Ellipse, Polygon, Rectangle
     q = np.asarray(q, dtype=np.float64)
     inten = np.zeros(q.shape[:-1])
     amp = np.zeros(q.shape[:-1], dtype=np.complex128)
     for t in terms:
-        p = t.params
-        if t.kind == "circle":
-            a = Circle(p["radius"]).amplitude(q)
-        elif t.kind == "ellipse":
-            a = Ellipse(p["a"], aspect=p["b"] / p["a"], angle=math.degrees(p["angle"])).amplitude(q)
-        elif t.kind == "rect":
-            a = Rectangle(0.5 * p["width"], aspect=p["height"] / p["width"],
-                          angle=math.degrees(p["angle"])).amplitude(q)
-        else:
-            a = Polygon(p["vertices"]).amplitude(q)
+        a = (t.shape if t.shape is not None else _outline(t)).amplitude(q)
         if t.blur > 0:
             a = a * np.exp(-0.5 * (q[..., 0] ** 2 + q[..., 1] ** 2) * t.blur**2)
         inten += t.weight * np.abs(a) ** 2

@@ -107,8 +107,8 @@ from scipy import ndimage
 from corona._validation import CoronaError, check_choice, check_range
 from corona.model.processes import Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from corona.model.processes.rsa import rsa_configuration
-from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle, Shape,
-                     SizeDistribution, SoftEdge)
+from corona.model.shapes import (Mask, Mixture, Polygon, RandomOrientation, RegularPolygon, Shape,
+                                  SizeDistribution, SoftEdge)
 
 #: default samples per circumradius of the smallest base shape
 SAMPLES_PER_RADIUS = 16
@@ -191,7 +191,15 @@ def _polygon_sd(X, Y, vx, vy, cut, out):
 # ==========================================================================
 # shapes: decomposition into base shapes with per-scatterer draws
 # ==========================================================================
-_BASES = (Circle, Ellipse, Rectangle, Polygon, Mask)
+def _rasterisable(shape) -> bool:
+    """A base shape the brute force stamps: a mask (its image), or a class with a
+    ``signed_distance`` (every registered family that defines one, corona.model.registry)."""
+    return isinstance(shape, Mask) or type(shape).signed_distance is not Shape.signed_distance
+
+
+#: Faster rasterisers of some families' ``signed_distance`` (numba: the same values): an
+#: optimisation only, every other family uses its own method.
+_FAST_SIGNED_DISTANCE = {}
 
 
 @dataclass
@@ -223,14 +231,21 @@ def _leaves_of(shape: Shape, out=None) -> list:
             _leaves_of(sh, out)
     elif isinstance(shape, (SizeDistribution, RandomOrientation, SoftEdge)):
         _leaves_of(shape.shape, out)
-    elif isinstance(shape, _BASES):
+    elif _rasterisable(shape):
         if not any(s is shape for s in out):
             out.append(shape)
     else:
-        raise CoronaError(f"shape={shape!r} is not supported by the brute force; supported: Circle, "
-                          "Ellipse, Rectangle, Square, Polygon, RegularPolygon, Mask and SoftEdge, "
-                          "RandomOrientation, SizeDistribution, Mixture of them")
+        from corona.model import registry
+        known = ", ".join(f.name for f in registry.SHAPE_FAMILIES.values()
+                          if f.cls is not None and (f.cls is Mask or _rasterisable_class(f.cls)))
+        raise CoronaError(f"shape={shape!r} is not supported by the brute force (no signed_distance); "
+                          f"supported: {known} and SoftEdge, RandomOrientation, SizeDistribution, Mixture "
+                          "of them")
     return out
+
+
+def _rasterisable_class(cls) -> bool:
+    return cls.signed_distance is not Shape.signed_distance
 
 
 def _draw(shape: Shape, n: int, rng) -> _Draws:
@@ -306,34 +321,25 @@ def _leaf_profile(leaf, X, Y, h_leaf):
     ``h_leaf`` (broadcastable) is the pixel pitch in leaf units: coverage
     ``clip(1/2 - sd/h, 0, 1)`` of the signed distance ``sd``.
     """
-    if isinstance(leaf, Circle):
-        sd = np.hypot(X, Y) - leaf.radius
-    elif isinstance(leaf, Ellipse):
-        c, s = math.cos(math.radians(leaf.angle)), math.sin(math.radians(leaf.angle))
-        x, y = c * X + s * Y, -s * X + c * Y
-        a, b = leaf.semi_axis_x, leaf.semi_axis_y
-        rho = np.hypot(x / a, y / b)
-        grad = np.hypot(x / (a * a), y / (b * b))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sd = np.where(grad > 0, (rho - 1.0) * rho / np.maximum(grad, 1e-300), -min(a, b))
-    elif isinstance(leaf, Rectangle):
-        c, s = math.cos(math.radians(leaf.angle)), math.sin(math.radians(leaf.angle))
-        x, y = c * X + s * Y, -s * X + c * Y
-        dx = np.abs(x) - 0.5 * leaf.width
-        dy = np.abs(y) - 0.5 * leaf.height
-        sd = np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0)) + np.minimum(np.maximum(dx, dy), 0.0)
-    elif isinstance(leaf, Polygon):
-        Xb, Yb = np.broadcast_arrays(X, Y)
-        Xf = np.ascontiguousarray(Xb, dtype=np.float64).ravel()
-        Yf = np.ascontiguousarray(Yb, dtype=np.float64).ravel()
-        out = np.empty(Xf.size)
-        cut = leaf.length_scale + 2.0 * float(np.max(h_leaf))
-        v = leaf.vertices
-        _polygon_sd(Xf, Yf, np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 1]), cut, out)
-        sd = out.reshape(Xb.shape)
-    else:  # pragma: no cover - filtered by _leaves_of
-        raise CoronaError(f"no profile for {leaf!r}")
+    fast = _FAST_SIGNED_DISTANCE.get(type(leaf))
+    sd = leaf.signed_distance(X, Y) if fast is None else fast(leaf, X, Y, h_leaf)
     return np.clip(0.5 - sd / h_leaf, 0.0, 1.0)
+
+
+def _polygon_signed_distance(leaf, X, Y, h_leaf):
+    """:meth:`corona.Polygon.signed_distance` by the numba loop (cut off beyond the outline)."""
+    Xb, Yb = np.broadcast_arrays(X, Y)
+    Xf = np.ascontiguousarray(Xb, dtype=np.float64).ravel()
+    Yf = np.ascontiguousarray(Yb, dtype=np.float64).ravel()
+    out = np.empty(Xf.size)
+    cut = leaf.length_scale + 2.0 * float(np.max(h_leaf))
+    v = leaf.vertices
+    _polygon_sd(Xf, Yf, np.ascontiguousarray(v[:, 0]), np.ascontiguousarray(v[:, 1]), cut, out)
+    return out.reshape(Xb.shape)
+
+
+_FAST_SIGNED_DISTANCE[Polygon] = _polygon_signed_distance
+_FAST_SIGNED_DISTANCE[RegularPolygon] = _polygon_signed_distance
 
 
 def _fourier_blur(stamps, blur, hx, hy):
@@ -888,9 +894,10 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
     if not isinstance(material, Material):
         raise CoronaError(f"material={material!r} is not a corona.Material")
     if isinstance(material, SphereMaterial):
+        from corona.model import registry
+        flat = ", ".join(f.name for f in registry.SHAPE_FAMILIES.values() if f.material is None)
         raise CoronaError(f"material={material!r} is out of range for the brute force: it sums the far "
-                          "fields of planar screens (Fraunhofer); allowed a flat layer (circle, ellipse, "
-                          "square, rectangle, polygon, mask, mixture)")
+                          f"fields of planar screens (Fraunhofer); allowed a flat layer ({flat})")
     M = int(check_range("realisations", realisations, 1, 1e7))
     n_sc = int(check_range("n_scatterers", n_scatterers, 1, 1e8))
     check_choice("overlaps", overlaps, _OVERLAPS)

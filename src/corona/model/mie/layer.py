@@ -75,6 +75,7 @@ import numpy as np
 from corona.model import tabulated as tables   # the table types and the cache
 from corona.model.mie import theory as mie
 from corona._validation import CoronaError, check_choice, check_finite_array, check_range
+from corona.model import registry
 from corona.model.layer import decoupled_lobe
 from corona.model.material import Material, MieMembers
 from corona.model.processes import Lattice, Poisson, Process
@@ -1750,3 +1751,31 @@ def _frame(n):
     b = n[0] * n[1] * a
     return (np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]]),
             np.array([b, sign + n[1] * n[1] * a, -n[1]]))
+
+
+def _sphere_from(p: dict) -> Sphere:
+    """The factory of ``shape=sphere`` (:mod:`corona.model.registry`)."""
+    if p.get("ior") is None and p.get("ior_imag"):
+        raise CoronaError(f"ior_imag={p['ior_imag']!r} needs ior=<real part> (the default, water, "
+                          "does not absorb)")
+    if p["radius"] > SPHERE_RADIUS_MAX:   # the Mie tables' range (their build time)
+        raise CoronaError(f"radius={p['radius']!r} is out of range for shape='sphere'; allowed "
+                          f"(0, {SPHERE_RADIUS_MAX:g}] µm (larger droplets: use shape='circle', "
+                          "whose Fraunhofer corona theirs approaches)")
+    ior = None if p.get("ior") is None else complex(p["ior"], p.get("ior_imag") or 0.0)
+    return Sphere(p["radius"], ior=ior)
+
+
+def _sphere_material(shape, process, p: dict, given: dict, substrate) -> SphereMaterial:
+    # droplets in air: particles; the mode given must say so.  Every process: a fixed lattice
+    # (the plugin's own path, corona.mitsuba.sphere_lattice), a point file's S(q) is radial
+    return SphereMaterial(shape, process, mode=given.get("mode") or "particle", substrate=substrate)
+
+
+# --- the family (corona.model.registry): shape=sphere --------------------------------------------
+# edge_width, orientation, angle, aspect and albedo mean nothing for a Mie sphere (a sharp surface,
+# the same from every side, reflecting by Mie theory): it does not read them, so a given value gets
+# the one unused-parameter warning and is ignored
+registry.add_shape(registry.ShapeFamily("sphere", _sphere_from, ("radius", "ior", "ior_imag"), cls=Sphere,
+                                        bsdf="corona.mitsuba.sphere:sphere_bsdf_class",
+                                        material=_sphere_material))

@@ -27,12 +27,13 @@ Every lookup here is numpy/scipy only; the simulations that make the tables
 live in :mod:`corona.reference` (extra ``corona-bsdf[reference]``).
 """
 from corona.model.processes.base import Process
+# in the order of the families' registration (corona.model.registry), the order of the spec's list
+from corona.model.processes.poisson import Poisson
 from corona.model.processes.hard_disk import HardDisk
-from corona.model.processes.hard_sphere import percus_yevick_3d
+from corona.model.processes.rsa import RSA_JAMMING_LIMIT, RSA_SATURATION, SequentialAdsorption, rsa_structure_factor
 from corona.model.processes.lattice import Lattice
 from corona.model.processes.point_set import PointSet
-from corona.model.processes.poisson import Poisson
-from corona.model.processes.rsa import RSA_JAMMING_LIMIT, RSA_SATURATION, SequentialAdsorption, rsa_structure_factor
+from corona.model.processes.hard_sphere import percus_yevick_3d
 
 __all__ = ["Process", "Poisson", "HardDisk", "SequentialAdsorption", "Lattice", "PointSet",
            "rsa_structure_factor", "RSA_JAMMING_LIMIT", "RSA_SATURATION"]

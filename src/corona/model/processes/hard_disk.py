@@ -15,6 +15,7 @@ import os
 import numpy as np
 
 from corona._validation import CoronaError, check_positive, check_range
+from corona.model import registry
 from corona.model.processes.base import Process, _check_exclusion
 
 TABLE_FORMAT_VERSION = 1
@@ -281,3 +282,9 @@ class HardDisk(Process):
         self.validate(shape)
         q = np.asarray(q_abs, dtype=np.float64)
         return structure_factor_table(q * self.diameter(shape), self.packing_fraction(shape))
+
+
+# --- the family (corona.model.registry): process=hard-disk ---------------------------------------
+registry.add_process(registry.ProcessFamily(
+    "hard-disk", lambda p, shape: HardDisk(p["area_fraction"], exclusion_diameter=p.get("exclusion_diameter")),
+    ("area_fraction", "exclusion_diameter"), cls=HardDisk))

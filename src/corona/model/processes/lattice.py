@@ -6,6 +6,7 @@ import math
 import numpy as np
 
 from corona._validation import CoronaError, check_choice, check_positive, check_range
+from corona.model import registry
 from corona.model.processes.base import Process
 
 
@@ -403,3 +404,27 @@ class Lattice(Process):
 # =====================================================================
 # measured point sets
 # =====================================================================
+
+
+def _lattice_from(kind: str):
+    """The factory of ``process=lattice-<kind>``: the spacing from the area fraction (cell area
+    ``|A| / F_a``); neighbours at the shape's exclusion diameter σ give the largest F_a."""
+    def factory(p, shape):
+        fa, name = p["area_fraction"], f"lattice-{kind}"
+        sd = shape.exclusion_diameter
+        fmax = shape.area / (sd * sd) if kind == "square" else 2 * shape.area / (math.sqrt(3) * sd * sd)
+        if fa > fmax * (1.0 + 1e-12):
+            raise CoronaError(f"area_fraction={fa:g} is out of range for process={name!r} with this shape; "
+                              f"allowed (0, {fmax:.4g}] (neighbours would overlap)")
+        cell = shape.area / fa
+        if kind == "square":
+            return Lattice("square", math.sqrt(cell), jitter=p["jitter"])
+        return Lattice("hexagonal", math.sqrt(2 * cell / math.sqrt(3)), jitter=p["jitter"])
+    return factory
+
+
+# --- the families (corona.model.registry): process=lattice-square, lattice-hex -------------------
+registry.add_process(registry.ProcessFamily("lattice-square", _lattice_from("square"),
+                                            ("area_fraction", "jitter"), cls=Lattice))
+registry.add_process(registry.ProcessFamily("lattice-hex", _lattice_from("hex"),
+                                            ("area_fraction", "jitter"), cls=Lattice))

@@ -6,6 +6,7 @@ import os
 import numpy as np
 
 from corona._validation import CoronaError, check_range
+from corona.model import registry
 from corona.model.processes.base import Process
 
 
@@ -332,3 +333,22 @@ def _is_number(t) -> bool:
     except ValueError:
         return False
 
+
+
+def points_file(p: dict) -> str:
+    """The point file of process='points': ``points_filename``, else ``filename``
+    unless the shape reads that (the mask image of shape='mask')."""
+    if p.get("points_filename"):
+        return p["points_filename"]
+    shape = registry.SHAPE_FAMILIES.get(p.get("shape")) if isinstance(p.get("shape"), str) else None
+    if shape is not None and "filename" in shape.parameters:     # the shape's own file (a mask's image)
+        raise CoronaError(f"process='points' with shape={shape.name!r} needs points_filename=<point file> "
+                          f"(filename is the {shape.name} image)")
+    if not p.get("filename"):
+        raise CoronaError("process='points' needs filename=<point file> (or points_filename=)")
+    return p["filename"]
+
+
+# --- the family (corona.model.registry): process=points ------------------------------------------
+registry.add_process(registry.ProcessFamily("points", lambda p, shape: PointSet.from_file(points_file(p)),
+                                            ("filename", "points_filename"), cls=PointSet, absolute=True))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from corona._validation import check_range
+from corona.model import registry
 from corona.model.processes.base import Process
 
 
@@ -60,3 +61,8 @@ class Poisson(Process):
         q = np.asarray(q, dtype=np.float64)
         return np.ones(q.shape[:-1])
 
+
+
+# --- the family (corona.model.registry): process=poisson -----------------------------------------
+registry.add_process(registry.ProcessFamily("poisson", lambda p, shape: Poisson(p["area_fraction"]),
+                                            ("area_fraction",), cls=Poisson))

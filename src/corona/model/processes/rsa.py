@@ -7,6 +7,7 @@ import os
 import numpy as np
 
 from corona._validation import CoronaError, check_positive, check_range
+from corona.model import registry
 from corona.model.processes.base import Process, _check_exclusion
 
 #: Largest accepted RSA packing fraction (saturation is 0.547069, see
@@ -394,3 +395,10 @@ def rsa_configuration(box_size: float, packing_fraction: float | None = None, *,
     return _rsa_fill(float(L), int(n_stop), int(seed)) * sigma
 
 
+
+
+# --- the family (corona.model.registry): process=rsa ---------------------------------------------
+registry.add_process(registry.ProcessFamily(
+    "rsa", lambda p, shape: SequentialAdsorption(p["area_fraction"],
+                                                 exclusion_diameter=p.get("exclusion_diameter")),
+    ("area_fraction", "exclusion_diameter"), cls=SequentialAdsorption))

@@ -7,8 +7,10 @@ import numpy as np
 from scipy import special
 
 from corona._validation import CoronaError, check_positive
+from corona.model import registry
 from corona.model.shapes.base import (
     Shape,
+    Term,
     _check_finite,
     _g,
     _gauss_legendre,
@@ -81,6 +83,17 @@ class Circle(Shape):
         nz = np.abs(u) > 1e-8
         out[nz] = 2.0 * special.j1(u[nz]) / u[nz]
         return out
+
+    def kernel_terms(self):
+        """The shape's closed-form outline(s) for the render kernel (:mod:`corona.mitsuba.kernels`)."""
+        if type(self).amplitude is not Circle.amplitude:      # a subclass with a form factor of its own
+            return None
+        return [Term("circle", {"radius": self.radius}, 1.0, self.area, shape=self)]
+
+    def signed_distance(self, x, y) -> np.ndarray:
+        """Signed distance [µm] of the points (x, y) [µm] to the outline (negative inside): the
+        brute-force reference rasterises the shape from it (:mod:`corona.reference.wave`)."""
+        return np.hypot(x, y) - self.radius
 
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
@@ -232,6 +245,24 @@ class Ellipse(Shape):
     def length_scale(self) -> float:
         return max(self.semi_axis_x, self.semi_axis_y)
 
+    def kernel_terms(self):
+        """The shape's closed-form outline(s) for the render kernel (:mod:`corona.mitsuba.kernels`)."""
+        if type(self).amplitude is not Ellipse.amplitude:      # a subclass with a form factor of its own
+            return None
+        return [Term("ellipse", {"a": self.semi_axis_x, "b": self.semi_axis_y, "angle": math.radians(self.angle)},
+                     1.0, self.area, shape=self)]
+
+    def signed_distance(self, x, y) -> np.ndarray:
+        """Signed distance [µm] to the outline, negative inside (to first order off the outline:
+        the rasteriser's antialiasing needs it within a pixel of it)."""
+        c, s = math.cos(math.radians(self.angle)), math.sin(math.radians(self.angle))
+        x, y = c * x + s * y, -s * x + c * y
+        a, b = self.semi_axis_x, self.semi_axis_y
+        rho = np.hypot(x / a, y / b)
+        grad = np.hypot(x / (a * a), y / (b * b))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(grad > 0, (rho - 1.0) * rho / np.maximum(grad, 1e-300), -min(a, b))
+
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
         qx, qy = _rotate(q, math.radians(self.angle))
@@ -320,6 +351,21 @@ class Rectangle(Shape):
     def length_scale(self) -> float:
         return 0.5 * math.hypot(self.width, self.height)
 
+    def kernel_terms(self):
+        """The shape's closed-form outline(s) for the render kernel (:mod:`corona.mitsuba.kernels`)."""
+        if type(self).amplitude is not Rectangle.amplitude:      # a subclass with a form factor of its own
+            return None
+        return [Term("rect", {"width": self.width, "height": self.height, "angle": math.radians(self.angle)},
+                     1.0, self.area, shape=self)]
+
+    def signed_distance(self, x, y) -> np.ndarray:
+        """Signed distance [µm] of the points (x, y) [µm] to the outline (negative inside)."""
+        c, s = math.cos(math.radians(self.angle)), math.sin(math.radians(self.angle))
+        x, y = c * x + s * y, -s * x + c * y
+        dx = np.abs(x) - 0.5 * self.width
+        dy = np.abs(y) - 0.5 * self.height
+        return np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0)) + np.minimum(np.maximum(dx, dy), 0.0)
+
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
         qx, qy = _rotate(q, math.radians(self.angle))
@@ -405,3 +451,17 @@ class Square(Rectangle):
 
     def key(self) -> dict:
         return {"type": "Square", "side": self.width, "angle": self.angle}
+
+
+# --- the families (corona.model.registry): shape=circle, ellipse, square, rectangle --------------
+_R = ("radius",) + registry.FLAT
+registry.add_shape(registry.ShapeFamily("circle", lambda p: Circle(p["radius"]), _R, cls=Circle,
+                                        mixable=True))
+registry.add_shape(registry.ShapeFamily(
+    "ellipse", lambda p: Ellipse(p["radius"], aspect=p["aspect"], angle=p["angle"]),
+    _R + ("aspect", "angle") + registry.ROTATABLE, cls=Ellipse, mixable=True))
+registry.add_shape(registry.ShapeFamily("square", lambda p: Square(p["radius"], angle=p["angle"]),
+                                        _R + ("angle",) + registry.ROTATABLE, cls=Square, mixable=True))
+registry.add_shape(registry.ShapeFamily(
+    "rectangle", lambda p: Rectangle(p["radius"], aspect=p["aspect"], angle=p["angle"]),
+    _R + ("aspect", "angle") + registry.ROTATABLE, cls=Rectangle, mixable=True))

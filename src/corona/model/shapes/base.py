@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import special
@@ -141,6 +142,33 @@ def _sinc(x):
 # --------------------------------------------------------------------------
 # base class
 # --------------------------------------------------------------------------
+@dataclass
+class Term:
+    """One deterministic outline of the render kernel (:mod:`corona.mitsuba.kernels`), as a
+    shape's ``kernel_terms`` give it (:mod:`corona.model.render_lobe`).
+
+    ``kind`` is ``"circle"`` (``radius``), ``"ellipse"`` (semi-axes ``a``,
+    ``b``, ``angle``), ``"rect"`` (``width``, ``height``, ``angle``; the
+    kernel's ``angle`` in radians) or
+    ``"polygon"`` (``vertices`` (n, 2), centred on the centroid,
+    counter-clockwise); ``weight`` is the number weight, ``area`` [µm²] the
+    outline's area, ``blur`` [µm] the rms width of the Gaussian soft edge
+    (``Â`` times ``exp(-q² blur² / 2)``), ``shape`` the outline (a :class:`corona.Shape`).
+    """
+
+    kind: str
+    params: dict
+    weight: float = 1.0
+    area: float = 0.0
+    blur: float = 0.0
+    #: the outline itself (its numpy ``amplitude`` is the kernel's twin; not part of the key)
+    shape: object = field(default=None, compare=False, repr=False)
+
+    def key(self):
+        p = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v) for k, v in self.params.items()}
+        return {"kind": self.kind, "params": p, "weight": self.weight, "blur": self.blur}
+
+
 class Shape:
     """Base class of a scatterer's transmission profile (see the module docstring)."""
 
@@ -184,6 +212,20 @@ class Shape:
         """Complex Fourier transform ``Â(q)`` [µm²] at ``q`` [rad/µm], shape (..., 2).
 
         For random shapes this is the ensemble mean ``⟨Â(q)⟩``.
+        """
+        raise NotImplementedError
+
+    def kernel_terms(self):
+        """The shape as closed-form outlines for the render kernel (a list of
+        :class:`Term`), or None: then the renderer tabulates the numpy
+        form factor (a radial table, or the B-spline grid of a 2D one), as for a mask."""
+        return None
+
+    def signed_distance(self, x, y) -> np.ndarray:
+        """Signed distance [µm] of the points (x, y) [µm] to the outline, negative inside.
+
+        Optional: a binary shape that defines it can be rasterised by the brute-force reference
+        (:mod:`corona.reference.wave`, antialiased over a pixel).  Random shapes and masks do not.
         """
         raise NotImplementedError
 

@@ -9,6 +9,7 @@ from scipy import fft as sp_fft
 from scipy import ndimage
 
 from corona._validation import CoronaError, check_positive, check_range
+from corona.model import registry
 from corona.model.shapes.base import _TWO_PI, Shape, _q_array
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -265,3 +266,16 @@ class Mask(Shape):
         return total
 
 
+
+
+def _mask_from(p: dict) -> Mask:
+    if not p.get("filename"):
+        raise CoronaError("shape='mask' needs filename=<image file>")
+    if p.get("pixel_size") is None:
+        raise CoronaError("shape='mask' needs pixel_size=<µm per pixel>")
+    return Mask(p["filename"], p["pixel_size"])
+
+
+# --- the family (corona.model.registry): shape=mask ----------------------------------------------
+registry.add_shape(registry.ShapeFamily("mask", _mask_from, ("filename", "pixel_size") + registry.FLAT
+                                        + registry.ROTATABLE, cls=Mask))

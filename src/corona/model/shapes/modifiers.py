@@ -8,7 +8,7 @@ import numpy as np
 from scipy import special
 
 from corona._validation import CoronaError, check_choice, check_range
-from corona.model.shapes.base import (_ORIENTATION_MAX_POINTS, _TWO_PI, Shape, _check_int, _check_shape, _groups,
+from corona.model.shapes.base import (_ORIENTATION_MAX_POINTS, _TWO_PI, Shape, Term, _check_int, _check_shape, _groups,
                    _orientation_average, _q_array, _radial_array)
 
 
@@ -127,6 +127,14 @@ class SoftEdge(Modifier):
         g = self._gauss(q_abs**2)
         i, a = self.shape._both_radial(q_abs)
         return i * g * g, a * g
+
+    def kernel_terms(self):
+        """The inner shape's kernel terms with the Gaussian edge (``blur``), or None."""
+        inner = self.shape.kernel_terms()
+        if inner is None:
+            return None
+        return [Term(t.kind, t.params, t.weight, t.area, math.hypot(t.blur, self.edge_width), shape=t.shape)
+                for t in inner]
 
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
@@ -522,6 +530,10 @@ class SizeDistribution(Modifier):
     def _intensity_radial(self, q_abs):
         return self._average(q_abs, radial=True)[0]
 
+    def kernel_terms(self):
+        """The shape's kernel terms at zero spread; None for a true size average (the grid)."""
+        return self.shape.kernel_terms() if self.spread == 0.0 else None
+
     def amplitude(self, q) -> np.ndarray:
         return self._average(q, radial=False)[1]
 
@@ -653,6 +665,16 @@ class Mixture(Shape):
             i, a = sh._both_radial(q_abs)
             I, A = I + wt * i, A + wt * a
         return I, A
+
+    def kernel_terms(self):
+        """One kernel term per component outline (their number weights), or None."""
+        out = []
+        for sh, w in self.components:
+            inner = sh.kernel_terms()
+            if inner is None:
+                return None
+            out += [Term(t.kind, t.params, t.weight * w, t.area, t.blur, shape=t.shape) for t in inner if w > 0]
+        return out
 
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)

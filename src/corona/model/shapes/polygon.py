@@ -6,7 +6,8 @@ import math
 import numpy as np
 
 from corona._validation import CoronaError, check_positive
-from corona.model.shapes.base import _TWO_PI, Shape, _check_finite, _check_int, _g, _q_array, _warn_old_spelling
+from corona.model import registry
+from corona.model.shapes.base import _TWO_PI, Shape, Term, _check_finite, _check_int, _g, _q_array, _warn_old_spelling
 
 
 def _orient(ax, ay, bx, by, cx, cy):
@@ -96,6 +97,11 @@ def _check_simple(v: np.ndarray) -> None:
             e1, e2 = sorted((int(i[k]), int(j[k])))
             raise CoronaError(f"vertices: polygon is not simple (edges {e1} and {e2} "
                               "intersect); expected a simple polygon")
+
+
+#: Polygons with more edges go to the form-factor grid (the edge sum costs one
+#: sincos per edge and wavelength in the kernel).
+EDGE_MAX = 16
 
 
 class Polygon(Shape):
@@ -204,6 +210,33 @@ class Polygon(Shape):
     def perimeter(self) -> float:
         """Perimeter [µm]."""
         return float(np.sum(np.hypot(self._edges[:, 0], self._edges[:, 1])))
+
+    def kernel_terms(self):
+        """The edge sum for the render kernel (:mod:`corona.mitsuba.kernels`), up to
+        :data:`EDGE_MAX` edges (more: None, the form-factor grid)."""
+        if len(self.vertices) > EDGE_MAX:
+            return None
+        if type(self).amplitude is not Polygon.amplitude:      # a subclass with a form factor of its own
+            return None
+        return [Term("polygon", {"vertices": np.array(self.vertices)}, 1.0, self.area, shape=self)]
+
+    def signed_distance(self, x, y) -> np.ndarray:
+        """Signed distance [µm] of the points (x, y) [µm] to the outline (negative inside; the
+        crossing-number rule, so non-convex outlines too)."""
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+        v = self.vertices
+        d2 = np.full(x.shape, np.inf)
+        inside = np.zeros(x.shape, dtype=bool)
+        for (ax, ay), (bx, by) in zip(v, np.roll(v, -1, axis=0)):
+            ex, ey = bx - ax, by - ay
+            wx, wy = x - ax, y - ay
+            t = np.clip((wx * ex + wy * ey) / (ex * ex + ey * ey), 0.0, 1.0)
+            np.minimum(d2, (wx - t * ex) ** 2 + (wy - t * ey) ** 2, out=d2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                cross = ((ay > y) != (by > y)) & (x < ax + (y - ay) * ex / ey)
+            inside ^= cross
+        d = np.sqrt(d2)
+        return np.where(inside, -d, d)
 
     def amplitude(self, q) -> np.ndarray:
         q = _q_array(q)
@@ -324,3 +357,10 @@ class RegularPolygon(Polygon):
                 "angle": self.angle}
 
 
+
+
+# --- the family (corona.model.registry): shape=polygon -------------------------------------------
+registry.add_shape(registry.ShapeFamily(
+    "polygon", lambda p: RegularPolygon(p["sides"], p["radius"], angle=p["angle"]),
+    ("radius", "sides", "angle") + registry.FLAT + registry.ROTATABLE, cls=RegularPolygon,
+    mixable=True))
