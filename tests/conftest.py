@@ -12,7 +12,11 @@ Markers (registered in pyproject.toml, ``[tool.pytest.ini_options]``):
     uses the reference tier (``corona.reference``) or an outside reference (miepython);
 ``slow``
     any of these, or starts Python processes, a Dask cluster or a render through the CLI,
-    or is a property test (hypothesis: random materials, a table each).
+    or is a property test (hypothesis: random materials, a table each);
+``mitsuba``
+    runs Mitsuba in the tests' variant: uses the ``mi_variant`` fixture, lives in
+    ``tests/plugin``, renders, or takes Dr.Jit derivatives (``scripts/device_check.sh`` runs
+    these in ``cuda_ad_spectral`` on a GPU machine).
 
 A test file may set them itself (``pytestmark``, decorators); for the others they are set
 here from what the test's code names (the names its function and the module's functions
@@ -58,6 +62,8 @@ SLOW_TESTS = {"test_fit_window_recovers_radius_area_fraction_and_bitmap", "test_
               # spheres on a lattice: an order near grazing exit integrated on a fine polar grid
               "test_grazing_order_energy_and_furnace"}
 BROWSER_FILES = {"test_designer_browser.py"}
+#: names whose use means Dr.Jit derivatives (a gradient test: ``mitsuba``)
+GRADIENT_NAMES = {"backward", "forward", "enable_grad", "backward_from", "forward_to"}
 #: a CLI test (CliRunner.invoke, subprocess.run) of one of these commands renders
 CLI_RENDERS = {"str:render", "str:sweep"}
 
@@ -112,6 +118,9 @@ def pytest_collection_modifyitems(config, items):
             new.add("browser")
         if _uses_reference(names, module):
             new.add("reference")
+        if "mi_variant" in getattr(item, "fixturenames", ()) or "render" in new | marks \
+                or names & GRADIENT_NAMES or os.path.basename(os.path.dirname(str(item.fspath))) == "plugin":
+            new.add("mitsuba")
         if (new | marks) & {"chi2", "render", "browser", "reference"} or names & SLOW_NAMES \
                 or set(getattr(item, "fixturenames", ())) & SLOW_FIXTURES \
                 or getattr(fn, "is_hypothesis_test", False) \
@@ -137,3 +146,15 @@ def mi_variant():
     mi.set_variant(variant)
     corona.register()
     return variant
+
+
+@pytest.fixture(params=[False, True], ids=["in-place", "upload"])
+def upload_branch(request, monkeypatch):
+    """Both branches of the plugin where it depends on the Dr.Jit backend: LLVM's (tables
+    written in place into host arrays, :func:`corona.mitsuba.common.host_buffer`) and CUDA's /
+    the scalar variants' (filled in numpy, uploaded), the latter switched on by
+    :data:`corona.mitsuba.common.UPLOAD_BRANCH` (environment: ``CORONA_UPLOAD_BRANCH=1``).
+    On CUDA both params take the upload branch.  The value: whether the upload branch is forced."""
+    from corona.mitsuba import common
+    monkeypatch.setattr(common, "UPLOAD_BRANCH", bool(request.param))
+    return bool(request.param)
