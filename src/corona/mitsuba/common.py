@@ -13,6 +13,8 @@ This module imports no plugin module (:mod:`corona.mitsuba.bsdf`,
 """
 from __future__ import annotations
 
+import os
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -189,14 +191,30 @@ def array(dtype, values):
     return out
 
 
+#: The CUDA branch on every backend: :func:`host_buffer` hands out a numpy array to upload (as on
+#: CUDA and in scalar variants) instead of a view of an LLVM array's memory, so that the CPU tests
+#: run that branch too.  Set from the environment variable ``CORONA_UPLOAD_BRANCH`` (``1``) when
+#: the module loads; the tests switch it per test (tests/conftest.py, fixture ``upload_branch``).
+#: Every place the plugin branches on the Dr.Jit backend goes through :func:`upload_branch`.
+UPLOAD_BRANCH = os.environ.get("CORONA_UPLOAD_BRANCH", "").strip() not in ("", "0")
+
+
+def upload_branch() -> bool:
+    """Whether the plugin takes the branch of a backend whose arrays live off the host (CUDA):
+    on CUDA, or everywhere while :data:`UPLOAD_BRANCH` is set."""
+    if UPLOAD_BRANCH or not dr.is_array_v(mi.Float):
+        return True
+    return dr.backend_v(mi.Float) != dr.JitBackend.LLVM
+
+
 def host_buffer(dtype, n):
     """An array of ``n`` float32 values to fill in place: ``(array, view)``, ``view`` a writable
     numpy view of the Dr.Jit ``array``'s own memory where the backend keeps it on the host (LLVM):
     a large table is then written once, not built in numpy and copied (:func:`array`).  Elsewhere
-    (CUDA, scalar variants, or a backend that hands numpy a copy) ``(None, view)``, ``view`` a
-    numpy array: upload it with :func:`array` once filled."""
+    (CUDA, scalar variants, a backend that hands numpy a copy, or :data:`UPLOAD_BRANCH` set)
+    ``(None, view)``, ``view`` a numpy array: upload it with :func:`array` once filled."""
     n = int(n)
-    if dtype is mi.Float and dr.is_array_v(dtype) and dr.backend_v(dtype) == dr.JitBackend.LLVM and n > 0:
+    if dtype is mi.Float and not upload_branch() and n > 0:
         out = dr.empty(dtype, n)
         dr.eval(out)
         view = np.asarray(out)
