@@ -15,6 +15,10 @@ test is defined (a decorator, or ``pytestmark`` where the whole file is slow):
     any of these, or starts Python processes, a Dask cluster or a render through the CLI,
     or is a property test (hypothesis: random materials, a table each), or takes more than
     about 3 s on two shared cores.
+``mitsuba``
+    runs Mitsuba in the tests' variant: uses the ``mi_variant`` fixture, lives in
+    ``tests/plugin``, renders, or takes Dr.Jit derivatives (``scripts/device_check.sh`` runs
+    these in ``cuda_ad_spectral`` on a GPU machine).
 
 ``make test-fast`` runs ``-m "not slow"``: the physics and the plugin's pointwise checks.
 The collection checks the marks (:func:`pytest_collection_modifyitems`): a test whose code
@@ -42,6 +46,8 @@ SLOW_NAMES = {"subprocess", "Executor", "LocalCluster", "running"}
 SLOW_FIXTURES = {"cluster", "photographs", "fits", "layers", "driver", "browser",
                  "hd03", "short_run", "reverse", "forward", "dist"}
 BROWSER_FILES = {"test_designer_browser.py"}
+#: names whose use means Dr.Jit derivatives (a gradient test: ``mitsuba``)
+GRADIENT_NAMES = {"backward", "forward", "enable_grad", "backward_from", "forward_to"}
 #: a CLI test (CliRunner.invoke, subprocess.run) of one of these commands renders
 CLI_RENDERS = {"str:render", "str:sweep"}
 
@@ -98,6 +104,20 @@ def required_marks(item) -> set[str]:
     return need
 
 
+def needs_mitsuba(item) -> bool:
+    """Whether ``item`` runs Mitsuba in the tests' variant (the ``mitsuba`` marker, set here: it
+    selects what scripts/device_check.sh runs on a GPU, it says nothing of a test's cost)."""
+    fn = getattr(item, "function", None)
+    module = getattr(item, "module", None)
+    if fn is None or module is None:
+        return False
+    names = _names(fn, module)
+    marks = {m.name for m in item.iter_markers()}
+    return ("mi_variant" in getattr(item, "fixturenames", ()) or "render" in marks
+            or bool(names & RENDER_NAMES) or bool(names & GRADIENT_NAMES)
+            or os.path.basename(os.path.dirname(str(item.fspath))) == "plugin")
+
+
 def pytest_collection_modifyitems(config, items):
     """Check every test's marks against its code (no mark is added here), and count the
     session's chi-square runs (the Sidak correction of :mod:`bsdf_checks`)."""
@@ -110,6 +130,8 @@ def pytest_collection_modifyitems(config, items):
             lacking.add("slow")
         if lacking:
             missing.append(f"  {item.nodeid}: add " + ", ".join(f"@pytest.mark.{m}" for m in sorted(lacking)))
+        if "mitsuba" not in marks and needs_mitsuba(item):
+            item.add_marker(pytest.mark.mitsuba)     # a selection (device_check.sh), not a cost
         if "chi2" in marks:
             n_chi2 += 1
     if missing:
@@ -173,3 +195,15 @@ def restored_registry():
     (parameters.PARAMETERS, parameters.SHAPES, parameters.PROCESSES, parameters.MIXTURE_SHAPES) = saved[4:8]
     parameters._FAMILY_SCOPED.clear()
     parameters._FAMILY_SCOPED.update(saved[8])
+
+
+@pytest.fixture(params=[False, True], ids=["in-place", "upload"])
+def upload_branch(request, monkeypatch):
+    """Both branches of the plugin where it depends on the Dr.Jit backend: LLVM's (tables
+    written in place into host arrays, :func:`corona.mitsuba.common.host_buffer`) and CUDA's /
+    the scalar variants' (filled in numpy, uploaded), the latter switched on by
+    :data:`corona.mitsuba.common.UPLOAD_BRANCH` (environment: ``CORONA_UPLOAD_BRANCH=1``).
+    On CUDA both params take the upload branch.  The value: whether the upload branch is forced."""
+    from corona.mitsuba import common
+    monkeypatch.setattr(common, "UPLOAD_BRANCH", bool(request.param))
+    return bool(request.param)

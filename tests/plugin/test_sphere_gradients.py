@@ -21,6 +21,13 @@ parameter ``x = 2π r/λ`` of every wavelength: the rows are linear in x between
 them (the derivative jumps at a row), so the radius sits mid-row for every test
 wavelength and ``h`` keeps ``r ± h`` between the same rows.  ``albedo`` means
 nothing for a sphere: it is not exposed, which the second test checks.
+
+Each test runs some cases in both of the plugin's backend branches (fixture ``upload_branch``:
+LLVM's tables written in place, CUDA's uploaded).  With the upload branch on in an LLVM
+variant, a bitmap's texels are also written in place into the texture's memory, as
+``params.update()`` does on CUDA (``dr.Texture.set_value``: ``jit_tex_memcpy_d2t`` into the
+hardware texture, no copy): a computation still pending from before the update reads the new
+texels there, so the sample weights at ``x + h`` are evaluated before ``x - h`` is set.
 """
 import warnings
 
@@ -91,20 +98,36 @@ def _loaded(base, pane, name, textured):
     return bsdf, params, key
 
 
-def _setter(params, key, textured, lo, hi):
+def _setter(params, key, textured, lo, hi, in_place=False):
     """``put(v)``: the parameter ``key`` set to ``v`` (a bitmap: its first texel, the others
-    ``lo``, ``hi``, ``lo``) and the scene updated."""
+    ``lo``, ``hi``, ``lo``) and the scene updated.  ``in_place`` (a bitmap in an LLVM variant, ``v``
+    without a gradient): the texels written into the texture's own memory, as CUDA's
+    ``params.update()`` writes a hardware texture (see the module docstring)."""
     import mitsuba as mi
 
     def put(v):
         if textured:
-            i = dr.arange(mi.UInt32, 4)
-            data = dr.select(i == 0, v, dr.select(i == 2, mi.Float(hi), mi.Float(lo)))
-            params[key] = mi.TensorXf(data, shape=(2, 2, 1))
+            if in_place and not dr.grad_enabled(v):
+                tensor = params[key]
+                view = np.asarray(tensor.array)
+                want = np.array([float(np.asarray(v).ravel()[0]), lo, hi, lo], np.float32)
+                assert view.flags.writeable and view.size == 4, "the texture's memory is not writable here"
+                view[:] = want
+                assert np.array_equal(np.asarray(tensor.array + 0.0), want), "a copy, not the texture's memory"
+                params.set_dirty(key)
+            else:
+                i = dr.arange(mi.UInt32, 4)
+                data = dr.select(i == 0, v, dr.select(i == 2, mi.Float(hi), mi.Float(lo)))
+                params[key] = mi.TensorXf(data, shape=(2, 2, 1))
         else:
             params[key] = v
         params.update()
     return put
+
+
+def _in_place_texels(mi_variant, upload_branch):
+    """Whether :func:`_setter` writes a bitmap's texels in place (the upload branch in LLVM)."""
+    return upload_branch and mi_variant.startswith("llvm")
 
 
 def _assert_ad_matches(put, quantity, x, h, up, down, label):
@@ -131,10 +154,14 @@ def _assert_ad_matches(put, quantity, x, h, up, down, label):
 
 CASES = ([("poisson", tex, pane) for tex in (False, True) for pane in (False, True)]
          + [("hard-disk", tex, False) for tex in (False, True)] + [("rsa", False, True)])
+#: the cases run in the upload branch as well (each case costs seconds: two of each test)
+UPLOAD_CASES = (("poisson", True, True), ("hard-disk", True, False))
+_BRANCHES = lambda cases: [(*c, False) for c in cases] + [(*c, True) for c in cases if c in UPLOAD_CASES]
 
 
-@pytest.mark.parametrize("process,textured,pane", CASES, ids=lambda v: str(v))
-def test_area_fraction_derivatives_match_central_differences(mi_variant, process, textured, pane):
+@pytest.mark.parametrize("process,textured,pane,upload_branch", _BRANCHES(CASES), ids=lambda v: str(v),
+                         indirect=["upload_branch"])
+def test_area_fraction_derivatives_match_central_differences(mi_variant, upload_branch, process, textured, pane):
     import mitsuba as mi
     # a hard core: x sits 35 % into an interval of the F_a rows (uniform: 0.2 ± 0.05; the texture:
     # 0.05 … 0.35), x ± h inside it
@@ -143,7 +170,7 @@ def test_area_fraction_derivatives_match_central_differences(mi_variant, process
             "area_fraction": _bitmap(x, lo, hi) if textured else (0.2 if process != "poisson" else x)}
     bsdf, params, key = _loaded(base, pane, "area_fraction", textured)
 
-    put = _setter(params, key, textured, lo, hi)
+    put = _setter(params, key, textured, lo, hi, _in_place_texels(mi_variant, upload_branch))
 
     for what in ("eval", "pdf", "weight"):     # F_a matters for all three
         for theta in THETAS:
@@ -211,8 +238,9 @@ RADIUS_CASES = ([("poisson", tex, pane) for tex in (False, True) for pane in (Fa
                 + [("hard-disk", tex, pane) for tex in (False, True) for pane in (False, True)])
 
 
-@pytest.mark.parametrize("process,textured,pane", RADIUS_CASES, ids=lambda v: str(v))
-def test_radius_derivatives_match_central_differences(mi_variant, process, textured, pane):
+@pytest.mark.parametrize("process,textured,pane,upload_branch", _BRANCHES(RADIUS_CASES), ids=lambda v: str(v),
+                         indirect=["upload_branch"])
+def test_radius_derivatives_match_central_differences(mi_variant, upload_branch, process, textured, pane):
     # radius.value (uniform) or radius.data (a bitmap's texel under the shading point): x = 2π r/λ
     # moves every wavelength along the rows (linear in x between them), the chord scale x_row/x of
     # both rows and S(q r) with a hard core.  r sits mid-row for every wavelength (_mid_row_radius)
@@ -227,16 +255,20 @@ def test_radius_derivatives_match_central_differences(mi_variant, process, textu
     h = 2e-5
     x = _mid_row_radius(bsdf, 2.0, h)
 
-    put = _setter(params, key, textured, lo, hi)
+    put = _setter(params, key, textured, lo, hi, _in_place_texels(mi_variant, upload_branch))
 
     material = bsdf.material
     for what in ("eval", "pdf", "weight"):
         for theta in THETAS:
             if what == "weight":
+                # each evaluated before the next update: on CUDA a pending kernel reads a bitmap's
+                # texels as they are when it runs (the module docstring)
                 put(mi.Float(x + h))
                 wo_up, w_up = _samples(bsdf, theta)
+                dr.eval(wo_up, w_up)
                 put(mi.Float(x - h))
                 wo_down, w_down = _samples(bsdf, theta)
+                dr.eval(wo_down, w_down)
                 # a continuous sample's chord |wo + wi| scales as 1/r: it moves by about chord · 2h/r
                 wi = _directions(theta)[0]
                 chord = np.linalg.norm(np.asarray(wo_up) + wi[:, None], axis=0)

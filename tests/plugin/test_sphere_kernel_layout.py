@@ -87,7 +87,7 @@ def test_packed_lobe_rows_read_the_plain_rows(mi_variant, monkeypatch, name):
         _assert_close(_figures(packed, 0.0), _figures(plain, 0.0), "shifted")
 
 
-def test_one_area_fraction_centred_matches_the_rows_and_updates_without_recompiling(mi_variant):
+def test_one_area_fraction_centred_matches_the_rows_and_updates_without_recompiling(mi_variant, upload_branch):
     import mitsuba as mi
     if not dr.is_array_v(mi.Float):
         pytest.skip("kernels: vectorised variants")
@@ -179,12 +179,13 @@ def test_catmull_rom_intervals_are_the_cubic_through_the_rows(mi_variant):
         start += rows.size
 
 
-def test_packed_rows_written_in_place_are_the_intervals(mi_variant):
+def test_packed_rows_written_in_place_are_the_intervals(mi_variant, upload_branch):
     """The plugin writes its packed intervals straight into its Dr.Jit arrays where the backend keeps
     them on the host (:func:`corona.mitsuba.common.host_buffer`): they are, value for value, the
     intervals :func:`corona.mitsuba.sphere._catmull_rom_intervals` builds in numpy; and the buffer's
     numpy view is the array's memory (a write through it is read back by Dr.Jit), where elsewhere
-    it is a plain numpy array to upload."""
+    it is a plain numpy array to upload (CUDA, scalar variants, or the upload branch forced:
+    ``CORONA_UPLOAD_BRANCH``, fixture ``upload_branch``), the intervals the same."""
     import mitsuba as mi
     from corona.mitsuba import common, sphere
     bsdf = _load(LAYERS["hard-disk"])
@@ -194,7 +195,8 @@ def test_packed_rows_written_in_place_are_the_intervals(mi_variant):
     want = sphere._catmull_rom_intervals(rows["P_f"], rows["P_b"]).ravel()
     np.testing.assert_array_equal(np.asarray(bsdf.P_spline), want)
     buf, view = common.host_buffer(mi.Float, 8)
-    if buf is None:                                 # CUDA: filled in numpy, uploaded
+    assert (buf is None) == (upload_branch or not mi_variant.startswith("llvm")), (upload_branch, mi_variant)
+    if buf is None:                                 # CUDA (or the upload branch): filled in numpy, uploaded
         assert isinstance(view, np.ndarray) and view.dtype == np.float32 and view.size == 8
         return
     view[:] = np.arange(8, dtype=np.float32)

@@ -126,7 +126,7 @@ def test_chi2_at_a_textured_point(textured, uv, deg):
     assert run_chi2(test), test.messages
 
 
-def test_no_nan_at_the_bounds_and_updates(mi_variant):
+def test_no_nan_at_the_bounds_and_updates(mi_variant, upload_branch):
     # a texture at its bounds, bilinear between them (values inside the range), then updated: inside
     # the rows' radii nothing is rebuilt; beyond them the rows are rebuilt about the new range; bad
     # values are one line naming the radius
@@ -162,7 +162,7 @@ def test_no_nan_at_the_bounds_and_updates(mi_variant):
     dr.eval()
 
 
-def test_uniform_radius_updates_without_a_rebuild(mi_variant):
+def test_uniform_radius_updates_without_a_rebuild(mi_variant, upload_branch):
     # radius.value within the rows' radii: the same tables, the value the numpy layer of that radius
     # on them; beyond them: the rows are rebuilt about the new value (a new kernel)
     import mitsuba as mi

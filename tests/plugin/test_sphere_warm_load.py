@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 
 
-def test_warm_load_reads_the_guided_rows_back(mi_variant, monkeypatch, tmp_path):
+def test_warm_load_reads_the_guided_rows_back(mi_variant, upload_branch, monkeypatch, tmp_path):
     import mitsuba as mi
 
     from corona import tables

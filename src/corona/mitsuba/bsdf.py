@@ -111,6 +111,7 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                              read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
                              wavelength_mixture)
 from corona.mitsuba.common import hermite_rows, pane_sample
+from corona.mitsuba.common import cos as _cos, sincos as _sincos
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
 from corona.tables.lobe import row_slopes
@@ -880,14 +881,14 @@ class CoronaBSDFMixin:
                 b = front + c2 * (self._pane_reflectance(cos_i, lam_nm) - ri + self._pane_reflectance(cos_o, lam_nm) - ro)
                 aq, xq = (1.0 - ri) * (1.0 - ro) * rm, rm * dr.sqrt(ri * ro)
             if mi.is_spectral:
-                c = dr.cos(2.0 * dr.pi * delta / lambda_um(lam_nm))
+                c = _cos(2.0 * dr.pi * delta / lambda_um(lam_nm))    # (not dr.cos: CUDA's cos.approx)
                 qv = aq * (c - xq) / (1.0 - 2.0 * xq * c + xq * xq)
             else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
                 qv = mi.Float(0.0)
                 xk = mi.Float(1.0)
                 sigma = (float(self.bin_sigma[q]) if isinstance(q, int)       # (q traced: a symbolic loop's)
                          else _gather(mi.Float, self.bin_sigma_table, q))
-                s1, c1 = dr.sincos(2.0 * dr.pi * sigma * dr.abs(delta))
+                s1, c1 = _sincos(2.0 * dr.pi * sigma * dr.abs(delta))
                 sk, ck = s1, c1
                 for k in range(1, RGB_ORDERS + 1):   # e^{ikφ} by recurrence: one sincos a bin
                     qv += xk * self._bin_average_cos(q, index[k - 1], (sk, ck))

@@ -13,6 +13,8 @@ This module imports no plugin module (:mod:`corona.mitsuba.bsdf`,
 """
 from __future__ import annotations
 
+import os
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -220,14 +222,30 @@ def array(dtype, values):
     return out
 
 
+#: The CUDA branch on every backend: :func:`host_buffer` hands out a numpy array to upload (as on
+#: CUDA and in scalar variants) instead of a view of an LLVM array's memory, so that the CPU tests
+#: run that branch too.  Set from the environment variable ``CORONA_UPLOAD_BRANCH`` (``1``) when
+#: the module loads; the tests switch it per test (tests/conftest.py, fixture ``upload_branch``).
+#: Every place the plugin branches on the Dr.Jit backend goes through :func:`upload_branch`.
+UPLOAD_BRANCH = os.environ.get("CORONA_UPLOAD_BRANCH", "").strip() not in ("", "0")
+
+
+def upload_branch() -> bool:
+    """Whether the plugin takes the branch of a backend whose arrays live off the host (CUDA):
+    on CUDA, or everywhere while :data:`UPLOAD_BRANCH` is set."""
+    if UPLOAD_BRANCH or not dr.is_array_v(mi.Float):
+        return True
+    return dr.backend_v(mi.Float) != dr.JitBackend.LLVM
+
+
 def host_buffer(dtype, n):
     """An array of ``n`` float32 values to fill in place: ``(array, view)``, ``view`` a writable
     numpy view of the Dr.Jit ``array``'s own memory where the backend keeps it on the host (LLVM):
     a large table is then written once, not built in numpy and copied (:func:`array`).  Elsewhere
-    (CUDA, scalar variants, or a backend that hands numpy a copy) ``(None, view)``, ``view`` a
-    numpy array: upload it with :func:`array` once filled."""
+    (CUDA, scalar variants, a backend that hands numpy a copy, or :data:`UPLOAD_BRANCH` set)
+    ``(None, view)``, ``view`` a numpy array: upload it with :func:`array` once filled."""
     n = int(n)
-    if dtype is mi.Float and dr.is_array_v(dtype) and dr.backend_v(dtype) == dr.JitBackend.LLVM and n > 0:
+    if dtype is mi.Float and not upload_branch() and n > 0:
         out = dr.empty(dtype, n)
         dr.eval(out)
         view = np.asarray(out)
@@ -255,6 +273,52 @@ def gather4(source, index, active=True):
         return mi.Vector4f(0.0)
     k = 4 * int(index)
     return mi.Vector4f(*[float(source[k + c]) for c in range(4)])
+
+
+# --------------------------------------------------------------------------
+# trigonometry that is the same on every backend
+# --------------------------------------------------------------------------
+#: 2π as three float32 parts (Cody & Waite): ``x - k·2π`` in three fused multiply-adds, the first exact.
+TWO_PI_PARTS = (float(np.float32(2.0 * np.pi)),
+                float(np.float32(2.0 * np.pi - float(np.float32(2.0 * np.pi)))),
+                float(np.float32(2.0 * np.pi - float(np.float32(2.0 * np.pi))
+                                 - float(np.float32(2.0 * np.pi - float(np.float32(2.0 * np.pi)))))))
+
+
+def reduce_angle(x):
+    """``x - 2π k``, ``k = round(x / 2π)``: the angle in ``[-π, π]`` (a rounding beyond at most) with
+    the sine and cosine of ``x`` itself (float32 ``x`` taken as exact).
+
+    The three parts of :data:`TWO_PI_PARTS` (Cody & Waite): ``x - k c1`` is exact (a multiple of
+    ``ulp(c1)`` below 4 for ``|x|`` below 10⁷), so the result is off by about one ulp of itself plus
+    ``|k| · 3e-16`` (the parts sum to float64's 2π); Dr.Jit's own reduction (Cephes' π/4 in three
+    float32 parts) loses precision above about 10⁴ (errors 5e-7 at 3·10⁴, 1e-6 at 10⁵)."""
+    c1, c2, c3 = TWO_PI_PARTS
+    k = dr.round(x * (0.5 / np.pi))
+    return dr.fma(k, -c3, dr.fma(k, -c2, dr.fma(k, -c1, x)))
+
+
+def sincos(x):
+    """``(sin x, cos x)`` to float precision on every backend: :func:`reduce_angle`, then Dr.Jit's
+    polynomial ``dr.sincos``.
+
+    ``dr.sin`` and ``dr.cos`` of float32 on CUDA are the GPU's ``sin.approx.ftz.f32`` /
+    ``cos.approx.ftz.f32`` (drjit-extra's ``jit_var_sin``: ``jit_var_sin_intrinsic`` on GPU
+    backends): an *absolute* error of about 2^-21.4 within ``[-π, π]`` and more beyond, which is
+    a relative error of 1e-4 on ``sin x`` at ``x = 2e-3`` (a sinc near its peak).  ``dr.sincos``
+    is the same polynomial on every backend (LLVM, CUDA, scalar); the plugin's kernels call this
+    instead of ``dr.sin`` / ``dr.cos`` (tests/plugin/test_trig.py holds them to it)."""
+    return dr.sincos(reduce_angle(x))
+
+
+def sin(x):
+    """``sin x`` (:func:`sincos`; the unused cosine is not traced into a kernel)."""
+    return sincos(x)[0]
+
+
+def cos(x):
+    """``cos x`` (:func:`sincos`)."""
+    return sincos(x)[1]
 
 
 def hermite_rows(x, rows, at):
