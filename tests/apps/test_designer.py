@@ -946,6 +946,7 @@ def _offered_looks():
              "polygon": dict(radius=1.0, sides=5, process="poisson"),
              "mask": dict(pixel_size=0.1, area_fraction=0.2),
              "mixture": dict(mixture="circle:1:0.5, square:0.8:0.5", angle=15.0),
+             "annulus": dict(radius=1.0, inner_ratio=0.6, area_fraction=0.3),
              "sphere": dict(radius=1.0, area_fraction=0.1, substrate="glass")}
     assert set(looks) == set(SHAPES)          # every shape the page offers
     return looks
