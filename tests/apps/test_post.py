@@ -300,3 +300,103 @@ def test_cli_bad_output_name(images):
     folder, _ = images
     r = _cli("post", str(folder / "in.exr"), "--fov", "30", "--out", str(folder / "o.tif"))
     assert r.returncode == 2 and "allowed .exr, .png" in r.stderr
+
+
+# ----------------------------------------------------------------------
+# issue 47: AOV images, unwritable folders, huge pixels, the substrate named
+# ----------------------------------------------------------------------
+@pytest.mark.parametrize("value, dtype", [(1e37, np.float32), (1e38, np.float32), (5e37, np.float64)])
+def test_huge_finite_pixels_give_finite_output(value, dtype):
+    """Pixels of 1e37-1e38 overflowed float32 in the splat and the FFT (NaN/inf, written with
+    exit 0): the result is now finite and equals the pass of the image scaled to 1, times the
+    scale (the pass is linear)."""
+    img = np.zeros((24, 32, 3), dtype)
+    img[12, 16] = value
+    img[3:6, 3:6] = value / 100
+    out = post.apply(img, 30.0, progress=False, **LAYER)
+    unit = post.apply((img / value).astype(np.float32), 30.0, progress=False, **LAYER)
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(out.astype(np.float64) / value, unit, rtol=1e-5, atol=1e-7 * unit.max())
+
+
+@pytest.mark.parametrize("value", [2e38, 3.4e38, 1e39, 1e300])
+def test_pixels_beyond_the_float32_output_are_one_line(value):
+    """Negative control of the bound: beyond 1e38 (float64 above float32's range included) one
+    line, nothing computed."""
+    img = np.zeros((8, 8, 3), np.float64 if value > 3.4e38 else np.float32)
+    img[4, 4] = value
+    with pytest.raises(corona.CoronaError, match=r"values up to .* allowed \|values\| <= 1e\+38") as err:
+        post.apply(img, 30.0, progress=False, **LAYER)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("substrate", ["mirror", "glass"])
+def test_the_refused_substrate_is_named(substrate):
+    with pytest.raises(corona.CoronaError, match=f"substrate='{substrate}' is out of range") as err:
+        post.layer(radius=3.0, substrate=substrate)
+    other = "glass" if substrate == "mirror" else "mirror"
+    assert f"'{other}'" not in str(err.value)
+
+
+@pytest.mark.slow
+def test_cli_multichannel_exr_uses_its_main_layer(images, tmp_path):
+    """A render with AOVs (Mitsuba's aov integrator: R, G, B, A, albedo.*, nn.*) printed a
+    RuntimeError traceback: its main R, G, B layer is the image, and the result equals the pass
+    of that layer alone.  Without an unnamed colour layer: one line naming the channels."""
+    import mitsuba as mi
+    previous = mi.variant()
+    mi.set_variant("scalar_rgb")
+    try:
+        scene = mi.load_dict({
+            "type": "scene", "integrator": {"type": "aov", "aovs": "albedo:albedo,nn:sh_normal",
+                                            "img": {"type": "path"}},
+            "sensor": {"type": "perspective", "fov": 30, "film": {"type": "hdrfilm", "width": 20, "height": 16},
+                       "sampler": {"type": "independent", "sample_count": 4}},
+            "light": {"type": "sphere", "center": [0, 0, 5], "radius": 0.5, "emitter": {"type": "area"}}})
+        img = mi.render(scene)
+        bmp = scene.sensors()[0].film().bitmap()
+        assert bmp.pixel_format() == mi.Bitmap.PixelFormat.MultiChannel and bmp.channel_count() > 4
+        path = tmp_path / "aov.exr"
+        bmp.write(str(path))
+        rgb = np.array(img, dtype=np.float32)[..., :3]
+        assert rgb.max() > 0.5 and rgb.min() == 0.0          # the light and black around it
+        names = ["albedo.R", "albedo.G", "albedo.B", "nn.X", "nn.Y", "nn.Z"]
+        mi.Bitmap(np.ones((4, 4, 6), np.float32), mi.Bitmap.PixelFormat.MultiChannel, names).write(
+            str(tmp_path / "aovs_only.exr"))
+    finally:
+        if previous:
+            mi.set_variant(previous)
+    r = _cli("post", str(path), "--fov", "30", "-D", "radius=5", "--out", str(tmp_path / "o.exr"), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    got = np.array(mi.Bitmap(str(tmp_path / "o.exr")), dtype=np.float32)
+    np.testing.assert_allclose(got, post.apply(rgb, 30.0, progress=False, radius=5.0), rtol=1e-5, atol=1e-7)
+    r = _cli("post", str(tmp_path / "aovs_only.exr"), "--fov", "30", "--out", str(tmp_path / "p.exr"),
+             "--no-progress")
+    assert r.returncode == 2 and "albedo.R" in r.stderr and "no main R, G, B" in r.stderr
+    assert r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("out", ["/sys/corona-post.exr", "/sys/no/such/folder/o.png", "/proc/o.exr"])
+def test_cli_unwritable_output_is_refused_before_the_pass(images, out):
+    """An output in a folder that takes no new file (sysfs and procfs refuse them even to root,
+    unlike permission bits) ran the whole pass, then a traceback at write time: now one line
+    before anything is read or computed (the input here is a missing file: the output is
+    checked first)."""
+    folder, _ = images
+    r = _cli("post", str(folder / "in.exr"), "--fov", "30", "--out", out, "--no-progress")
+    assert r.returncode == 2 and "cannot be written" in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
+    r = _cli("post", str(folder / "missing.exr"), "--fov", "30", "--out", out, "--no-progress")
+    assert r.returncode == 2 and "cannot be written" in r.stderr, r.stderr
+
+
+def test_unwritable_output_is_checked_before_the_pass(images, tmp_path, monkeypatch):
+    """In process: apply is never called when the output cannot be written; a read-only existing
+    file is refused too (where the permission bits bind: not for root)."""
+    folder, _ = images
+    monkeypatch.setattr(post, "apply", lambda *a, **k: pytest.fail("the pass ran"))
+    with pytest.raises(corona.CoronaError, match="cannot be written"):
+        post.apply_file(str(folder / "in.exr"), "/sys/x.exr", 30.0, progress=False)
+    # negative control: a writable folder, created on the way, passes the check
+    post.check_writable(str(tmp_path / "new" / "deeper" / "o.exr"))
+    assert not (tmp_path / "new").exists() and not list(tmp_path.iterdir())

@@ -131,6 +131,8 @@ CENTRE_SAMPLES_2D = 4
 PIXEL_PITCH_MAX = 0.01
 #: ... up to this many in all.
 SUBPIXELS_MAX = 1 << 22
+#: Largest |pixel value|: the output is float32 (3.4e38); the pass's sums stay below twice the peak.
+IMAGE_MAX = 1e38
 #: Largest field of view [degree] (a pinhole covers less than a hemisphere).
 FOV_MAX = 179.0
 
@@ -157,7 +159,9 @@ def layer(material=None, **params):
                           "rectangle, polygon, mask, mixture")
     sub = getattr(material, "substrate", None)
     if sub is not None:
-        raise CoronaError("substrate='glass' is out of range for corona post: the pane's Fresnel factors "
+        from corona.model.substrate import Mirror
+        name = params.get("substrate") or ("mirror" if isinstance(sub, Mirror) else "glass")
+        raise CoronaError(f"substrate={name!r} is out of range for corona post: the pane's Fresnel factors "
                           "depend on the angle (render it); allowed substrate='none'")
     return material
 
@@ -506,9 +510,16 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
     bad = int(np.count_nonzero(~np.isfinite(img)))
     if bad:
         raise CoronaError(f"image has {bad} non-finite value(s) (NaN or inf); allowed finite values")
+    peak = float(np.max(np.abs(img))) if img.size else 0.0
+    if peak > IMAGE_MAX:
+        raise CoronaError(f"image has values up to {peak:.3g}; allowed |values| <= {IMAGE_MAX:g} "
+                          "(the output is float32)")
     if workers is None:
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    img = img.astype(np.float32, copy=False)
+    # the pass runs on the image scaled by a power of two to a peak in (1/2, 1] (exact: only
+    # the exponents change), so no sum or FFT of huge finite pixels overflows float32
+    scale = 2.0 ** math.ceil(math.log2(peak)) if peak > 0 else 1.0
+    img = (img / scale).astype(np.float32) if scale != 1.0 else img.astype(np.float32, copy=False)
     H, W, C = img.shape
     steps = 3 + C
     # large pixels (small images of wide fields) are cut into k x k sub-pixels of the same
@@ -550,7 +561,11 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
         if k_sub > 1:
             out = out.reshape(H, k_sub, W, k_sub, C).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
         out += tc * img
+        if scale != 1.0:
+            out *= np.float32(scale)
         bar.update(1)
+    if not np.all(np.isfinite(out)):     # never written: a bug, not an input, if it ever happens
+        raise CoronaError("corona post produced non-finite values; nothing written (please report it)")
     return out.reshape(np.shape(image)) if np.ndim(image) == 2 else out
 
 
@@ -571,6 +586,8 @@ def read_image(path: str, srgb_input: bool = False) -> tuple[np.ndarray, str]:
     except Exception as err:  # noqa: BLE001 - Mitsuba raises RuntimeError with a traceback text
         first = str(err).strip().splitlines()[-1] if str(err).strip() else type(err).__name__
         raise CoronaError(f"image {path!r} cannot be read: {first}") from None
+    if bmp.pixel_format() == mi.Bitmap.PixelFormat.MultiChannel:
+        bmp = _main_layer(bmp, path)
     fmt = bmp.pixel_format()
     floating = bmp.component_format() in (mi.Struct.Type.Float16, mi.Struct.Type.Float32,
                                           mi.Struct.Type.Float64)
@@ -587,6 +604,25 @@ def read_image(path: str, srgb_input: bool = False) -> tuple[np.ndarray, str]:
     return arr, ("hdr" if floating else "srgb")
 
 
+def _main_layer(bmp, path):
+    """The main layer of a multichannel image (an EXR with AOVs: ``R, G, B, A, albedo.R, ...``):
+    its unnamed layer of colour (``R, G, B`` or ``Y``), or one line naming the layers found."""
+    import mitsuba as mi
+    try:
+        layers = dict(bmp.split())
+    except Exception:  # noqa: BLE001 - Mitsuba raises RuntimeError for channel names it cannot group
+        layers = {}
+    colour = (mi.Bitmap.PixelFormat.RGB, mi.Bitmap.PixelFormat.RGBA, mi.Bitmap.PixelFormat.Y,
+              mi.Bitmap.PixelFormat.YA)
+    main = layers.get("<root>")
+    if main is not None and main.pixel_format() in colour:
+        return main
+    struct = bmp.struct_()
+    names = ", ".join(struct[i].name for i in range(len(struct)))
+    raise CoronaError(f"image {path!r} has channels {names} and no main R, G, B (or Y) layer; allowed an "
+                      "image whose unnamed channels are R, G, B or Y (other layers, e.g. AOVs, are ignored)")
+
+
 def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
     """Write ``image`` (linear, (H, W, C)): ``.exr`` as float32 linear values,
     ``.png`` as 8-bit sRGB of ``exposure × image`` (clipped to [0, 1])."""
@@ -598,6 +634,8 @@ def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
     if arr.ndim == 2:
         arr = arr[..., None]
     fmt = mi.Bitmap.PixelFormat.Y if arr.shape[2] == 1 else mi.Bitmap.PixelFormat.RGB
+    if not np.all(np.isfinite(arr)):
+        raise CoronaError(f"--out {path!r}: the image holds non-finite values; nothing written")
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
     bmp = mi.Bitmap(arr, fmt)
@@ -607,6 +645,36 @@ def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
         scaled = mi.Bitmap(np.ascontiguousarray(np.clip(arr * exposure, 0.0, 1.0)), fmt)
         scaled.convert(fmt, mi.Struct.Type.UInt8, srgb_gamma=True).write(path)
     return path
+
+
+def check_writable(path: str) -> None:
+    """One line, before any work, if ``path`` cannot be written: its folder (or the nearest
+    existing folder above it, where it would be created) must accept a new file, and an
+    existing file must be writable.  A folder is probed by creating and removing a temporary
+    file in it (permission bits do not stop root; a read-only mount or sysfs does)."""
+    import tempfile
+    target = os.path.abspath(path)
+    folder = os.path.dirname(target)
+    probe = folder
+    while not os.path.exists(probe):
+        probe = os.path.dirname(probe)
+    if not os.path.isdir(probe):
+        raise CoronaError(f"--out {path!r}: {probe!r} is not a folder")
+    why = None
+    if os.path.exists(target) and not os.access(target, os.W_OK):
+        why = "the file is read-only"
+    elif not os.access(probe, os.W_OK | os.X_OK):
+        why = "the folder is not writable"
+    else:
+        try:
+            fd, name = tempfile.mkstemp(prefix=".corona-post-", dir=probe)
+            os.close(fd)
+            os.unlink(name)
+        except OSError as err:
+            why = f"the folder is not writable ({err.strerror or err})"
+    if why:
+        where = folder if probe == folder else f"{probe} (to create {folder})"
+        raise CoronaError(f"--out {path!r} cannot be written: {why}: {where}; allowed a path in a writable folder")
 
 
 def apply_file(image_path: str, out_path: str, fov: float, params: dict | None = None, *,
@@ -624,9 +692,15 @@ def apply_file(image_path: str, out_path: str, fov: float, params: dict | None =
         raise CoronaError(f"--out {out_path!r} has extension {ext or '(none)'!r}; allowed .exr, .png")
     if os.path.isdir(out_path):
         raise CoronaError(f"--out {out_path!r} is a folder; expected a file path ending in .exr or .png")
+    check_writable(out_path)
     m = layer(**(params or {}))
     img, kind = read_image(image_path, srgb_input=srgb_input)
     out = apply(img, fov, m, colorspace=colorspace, workers=workers, progress=progress)
-    write_image(out_path, out, exposure=1.0 if exposure is None else exposure)
+    try:
+        write_image(out_path, out, exposure=1.0 if exposure is None else exposure)
+    except (OSError, RuntimeError) as err:    # Mitsuba raises RuntimeError with a traceback text
+        text = str(err).strip().splitlines()
+        why = err.strerror if isinstance(err, OSError) and err.strerror else (text[-1] if text else repr(err))
+        raise CoronaError(f"--out {out_path!r} cannot be written: {why}") from None
     return {"out": out_path, "seconds": time.perf_counter() - t0, "input": kind,
             "coherent_transmittance": float(m.coherent_transmittance), "shape": list(out.shape)}
