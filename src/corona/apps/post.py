@@ -123,6 +123,14 @@ AP1_TO_XYZ = np.array([[0.6624541811, 0.1340042065, 0.1561876870],
 WAVELENGTHS = np.arange(360.0, 830.1, 2.5)
 #: Wavelengths per channel of anisotropic kernels (equal-weight quantiles of the response).
 N_PER_CHANNEL_2D = 8
+#: Step in u = 2πR d/λ of the table an anisotropic lobe is read from (bilinear error ~1e-3 of
+#: the peak for the sinc-like outlines, whose features are ~1 wide in u).
+TABLE_STEP_U = 0.05
+#: Lobe evaluations per numpy call (bounds the temporaries: ~0.5 GB).
+LOBE_CHUNK = 1 << 20
+#: Largest number of lobe evaluations an anisotropic kernel may take (about a minute on one core):
+#: beyond it (a very large image whose pixels are coarse against the lobe), one line.
+ANISOTROPIC_EVALUATIONS_MAX = 100_000_000
 #: Nodes within this many steps of the centre are averaged from point samples.
 CENTRE_NODES = 4
 CENTRE_SAMPLES = 32
@@ -433,31 +441,105 @@ def _quantile_wavelengths(response, n):
     return np.array([np.interp(qs, c, lams) for c in cdf])
 
 
+def _lobe_v(m, u):
+    """The renderer's dimensionless lobe ``v(u)`` at ``u`` (n, 2), in chunks (bounded memory)."""
+    out = np.empty(u.shape[0], dtype=np.float64)
+    for a in range(0, u.shape[0], LOBE_CHUNK):
+        out[a:a + LOBE_CHUNK] = m.render_lobe.eval(u[a:a + LOBE_CHUNK])
+    return out
+
+
+def _interp_matrix(x, nodes_start, step, n_nodes):
+    """Sparse (len(x), n_nodes) matrix of linear interpolation at ``x`` between uniform nodes."""
+    import scipy.sparse
+    f = np.clip((np.asarray(x, dtype=np.float64) - nodes_start) / step, 0.0, n_nodes - 1.0)
+    i0 = np.minimum(f.astype(np.int64), n_nodes - 2)
+    w = f - i0
+    rows = np.repeat(np.arange(x.size), 2)
+    cols = np.stack([i0, i0 + 1], -1).ravel()
+    data = np.stack([1.0 - w, w], -1).ravel().astype(np.float32)
+    return scipy.sparse.csr_matrix((data, (rows, cols)), shape=(x.size, n_nodes))
+
+
+def _table_nodes(n, h_max):
+    """Nodes (step :data:`TABLE_STEP_U`, symmetric about 0) covering ``|u| <= (n - 1) h_max``."""
+    half = math.ceil((n - 1) * h_max / TABLE_STEP_U)
+    return (np.arange(2 * half + 2) - (half + 0.5)) * TABLE_STEP_U
+
+
+def anisotropic_cost(m, response, nx, ny, step):
+    """``(evaluations of the lobe, "table" or "direct")`` the anisotropic kernel of a grid of
+    ``ny x nx`` nodes of step ``step`` needs (see :func:`_anisotropic_kernel`)."""
+    lams = _quantile_wavelengths(response, N_PER_CHANNEL_2D)
+    h_max = 2 * np.pi * m.length_scale * step / (lams.min() * 1e-3)      # u per node at λ_min
+    table = _table_nodes(nx, h_max).size * _table_nodes(ny, h_max).size
+    direct = len(np.unique(lams)) * (2 * nx - 1) * ny                  # half the grid: v(-u) = v(u)
+    return (table, "table") if table <= direct else (direct, "direct")
+
+
 def _anisotropic_kernel(m, response, ly, lx, ny, nx, step):
-    """Each channel's kernel on the full padded grid (offsets stored circularly): point
-    samples of the renderer's lobe, tent-weighted samples for the centre nodes."""
+    """Each channel's kernel on the full padded grid (offsets stored circularly): the renderer's
+    lobe at each node, tent-weighted samples for the centre nodes.
+
+    A channel's kernel is ``Σ_k w_k F_a (R/λ_k)² v(2πR d/λ_k)``: copies of the one wavelength-free
+    lobe ``v(u)`` scaled by ``1/λ_k``.  Where the grid is fine against the lobe (the usual case:
+    large images), ``v`` is evaluated once on a table of step :data:`TABLE_STEP_U` in ``u`` that
+    covers the grid at the shortest wavelength, and each wavelength's nodes are read from it by
+    separable linear interpolation (two sparse products); else ``v`` is evaluated at every node
+    of one half of the grid (the other by ``v(-u) = v(u)``) and wavelength.  The cheaper of the
+    two is taken (:func:`anisotropic_cost`); beyond :data:`ANISOTROPIC_EVALUATIONS_MAX` the pass
+    is refused."""
     weights = response[1]
     lams = _quantile_wavelengths(response, N_PER_CHANNEL_2D)     # (C, n)
     ky = np.arange(-(ny - 1), ny)
     kx = np.arange(-(nx - 1), nx)
-    KX, KY = np.meshgrid(kx * step, ky * step)
-    d = np.stack([KX, -KY], -1)                                   # grid rows go down: -y
     out = np.zeros((weights.shape[0], ly, lx), dtype=np.float32)
+    _, how = anisotropic_cost(m, response, nx, ny, step)
+    scale = 2 * np.pi * m.length_scale * step                   # u per node = scale / λ [µm]
+    if how == "table":
+        ux, uy = _table_nodes(nx, scale / (lams.min() * 1e-3)), _table_nodes(ny, scale / (lams.min() * 1e-3))
+        V = np.empty((uy.size, ux.size), dtype=np.float32)       # V[iy, ix], built in blocks of rows
+        rows = max(1, LOBE_CHUNK // ux.size)
+        for a in range(0, uy.size, rows):
+            UX, UY = np.meshgrid(ux, uy[a:a + rows])
+            V[a:a + rows] = _lobe_v(m, np.stack([UX.ravel(), UY.ravel()], -1)).reshape(UX.shape)
+        del UX, UY
+    values = {}
+
+    def copy_at(lam):                                            # v(2πR d/λ) on the grid, rows ky
+        if lam not in values:
+            h = scale / (lam * 1e-3)
+            if how == "table":
+                ax = _interp_matrix(kx * h, ux[0], TABLE_STEP_U, ux.size)
+                ay = _interp_matrix(-ky * h, uy[0], TABLE_STEP_U, uy.size)   # grid rows go down: -y
+                values.clear()                                   # keep one copy in memory
+                values[lam] = np.asarray(ay @ (ax @ V.T).T, dtype=np.float32)
+            else:                                                # rows ky >= 0, the rest by v(-u) = v(u)
+                KX, KY = np.meshgrid(kx * h, -ky[ny - 1:] * h)
+                half = _lobe_v(m, np.stack([KX.ravel(), KY.ravel()], -1)).reshape(KX.shape).astype(np.float32)
+                del KX, KY
+                values.clear()
+                values[lam] = np.concatenate([half[:0:-1, ::-1], half], axis=0)
+        return values[lam]
+
     x, w = _tent_samples(CENTRE_SAMPLES_2D)
     ww = (w[:, None] * w[None, :]).ravel()
     n = CENTRE_NODES
     for c in range(weights.shape[0]):
-        k = np.zeros(KX.shape)
+        k = np.zeros((ky.size, kx.size), dtype=np.float32)
         for lam in lams[c]:
-            k += m.lobe_tabulated(d, float(lam))
+            k += np.float32(m.lobe_weight * (m.length_scale / (lam * 1e-3)) ** 2) * copy_at(float(lam))
         cy, cx = ny - 1, nx - 1
         for iy in range(-n, n + 1):
             for ix in range(-n, n + 1):
+                if abs(iy) >= ny or abs(ix) >= nx:
+                    continue
                 XX, YY = np.meshgrid((ix + x) * step, -(iy + x) * step)
                 dd = np.stack([XX.ravel(), YY.ravel()], -1)
                 k[cy + iy, cx + ix] = sum(float(m.lobe_tabulated(dd, float(lam)) @ ww) for lam in lams[c])
-        k *= step * step / lams.shape[1]
+        k *= np.float32(step * step / lams.shape[1])
         out[c][np.ix_(np.mod(ky, ly), np.mod(kx, lx))] = k
+        del k
     return out
 
 
@@ -543,6 +625,11 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
                 k = scipy.fft.dctn(q[c], type=1, workers=workers)          # the even kernel's DFT
                 spectra.append(np.concatenate([k, k[-2:0:-1]], axis=0))    # rows 0..ly-1
         else:
+            cost, _ = anisotropic_cost(m, response, grid.nx, grid.ny, grid.step)
+            if cost > ANISOTROPIC_EVALUATIONS_MAX:
+                raise CoronaError(f"an anisotropic lobe on a {W}x{H} image at fov={fov:g} needs {cost:.3g} lobe "
+                                  f"evaluations; allowed at most {ANISOTROPIC_EVALUATIONS_MAX:.3g} (about a minute): "
+                                  "downsample the image or narrow the field of view")
             full = _anisotropic_kernel(m, response, ly, lx, grid.ny, grid.nx, grid.step)
             spectra = [scipy.fft.rfft2(full[c], workers=workers) for c in range(C)]
         bar.update(1)
