@@ -480,6 +480,14 @@ def test_anisotropic_kernel_beyond_the_limit_is_one_line():
     with pytest.raises(corona.CoronaError, match=r"lobe evaluations; allowed at most 1e\+08") as err:
         post.apply(np.zeros((2160, 3840, 3), np.float32), 90.0, big, progress=False)
     assert "\n" not in str(err.value)
+    # an evaluation costs by the outline's edges: a 16-gon's 2.7 hexagons' on the frame where the
+    # hexagon is accepted (slowest accepted: 63 s CPU, benchmarks/results/post_anisotropic.json)
+    g = post._Grid(2400, 1350, 90.0)
+    hexagon = post.layer(shape="polygon", sides=6, radius=20.0, area_fraction=0.3, mode="particle")
+    sixteen = post.layer(shape="polygon", sides=16, radius=20.0, area_fraction=0.3, mode="particle")
+    assert post.anisotropic_cost(hexagon, resp, g.nx, g.ny, g.step)[0] <= post.ANISOTROPIC_EVALUATIONS_MAX
+    with pytest.raises(corona.CoronaError, match="lobe evaluations; allowed at most"):
+        post.apply(np.zeros((1350, 2400, 3), np.float32), 90.0, sixteen, progress=False)
 
 
 # ----------------------------------------------------------------------
