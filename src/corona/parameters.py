@@ -202,8 +202,9 @@ ROTATION_RADIUS_MAX = 25.0
 #: size_spread > 0 with a fixed anisotropic shape (a 2D table): the size average at each
 #: of the table's 131072 independent vertices costs (quadrature nodes) × (the shape's
 #: cost: its number of edges, 1 for an ellipse, 2 for a rectangle, 8 for a mask);
-#: above this many terms it is refused (about 30 s here, bench_slow_inputs.py).
-SIZE_AVERAGE_WORK_MAX = 1.2e9
+#: above this many terms it is refused: about a minute of CPU at most (7e-8 s a term), half
+#: that on two cores (the quadrature runs on every core; benchmarks/results/spread_limit.json).
+SIZE_AVERAGE_WORK_MAX = 8e8
 #: Largest lengths of the layer that are not sizes of the scatterer [µm].
 LENGTH_MAX = 2 * RADIUS_MAX
 

@@ -96,6 +96,30 @@ def test_mirror_spectrum_reflectance():
         Mirror(N, 4000.0, ([400.0, 700.0], [0.9, 1.5]))
 
 
+@pytest.mark.parametrize("spectrum", [
+    "-5:0.9, 700:0.95", "400:0.9, 99999:0.95", "359.9:0.9, 700:0.95", "400:0.9, 830.1:0.95",
+    "nan:0.9, 700:0.95", "400:0.9, inf:0.95", ([-5.0, 700.0], [0.9, 0.95]), ([400.0, 1e5], [0.9, 0.95]),
+])
+def test_mirror_spectrum_wavelengths_in_mitsubas_range(mi_variant, spectrum):
+    """Issue 47 item 18: wavelengths of -5 and 99999 nm were taken; now one line naming the
+    wavelength and Mitsuba's spectral range [360, 830] nm, in numpy and in the plugin."""
+    import mitsuba as mi
+    params = {**MIRROR, "mirror_reflectance": spectrum}
+    with pytest.raises(corona.CoronaError, match=r"mirror_reflectance.*out of range; allowed \[360, 830\] nm"):
+        material_from_parameters(**params)
+    if isinstance(spectrum, str):
+        with pytest.raises(Exception, match=r"allowed \[360, 830\] nm"):
+            mi.load_dict({"type": "corona", **params})
+
+
+def test_mirror_spectrum_range_ends_are_accepted(mi_variant):
+    """Negative control: a spectrum spanning exactly [360, 830] nm loads and is read at its nodes."""
+    import mitsuba as mi
+    m = material_from_parameters(**MIRROR, mirror_reflectance="360:0.8, 600:0.9, 830:0.95")
+    assert m.substrate.silver(360.0) == 0.8 and m.substrate.silver(830.0) == 0.95
+    assert mi.load_dict({"type": "corona", **MIRROR, "mirror_reflectance": "360:0.8, 830:0.95"}) is not None
+
+
 # --- fringes ----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def mirror_materials():

@@ -694,3 +694,66 @@ def test_truncation_removes_fireflies_of_a_cloud_deck(variant):
     c, sc, dc = render(0.0, 128)
     assert dc > 3 * db, (dc, db)
     assert np.isfinite(c) and c > 0
+
+
+# ----------------------------------------------------------------------
+# bad values named (issue 47: items 14, 15)
+# ----------------------------------------------------------------------
+@pytest.mark.parametrize("gamma", [1e-300, 1e-3, 0.09, 10.5, 1e3, 1e5, 1e300])
+def test_extreme_gamma_exponent_is_one_line(gamma):
+    """γ outside [0.1, 10] ended in an OverflowError (γ -> 0) or 'cannot convert float NaN'
+    (γ -> ∞) from inside the quadrature; now one line naming it."""
+    with pytest.raises(corona.CoronaError, match=r"gamma_exponent=.* is out of range; allowed \[0.1, 10\]"):
+        size_nodes(10.0, "modified_gamma", 0.1, gamma)
+
+
+@pytest.mark.parametrize("gamma", [0.1, 0.5, 2.0, 10.0])
+@pytest.mark.parametrize("variance", [0.001, 0.1, 0.5])
+def test_gamma_exponent_range_ends_are_finite(gamma, variance):
+    """Negative control: the range's ends and the published models' values build finite
+    nodes with the requested effective radius (within 1 %)."""
+    r, w = size_nodes(10.0, "modified_gamma", variance, gamma)
+    assert np.all(np.isfinite(r)) and np.all(r > 0) and np.all(np.isfinite(w))
+    assert (w * r ** 3).sum() / (w * r ** 2).sum() == pytest.approx(10.0, rel=0.01)
+
+
+@pytest.mark.parametrize("params, word", [
+    (dict(radius="abc"), "radius='abc' is not a number"),
+    (dict(variance="x", distribution="lognormal"), "variance='x' is not a number"),
+    (dict(ior_imag="k"), "ior_imag='k' is not a number"),
+    (dict(radius=True), "radius=True is not a number"),
+    (dict(distribution="modified_gamma", variance=0.1, gamma_exponent=1e5), "gamma_exponent"),
+])
+def test_corona_mie_bad_strings_name_the_parameter(mi_variant, params, word):
+    with pytest.raises(Exception) as err:
+        mi.load_dict({"type": "corona_mie", **params})
+    assert word in corona._validation.one_line_error(err.value)
+
+
+def test_scene_unit_is_bounded(mi_variant):
+    """scene_unit=1e300 gave an infinite σ_t (NaN renders); now one line.  Negative control:
+    the range's ends give finite σ_t within float32 and a finite render."""
+    for bad in (1e300, 1e10, 1e-10, float("inf")):
+        with pytest.raises(corona.CoronaError, match="scene_unit"):
+            volume.homogeneous_medium(5.0, lwc=0.1, scene_unit=bad)
+    for unit in volume.SCENE_UNIT_RANGE:
+        med, info = volume.homogeneous_medium(5.0, lwc=0.1, scene_unit=unit, return_info=True)
+        assert np.all(np.isfinite(info["sigma_t"].astype(np.float32))) and np.isfinite(np.float32(med["scale"]))
+        scene = volume.slab_scene(med, size=8, spp=4)
+        assert np.all(np.isfinite(np.array(mi.render(mi.load_dict(scene)))))
+
+
+@pytest.mark.parametrize("density, bbox, word", [
+    (np.ones((4, 4, 4)) * (1 + 1j), None, "complex128"),
+    (np.full((4, 4, 4), "a"), None, "<U1"),
+    (np.array([[["a", 1.0]] * 2] * 2, dtype=object), None, "object"),
+    (np.ones((4, 4, 4)), ([np.nan, 0, 0], [1, 1, 1]), "bbox"),
+    (np.ones((4, 4, 4)), ([0, 0, 0], [1, np.inf, 1]), "bbox"),
+    (np.ones((4, 4, 4)), ([0, 0, 0], [1, 0, 1]), "bbox"),
+    (np.ones((4, 4, 4)), ([0, 0], [1, 1]), "bbox"),
+    (np.ones((4, 4, 4)), "box", "bbox"),
+])
+def test_heterogeneous_medium_bad_grid_or_bbox(mi_variant, density, bbox, word):
+    with pytest.raises(corona.CoronaError, match=word) as err:
+        volume.heterogeneous_medium(5.0, density, lwc=0.1, bbox=bbox)
+    assert "\n" not in str(err.value)

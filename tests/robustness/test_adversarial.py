@@ -227,6 +227,43 @@ def test_slow_combinations_are_bounded(params, words):
         assert w in str(info.value), (w, str(info.value))
 
 
+@pytest.mark.parametrize("sides", [10, 12])
+def test_size_average_work_beyond_a_cpu_minute_is_refused(sides):
+    """Issue 47 item 19: a hexagon of spread 0.5 built in 134 s under load; the size average's
+    limit now stops at about a minute of CPU (7e-8 s a term: a decagon of spread 0.5, 8.8e8 terms,
+    was accepted and is now one line)."""
+    with pytest.raises(corona.CoronaError, match=r"terms; allowed <= 8e\+08") as info:
+        material_from_parameters(shape="polygon", sides=sides, size_spread=0.5)
+    assert f"sides={sides}" in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("sides", [6, 7, 9])
+def test_size_average_work_at_the_limit_is_accepted(sides):
+    """Negative control: the issue's hexagon and polygons up to nine sides at spread 0.5 stay
+    accepted (the nonagon, 7.9e8 terms, is the slowest: benchmarks/results/spread_limit.json)."""
+    from corona import parameters
+    m = material_from_parameters(shape="polygon", sides=sides, size_spread=0.5)
+    assert parameters._size_average_work(m.shape) <= parameters.SIZE_AVERAGE_WORK_MAX
+
+
+def test_threaded_size_average_equals_the_serial_one(monkeypatch):
+    """The size average runs its chunks on every core: the result is the serial one, bit for bit
+    (each point's sum is computed in the same order), on a 2D set of q."""
+    from corona.model.shapes import RegularPolygon
+    from corona.model.shapes.modifiers import SizeDistribution
+    sd = SizeDistribution(RegularPolygon(6, 2.0), 0.4)
+    rng = np.random.default_rng(1)
+    q = rng.uniform(-20, 20, (20000, 2))
+    monkeypatch.setattr(SizeDistribution, "_MAX_POINTS", 50_000)        # many chunks
+    monkeypatch.setattr(SizeDistribution, "_THREADED_TERMS", 1 << 62)
+    serial = sd._average_direct(q, radial=False)
+    monkeypatch.setattr(SizeDistribution, "_THREADED_TERMS", 0)
+    monkeypatch.setattr("corona.model.shapes.modifiers._cpus", lambda: 2)
+    threaded = sd._average_direct(q, radial=False)
+    assert np.array_equal(serial[0], threaded[0]) and np.array_equal(serial[1], threaded[1])
+    assert np.all(np.isfinite(serial[0])) and serial[0].max() > 0
+
+
 def test_long_table_builds_show_a_progress_bar(monkeypatch, capfd, tmp_path):
     from corona.model import material
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from corona import tables
+from corona._validation import CoronaError
 from corona.model import tabulated
 
 
@@ -85,6 +86,7 @@ _KILLED_WRITER = r"""
 import io, os, sys, time
 import numpy as np
 from corona import tables
+from corona._validation import CoronaError
 
 signal, stage = sys.argv[1], sys.argv[2]
 real_savez = np.savez
@@ -326,3 +328,40 @@ def test_background_write_of_a_table_changed_meanwhile_is_not_served(tmp_path, m
     tables.cached({"bg-kept": 1}, lambda: {"values": np.ones(1000)}, background=True)
     tabulated.wait_for_writes()
     assert np.all(tables.cached({"bg-kept": 1}, lambda: pytest.fail("rebuilt"))["values"] == 1.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("empty", ["", "  "])
+def test_an_empty_cache_variable_never_clears_the_user_cache(tmp_path, empty):
+    """``CORONA_CACHE_DIR= corona tables clear`` cleared the user's real cache (an empty value
+    was taken as unset): now one line, exit 2, and the user cache keeps its table.  Negative
+    control: with the variable unset, the same command does clear that folder (the test's
+    ``XDG_CACHE_HOME`` is where the default cache lives)."""
+    import subprocess
+    import sys
+    user_cache = tmp_path / "xdg" / "corona"
+    user_cache.mkdir(parents=True)
+    table = user_cache / ("0" * 32 + ".npz")
+    table.write_bytes(b"a table")
+    env = {k: v for k, v in os.environ.items() if k != "CORONA_CACHE_DIR"}
+    env["XDG_CACHE_HOME"] = str(tmp_path / "xdg")
+    cmd = [sys.executable, "-m", "corona.apps.cli", "tables", "clear"]
+    r = subprocess.run(cmd, env={**env, "CORONA_CACHE_DIR": empty}, capture_output=True, text=True)
+    assert r.returncode == 2 and "CORONA_CACHE_DIR" in r.stderr and "empty" in r.stderr, r.stderr
+    assert r.stderr.strip().count("\n") == 0
+    assert table.exists()
+    r = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    assert r.returncode == 0 and "removed 1 table" in r.stdout, r.stderr
+    assert not table.exists()
+
+
+def test_an_empty_cache_variable_builds_in_memory_with_a_warning(monkeypatch):
+    """Tables asked for with an empty ``CORONA_CACHE_DIR`` are built in memory (one warning naming
+    the variable), never read from or written to the default cache."""
+    monkeypatch.setenv("CORONA_CACHE_DIR", "")
+    monkeypatch.setattr(tabulated, "_warned_folders", set())
+    with pytest.raises(CoronaError, match="empty"):
+        tabulated.cache_dir()
+    with pytest.warns(RuntimeWarning, match="CORONA_CACHE_DIR='' is empty"):
+        out = tables.cached({"empty-variable": 1}, lambda: {"values": np.arange(3.0)})
+    assert out["values"].tolist() == [0.0, 1.0, 2.0]

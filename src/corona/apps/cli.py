@@ -562,7 +562,7 @@ def designer(host, port, open_browser):
 @main.command()
 @click.argument("image", type=click.Path(dir_okay=False))
 @click.option("--fov", type=float, required=True,
-              help="Horizontal field of view of the (pinhole) image [degree], in (0, 179].")
+              help="Horizontal field of view of the (pinhole) image [degree], in (0, 176].")
 @click.option("-D", "defines", multiple=True, metavar="NAME=VALUE",
               help="A layer parameter (the plugin's names: radius=5, area_fraction=0.3, mode=particle, ...).")
 @click.option("--out", "out_path", required=True, help="Output image: .exr (linear float) or .png (8-bit sRGB).")

@@ -18,8 +18,8 @@ depends on ``d`` only, the pass is a **convolution in the plane of the direction
 cosines** ``p = v_xy``; and since ``lobe(d) = lobe(-d)`` (``|Â(-q)| = |Â(q)|``
 for a real profile, ``S(-q) = S(q)``) correlation and convolution coincide.
 
-How the pinhole is handled (exact for any field of view below 180°)
--------------------------------------------------------------------
+How the pinhole is handled (fields of view up to 176°)
+-----------------------------------------------------
 A pinhole image is uniform in the tangent plane ``t = v_xy / v_z``, not in
 ``p = t / sqrt(1 + |t|²)``.  So the image is moved to a grid uniform in ``p``
 (step ``Δp`` = the pixel pitch at the image centre, nodes on the pixel centres
@@ -31,7 +31,10 @@ pixel's solid angle times ``cos θ``; for pixels wider than 0.01 in ``t`` the
 exact area of the footprint, by Hottel's corner formula).  The sum over the grid is then exactly
 the quadrature ``Σ_j lobe(p_j - p) L_j ΔA_j`` of the integral above, whatever
 the field of view, and no bright pixel is lost where the grid is coarser than
-the image (at the edges of wide fields).  Pixels wider than 0.01 in ``t`` (about
+the image (at the edges of wide fields).  The grid's step is the pitch at the
+centre, which near 180° is not small against the lobe where the frame reaches
+the edge of the unit disk: the field is bounded to :data:`FOV_MAX` (176°: the lobe
+part within about 3 % per pixel; 11-17 % at 179°).  Pixels wider than 0.01 in ``t`` (about
 0.6°: small images of wide fields) are first cut into ``k x k`` sub-pixels of the
 same radiance (at most 4 M sub-pixels in all), and the lobe part is averaged
 back over each pixel.  The grid is convolved with the
@@ -123,6 +126,14 @@ AP1_TO_XYZ = np.array([[0.6624541811, 0.1340042065, 0.1561876870],
 WAVELENGTHS = np.arange(360.0, 830.1, 2.5)
 #: Wavelengths per channel of anisotropic kernels (equal-weight quantiles of the response).
 N_PER_CHANNEL_2D = 8
+#: Step in u = 2πR d/λ of the table an anisotropic lobe is read from (bilinear error ~1e-3 of
+#: the peak for the sinc-like outlines, whose features are ~1 wide in u).
+TABLE_STEP_U = 0.05
+#: Lobe evaluations per numpy call (bounds the temporaries: ~0.5 GB).
+LOBE_CHUNK = 1 << 20
+#: Largest number of lobe evaluations an anisotropic kernel may take (about a minute on one core):
+#: beyond it (a very large image whose pixels are coarse against the lobe), one line.
+ANISOTROPIC_EVALUATIONS_MAX = 100_000_000
 #: Nodes within this many steps of the centre are averaged from point samples.
 CENTRE_NODES = 4
 CENTRE_SAMPLES = 32
@@ -131,8 +142,14 @@ CENTRE_SAMPLES_2D = 4
 PIXEL_PITCH_MAX = 0.01
 #: ... up to this many in all.
 SUBPIXELS_MAX = 1 << 22
-#: Largest field of view [degree] (a pinhole covers less than a hemisphere).
-FOV_MAX = 179.0
+#: Largest |pixel value|: the output is float32 (3.4e38); the pass's sums stay below twice the peak.
+IMAGE_MAX = 1e38
+#: Largest field of view [degree].  The grid step is the (sub-)pixel pitch at the image centre,
+#: and the sub-pixels are capped (SUBPIXELS_MAX), so near 180° the step is not small against the
+#: lobe where the frame reaches the edge of the unit disk: a 31x21 white image's lobe part is off by
+#: up to 2.8 % per pixel at 176°, 5.5-7 % at 178° and 11-17 % at 179° (9 % of the energy lost)
+#: against the frame integral (tests/apps/test_post.py, issue 47 item 13).
+FOV_MAX = 176.0
 
 
 def _progress(total, enabled, desc="corona post"):
@@ -158,7 +175,9 @@ def layer(material=None, **params):
                           f"scattering angle, not on d alone (render it); allowed {flat}")
     sub = getattr(material, "substrate", None)
     if sub is not None:
-        raise CoronaError("substrate='glass' is out of range for corona post: the pane's Fresnel factors "
+        from corona.model.substrate import Mirror
+        name = params.get("substrate") or ("mirror" if isinstance(sub, Mirror) else "glass")
+        raise CoronaError(f"substrate={name!r} is out of range for corona post: the pane's Fresnel factors "
                           "depend on the angle (render it); allowed substrate='none'")
     return material
 
@@ -430,31 +449,117 @@ def _quantile_wavelengths(response, n):
     return np.array([np.interp(qs, c, lams) for c in cdf])
 
 
+def _lobe_v(m, u):
+    """The renderer's dimensionless lobe ``v(u)`` at ``u`` (n, 2), in chunks (bounded memory)."""
+    out = np.empty(u.shape[0], dtype=np.float64)
+    for a in range(0, u.shape[0], LOBE_CHUNK):
+        out[a:a + LOBE_CHUNK] = m.render_lobe.eval(u[a:a + LOBE_CHUNK])
+    return out
+
+
+def _interp_matrix(x, nodes_start, step, n_nodes):
+    """Sparse (len(x), n_nodes) matrix of linear interpolation at ``x`` between uniform nodes."""
+    import scipy.sparse
+    f = np.clip((np.asarray(x, dtype=np.float64) - nodes_start) / step, 0.0, n_nodes - 1.0)
+    i0 = np.minimum(f.astype(np.int64), n_nodes - 2)
+    w = f - i0
+    rows = np.repeat(np.arange(x.size), 2)
+    cols = np.stack([i0, i0 + 1], -1).ravel()
+    data = np.stack([1.0 - w, w], -1).ravel().astype(np.float32)
+    return scipy.sparse.csr_matrix((data, (rows, cols)), shape=(x.size, n_nodes))
+
+
+def _table_nodes(n, h_max):
+    """Nodes (step :data:`TABLE_STEP_U`, symmetric about 0) covering ``|u| <= (n - 1) h_max``."""
+    half = math.ceil((n - 1) * h_max / TABLE_STEP_U)
+    return (np.arange(2 * half + 2) - (half + 0.5)) * TABLE_STEP_U
+
+
+def _evaluation_weight(m) -> float:
+    """Cost of one evaluation of the renderer's lobe in units of a hexagon's (the slowest
+    single outline, ~0.7 µs): closed-form outlines cost by their edges (a polygon its vertices,
+    the other outlines 2), a mixture the sum over its components; tables cost at most one."""
+    if m.render_kind != "analytic":
+        return 1.0
+    edges = sum(len(t.params["vertices"]) if t.kind == "polygon" else 2 for t in m.analytic_terms)
+    return max(1.0, edges / 6.0)
+
+
+def anisotropic_cost(m, response, nx, ny, step):
+    """``(evaluations of the lobe, "table" or "direct")`` the anisotropic kernel of a grid of
+    ``ny x nx`` nodes of step ``step`` needs (see :func:`_anisotropic_kernel`), in units of a
+    hexagon's evaluation (:func:`_evaluation_weight`)."""
+    lams = _quantile_wavelengths(response, N_PER_CHANNEL_2D)
+    h_max = 2 * np.pi * m.length_scale * step / (lams.min() * 1e-3)      # u per node at λ_min
+    table = _table_nodes(nx, h_max).size * _table_nodes(ny, h_max).size
+    direct = len(np.unique(lams)) * (2 * nx - 1) * ny                  # half the grid: v(-u) = v(u)
+    weight = _evaluation_weight(m)
+    return (table * weight, "table") if table <= direct else (direct * weight, "direct")
+
+
 def _anisotropic_kernel(m, response, ly, lx, ny, nx, step):
-    """Each channel's kernel on the full padded grid (offsets stored circularly): point
-    samples of the renderer's lobe, tent-weighted samples for the centre nodes."""
+    """Each channel's kernel on the full padded grid (offsets stored circularly): the renderer's
+    lobe at each node, tent-weighted samples for the centre nodes.
+
+    A channel's kernel is ``Σ_k w_k F_a (R/λ_k)² v(2πR d/λ_k)``: copies of the one wavelength-free
+    lobe ``v(u)`` scaled by ``1/λ_k``.  Where the grid is fine against the lobe (the usual case:
+    large images), ``v`` is evaluated once on a table of step :data:`TABLE_STEP_U` in ``u`` that
+    covers the grid at the shortest wavelength, and each wavelength's nodes are read from it by
+    separable linear interpolation (two sparse products); else ``v`` is evaluated at every node
+    of one half of the grid (the other by ``v(-u) = v(u)``) and wavelength.  The cheaper of the
+    two is taken (:func:`anisotropic_cost`); beyond :data:`ANISOTROPIC_EVALUATIONS_MAX` the pass
+    is refused."""
     weights = response[1]
     lams = _quantile_wavelengths(response, N_PER_CHANNEL_2D)     # (C, n)
     ky = np.arange(-(ny - 1), ny)
     kx = np.arange(-(nx - 1), nx)
-    KX, KY = np.meshgrid(kx * step, ky * step)
-    d = np.stack([KX, -KY], -1)                                   # grid rows go down: -y
     out = np.zeros((weights.shape[0], ly, lx), dtype=np.float32)
+    _, how = anisotropic_cost(m, response, nx, ny, step)
+    scale = 2 * np.pi * m.length_scale * step                   # u per node = scale / λ [µm]
+    if how == "table":
+        ux, uy = _table_nodes(nx, scale / (lams.min() * 1e-3)), _table_nodes(ny, scale / (lams.min() * 1e-3))
+        V = np.empty((uy.size, ux.size), dtype=np.float32)       # V[iy, ix], built in blocks of rows
+        rows = max(1, LOBE_CHUNK // ux.size)
+        for a in range(0, uy.size, rows):
+            UX, UY = np.meshgrid(ux, uy[a:a + rows])
+            V[a:a + rows] = _lobe_v(m, np.stack([UX.ravel(), UY.ravel()], -1)).reshape(UX.shape)
+        del UX, UY
+    values = {}
+
+    def copy_at(lam):                                            # v(2πR d/λ) on the grid, rows ky
+        if lam not in values:
+            h = scale / (lam * 1e-3)
+            if how == "table":
+                ax = _interp_matrix(kx * h, ux[0], TABLE_STEP_U, ux.size)
+                ay = _interp_matrix(-ky * h, uy[0], TABLE_STEP_U, uy.size)   # grid rows go down: -y
+                values.clear()                                   # keep one copy in memory
+                values[lam] = np.asarray(ay @ (ax @ V.T).T, dtype=np.float32)
+            else:                                                # rows ky >= 0, the rest by v(-u) = v(u)
+                KX, KY = np.meshgrid(kx * h, -ky[ny - 1:] * h)
+                half = _lobe_v(m, np.stack([KX.ravel(), KY.ravel()], -1)).reshape(KX.shape).astype(np.float32)
+                del KX, KY
+                values.clear()
+                values[lam] = np.concatenate([half[:0:-1, ::-1], half], axis=0)
+        return values[lam]
+
     x, w = _tent_samples(CENTRE_SAMPLES_2D)
     ww = (w[:, None] * w[None, :]).ravel()
     n = CENTRE_NODES
     for c in range(weights.shape[0]):
-        k = np.zeros(KX.shape)
+        k = np.zeros((ky.size, kx.size), dtype=np.float32)
         for lam in lams[c]:
-            k += m.lobe_tabulated(d, float(lam))
+            k += np.float32(m.lobe_weight * (m.length_scale / (lam * 1e-3)) ** 2) * copy_at(float(lam))
         cy, cx = ny - 1, nx - 1
         for iy in range(-n, n + 1):
             for ix in range(-n, n + 1):
+                if abs(iy) >= ny or abs(ix) >= nx:
+                    continue
                 XX, YY = np.meshgrid((ix + x) * step, -(iy + x) * step)
                 dd = np.stack([XX.ravel(), YY.ravel()], -1)
                 k[cy + iy, cx + ix] = sum(float(m.lobe_tabulated(dd, float(lam)) @ ww) for lam in lams[c])
-        k *= step * step / lams.shape[1]
+        k *= np.float32(step * step / lams.shape[1])
         out[c][np.ix_(np.mod(ky, ly), np.mod(kx, lx))] = k
+        del k
     return out
 
 
@@ -471,7 +576,7 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
         Linear scene radiance (an HDR render or a linearised photograph) of a
         pinhole camera with square pixels; finite values.
     fov : float
-        Horizontal field of view [degree], in (0, 179].
+        Horizontal field of view [degree], in (0, 176] (:data:`FOV_MAX`).
     material : corona.Material, optional
         The layer; or give its parameters by name (``radius=5.0, area_fraction=0.3``:
         :data:`corona.parameters.PARAMETERS`).
@@ -507,9 +612,16 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
     bad = int(np.count_nonzero(~np.isfinite(img)))
     if bad:
         raise CoronaError(f"image has {bad} non-finite value(s) (NaN or inf); allowed finite values")
+    peak = float(np.max(np.abs(img))) if img.size else 0.0
+    if peak > IMAGE_MAX:
+        raise CoronaError(f"image has values up to {peak:.3g}; allowed |values| <= {IMAGE_MAX:g} "
+                          "(the output is float32)")
     if workers is None:
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    img = img.astype(np.float32, copy=False)
+    # the pass runs on the image scaled by a power of two to a peak in (1/2, 1] (exact: only
+    # the exponents change), so no sum or FFT of huge finite pixels overflows float32
+    scale = 2.0 ** math.ceil(math.log2(peak)) if peak > 0 else 1.0
+    img = (img / scale).astype(np.float32) if scale != 1.0 else img.astype(np.float32, copy=False)
     H, W, C = img.shape
     steps = 3 + C
     # large pixels (small images of wide fields) are cut into k x k sub-pixels of the same
@@ -533,6 +645,11 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
                 k = scipy.fft.dctn(q[c], type=1, workers=workers)          # the even kernel's DFT
                 spectra.append(np.concatenate([k, k[-2:0:-1]], axis=0))    # rows 0..ly-1
         else:
+            cost, _ = anisotropic_cost(m, response, grid.nx, grid.ny, grid.step)
+            if cost > ANISOTROPIC_EVALUATIONS_MAX:
+                raise CoronaError(f"an anisotropic lobe on a {W}x{H} image at fov={fov:g} needs {cost:.3g} lobe "
+                                  f"evaluations; allowed at most {ANISOTROPIC_EVALUATIONS_MAX:.3g} (about a minute): "
+                                  "downsample the image or narrow the field of view")
             full = _anisotropic_kernel(m, response, ly, lx, grid.ny, grid.nx, grid.step)
             spectra = [scipy.fft.rfft2(full[c], workers=workers) for c in range(C)]
         bar.update(1)
@@ -551,7 +668,11 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
         if k_sub > 1:
             out = out.reshape(H, k_sub, W, k_sub, C).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
         out += tc * img
+        if scale != 1.0:
+            out *= np.float32(scale)
         bar.update(1)
+    if not np.all(np.isfinite(out)):     # never written: a bug, not an input, if it ever happens
+        raise CoronaError("corona post produced non-finite values; nothing written (please report it)")
     return out.reshape(np.shape(image)) if np.ndim(image) == 2 else out
 
 
@@ -572,6 +693,8 @@ def read_image(path: str, srgb_input: bool = False) -> tuple[np.ndarray, str]:
     except Exception as err:  # noqa: BLE001 - Mitsuba raises RuntimeError with a traceback text
         first = str(err).strip().splitlines()[-1] if str(err).strip() else type(err).__name__
         raise CoronaError(f"image {path!r} cannot be read: {first}") from None
+    if bmp.pixel_format() == mi.Bitmap.PixelFormat.MultiChannel:
+        bmp = _main_layer(bmp, path)
     fmt = bmp.pixel_format()
     floating = bmp.component_format() in (mi.Struct.Type.Float16, mi.Struct.Type.Float32,
                                           mi.Struct.Type.Float64)
@@ -588,6 +711,25 @@ def read_image(path: str, srgb_input: bool = False) -> tuple[np.ndarray, str]:
     return arr, ("hdr" if floating else "srgb")
 
 
+def _main_layer(bmp, path):
+    """The main layer of a multichannel image (an EXR with AOVs: ``R, G, B, A, albedo.R, ...``):
+    its unnamed layer of colour (``R, G, B`` or ``Y``), or one line naming the layers found."""
+    import mitsuba as mi
+    try:
+        layers = dict(bmp.split())
+    except Exception:  # noqa: BLE001 - Mitsuba raises RuntimeError for channel names it cannot group
+        layers = {}
+    colour = (mi.Bitmap.PixelFormat.RGB, mi.Bitmap.PixelFormat.RGBA, mi.Bitmap.PixelFormat.Y,
+              mi.Bitmap.PixelFormat.YA)
+    main = layers.get("<root>")
+    if main is not None and main.pixel_format() in colour:
+        return main
+    struct = bmp.struct_()
+    names = ", ".join(struct[i].name for i in range(len(struct)))
+    raise CoronaError(f"image {path!r} has channels {names} and no main R, G, B (or Y) layer; allowed an "
+                      "image whose unnamed channels are R, G, B or Y (other layers, e.g. AOVs, are ignored)")
+
+
 def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
     """Write ``image`` (linear, (H, W, C)): ``.exr`` as float32 linear values,
     ``.png`` as 8-bit sRGB of ``exposure × image`` (clipped to [0, 1])."""
@@ -599,6 +741,8 @@ def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
     if arr.ndim == 2:
         arr = arr[..., None]
     fmt = mi.Bitmap.PixelFormat.Y if arr.shape[2] == 1 else mi.Bitmap.PixelFormat.RGB
+    if not np.all(np.isfinite(arr)):
+        raise CoronaError(f"--out {path!r}: the image holds non-finite values; nothing written")
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
     bmp = mi.Bitmap(arr, fmt)
@@ -608,6 +752,36 @@ def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
         scaled = mi.Bitmap(np.ascontiguousarray(np.clip(arr * exposure, 0.0, 1.0)), fmt)
         scaled.convert(fmt, mi.Struct.Type.UInt8, srgb_gamma=True).write(path)
     return path
+
+
+def check_writable(path: str) -> None:
+    """One line, before any work, if ``path`` cannot be written: its folder (or the nearest
+    existing folder above it, where it would be created) must accept a new file, and an
+    existing file must be writable.  A folder is probed by creating and removing a temporary
+    file in it (permission bits do not stop root; a read-only mount or sysfs does)."""
+    import tempfile
+    target = os.path.abspath(path)
+    folder = os.path.dirname(target)
+    probe = folder
+    while not os.path.exists(probe):
+        probe = os.path.dirname(probe)
+    if not os.path.isdir(probe):
+        raise CoronaError(f"--out {path!r}: {probe!r} is not a folder")
+    why = None
+    if os.path.exists(target) and not os.access(target, os.W_OK):
+        why = "the file is read-only"
+    elif not os.access(probe, os.W_OK | os.X_OK):
+        why = "the folder is not writable"
+    else:
+        try:
+            fd, name = tempfile.mkstemp(prefix=".corona-post-", dir=probe)
+            os.close(fd)
+            os.unlink(name)
+        except OSError as err:
+            why = f"the folder is not writable ({err.strerror or err})"
+    if why:
+        where = folder if probe == folder else f"{probe} (to create {folder})"
+        raise CoronaError(f"--out {path!r} cannot be written: {why}: {where}; allowed a path in a writable folder")
 
 
 def apply_file(image_path: str, out_path: str, fov: float, params: dict | None = None, *,
@@ -625,9 +799,15 @@ def apply_file(image_path: str, out_path: str, fov: float, params: dict | None =
         raise CoronaError(f"--out {out_path!r} has extension {ext or '(none)'!r}; allowed .exr, .png")
     if os.path.isdir(out_path):
         raise CoronaError(f"--out {out_path!r} is a folder; expected a file path ending in .exr or .png")
+    check_writable(out_path)
     m = layer(**(params or {}))
     img, kind = read_image(image_path, srgb_input=srgb_input)
     out = apply(img, fov, m, colorspace=colorspace, workers=workers, progress=progress)
-    write_image(out_path, out, exposure=1.0 if exposure is None else exposure)
+    try:
+        write_image(out_path, out, exposure=1.0 if exposure is None else exposure)
+    except (OSError, RuntimeError) as err:    # Mitsuba raises RuntimeError with a traceback text
+        text = str(err).strip().splitlines()
+        why = err.strerror if isinstance(err, OSError) and err.strerror else (text[-1] if text else repr(err))
+        raise CoronaError(f"--out {out_path!r} cannot be written: {why}") from None
     return {"out": out_path, "seconds": time.perf_counter() - t0, "input": kind,
             "coherent_transmittance": float(m.coherent_transmittance), "shape": list(out.shape)}

@@ -13,7 +13,7 @@ name                default    meaning
 radius              10         droplet radius, or effective radius ⟨r³⟩/⟨r²⟩ [µm]
 distribution        "mono"     "mono", "lognormal", "gamma", "modified_gamma"
 variance            0          effective variance v_eff (0 for "mono")
-gamma_exponent      1          γ of "modified_gamma" (n(r) ∝ r^α exp(-B r^γ))
+gamma_exponent      1          γ of "modified_gamma" (n(r) ∝ r^α exp(-B r^γ)), [0.1, 10]
 ior                 "water"    "water" (with its dispersion) or the particles' real index [1, 10]
 ior_imag            0          κ >= 0 (absorption)
 volume_fraction     0          φ > 0: the Percus–Yevick structure factor (dense media)
@@ -107,13 +107,22 @@ def _volume_from_props(props):
     if unknown:
         raise CoronaError(f"corona_mie: unknown parameter {unknown[0]!r}; allowed: {', '.join(_KEYS)}")
     get = lambda k, d: props[k] if k in props else d
+
+    def number(name, default):
+        value = get(name, default)
+        if isinstance(value, (bool, np.bool_)) or isinstance(value, str):
+            raise CoronaError(f"corona_mie: {name}={value!r} is not a number")
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise CoronaError(f"corona_mie: {name}={value!r} is not a number") from None
     ior = get("ior", "water")
     if not isinstance(ior, str):
-        ior = float(ior)
-    return MieVolume(float(get("radius", 10.0)), str(get("distribution", "mono")),
-                     float(get("variance", 0.0)), float(get("gamma_exponent", 1.0)), ior,
-                     float(get("ior_imag", 0.0)), float(get("volume_fraction", 0.0)),
-                     host_ior=float(get("host_ior", 1.0)), truncation=float(get("truncation", 0.0)))
+        ior = number("ior", "water")
+    return MieVolume(number("radius", 10.0), str(get("distribution", "mono")),
+                     number("variance", 0.0), number("gamma_exponent", 1.0), ior,
+                     number("ior_imag", 0.0), number("volume_fraction", 0.0),
+                     host_ior=number("host_ior", 1.0), truncation=number("truncation", 0.0))
 
 
 class CoronaMiePhaseMixin:

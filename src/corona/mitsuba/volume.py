@@ -69,7 +69,7 @@ from scipy import optimize, special, stats
 from corona import tables
 from corona.model.mie import theory as mie
 from corona.model.layer import decoupled_lobe
-from corona._validation import CoronaError, check_choice, check_positive, check_range
+from corona._validation import CoronaError, _short, check_choice, check_positive, check_range
 
 __all__ = ["DISTRIBUTIONS", "size_nodes", "droplet_index", "MieVolume", "homogeneous_medium",
            "heterogeneous_medium", "WATER_DENSITY"]
@@ -77,6 +77,9 @@ __all__ = ["DISTRIBUTIONS", "size_nodes", "droplet_index", "MieVolume", "homogen
 #: Table format (bump on any change of the layout or the grids).
 VOLUME_FORMAT = 2
 DISTRIBUTIONS = ("mono", "lognormal", "gamma", "modified_gamma")
+#: Range of ``γ`` of the modified gamma distribution: Deirmendjian's cloud and haze models use
+#: 0.5-2; beyond [0.1, 10] the moments overflow (γ -> 0) or the quantiles do (γ -> ∞).
+GAMMA_EXPONENT_RANGE = (0.1, 10.0)
 #: Row step in size parameter (monodisperse); a distribution of relative spread s allows s x / 4, at most 2.
 ROW_DX = 0.05
 MIN_ROWS, MAX_ROWS = 16, 1024
@@ -117,7 +120,7 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
     variance : float
         Effective variance ``v_eff`` (0 for "mono"; (0, 0.5) for "gamma"; (0, 2) otherwise).
     gamma_exponent : float
-        ``γ`` of the modified gamma distribution (> 0).
+        ``γ`` of the modified gamma distribution, in [0.1, 10].
     n : int, optional
         Number of nodes (default: one per unit of size parameter at 360 nm in the host across
         the range, within :data:`SIZE_NODES`).
@@ -153,7 +156,8 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
         area = stats.lognorm(math.sqrt(s2), scale=rg * math.exp(2 * s2))
         logpdf = lambda r: -np.log(r) - (np.log(r / rg)) ** 2 / (2 * s2)
     else:
-        g = 1.0 if distribution == "gamma" else check_positive("gamma_exponent", gamma_exponent)
+        g = 1.0 if distribution == "gamma" else check_range("gamma_exponent", gamma_exponent,
+                                                              *GAMMA_EXPONENT_RANGE)
         if distribution == "gamma" and gamma_exponent != 1.0:
             raise CoronaError(f"gamma_exponent={gamma_exponent!r} is out of range for "
                               "distribution='gamma'; allowed 1 (use 'modified_gamma')")
@@ -668,10 +672,18 @@ def _spectrum(wavelengths, values):
     return {"type": "rgb", "value": rgb}
 
 
+#: Metres per scene unit: a nanometre to a million kilometres (σ_t per scene unit stays far
+#: inside float32, which Mitsuba's media use; 1e300 gave an infinite σ_t and NaN renders).
+SCENE_UNIT_RANGE = (1e-9, 1e9)
+#: Largest σ_t [1/scene unit] a medium may have (float32 holds 3.4e38; Mitsuba multiplies σ_t by
+#: distances and sums optical depths in float32).
+SIGMA_T_MAX = 1e30
+
+
 def _medium_parts(radius, lwc, number_density, number_density_cm3, distribution, variance,
                   gamma_exponent, ior, ior_imag, scene_unit, correlated, use_cache, host_ior=1.0,
                   truncation=0.0):
-    unit = check_positive("scene_unit", scene_unit, "m")
+    unit = check_range("scene_unit", scene_unit, *SCENE_UNIT_RANGE, unit="m per scene unit")
     dilute = MieVolume(radius, distribution, variance, gamma_exponent, ior, ior_imag, 0.0, use_cache,
                        host_ior=host_ior, truncation=truncation)
     N = _number_density(dilute, lwc, number_density, number_density_cm3)
@@ -692,6 +704,10 @@ def _medium_parts(radius, lwc, number_density, number_density_cm3, distribution,
         phase["host_ior"] = vol.host_ior
     if vol.truncation > 0:
         phase["truncation"] = vol.truncation
+    if not np.all(np.isfinite(sigma_t)) or float(np.max(sigma_t)) > SIGMA_T_MAX:
+        raise CoronaError(f"scene_unit={scene_unit!r} is out of range with this density: σ_t would be "
+                          f"{float(np.max(sigma_t)):.3g} per scene unit; allowed at most {SIGMA_T_MAX:g} "
+                          "(a smaller scene_unit or density)")
     info = {"number_density": N, "volume_fraction": phi, "wavelength": lam, "sigma_t": sigma_t,
             "albedo": albedo, "volume": vol, "truncated_fraction": vol.table["truncated_fraction"]}
     return phase, info
@@ -726,7 +742,8 @@ def homogeneous_medium(radius, *, lwc=None, number_density=None, number_density_
         (:func:`truncate_table`); exact outside the cone, far less noise in thick media lit by
         a small light (docs/volumes.md#forward-peak-truncation).
     scene_unit : float
-        Metres per scene length unit (1: the scene is in metres; 1e-3: millimetres).
+        Metres per scene length unit (1: the scene is in metres; 1e-3: millimetres), in
+        [1e-9, 1e9] (:data:`SCENE_UNIT_RANGE`).
     correlated : bool
         Apply the hard-sphere structure factor at the droplets' volume fraction (negligible
         below ~1e-3; docs/volumes.md#dense-media).
@@ -784,7 +801,19 @@ def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, numb
     (Mitsuba's default: the unit cube).
     """
     import mitsuba as mi
-    grid = np.asarray(density, dtype=np.float64)
+    raw = np.asarray(density)
+    if raw.dtype.kind not in "biuf":     # complex would lose its imaginary part, strings fail late
+        raise CoronaError(f"density of dtype {raw.dtype} is out of range; allowed a real (Z, Y, X) "
+                          "array of finite values >= 0")
+    grid = raw.astype(np.float64)
+    if bbox is not None:
+        try:
+            box = np.asarray(bbox, dtype=np.float64)
+        except (TypeError, ValueError):
+            box = None
+        if box is None or box.shape != (2, 3) or not np.all(np.isfinite(box)) or np.any(box[1] <= box[0]):
+            raise CoronaError(f"bbox={_short(bbox)} is out of range; allowed ((x0, y0, z0), (x1, y1, z1)), "
+                              "finite, each x1 > x0")
     if grid.ndim != 3 or min(grid.shape) < 2 or not np.all(np.isfinite(grid)) or np.any(grid < 0):
         raise CoronaError(f"density of shape {grid.shape} is out of range; allowed a (Z, Y, X) array, "
                           "each side >= 2, finite values >= 0")
@@ -798,10 +827,14 @@ def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, numb
     lam_ref = check_range("reference_wavelength", reference_wavelength, tables.WAVELENGTH_MIN,
                           tables.WAVELENGTH_MAX, unit="nm")
     s_ref = float(np.interp(lam_ref, info["wavelength"][::-1], info["sigma_t"][::-1]))
+    if not float(grid.max()) * s_ref <= SIGMA_T_MAX:
+        raise CoronaError(f"density max {grid.max():g} is out of range with this number density: σ_t "
+                          f"would reach {float(grid.max()) * s_ref:.3g} per scene unit; allowed at most "
+                          f"{SIGMA_T_MAX:g}")
     info["sigma_t_spread"] = float(np.ptp(info["sigma_t"]) / s_ref)
     vol = {"type": "gridvolume", "grid": mi.VolumeGrid(grid.astype(np.float32)[..., None])}
     if bbox is not None:
-        lo, hi = np.asarray(bbox[0], float), np.asarray(bbox[1], float)
+        lo, hi = box
         vol["to_world"] = mi.ScalarTransform4f().translate(lo.tolist()).scale((hi - lo).tolist())
     med = {"type": "heterogeneous", "sigma_t": vol, "scale": s_ref,
            "albedo": _spectrum(info["wavelength"], info["albedo"]), "phase": phase}

@@ -80,7 +80,8 @@ def parse_spectrum(text: str, name: str = "mirror_reflectance"):
             raise ValueError
     except (ValueError, IndexError):
         raise CoronaError(f"{name}={text!r} is not a spectrum; allowed a number in [0, 1], a metal "
-                          f"({', '.join(METALS)}) or 'wavelength:value, ...' (nm, increasing)") from None
+                          f"({', '.join(METALS)}) or 'wavelength:value, ...' (nm in [360, 830], "
+                          "increasing)") from None
     return lam, val
 
 
@@ -306,6 +307,12 @@ class Mirror(GlassPane):
             if lam.ndim != 1 or lam.shape != val.shape or lam.size < 2 or np.any(np.diff(lam) <= 0):
                 raise CoronaError("mirror_reflectance spectrum must be (wavelengths, values), two 1-D arrays "
                                   "of the same length >= 2 with increasing wavelengths")
+            from corona.model.tabulated import WAVELENGTH_MAX, WAVELENGTH_MIN
+            bad = lam[~((lam >= WAVELENGTH_MIN) & (lam <= WAVELENGTH_MAX))]
+            if bad.size:     # -5 and 99999 nm were taken (the ends are held flat beyond the data)
+                raise CoronaError(f"mirror_reflectance spectrum wavelength {float(bad[0])!r} nm is out of range; "
+                                  f"allowed [{WAVELENGTH_MIN:g}, {WAVELENGTH_MAX:g}] nm (Mitsuba's spectral range, "
+                                  "MI_CIE_MIN..MI_CIE_MAX)")
             for v in val:
                 check_range("mirror_reflectance", float(v), 0.0, 1.0)
             self._rm = (lam, val)

@@ -513,10 +513,16 @@ def cache_dir() -> str:
     """Folder of cached tables: ``$CORONA_CACHE_DIR`` or the user cache dir.
 
     Created if missing; one :class:`corona.CoronaError` line if it is not a
-    folder or cannot be created.
+    folder or cannot be created, or if ``CORONA_CACHE_DIR`` is set but empty (never
+    taken as the default: ``CORONA_CACHE_DIR= corona tables clear`` cleared the user's cache).
     """
     from corona._validation import CoronaError
     path = os.environ.get("CORONA_CACHE_DIR")
+    if path is not None and not path.strip():
+        # an empty value is a mistake (an unset shell variable), not a request for the default:
+        # `CORONA_CACHE_DIR= corona tables clear` must never clear the user's real cache
+        raise CoronaError(f"CORONA_CACHE_DIR={path!r} is empty; allowed a folder path, or unset it "
+                          "for the user cache folder")
     source = "CORONA_CACHE_DIR" if path else "the user cache folder"
     if not path:
         import platformdirs
