@@ -730,6 +730,8 @@ def test_corona_mie_bad_strings_name_the_parameter(mi_variant, params, word):
     assert word in corona._validation.one_line_error(err.value)
 
 
+@pytest.mark.slow
+@pytest.mark.render
 def test_scene_unit_is_bounded(mi_variant):
     """scene_unit=1e300 gave an infinite σ_t (NaN renders); now one line.  Negative control:
     the range's ends give finite σ_t within float32 and a finite render."""
