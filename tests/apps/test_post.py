@@ -345,6 +345,7 @@ def test_the_refused_substrate_is_named(substrate):
 
 
 @pytest.mark.slow
+@pytest.mark.render
 def test_cli_multichannel_exr_uses_its_main_layer(images, tmp_path):
     """A render with AOVs (Mitsuba's aov integrator: R, G, B, A, albedo.*, nn.*) printed a
     RuntimeError traceback: its main R, G, B layer is the image, and the result equals the pass
