@@ -587,9 +587,10 @@ def read_image(path: str, srgb_input: bool = False) -> tuple[np.ndarray, str]:
     return arr, ("hdr" if floating else "srgb")
 
 
-def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
+def write_image(path: str, image: np.ndarray, exposure: float | None = None) -> str:
     """Write ``image`` (linear, (H, W, C)): ``.exr`` as float32 linear values,
-    ``.png`` as 8-bit sRGB of ``exposure × image`` (clipped to [0, 1])."""
+    ``.png`` as 8-bit sRGB by :func:`corona.apps.pictures.display_srgb` (``exposure`` scales the
+    linear values; None: the glow around the lamps maps to 1, as ``corona render``)."""
     import mitsuba as mi
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".exr", ".png"):
@@ -604,8 +605,8 @@ def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
     if ext == ".exr":
         bmp.write(path)
     else:
-        scaled = mi.Bitmap(np.ascontiguousarray(np.clip(arr * exposure, 0.0, 1.0)), fmt)
-        scaled.convert(fmt, mi.Struct.Type.UInt8, srgb_gamma=True).write(path)
+        from corona.apps.pictures import display_srgb
+        mi.Bitmap(np.ascontiguousarray(display_srgb(arr, exposure)), fmt).write(path)
     return path
 
 
@@ -627,6 +628,6 @@ def apply_file(image_path: str, out_path: str, fov: float, params: dict | None =
     m = layer(**(params or {}))
     img, kind = read_image(image_path, srgb_input=srgb_input)
     out = apply(img, fov, m, colorspace=colorspace, workers=workers, progress=progress)
-    write_image(out_path, out, exposure=1.0 if exposure is None else exposure)
+    write_image(out_path, out, exposure=exposure)
     return {"out": out_path, "seconds": time.perf_counter() - t0, "input": kind,
             "coherent_transmittance": float(m.coherent_transmittance), "shape": list(out.shape)}
