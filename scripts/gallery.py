@@ -156,7 +156,7 @@ STRIPS = [
           "`corona lobe` for the fabric scene's material: the square pore's cross-shaped form factor, "
           "the lattice's Bragg peaks (weakened by the jitter), their product and the corona.", [],
           lobe_args=["--shape", "square", "--radius", "20", "--area-fraction", "0.25",
-                     "--process", "lattice-square", "--jitter", "4"]),
+                     "--process", "lattice-square", "--jitter", "4", "--mode", "aperture"]),
     Strip("lycopodium", "Lycopodium powder on a slide, 10× and 40×", "lycopodium.xml",
           "Spores of 30 µm diameter (5 % size spread) on 35 % of a glass slide, random sequential "
           "adsorption, particle mode, in front of a point-like 3200 K lamp. Magnification narrows the "
@@ -240,10 +240,11 @@ def _panel_name(strip: Strip, index: int) -> str:
     return strip.name if len(strip.panels) == 1 else f"{strip.name}-{index + 1}"
 
 
-def _auto_exposure(rgb, percentile: float = 99.5) -> float:
-    lum = np.maximum(np.nan_to_num(rgb), 0.0) @ np.array([0.2126, 0.7152, 0.0722])
-    ref = float(np.percentile(lum, percentile))
-    return float(f"{1.0 / ref:.4g}") if ref > 0 else 1.0
+def _auto_exposure(rgb) -> float:
+    """The panel's automatic exposure (corona render's: the glow around the lamps to 1), to the
+    4 digits its command line shows."""
+    from corona.apps.pictures import display_exposure
+    return float(f"{display_exposure(rgb):.4g}")
 
 
 def _font(size: int):
@@ -287,7 +288,7 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
     seconds}, "failed": {name: message}}`` (a strip's seconds: the render time
     of its panels plus its tiling).
     """
-    from corona.color import tonemap_srgb
+    from corona.apps.pictures import display_srgb
     from corona.apps.render import setup_variant, write_images
     from corona.apps.sweep import Executor, RenderJob, render_jobs
     root = repo_root()
@@ -354,10 +355,10 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
                     labels = [a + b for a, b in zip(labels, strip.annotate(rgbs))]
                 for i, rgb in enumerate(rgbs):
                     write_images(rgb, raw_dir, _panel_name(strip, i), exposures[i])
-                    images.append(tonemap_srgb(rgb, exposures[i]))
+                    images.append(display_srgb(rgb, exposures[i]))
                 if strip.extra is not None:
                     rgb, label = strip.extra(rgbs)
-                    images.append(tonemap_srgb(rgb, exposures[0]))
+                    images.append(display_srgb(rgb, exposures[0]))
                     labels.append(label)
                 tile(images, labels).save(png, optimize=True)
                 commands[strip.name] = [render_command(strip, i, exposures[i]) for i in range(len(rgbs))]

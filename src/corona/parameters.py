@@ -217,7 +217,7 @@ _ANISOTROPIC = _uses("orientation")
 #: Every parameter of a corona layer, in the order of the tables.
 PARAMETERS: tuple[Parameter, ...] = (
     Parameter("shape", "choice", "", "circle", "scatterer shape", SHAPES),
-    Parameter("radius", "float", "µm", 0.5, "circle / sphere radius; ellipse semi-axis x; square/rectangle "
+    Parameter("radius", "float", "µm", 5.0, "circle / sphere radius; ellipse semi-axis x; square/rectangle "
               "half-width; polygon circumradius (the scatterer's circumradius must stay <= "
               f"{RADIUS_MAX:g} µm; a sphere's radius <= 25 µm, the Mie tables' range)", low=RADIUS_MIN, high=RADIUS_MAX, applies=_SHAPES_WITH_RADIUS),
     Parameter("ior", "float", "", None, "shape=sphere: refractive index n of the droplets relative to "
@@ -247,7 +247,7 @@ PARAMETERS: tuple[Parameter, ...] = (
               high=SIZE_SPREAD_MAX),
     Parameter("size_distribution", "choice", "", "lognormal", "distribution of the size (with "
               "size_spread > 0)", SIZE_DISTRIBUTIONS, applies=("size_spread>0",)),
-    Parameter("area_fraction", "float", "", 0.3, "F_a = n |A|, the fraction of the layer covered",
+    Parameter("area_fraction", "float", "", 0.4, "F_a = n |A|, the fraction of the layer covered",
               low=0.0, high=1.0, low_open=True, high_open=True,
               applies=_uses("area_fraction")),
     Parameter("process", "choice", "", "hard-disk", "point process of the centres", PROCESSES),
@@ -256,7 +256,7 @@ PARAMETERS: tuple[Parameter, ...] = (
               applies=_uses("exclusion_diameter")),
     Parameter("jitter", "float", "µm", 0.0, "lattice: rms displacement per axis", low=0.0, high=LENGTH_MAX,
               applies=_uses("jitter")),
-    Parameter("mode", "choice", "", "aperture", "aperture: scatterers transmit in an opaque screen; "
+    Parameter("mode", "choice", "", "particle", "aperture: scatterers transmit in an opaque screen; "
               "particle: they block light in a clear layer", MODES),
     Parameter("albedo", "float", "", 0.0, "diffuse reflectance of the opaque part", low=0.0, high=1.0,
               applies=_uses("albedo")),

@@ -204,7 +204,7 @@ def test_lobe_json_at_d0_is_fa_ta_ts(R, lam, fa):
 
 def test_lobe_json_physics():
     R, lam, fa = 5.0, 550.0, 0.3
-    o = lobe_json("--radius", R, "--wavelength", lam, "--area-fraction", fa)
+    o = lobe_json("--radius", R, "--wavelength", lam, "--area-fraction", fa, "--mode", "aperture")
     u, ta, ts = (np.array(o[k]) for k in ("u", "form_factor_Ta", "structure_factor_Ts"))
     # u and d agree: u = 2π R d / λ
     assert np.allclose(u, 2 * np.pi * R * np.array(o["d"]) / (lam * 1e-3))

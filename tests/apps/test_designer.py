@@ -235,7 +235,7 @@ def test_fft_convolution_is_scipys_direct_convolution():
 def test_light_disk_and_coherent_light_at_the_centre():
     """At the centre of a light of radius 2°, the radiance relative to the light's is
     T_c + the lobe's energy within 2° (from the table's CDF), luminance-weighted."""
-    params = dict(radius=5.0, area_fraction=0.2, process="poisson")
+    params = dict(radius=5.0, area_fraction=0.2, process="poisson", mode="aperture")
     m = material_from_parameters(**params)
     img, used = compute.corona_linear(compute.material(params),
                                       {"field": 6.0, "size": 129, "light_size": 4.0, "temperature": 4000.0})
@@ -406,7 +406,7 @@ def test_exports_load_in_mitsuba_and_rebuild_the_material(client, mi_variant):
     import corona
     mi.set_variant(mi_variant)
     corona.register()
-    params = dict(radius=6.0, area_fraction=0.35, process="rsa", mode="particle", albedo=0.25,
+    params = dict(radius=6.0, area_fraction=0.35, process="rsa", mode="aperture", albedo=0.25,
                   size_spread=0.02)
     got = client.get("/api/material", params=params).json()
     root = ET.fromstring(got["xml"])
@@ -568,7 +568,7 @@ def test_mask_upload_is_stored_in_the_cache_and_usable(client):
     from corona.tables import cache_dir
     assert os.path.commonpath([stored, cache_dir()]) == cache_dir()
     q = {"shape": "mask", "filename": up["id"], "pixel_size": 0.5, "orientation": "random",
-         "area_fraction": 0.3, "size": 48}
+         "area_fraction": 0.3, "mode": "aperture", "size": 48}
     assert png(client.get("/api/corona.png", params=q)).shape == (48, 48, 3)
     # the mask's disk of radius 10 px × 0.5 µm = 5 µm: the coherent weight is F_a²
     got = client.get("/api/material", params=q).json()

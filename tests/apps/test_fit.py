@@ -151,6 +151,30 @@ def test_linear_exr_without_clipping(photographs, tmp_path):
 
 
 @pytest.mark.slow
+def test_cli_reads_exr_and_png_in_a_fresh_process(photographs, tmp_path):
+    """`corona fit IMAGE.exr` from a shell: a fresh Python with no Mitsuba variant set
+    (pytest has set one, which hid a ``Bitmap.size()`` that needs a variant).  Both the
+    EXR and the 8-bit PNG of the same photograph give the drawn radius."""
+    import os
+    import subprocess
+    import sys
+
+    import mitsuba as mi
+    c, fov, lamp, png, linear = photographs[0]
+    exr = tmp_path / "corona.exr"
+    mi.Bitmap(linear.astype(np.float32), pixel_format=mi.Bitmap.PixelFormat.RGB).write(str(exr))
+    env = {k: v for k, v in os.environ.items() if k != "MI_DEFAULT_VARIANT"}
+    for image in (str(exr), png):
+        p = subprocess.run([sys.executable, "-m", "corona.apps.cli", "fit", image, "--fov", f"{fov}",
+                            "--source-diameter", f"{lamp}", "--json", "--no-diagnostic",
+                            "--out", str(tmp_path / "out")],
+                           capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env)
+        assert p.returncode == 0, (image, p.stderr[-2000:])
+        out = json.loads(p.stdout)
+        assert abs(out["radius"] / c["radius"] - 1) < 0.02, (image, out["radius"], c["radius"])
+
+
+@pytest.mark.slow
 def test_fitted_xml_loads_as_the_fitted_material(fits, mi_variant):
     """The XML snippet is a working plugin BSDF with the fitted parameters (a
     monodisperse copy of a fit, whose table builds fast)."""

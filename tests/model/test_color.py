@@ -58,4 +58,5 @@ def test_write_images_uses_mitsuba_bitmaps(tmp_path, mi_variant):
     np.testing.assert_array_equal(np.array(exr), rgb)                 # linear sRGB, float32
     png = mi.Bitmap(files["png"])
     assert png.srgb_gamma() and png.component_format() == mi.Struct.Type.UInt8
-    np.testing.assert_array_equal(iio.imread(files["png"]), color.tonemap_srgb(rgb, 0.7))
+    from corona.apps.pictures import display_srgb       # the PNG convention (tests/apps/test_pictures.py)
+    np.testing.assert_array_equal(iio.imread(files["png"]), display_srgb(rgb, 0.7))

@@ -70,3 +70,35 @@ def test_defaults_build_the_documented_material():
     assert m.area_fraction == DEFAULTS["area_fraction"]
     assert m.mode == DEFAULTS["mode"] and m.albedo == DEFAULTS["albedo"]
     assert m.length_scale == DEFAULTS["radius"]
+
+
+def test_defaults_are_the_designers_fogged_window(mi_variant):
+    """One set of defaults shows a corona: the designer's opening look (water-droplet disks
+    of 5 µm, hard disks, F_a 0.4, particles), for the spec, the plugin, `corona lobe` and
+    `corona post`.  Coherent beam (1 - F_a)² = 0.36 (particles; apertures would give 0.16)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from corona.apps import post
+    from corona.apps.cli import main
+    from corona.apps.designer.compute import PRESETS
+    look = PRESETS["fogged window"]["material"]
+    assert {k: DEFAULTS[k] for k in look} == look
+    assert look == {"shape": "circle", "radius": 5.0, "area_fraction": 0.4, "process": "hard-disk",
+                    "mode": "particle"}
+    m = material_from_parameters()
+    assert m.coherent_transmittance == pytest.approx(0.36)
+    assert repr(post.layer()) == repr(m)
+    res = CliRunner().invoke(main, ["lobe", "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert out["coherent_transmittance"] == pytest.approx(0.36) and out["length_scale_um"] == 5.0
+    # the plugin (its own parameter path, corona.mitsuba.bsdf)
+    import mitsuba as mi
+
+    import corona
+    mi.set_variant(mi_variant)
+    corona.register()
+    bsdf = mi.load_dict({"type": "corona"})
+    assert repr(m) in str(bsdf)

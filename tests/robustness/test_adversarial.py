@@ -61,7 +61,7 @@ def quiet_small_radius():
     ({"shape": "square", "radius": 800.0}, ["circumradius 1131.37 µm", "<= 1000 µm"]),
     ({"shape": "mask", "filename": "@mask", "pixel_size": 900.0}, ["circumradius", "<= 1000 µm"]),
     ({"shape": "mixture", "mixture": "circle:5:1, circle:1e20:1"}, ["mixture radius=1e+20", "1000] µm"]),
-    ({"edge_width": 0.6}, ["edge_width=0.6", "[0, 0.5] µm"]),
+    ({"radius": 0.5, "edge_width": 0.6}, ["edge_width=0.6", "[0, 0.5] µm"]),
     ({"jitter": 1e300, "process": "lattice-square"}, ["jitter=1e+300", "[0, 2000] µm"]),
     ({"exclusion_diameter": 1e300}, ["exclusion_diameter=1e+300", "2000] µm"]),
 ])
@@ -137,9 +137,9 @@ def test_white_furnace_of_a_large_aperture_layer(variant):
 
     from bsdf_checks import furnace
     R = float(RADII[-1])
-    bsdf = mi.load_dict({"type": "corona", "radius": R, "area_fraction": 0.3})
+    bsdf = mi.load_dict({"type": "corona", "radius": R, "area_fraction": 0.3, "mode": "aperture"})
     mean, err = furnace(bsdf, 0.0)
-    m = material_from_parameters(radius=R, area_fraction=0.3)
+    m = material_from_parameters(radius=R, area_fraction=0.3, mode="aperture")
     expected = m.coherent_transmittance + m.diffuse_transmittance(550.0, cos_theta_i=1.0)
     assert expected == pytest.approx(0.3, abs=2e-3)
     assert mean[0] == pytest.approx(expected, abs=5 * err[0] + 1e-3)
@@ -154,7 +154,8 @@ def test_white_furnace_of_a_large_aperture_layer(variant):
 def test_render_in_a_scalar_variant(tmp_path, scalar):
     import mitsuba as mi
     scene = tmp_path / "layer.xml"
-    scene.write_text(SCENE)
+    scene.write_text(layer_scene('            <float name="radius" value="$radius"/>'
+                                 '<float name="area_fraction" value="0.3"/><string name="mode" value="aperture"/>'))
     p = subprocess.run([sys.executable, "-m", "corona.apps.cli", "render", str(scene), "--variant", scalar,
                         "--spp", "16", "--out", str(tmp_path), "--name", "s"],
                        capture_output=True, text=True, timeout=300)
@@ -162,7 +163,7 @@ def test_render_in_a_scalar_variant(tmp_path, scalar):
     img = np.array(mi.Bitmap(str(tmp_path / "s.exr")))
     assert img.shape == (8, 8, 3) and np.all(np.isfinite(img)) and np.all(img >= 0)
     # a white sky seen through the layer: coherent F_a² + the transmitted lobe F_a(1 - F_a)
-    m = material_from_parameters(radius=5.0, area_fraction=0.3)
+    m = material_from_parameters(radius=5.0, area_fraction=0.3, mode="aperture")
     expected = m.coherent_transmittance + m.diffuse_transmittance(550.0, cos_theta_i=1.0)
     assert img.mean() == pytest.approx(expected, rel=0.05)
 
@@ -544,7 +545,7 @@ UNUSED = [
     ({"process": "poisson", "exclusion_diameter": 2.0}, ["exclusion_diameter"]),
     ({"filename": "x.png"}, ["filename"]),
     ({"size_distribution": "schulz"}, ["size_distribution"]),
-    ({"process": "points", "filename": "@points", "area_fraction": 0.2}, ["area_fraction"]),
+    ({"process": "points", "filename": "@points", "radius": 0.5, "area_fraction": 0.2}, ["area_fraction"]),
 ]
 
 

@@ -163,7 +163,8 @@ def _output_folder(out_dir: str) -> str:
 @click.option("--out", "out_dir", default="out", show_default=True, help="Output folder.")
 @click.option("--name", default=None, help="Output file stem (default: the scene file's name).")
 @click.option("--exposure", type=float, default=None, callback=_finite_positive,
-              help="PNG: scale of the linear values (default: the 99.5th luminance percentile maps to white).")
+              help="PNG: scale of the linear values before the highlight roll-off (default: the glow "
+                   "around the lamps maps to 1; corona.apps.pictures.display_srgb).")
 @click.option("-D", "defines", multiple=True, metavar="KEY=VALUE", help="Scene parameter ($KEY in the XML).")
 @click.option("--seed", type=click.IntRange(0, SEED_MAX), default=0, show_default=True)
 def render(scene, spp, variant, out_dir, name, exposure, defines, seed):
@@ -238,8 +239,8 @@ def executor_options(f):
 @click.option("--force", is_flag=True, help="Render points whose EXR and PNG already exist again.")
 @click.option("--variant", default=None, help="Mitsuba variant (default: each worker's fastest).")
 @click.option("--exposure", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="PNG: scale of the linear values (default: each point's 99.5th luminance percentile "
-                   "maps to white).")
+              help="PNG: scale of the linear values before the highlight roll-off (default: one "
+                   "exposure for every point, the brightest point's glow around the lamps to 1).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def sweep(scene, defines, spp, out_dir, workers, scheduler, timeout, force, variant, exposure, seed,
@@ -572,7 +573,8 @@ def designer(host, port, open_browser):
               help="Accept an 8-/16-bit sRGB image (PNG/JPEG), decoded to linear values; without it only "
                    "float images (linear HDR: EXR) are accepted.")
 @click.option("--exposure", type=float, default=None, callback=_finite_positive,
-              help="PNG output: scale of the linear values before the sRGB curve (default 1).")
+              help="PNG output: scale of the linear values before the highlight roll-off (default: "
+                   "the glow around the lamps maps to 1, as corona render).")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="FFT threads (default: the CPUs this process may use).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")

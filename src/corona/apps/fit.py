@@ -254,7 +254,9 @@ def read_photograph(image, saturation: float | None = None) -> Photograph:
                 bmp = mi.Bitmap(path)
                 if bmp.channel_count() not in (1, 2, 3, 4):
                     raise ValueError(f"{bmp.channel_count()} channels")
-                w, h = (int(v) for v in bmp.size())
+                # width()/height(), not size(): size() returns a variant-specific vector
+                # that Mitsuba cannot hand to Python before a variant is set (the CLI)
+                w, h = int(bmp.width()), int(bmp.height())
                 if w * h > MAX_PIXELS:
                     del bmp
                     _check_pixels(path, w, h)

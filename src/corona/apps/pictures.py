@@ -11,6 +11,79 @@ from corona._validation import CoronaError
 from corona.color import blackbody, spectrum_to_linear_srgb, tonemap_srgb
 
 
+# ----------------------------------------------------------------------
+# the PNG convention of every command (render, sweep, post, the gallery)
+# ----------------------------------------------------------------------
+#: The glow's luminance percentile that the automatic exposure maps to 1.
+GLOW_PERCENTILE = 99.5
+#: Pixels above this fraction of the peak luminance are lamps (left out of the exposure) ...
+LAMP_LEVEL = 0.25
+#: ... when they cover less than this share of the frame (else the frame has no lamp to leave out).
+LAMP_SHARE_MAX = 0.2
+#: Lamps are widened by this many pixels (their antialiased and filtered rims) before they are left out.
+LAMP_RIM_PX = 2
+_REC709 = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _luminance(rgb: np.ndarray) -> np.ndarray:
+    rgb = np.maximum(np.nan_to_num(np.asarray(rgb, dtype=np.float64)), 0.0)
+    if rgb.ndim == 2:
+        return rgb
+    return rgb[..., 0] if rgb.shape[-1] == 1 else rgb[..., :3] @ _REC709
+
+
+def display_exposure(rgb) -> float:
+    """The automatic exposure of a picture: the glow around the lamps, not the lamps, maps to 1.
+
+    ``1 / q`` with ``q`` the :data:`GLOW_PERCENTILE` of the luminance (Rec. 709) over the
+    pixels that are not lamps.  Lamps are the pixels above :data:`LAMP_LEVEL` × the peak,
+    widened by :data:`LAMP_RIM_PX` pixels, when they cover less than :data:`LAMP_SHARE_MAX` of
+    the frame (a bright lamp covering 2 % of the frame would otherwise set the exposure and
+    leave its corona black).  1 for a black picture.
+    """
+    from scipy import ndimage
+    lum = _luminance(rgb)
+    peak = float(lum.max()) if lum.size else 0.0
+    if peak <= 0.0:
+        return 1.0
+    lamp = lum > LAMP_LEVEL * peak
+    if LAMP_RIM_PX and lum.ndim == 2:
+        lamp = ndimage.binary_dilation(lamp, iterations=LAMP_RIM_PX)
+    glow = lum[~lamp] if 0 < lamp.mean() < LAMP_SHARE_MAX else lum.ravel()
+    q = float(np.percentile(glow, GLOW_PERCENTILE)) if glow.size else 0.0
+    if q <= 0.0:                       # nothing but lamps on black: the lamps' level
+        q = float(np.percentile(lum, GLOW_PERCENTILE))
+    return 1.0 / q if q > 0.0 else 1.0
+
+
+def display_srgb(rgb, exposure: float | None = None) -> np.ndarray:
+    """Linear RGB (H, W, 3) or luminance (H, W[, 1]) → 8-bit sRGB: the PNGs of ``corona
+    render``, ``corona sweep``, ``corona post`` and the gallery.
+
+    The linear values are scaled by ``exposure`` (default :func:`display_exposure`: the
+    glow around the lamps to 1), then the luminance ``x`` rolls off as
+    ``y = x (1 + x / W²) / (1 + x)`` with ``W = max(1, max x)`` (Reinhard et al. 2002,
+    eq. 4: the brightest pixel just reaches white, the glow at 1 sits at mid-grey, so a
+    lamp's rings stay visible beside it), the colour scaled by ``y / x`` (hue kept), and
+    encoded with the sRGB curve (IEC 61966-2-1).  NaN and negative values become 0.
+
+    >>> display_srgb(np.array([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [1e4, 1e4, 1e4]]]), 1.0)[0, :, 0]
+    array([  0, 188, 255], dtype=uint8)
+    """
+    from corona._validation import check_range
+    arr = np.maximum(np.nan_to_num(np.asarray(rgb, dtype=np.float64)), 0.0)
+    if exposure is None:
+        exposure = display_exposure(arr)
+    exposure = check_range("exposure", exposure, 0.0, np.inf, lo_open=True, hi_open=True)
+    x = _luminance(arr) * exposure
+    white = max(1.0, float(x.max()) if x.size else 1.0)
+    y = x * (1.0 + x / white**2) / (1.0 + x)
+    scale = np.divide(y, x, out=np.zeros_like(x), where=x > 0)
+    out = np.clip(arr * exposure * (scale[..., None] if arr.ndim == 3 else scale), 0.0, 1.0)
+    out = np.where(out <= 0.0031308, 12.92 * out, 1.055 * np.power(out, 1 / 2.4) - 0.055)
+    return (out * 255 + 0.5).astype(np.uint8)
+
+
 def far_field_corona(material, half_angle_deg: float = 10.0, size: int = 256,
                      temperature: float = 3000.0, n_wavelengths: int = 48) -> np.ndarray:
     """The corona around a point light seen through the layer at normal incidence.

@@ -730,9 +730,10 @@ def _main_layer(bmp, path):
                       "image whose unnamed channels are R, G, B or Y (other layers, e.g. AOVs, are ignored)")
 
 
-def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
+def write_image(path: str, image: np.ndarray, exposure: float | None = None) -> str:
     """Write ``image`` (linear, (H, W, C)): ``.exr`` as float32 linear values,
-    ``.png`` as 8-bit sRGB of ``exposure × image`` (clipped to [0, 1])."""
+    ``.png`` as 8-bit sRGB by :func:`corona.apps.pictures.display_srgb` (``exposure`` scales the
+    linear values; None: the glow around the lamps maps to 1, as ``corona render``)."""
     import mitsuba as mi
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".exr", ".png"):
@@ -749,8 +750,8 @@ def write_image(path: str, image: np.ndarray, exposure: float = 1.0) -> str:
     if ext == ".exr":
         bmp.write(path)
     else:
-        scaled = mi.Bitmap(np.ascontiguousarray(np.clip(arr * exposure, 0.0, 1.0)), fmt)
-        scaled.convert(fmt, mi.Struct.Type.UInt8, srgb_gamma=True).write(path)
+        from corona.apps.pictures import display_srgb
+        mi.Bitmap(np.ascontiguousarray(display_srgb(arr, exposure)), fmt).write(path)
     return path
 
 
@@ -804,7 +805,7 @@ def apply_file(image_path: str, out_path: str, fov: float, params: dict | None =
     img, kind = read_image(image_path, srgb_input=srgb_input)
     out = apply(img, fov, m, colorspace=colorspace, workers=workers, progress=progress)
     try:
-        write_image(out_path, out, exposure=1.0 if exposure is None else exposure)
+        write_image(out_path, out, exposure=exposure)
     except (OSError, RuntimeError) as err:    # Mitsuba raises RuntimeError with a traceback text
         text = str(err).strip().splitlines()
         why = err.strerror if isinstance(err, OSError) and err.strerror else (text[-1] if text else repr(err))

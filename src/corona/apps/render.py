@@ -123,18 +123,18 @@ def render_linear(scene, spp: int, seed: int = 0, progress: bool = True, desc: s
 
 
 def write_images(rgb, out_dir: str, name: str, exposure: float | None = None) -> dict:
-    """Write ``name.exr`` (linear sRGB, float32) and ``name.png`` (tonemapped 8-bit sRGB)
-    into ``out_dir``, both with Mitsuba's ``mi.Bitmap``."""
+    """Write ``name.exr`` (linear sRGB, float32) and ``name.png`` (8-bit sRGB by
+    :func:`corona.apps.pictures.display_srgb`) into ``out_dir``, both with ``mi.Bitmap``."""
     import mitsuba as mi
 
-    from corona.color import tonemap_srgb
+    from corona.apps.pictures import display_srgb
     os.makedirs(out_dir, exist_ok=True)
     exr = os.path.join(out_dir, f"{name}.exr")
     png = os.path.join(out_dir, f"{name}.png")
     rgb_pf = mi.Bitmap.PixelFormat.RGB
     mi.Bitmap(np.ascontiguousarray(rgb, dtype=np.float32), pixel_format=rgb_pf).write(exr)
     # uint8 data: Mitsuba marks the bitmap sRGB-encoded, as the tone map made it
-    mi.Bitmap(np.ascontiguousarray(tonemap_srgb(rgb, exposure)), pixel_format=rgb_pf).write(png)
+    mi.Bitmap(np.ascontiguousarray(display_srgb(rgb, exposure)), pixel_format=rgb_pf).write(png)
     return {"exr": exr, "png": png}
 
 
@@ -143,8 +143,8 @@ def render_to_files(scene, out_dir: str, name: str, spp: int, seed: int = 0,
     """Render ``scene`` (a loaded ``mi.Scene``) and write ``name.exr`` and ``name.png``.
 
     The EXR holds linear sRGB (see :func:`render_linear`); the PNG is
-    tonemapped sRGB (``exposure`` scales the linear values; by default the
-    99.5th percentile of the luminance maps to white).
+    8-bit sRGB (:func:`corona.apps.pictures.display_srgb`: ``exposure`` scales the linear
+    values, by default the glow around the lamps maps to 1; highlights roll off to white).
     """
     import mitsuba as mi
     rgb, seconds = render_linear(scene, spp, seed=seed, progress=progress, desc=f"render {name}")

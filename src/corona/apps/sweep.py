@@ -261,20 +261,48 @@ def _thumbnail(img8: np.ndarray, size: int = 256) -> np.ndarray:
                                                    Image.Resampling.LANCZOS))
 
 
+def _shared_exposure(entries, files, exposures, thumbs) -> float | None:
+    """The sweep's exposure (the smallest automatic one: the brightest point's glow at 1);
+    every point's PNG and thumbnail rewritten at it from its EXR.  None when no point has
+    an image."""
+    import mitsuba as mi
+
+    from corona.apps.pictures import display_exposure, display_srgb
+    images = {}
+    for i, e in enumerate(entries):
+        if e["status"] == "failed":
+            continue
+        try:
+            images[i] = np.array(mi.Bitmap(files[i]["exr"]), dtype=np.float32)[..., :3]
+        except Exception:  # noqa: BLE001  (an unreadable old file keeps its PNG)
+            continue
+        if i not in exposures:
+            exposures[i] = display_exposure(images[i])
+    if not exposures:
+        return None
+    shared = min(exposures.values())
+    for i, rgb in images.items():
+        img8 = display_srgb(rgb, shared)
+        mi.Bitmap(np.ascontiguousarray(img8), pixel_format=mi.Bitmap.PixelFormat.RGB).write(files[i]["png"])
+        thumbs[i] = _thumbnail(img8)
+    return shared
+
+
 def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: int | None = None,
               seed: int = 0, variant: str | None = None, exposure: float | None = None,
               force: bool = False, progress: bool = True, log=None) -> dict:
     """Render ``scene`` at every point of ``grid`` into ``out_dir``; returns the index.
 
-    For each point ``NAME.exr`` (linear sRGB) and ``NAME.png`` (tonemapped
-    sRGB, ``exposure`` or the 99.5th luminance percentile to white), ``NAME``
+    For each point ``NAME.exr`` (linear sRGB) and ``NAME.png`` (8-bit sRGB by
+    :func:`corona.apps.pictures.display_srgb` at one exposure for every point: ``exposure``,
+    or the brightest point's automatic one, so that brighter points look brighter), ``NAME``
     from :func:`point_name`; then ``STEM_sheet.png`` (every point, labelled)
     and ``STEM_index.json`` (every point: parameters, files, status
     ``rendered`` / ``existing`` / ``failed`` with the error, seconds, spp,
     variant, host).  Points whose EXR and PNG exist are skipped unless
     ``force``.  All input is checked before any render starts.
     """
-    from corona.color import tonemap_srgb
+    from corona.apps.pictures import display_exposure, display_srgb
     from corona.apps.render import write_images
     log = log or (lambda s: None)
     if not os.path.isfile(scene):
@@ -305,6 +333,7 @@ def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: 
         log(f"corona: {len(points) - len(todo)} of {len(points)} point(s) already rendered in {out_dir} "
             "(skipped; --force renders them again)")
     thumbs = {}
+    exposures = {}          # each rendered point's automatic exposure (the sweep takes the smallest)
     t0 = time.perf_counter()
 
     def store(o: Outcome):
@@ -319,13 +348,17 @@ def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: 
         except OSError as err:
             e.update(status="failed", error=f"could not write {files[i]['exr']}: {err.strerror or err}")
             return
-        thumbs[i] = _thumbnail(tonemap_srgb(r["rgb"], exposure))
+        thumbs[i] = _thumbnail(display_srgb(r["rgb"], exposure))
+        exposures[i] = display_exposure(r["rgb"])
         e.update(status="rendered", seconds=round(r["seconds"], 3), spp=r["spp"], variant=r["variant"],
                  host=r["host"], drjit_threads=r["threads"])
 
     jobs = [RenderJob(scene, points[i], point_label(points[i]), spp, seed, variant) for i in todo]
     render_jobs(jobs, executor, desc=f"sweep {stem}", progress=progress, on_result=store)
     wall = time.perf_counter() - t0
+    used = exposure
+    if exposure is None:      # one exposure for the sweep: every PNG again from its EXR
+        used = _shared_exposure(entries, files, exposures, thumbs)
     # contact sheet: every point whose PNG exists (rendered now or before)
     import imageio.v3 as iio
     images = []
@@ -346,7 +379,7 @@ def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: 
     contact_sheet(images, labels, columns=_sheet_columns(grid)).save(sheet, optimize=True)
     index = {
         "scene": os.path.abspath(scene), "grid": grid, "spp": spp, "seed": seed, "variant": variant,
-        "exposure": exposure, "executor": executor.describe(),
+        "exposure": used, "executor": executor.describe(),
         "executor_startup_seconds": round(executor.startup_seconds, 3),
         "wall_seconds": round(wall, 3),      # from the first job to the last (includes the start-up)
         "contact_sheet": os.path.basename(sheet), "points": entries,

@@ -120,10 +120,10 @@ class Material:
     True
 
     The same material from the plugin's flat parameters (defaults: circles,
-    hard disks, apertures):
+    hard disks, particles; here apertures, named):
 
     >>> from corona.parameters import material_from_parameters
-    >>> material_from_parameters(radius=20.0, area_fraction=0.3)
+    >>> material_from_parameters(radius=20.0, area_fraction=0.3, mode="aperture")
     Material(Circle(radius=20), HardDisk(area_fraction=0.3), mode='aperture', albedo=0)
     """
 

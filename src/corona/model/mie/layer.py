@@ -68,6 +68,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -127,6 +128,13 @@ SPHERE_SIZES_MAX = 50.0
 ANGULAR_DTYPE = np.float32
 #: Rows computed together (memory of the amplitudes: ROW_CHUNK x nodes complex values).
 ROW_CHUNK = 128
+#: The preview (:meth:`SphereMaterial.preview`): this many one-size rows, geometric in x over the
+#: table's range, unrefined, on a chord grid of ``PREVIEW_CHORD_DX / x_max`` (at least
+#: ``MIN_NODES``, at most ``PREVIEW_MAX_NODES`` nodes): a first look within about a second,
+#: the size spread left out.
+PREVIEW_ROWS = 48
+PREVIEW_CHORD_DX = 0.3
+PREVIEW_MAX_NODES = 2048
 #: Sizes of a size distribution computed together: the recurrences of a batch of ``SIZE_BATCH`` (all
 #: index nodes, fewer Python steps), the rest ``SIZE_CHUNK`` at a time (arrays that stay in the caches).
 SIZE_BATCH = 1536
@@ -465,12 +473,20 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
         bad = err > ROW_TOLERANCE
         return pairs[bad], put({k: v[bad] for k, v in new.items()}), err[bad]
 
+    def estimate(n_kept, pending):
+        """The bar's total: what is evaluated, plus two midpoints for each interval that missed
+        (kept up to the cap; the finer pass adds more when it runs: the total grows then)."""
+        if bar is not None:
+            bar.total = max(bar.n + 1, bar.n + 2 * min(pending, MAX_ROWS - n_kept))
+            bar.refresh()
+
     with ThreadPoolExecutor(max_workers=1) as pool:   # (candidates' second thread)
         kept = [put(rows)]
         n_kept = n0
         dx_min, blocked = ROW_DX_MIN, []
         pend_pairs, pend_mid, pend_err = candidates(np.stack([np.arange(n0 - 1), np.arange(1, n0)], -1), False)
         while n_kept < MAX_ROWS:
+            estimate(n_kept, pend_err.size)
             if not pend_err.size:
                 if dx_min == ROW_DX_FINE:
                     break
@@ -489,6 +505,9 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
             pend_pairs = np.concatenate([pend_pairs[rest], c_pairs])
             pend_mid = np.concatenate([pend_mid[rest], c_mid])
             pend_err = np.concatenate([pend_err[rest], c_err])
+    if bar is not None:
+        bar.total = bar.n
+        bar.refresh()
     kept = np.concatenate(kept)
     kept = kept[np.argsort(store["x"][kept])]
     # the kept rows moved to the front of the store in increasing x, in place: a sorted copy of
@@ -591,8 +610,9 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     # the angular products in single precision: |S|² to about 1e-6 (AngularBasis), twice as fast
     if sizes is None:
         basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)), ANGULAR_DTYPE)
-        with tqdm(unit="row", leave=False, delay=tables.PROGRESS_DELAY,
-                  desc="corona: building the Mie sphere table") as bar:
+        # the total: the first rows and their midpoints, then re-estimated as the refinement goes
+        with tqdm(total=2 * J, unit="row", leave=False, delay=tables.PROGRESS_DELAY,
+                  desc=f"corona: building the Mie sphere table ({r:g} µm)") as bar:
             rows = _evaluate_rows(sphere, x_rows, basis)
             bar.update(J)
             rows = _refine_rows(sphere, rows, basis, ds, bar)
@@ -609,7 +629,7 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     plan = _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi)
     total = sum(p[3].size for p in plan)
     with tqdm(total=total, unit="size", leave=False, delay=tables.PROGRESS_DELAY,
-              desc="corona: building the Mie sphere table") as bar:
+              desc=f"corona: building the Mie sphere table ({r:g} µm, {spread:.0%} spread)") as bar:
         acc, s0, q_sca, q_ext, x2 = _average_sizes(plan, basis, J, Ke, bar)
     norm = 1.0 / (2 * np.pi * x2[:, None])
     P_f, P_b = acc[0] * norm, acc[1] * norm
@@ -619,6 +639,25 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
             "P_f": P_f, "P_b": P_b, "C_f": C_f,
             "s0": np.stack([2 * s0.real / x2, 2 * s0.imag / x2], -1),
             "q_sca": q_sca / x2, "q_ext": q_ext / x2}
+
+
+def build_preview_rows(sphere: Sphere, radius_cover=None) -> dict:
+    """Coarse one-size Mie rows of ``sphere`` for a preview: :data:`PREVIEW_ROWS` rows geometric in
+    x over the wavelength range (and the radii of ``radius_cover``), no refinement, a chord grid of
+    ``PREVIEW_CHORD_DX / x_max``.  The keys and units of :func:`build_mie_rows` (one size)."""
+    r = sphere.radius
+    lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
+    r_lo, r_hi = (r, r) if radius_cover is None else radius_cover
+    x_rows = np.geomspace(2 * np.pi * r_lo / lam_hi, 2 * np.pi * r_hi / lam_lo, PREVIEW_ROWS)
+    s_max = min(2.0, CHORD_MAX * x_rows[1] / x_rows[0] * (1.0 + 1e-9))
+    K = int(np.clip(math.ceil(s_max * x_rows[-1] / PREVIEW_CHORD_DX) + 1, MIN_NODES, PREVIEW_MAX_NODES))
+    ds = s_max / (K - 1)
+    chord = np.arange(K) * ds
+    basis = mie.AngularBasis(1.0 - 0.5 * chord * chord, int(mie.n_terms(float(x_rows[-1]))), ANGULAR_DTYPE)
+    rows = _evaluate_rows(sphere, x_rows, basis)
+    return {"x": x_rows, "wavelength": 2 * np.pi * r / x_rows * 1e3, "ds": np.array(ds),
+            "P_f": rows["P_f"], "P_b": rows["P_b"], "C_f": np.zeros((0, K)), "s0": rows["s0"],
+            "q_sca": rows["q_sca"], "q_ext": rows["q_ext"]}
 
 
 def _average_sizes(plan, basis, J: int, Ke: int, bar=None):
@@ -1011,7 +1050,8 @@ class SphereMaterial(MieMembers, Material):
 
     def __repr__(self):
         pane = "" if self.substrate is None else f", substrate={self.substrate!r}"
-        return f"SphereMaterial({self.shape!r}, {self.process!r}{pane})"
+        tag = ", preview" if self.is_preview else ""
+        return f"SphereMaterial({self.shape!r}, {self.process!r}{pane}{tag})"
 
     @property
     def length_scale(self) -> float:
@@ -1031,15 +1071,52 @@ class SphereMaterial(MieMembers, Material):
                "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
         if self.radius_cover is not None:
             key["radius_cover"] = list(self.radius_cover)
+        if self.is_preview:
+            key["preview"] = [PREVIEW_ROWS, PREVIEW_CHORD_DX, PREVIEW_MAX_NODES]
         return key
+
+    #: True for the coarse copy of :meth:`preview`.
+    is_preview = False
 
     @functools.cached_property
     def rows(self) -> dict:
-        """The Mie rows (:func:`build_mie_rows`, cached on disk), float64."""
+        """The Mie rows (:func:`build_mie_rows`, cached on disk), float64; a preview's:
+        :func:`build_preview_rows` (not cached)."""
+        if self.is_preview:
+            return build_preview_rows(self.sphere, self.radius_cover)
         arrays = tables.cached(self.table_params(),
                                lambda: build_mie_rows(self.sphere, self.sizes, self.radius_cover),
                                use_cache=self.use_cache, background=True)
         return {k: np.asarray(v) for k, v in arrays.items()}
+
+    def rows_cached(self) -> bool:
+        """Whether the exact Mie rows are ready at once (built in this process or in the
+        on-disk cache): when False, :attr:`rows` builds them (seconds to a minute, a progress
+        bar on stderr) and :meth:`preview` gives a coarse look meanwhile."""
+        if "rows" in self.__dict__ and not self.is_preview:
+            return True
+        if not self.use_cache:
+            return False
+        try:
+            path = os.path.join(tables.cache_dir(), tables.cache_key(
+                {k: v for k, v in self.table_params().items() if k != "preview"}) + ".npz")
+        except CoronaError:
+            return False
+        return os.path.isfile(path)
+
+    def preview(self) -> "SphereMaterial":
+        """A coarse copy of this layer for a first look while the exact rows build: one-size Mie
+        rows of the mean sphere (the size spread left out), :data:`PREVIEW_ROWS` of them, not
+        refined, on a coarser chord grid (:func:`build_preview_rows`): about a second where the
+        exact table of a new radius takes 10-60 s.  Its energies, lobes and renders are those
+        of the coarse rows; ``repr`` says ``preview``.  The designer shows it while
+        :attr:`rows` builds on another thread (``corona.model.mie.layer``; docs/mie.md)."""
+        other = copy.copy(self)
+        other.__dict__ = {k: v for k, v in self.__dict__.items()
+                          if k not in ("rows", "_derived", "_energy_peers", "_forward_energy_handed")}
+        other._lattice_cache = {}
+        other.is_preview = True
+        return other
 
     def at_radius(self, radius: float) -> "SphereMaterial":
         """The layer with spheres of ``radius`` [µm] (within :attr:`radius_cover`) read from these rows,
@@ -1140,7 +1217,7 @@ class SphereMaterial(MieMembers, Material):
         w[0] = 0.0
         w[-1] *= 0.5
         Ck = C[:, keep]
-        n_c, n_phi = 48, 64
+        n_c, n_phi = (16, 16) if self.is_preview else (48, 64)    # a preview: a coarser S grid
         s_c = np.linspace(1e-4, CHORD_MAX, n_c)
         # u nodes: 0.125 apart up to 40, then geometric (S - 1 fades; its φ-mean fades faster)
         u_top = max(41.0, 1.5 * CHORD_MAX * float(xs[-1]))
