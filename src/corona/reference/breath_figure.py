@@ -48,9 +48,10 @@ The model (each choice the physics leaves open is marked *choice*):
   no overlap remains.
 * **Evaporation.**  From ``dry_from`` (s) on, the flux is
   ``−evaporation_rate`` (µm s⁻¹), shared by the same weights: small drops
-  lose their volume first and vanish when it reaches zero (the share that a
-  vanishing drop cannot give is not taken from the others, so the loss rate
-  is the prescribed one up to those last bits).
+  lose their volume first and vanish when it reaches zero; the share a
+  vanishing drop cannot give is taken from the others (in the same
+  proportion), so water leaves at exactly the prescribed rate until none is
+  left.
 
 Defaults are for water on (silanised) glass under a breath-like flux:
 θ = 90° (Beysens & Knobler 1986 used silanised glass, θ ≈ 90°), a film rate
@@ -170,24 +171,41 @@ def _merge_all(x, y, V, a, n, L, m, kf):
 
 @nb.njit(cache=True)
 def _grow(V, a, n, dvol, kf):
-    """Share the volume ``dvol`` (< 0: evaporation) in proportion to ``a``; drops
-    that would go below zero vanish.  Compacts; returns ``(n_new, applied)``."""
-    sa = 0.0
-    for i in range(n):
-        sa += a[i]
+    """Share the volume ``dvol`` (< 0: evaporation) in proportion to ``a``.  A
+    drop whose share exceeds its volume vanishes (volume 0) and the rest of its
+    share goes to the others, again in proportion to ``a``, so the whole
+    ``dvol`` is applied unless every drop vanishes.  Returns the volume applied."""
     applied = 0.0
-    if sa <= 0.0:
-        return n, applied
+    left = dvol
+    live = np.ones(n, np.bool_)
+    for _ in range(n + 1):
+        sa = 0.0
+        for i in range(n):
+            if live[i]:
+                sa += a[i]
+        if sa <= 0.0 or left == 0.0:
+            break
+        gone = False
+        if left < 0.0:
+            for i in range(n):
+                if live[i] and V[i] + left * a[i] / sa <= 0.0:
+                    live[i] = False
+                    left += V[i]
+                    applied -= V[i]
+                    V[i] = 0.0
+                    a[i] = 0.0
+                    gone = True
+        if gone:
+            continue            # the shares change: recompute them among the survivors
+        for i in range(n):
+            if live[i]:
+                V[i] += left * a[i] / sa
+        applied += left
+        left = 0.0
     for i in range(n):
-        dv = dvol * a[i] / sa
-        if V[i] + dv <= 0.0:
-            applied -= V[i]
-            V[i] = 0.0
-        else:
-            V[i] += dv
-            applied += dv
-        a[i] = (V[i] / kf) ** (1.0 / 3.0)
-    return n, applied
+        if live[i]:
+            a[i] = (V[i] / kf) ** (1.0 / 3.0)
+    return applied
 
 
 @nb.njit(cache=True)
@@ -439,7 +457,7 @@ def simulate_breath_figure(times, *, box: float = 100.0, contact_angle: float = 
                 # growth (or evaporation) of the drops present
                 if n:
                     dvol = (-E if drying else F) * L * L * dt
-                    n, _ = _grow(V, a, n, dvol, kf)
+                    _grow(V, a, n, dvol, kf)
                     if drying:
                         n = _drop_empty(x, y, V, a, n)
                 # nucleation on the free area
