@@ -4,7 +4,8 @@ Writes benchmarks/results/breath_figure.json.  Runs (µm, s; hemispheres, θ = 9
 
 * coalescence: a 1000 µm box, a 2 s nucleation burst at 0.05 µm⁻² s⁻¹, flux 0.1 µm/s,
   seeds 11–15; the exponent of the mean contact radius over [20, 200] s and [10, 100] s
-  (Family & Meakin 1988: 1), the coverage plateau over [30, 200] s (Fritter et al. 1991: ~0.55);
+  (Family & Meakin 1988: 1), the coverage plateau over [30, 200] s (Fritter et al. 1991: ~0.55),
+  and the collapse of a/⟨a⟩ at 25, 50, 100 s (two-sample KS p-values);
 * isolated growth: 800 nuclei of 0.01 µm in a 200 µm box, flux 0.001 µm/s; exponent over
   [0.1, 10] s (Beysens & Knobler 1986: ~0.3; the model's law 1/3);
 * speed: one run reaching 1e4 drops (the default parameters with renucleation), 1 core.
@@ -43,6 +44,10 @@ def main() -> None:
         r = simulate_breath_figure(times, box=1000.0, flux=0.1, nucleation_rate=0.05,
                                    nucleation_stop=2.0, seed=seed)
         sel = (times >= 30.0) & (times <= 200.0)
+        from scipy.stats import ks_2samp
+        idx = [int(np.argmin(abs(times - t))) for t in (25.0, 50.0, 100.0)]
+        ks = [float(ks_2samp(r.radii[i] / r.radii[i].mean(), r.radii[j] / r.radii[j].mean()).pvalue)
+              for k, i in enumerate(idx) for j in idx[k + 1:]]
         coal.append(dict(seed=seed, seconds=r.seconds,
                          exponent_20_200=slope(times, r.mean_radius, 20.0, 200.0),
                          exponent_10_100=slope(times, r.mean_radius, 10.0, 100.0),
@@ -50,7 +55,8 @@ def main() -> None:
                          plateau_min=float(r.coverage[sel].min()),
                          plateau_max=float(r.coverage[sel].max()),
                          drops_at_20=int(r.count[np.argmin(abs(times - 20.0))]),
-                         drops_at_200=int(r.count[-1])))
+                         drops_at_200=int(r.count[-1]),
+                         collapse_ks_pvalues_25_50_100=ks))
         print(coal[-1], flush=True)
 
     iso = []

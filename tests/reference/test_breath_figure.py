@@ -205,3 +205,19 @@ def test_merge_bad_input_is_one_line():
         with pytest.raises(CoronaError) as err:
             merge_droplets(*args)
         assert "\n" not in str(err.value) and name in str(err.value)
+
+
+@pytest.mark.slow
+@pytest.mark.reference
+def test_size_distribution_is_self_similar(coalescence_run):
+    # Family & Meakin 1988: in the coalescence regime the distribution of a/⟨a⟩ does not change
+    # with time.  Two-sample Kolmogorov-Smirnov tests at 25, 50, 100 s (≈3600, 980, 240 drops)
+    from scipy.stats import ks_2samp
+    res = coalescence_run
+    idx = [int(np.argmin(abs(res.times - t))) for t in (25.0, 50.0, 100.0)]
+    assert min(res.count[i] for i in idx) >= 150
+    for u in range(3):
+        for v in range(u + 1, 3):
+            ru, rv = res.radii[idx[u]], res.radii[idx[v]]
+            assert ks_2samp(ru / ru.mean(), rv / rv.mean()).pvalue > 0.01
+            assert ks_2samp(ru, rv).statistic > 0.9          # control: unscaled, they differ
