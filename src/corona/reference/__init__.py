@@ -8,6 +8,8 @@ plugin, the CLI's ``render`` and ``lobe``) never imports it.
   Percus–Yevick, the smoothing that makes the shipped S(q) table;
 * :mod:`corona.reference.rsa` — runs of the random-sequential-adsorption generator
   (:func:`corona.model.processes.rsa.rsa_configuration`) turned into the shipped S(q) table;
+* :mod:`corona.reference.breath_figure` — breath figures: droplets that nucleate,
+  grow, coalesce and evaporate on a plane;
 * :mod:`corona.reference.wave` — the brute-force wave-optics reference
   (random screens, FFT);
 * :mod:`corona.reference.validate` — ``corona validate``: model vs brute force,
