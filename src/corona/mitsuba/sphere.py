@@ -835,7 +835,10 @@ class SphereBSDFMixin:
             wo_m = mi.Vector3f(wo.x, wo.y, -wo.z)          # the mirror image: the far side's lobe
             mirrored = active & same_side & first
             on_r = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
-            Z_m, pdf_m = self._lobes(states, wi, wo_m, mirrored, True, True, (m, p_f, p_b))
+            # component 4's sampler mirrors the lobes' samples wherever they fall: those in the
+            # lobes' own reflection (the backward lobe, the forward lobe at grazing incidence) land
+            # on the far side, where component 4 has no value but its density counts all the same
+            Z_m, pdf_m = self._lobes(states, wi, wo_m, active & first, True, True, (m, p_f, p_b))
             values = []
             for st, z, zm in zip(states, Z, Z_m):
                 through, reflected, own_side = pane_smooth_factors(st["coherent"], r_i, r_o, first)
@@ -844,7 +847,7 @@ class SphereBSDFMixin:
                     v += dr.select(mirrored, zm * reflected, 0.0)
                 values.append(v * (st["fs"] * st["w"]))
             if self.sampling != "cosine":   # component 4: the lobes' sampler, mirrored
-                pdf += dr.select(mirrored, p_pane[1] * pdf_m / _positive(p_f + p_b), 0.0)
+                pdf += dr.select(active & first, p_pane[1] * pdf_m / _positive(p_f + p_b), 0.0)
         else:
             values = [z * (st["fs"] * st["w"]) for st, z in zip(states, Z)]
         if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes
