@@ -400,6 +400,11 @@ class SphereBSDFMixin:
         (:func:`corona.model.mie.layer.share_forward_energies`); None without a hard core (Poisson)."""
         if material.structure_table is None:
             return None
+        if not material.process.varying_area_fraction:
+            # a point file: its S and F_a are its own (no parameter moves them): the one layer
+            # as three equal rows about its F_a (the Hermite reads it whatever the lane's F_a)
+            fa = float(material.area_fraction)
+            return fa + FA_ROW_STEP * np.array([-1.0, 0.0, 1.0]), [material] * 3
         top = material.process.area_fraction_limit(material.shape)
         lo, hi = float(fa_lo), float(fa_hi)
         if hi - lo < FA_ROW_STEP:                   # a uniform value (or a narrow range): a row at hi, one step either side
@@ -445,7 +450,7 @@ class SphereBSDFMixin:
         self.Ef = self._packed(fas, E)
         if not self.fa_textured:      # one F_a: its rows at that value (:meth:`_centre_area_fraction`)
             self.fa_window = (fas, S, E)
-            self._centre_area_fraction(float(fa_hi))
+            self._centre_area_fraction(float(fa_hi) if material.process.varying_area_fraction else self.fa)
 
     def _centre_area_fraction(self, fa):
         """The layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the
