@@ -2,6 +2,8 @@
 (corona.mitsuba.sphere_lattice.LatticeS) against the numpy lattice's structure_factor_at, on the
 peaks, between them and through the Debye–Waller background; the lobe, its samplers, the per-lane
 cap and the assembled plugin (process=lattice-* for shape=sphere) against the numpy model."""
+import re
+
 import numpy as np
 import pytest
 
@@ -624,3 +626,27 @@ def test_lattice_layer_in_scalar_variants_is_the_jit_one(mi_variant, scalar, jit
     assert np.all(np.isfinite(got))
     assert np.sum(want[:, -3:]) > 0                     # some samples succeed
     np.testing.assert_allclose(got, want, rtol=2e-4, atol=1e-6 * np.max(np.abs(want)))
+
+
+def test_wide_lattices_are_refused_in_one_line(mi_variant):
+    """Each Bragg order the per-lane cap holds costs every sample a Mie lookup per wavelength (issue 47,
+    item 9: 25 µm spheres, 6·10⁵ orders, ~12 ms a sample): a lattice wider than
+    LATTICE_ORDERS_MAX orders is one line naming the spacing, the parameters and the limit; the
+    widest accepted one holds at most that many (negative control: 1 µm spheres just inside load)."""
+    import warnings
+
+    import mitsuba as mi
+    from corona.mitsuba.sphere_lattice import LATTICE_ORDERS_MAX
+    for radius, fa, process in ((25.0, 0.3, "lattice-hex"), (1.0, 0.01, "lattice-hex"), (2.0, 0.05, "lattice-square")):
+        with pytest.raises(Exception) as err:
+            mi.load_dict({"type": "corona", "shape": "sphere", "radius": radius, "area_fraction": fa,
+                          "process": process})
+        lines = [ln for ln in str(err.value).splitlines() if "CoronaError" in ln]
+        assert lines and re.search(rf"the lattice spacing [0-9.]+ µm \(radius={radius:g}, area_fraction={fa:g}\) is "
+                                   rf"out of range for shape='sphere' with process='{process}' in the renderer; "
+                                   rf"allowed at most [0-9.]+ µm .*at most {LATTICE_ORDERS_MAX}", lines[-1]), lines
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.0155,
+                             "process": "lattice-hex"})
+    assert 0.9 * LATTICE_ORDERS_MAX < bsdf.lattice_layer.cap.count <= LATTICE_ORDERS_MAX

@@ -29,6 +29,10 @@ from corona.mitsuba.common import array as _array, gather as _gather, logical_no
 __all__ = ["LatticeCap", "LatticeLayer", "LatticeLobe", "LatticeS", "LatticeSampler", "OrderSampler",
            "lattice_layer_params"]
 
+#: The most Bragg orders the per-lane cap (:class:`LatticeCap`) may hold: each costs every lane a
+#: Mie lookup per wavelength (a sample's cost grows with them: benchmarks/sphere_lattice_cost.py);
+#: a wider lattice is refused at load (:func:`lattice_layer_params`).
+LATTICE_ORDERS_MAX = 20_000
 #: The Bragg orders' share of the lattice lobe's samples (:class:`LatticeSampler`) ...
 ORDER_SHARE = 0.5
 #: ... scaled by ``e^{-G₁²δ²} / ORDER_SHARE_DW`` where the first order's Debye–Waller factor is
@@ -473,7 +477,9 @@ def lattice_layer_params(params: dict, textures: dict):
     parameters make (:func:`corona.parameters.material_from_parameters`, its checks and errors) and
     the parameters of the sphere plugin's Mie rows (the same sphere, ``process=poisson`` at the
     lattice's area fraction).  One-line errors for what the lattice path does not take: a glass
-    substrate and area_fraction or radius textures that vary."""
+    substrate, area_fraction or radius textures that vary, and a lattice wider than
+    :data:`LATTICE_ORDERS_MAX` Bragg orders."""
+    from corona import tables
     from corona._validation import CoronaError
     from corona.parameters import material_from_parameters
     import warnings
@@ -487,6 +493,17 @@ def lattice_layer_params(params: dict, textures: dict):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         material = material_from_parameters(**params)
+    lattice = material.lattice
+    # the cap's orders, |G| <= 2 k_max: about π (2 k_max)² A_c / (2π)² for a cell of area A_c
+    g_max = 2.0 * 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
+    cell_max = LATTICE_ORDERS_MAX * 4.0 * np.pi / (g_max * g_max)
+    spacing_max = math.sqrt(cell_max * lattice.spacing ** 2 / lattice.cell_area)
+    if lattice.spacing > spacing_max * (1 + 1e-9):
+        raise CoronaError(f"the lattice spacing {lattice.spacing:.4g} µm (radius={float(material.sphere.radius):g}, "
+                          f"area_fraction={float(material.area_fraction):.4g}) is out of range for shape='sphere' "
+                          f"with process={process!r} in the renderer; allowed at most {spacing_max:.4g} µm "
+                          f"(area_fraction at least π radius² / {cell_max:.4g} µm²: each of its Bragg orders, "
+                          f"at most {LATTICE_ORDERS_MAX}, costs every sample a Mie lookup)")
     if material.substrate is not None:
         raise CoronaError(f"substrate={params.get('substrate')!r} is out of range for shape='sphere' with "
                           f"process={process!r} in the renderer; allowed none (the sphere plugin's pane "
@@ -494,7 +511,7 @@ def lattice_layer_params(params: dict, textures: dict):
     rows = {k: v for k, v in params.items() if k != "jitter"}
     rows["process"] = "poisson"
     rows["area_fraction"] = float(material.area_fraction)
-    return material.lattice, rows
+    return lattice, rows
 
 
 class LatticeLayer:
