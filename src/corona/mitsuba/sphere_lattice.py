@@ -343,8 +343,9 @@ class LatticeCap:
         order = np.argsort(Gn, kind="stable")
         G, W, Gn = G[order], W[order], Gn[order]
         self.count = int(G.shape[0])
-        # one Vector4f an order: (G_x, G_y, W_G, |G|)
-        self.orders = _array(mi.Float, np.stack([G[:, 0], G[:, 1], W, Gn], axis=-1).ravel())
+        # one Vector4f an order: (G_x, G_y, W_G, |G|) (without an order one unread zero entry)
+        self.orders = _array(mi.Float, np.stack([G[:, 0], G[:, 1], W, Gn], axis=-1).ravel() if self.count
+                             else np.zeros(4))
         us, tn, tw = lattice_cap.rim_rules()
         self.n_rule = int(tn.shape[1])
         self.rule_u0, self.rule_du, self.rule_n = float(us[0]), float(us[1] - us[0]), int(us.size)
