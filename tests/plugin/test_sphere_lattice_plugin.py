@@ -2,6 +2,8 @@
 (corona.mitsuba.sphere_lattice.LatticeS) against the numpy lattice's structure_factor_at, on the
 peaks, between them and through the Debye–Waller background; the lobe, its samplers, the per-lane
 cap and the assembled plugin (process=lattice-* for shape=sphere) against the numpy model."""
+import re
+
 import numpy as np
 import pytest
 
@@ -421,7 +423,7 @@ def test_eval_matches_the_numpy_model_at_and_between_orders(mi_variant, params, 
 
 @pytest.mark.slow
 @pytest.mark.chi2
-@pytest.mark.parametrize("params, theta", [(HEX4, 0.0), (SQUARE3, 30.0)])
+@pytest.mark.parametrize("params, theta", [(HEX4, 0.0), (SQUARE3, 30.0), ({**SQUARE3, "jitter": 10.0}, 60.0)])
 def test_plugin_chi2(mi_variant, params, theta):
     """The plugin's sample against its pdf (smooth components; crystallites 3 spacings wide so
     that the histogram resolves the peaks)."""
@@ -521,3 +523,140 @@ def test_jittered_diffuse_table_is_kept_in_the_cache(mi_variant, tmp_path, monke
     np.testing.assert_array_equal(np.asarray(first.lattice_layer.cap.D), np.asarray(second.lattice_layer.cap.D))
     _layer({**params, "jitter": 0.2})
     assert calls == [0.15, 0.2]
+
+
+#: Spheres of 1 µm at area fraction 0.2 on a lattice (issue 47, items 2 and 3: with a jitter of
+#: microns every order's e^{-G²δ²} underflowed float32 (half the samples lost: mean weight 0.33-0.56)
+#: and then float64 (ZeroDivisionError in OrderSampler.density_q)).
+JITTERED = {"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.2}
+#: the jitter's allowed range reaches corona.parameters.LENGTH_MAX
+JITTERS = [("lattice-square", 1.0, (0.0, 89.9, 95.0)), ("lattice-hex", 1.5, (0.0, 85.0, 89.9)),
+           ("lattice-hex", 10.0, (0.0, 60.0, 85.0, 89.9, 95.0, 150.0)),
+           ("lattice-square", 30.0, (0.0, 60.0, 85.0, 89.9, 95.0, 150.0)),
+           ("lattice-hex", "max", (0.0, 60.0, 85.0, 89.9, 95.0, 150.0))]
+
+
+def _jittered(process, jitter):
+    import warnings
+
+    import mitsuba as mi
+    from corona.parameters import LENGTH_MAX, material_from_parameters
+    params = {**JITTERED, "process": process, "jitter": LENGTH_MAX if jitter == "max" else jitter}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = material_from_parameters(**{k: v for k, v in params.items() if k != "type"})
+        return mi.load_dict(params), model
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("process, jitter, angles", JITTERS, ids=lambda v: str(v) if not isinstance(v, tuple) else "")
+def test_jittered_lattice_furnace_matches_the_model(mi_variant, process, jitter, angles):
+    """The plugin's mean sample weight on a jittered lattice, up to the jitter's maximum and 89.9°
+    from either side: ≤ 1 within 4 standard errors and within 1 % of the numpy model's
+    directional_albedo (its lattice quadrature: the orders and the diffuse part)."""
+    from bsdf_checks import furnace
+    bsdf, model = _jittered(process, jitter)
+    lams = (420.0, 520.0, 640.0, 780.0)
+    for deg in angles:
+        mean, err = furnace(bsdf, deg, lams, n=200_000, seed=7)
+        ref = np.array([model.directional_albedo(np.cos(np.radians(deg)), lam)["total"] for lam in lams])
+        assert np.all(mean <= 1.0 + 4 * err), (deg, mean, err)
+        assert np.all(np.abs(mean - ref) <= 0.01 * ref), (deg, mean, ref, err)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("jitter", [10.0, 30.0, "max"])
+def test_jittered_lattice_keeps_its_light_and_samples(mi_variant, jitter):
+    """Normal incidence, a jitter of many spacings: no order's weight is left, the orders' branch is
+    off (the sphere's sampler alone), sample / eval / pdf finite, and the mean weight the
+    model's (0.997) within 1 %; a small jitter keeps the orders' branch at its full share."""
+    import mitsuba as mi
+    from bsdf_checks import assert_finite_at_a_zero_interaction, furnace, plugin_eval
+    bsdf, model = _jittered("lattice-hex", jitter)
+    smp = bsdf.lattice_layer.sampler
+    assert smp.alpha == 0.0 and smp.orders.count == 0 and bsdf.lattice_layer.cap.count == 0
+    lams = (450.0, 520.0, 600.0, 700.0)
+    mean, err = furnace(bsdf, 0.0, lams, n=50_000)
+    ref = np.array([model.directional_albedo(1.0, lam)["total"] for lam in lams])
+    assert np.all(np.abs(mean - ref) <= 0.01 * ref), (mean, ref, err)
+    rng = np.random.default_rng(2)
+    wo = rng.normal(size=(500, 3))
+    val, pdf = plugin_eval(bsdf, (0.3, 0.0, np.sqrt(0.91)), wo / np.linalg.norm(wo, axis=1, keepdims=True), lams)
+    assert np.all(np.isfinite(val)) and np.all(np.isfinite(pdf)) and np.all(pdf > 0)
+    assert_finite_at_a_zero_interaction(bsdf)
+    assert _jittered("lattice-hex", 0.15)[0].lattice_layer.sampler.alpha == 0.5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scalar, jit", [("scalar_spectral", "llvm_ad_spectral"), ("scalar_rgb", "llvm_ad_rgb")])
+def test_lattice_layer_in_scalar_variants_is_the_jit_one(mi_variant, scalar, jit):
+    """Spheres on a lattice load in the scalar variants (issue 47, item 8: a TypeError at load, then
+    numpy masks and ``~`` of a Python bool) and give the JIT variant's eval, pdf and samples, one
+    direction at a time."""
+    import drjit as dr
+    import mitsuba as mi
+    params = {"type": "corona", "shape": "sphere", "radius": 1.0, "process": "lattice-hex",
+              "area_fraction": 0.5, "jitter": 0.05}
+    rng = np.random.default_rng(4)
+    wo = rng.normal(size=(4, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    u = rng.random((4, 3))
+    wi = (0.3, 0.0, float(np.sqrt(0.91)))
+    lams = (450.0, 520.0, 600.0, 700.0)
+
+    def run(variant, batch):
+        # the JIT variant: all directions in one call (RGB's 24 wavelengths a lane compile slowly);
+        # the scalar one: one at a time
+        mi.set_variant(variant)
+        corona.register()
+        bsdf = mi.load_dict(params)
+        ctx = mi.BSDFContext()
+        n = len(wo) if batch else 1
+        out = []
+        for k in range(1 if batch else len(wo)):
+            pick = slice(None) if batch else slice(k, k + 1)
+            si = dr.zeros(mi.SurfaceInteraction3f, n) if batch else mi.SurfaceInteraction3f()
+            si.wi = mi.Vector3f(*wi)
+            if mi.is_spectral:
+                si.wavelengths = mi.Spectrum(*lams) if batch else mi.Spectrum(list(lams))
+            arg = (lambda a: mi.Float(a.astype(np.float32))) if batch else (lambda a: float(a[0]))
+            val, pdf = bsdf.eval_pdf(ctx, si, mi.Vector3f(*(arg(wo[pick, i]) for i in range(3))))
+            bs, w = bsdf.sample(ctx, si, arg(u[pick, 0]), mi.Point2f(arg(u[pick, 1]), arg(u[pick, 2])))
+            cols = [np.array(val).reshape(-1, n), np.array(pdf).reshape(1, n), np.array(bs.wo).reshape(3, n),
+                    np.array(w).reshape(-1, n)]
+            out.append(np.concatenate(cols).T)
+        return np.concatenate(out).astype(np.float64)
+
+    try:
+        want = run(jit, True)
+        got = run(scalar, False)
+    finally:
+        mi.set_variant(mi_variant)
+        corona.register()
+    assert np.all(np.isfinite(got))
+    assert np.sum(want[:, -3:]) > 0                     # some samples succeed
+    np.testing.assert_allclose(got, want, rtol=2e-4, atol=1e-6 * np.max(np.abs(want)))
+
+
+def test_wide_lattices_are_refused_in_one_line(mi_variant):
+    """Each Bragg order the per-lane cap holds costs every sample a Mie lookup per wavelength (issue 47,
+    item 9: 25 µm spheres, 6·10⁵ orders, ~12 ms a sample): a lattice wider than
+    LATTICE_ORDERS_MAX orders is one line naming the spacing, the parameters and the limit; the
+    widest accepted one holds at most that many (negative control: 1 µm spheres just inside load)."""
+    import warnings
+
+    import mitsuba as mi
+    from corona.mitsuba.sphere_lattice import LATTICE_ORDERS_MAX
+    for radius, fa, process in ((25.0, 0.3, "lattice-hex"), (1.0, 0.01, "lattice-hex"), (2.0, 0.05, "lattice-square")):
+        with pytest.raises(Exception) as err:
+            mi.load_dict({"type": "corona", "shape": "sphere", "radius": radius, "area_fraction": fa,
+                          "process": process})
+        lines = [ln for ln in str(err.value).splitlines() if "CoronaError" in ln]
+        assert lines and re.search(rf"the lattice spacing [0-9.]+ µm \(radius={radius:g}, area_fraction={fa:g}\) is "
+                                   rf"out of range for shape='sphere' with process='{process}' in the renderer; "
+                                   rf"allowed at most [0-9.]+ µm .*at most {LATTICE_ORDERS_MAX}", lines[-1]), lines
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.0155,
+                             "process": "lattice-hex"})
+    assert 0.9 * LATTICE_ORDERS_MAX < bsdf.lattice_layer.cap.count <= LATTICE_ORDERS_MAX

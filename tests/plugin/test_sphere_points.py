@@ -74,3 +74,35 @@ def test_renderer_takes_a_lattice(mi_variant):
     from corona.parameters import material_from_parameters
     m = material_from_parameters(shape="sphere", radius=1.0, process="lattice-hex", area_fraction=0.2)
     assert m.lattice is not None and m.lattice.kind == "hexagonal"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fa", [0.12, 0.04])
+def test_sparse_point_file_loads_and_matches_numpy(mi_variant, tmp_path, fa):
+    """A sparse point file (F_a at most ~0.12; issue 47, item 7: IndexError at load, the plugin's F_a
+    rows were built about the area_fraction default 0.3, above the file's own): loads as the flat
+    circle does, eval is the numpy reference's, and the white furnace ≤ 1 and the model's albedo."""
+    import mitsuba as mi
+    from corona.reference.rsa import rsa_configuration
+    path = tmp_path / "sparse.csv"
+    np.savetxt(path, rsa_configuration(60.0, fa, sigma=2.0, seed=5), delimiter=",")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mi.load_dict({"type": "corona", "shape": "circle", "radius": 1.0, "process": "points",
+                      "filename": str(path)})
+        bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "process": "points",
+                             "filename": str(path)})
+    m = bsdf.material
+    assert abs(m.area_fraction - fa) < 0.02 and m.structure_table is not None
+    rng = np.random.default_rng(3)
+    wi = np.array([np.sin(0.5), 0.0, np.cos(0.5)])
+    wo = rng.normal(size=(2000, 3))
+    near = -wi + 0.15 * rng.normal(size=(2000, 3))
+    wo = np.concatenate([wo, near]) / np.linalg.norm(np.concatenate([wo, near]), axis=1, keepdims=True)
+    assert_eval_matches(bsdf, m.eval, wi, wo, rtol=2e-3, atol=2e-5)
+    lams = (450.0, 520.0, 600.0, 700.0)
+    for deg in (0.0, 85.0):
+        mean, err = furnace(bsdf, deg, lams, n=100_000)
+        ref = np.array([m.directional_albedo(np.cos(np.radians(deg)), lam, n_phi=96)["total"] for lam in lams])
+        assert np.all(mean <= 1.0 + 4 * err), (deg, mean, err)
+        assert np.all(np.abs(mean - ref) <= 0.01 * ref), (deg, mean, ref)

@@ -400,6 +400,11 @@ class SphereBSDFMixin:
         (:func:`corona.model.mie.layer.share_forward_energies`); None without a hard core (Poisson)."""
         if material.structure_table is None:
             return None
+        if not material.process.varying_area_fraction:
+            # a point file: its S and F_a are its own (no parameter moves them): the one layer
+            # as three equal rows about its F_a (the Hermite reads it whatever the lane's F_a)
+            fa = float(material.area_fraction)
+            return fa + FA_ROW_STEP * np.array([-1.0, 0.0, 1.0]), [material] * 3
         top = material.process.area_fraction_limit(material.shape)
         lo, hi = float(fa_lo), float(fa_hi)
         if hi - lo < FA_ROW_STEP:                   # a uniform value (or a narrow range): a row at hi, one step either side
@@ -445,7 +450,7 @@ class SphereBSDFMixin:
         self.Ef = self._packed(fas, E)
         if not self.fa_textured:      # one F_a: its rows at that value (:meth:`_centre_area_fraction`)
             self.fa_window = (fas, S, E)
-            self._centre_area_fraction(float(fa_hi))
+            self._centre_area_fraction(float(fa_hi) if material.process.varying_area_fraction else self.fa)
 
     def _centre_area_fraction(self, fa):
         """The layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the
@@ -835,7 +840,10 @@ class SphereBSDFMixin:
             wo_m = mi.Vector3f(wo.x, wo.y, -wo.z)          # the mirror image: the far side's lobe
             mirrored = active & same_side & first
             on_r = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
-            Z_m, pdf_m = self._lobes(states, wi, wo_m, mirrored, True, True, (m, p_f, p_b))
+            # component 4's sampler mirrors the lobes' samples wherever they fall: those in the
+            # lobes' own reflection (the backward lobe, the forward lobe at grazing incidence) land
+            # on the far side, where component 4 has no value but its density counts all the same
+            Z_m, pdf_m = self._lobes(states, wi, wo_m, active & first, True, True, (m, p_f, p_b))
             values = []
             for st, z, zm in zip(states, Z, Z_m):
                 through, reflected, own_side = pane_smooth_factors(st["coherent"], r_i, r_o, first)
@@ -844,7 +852,7 @@ class SphereBSDFMixin:
                     v += dr.select(mirrored, zm * reflected, 0.0)
                 values.append(v * (st["fs"] * st["w"]))
             if self.sampling != "cosine":   # component 4: the lobes' sampler, mirrored
-                pdf += dr.select(mirrored, p_pane[1] * pdf_m / _positive(p_f + p_b), 0.0)
+                pdf += dr.select(active & first, p_pane[1] * pdf_m / _positive(p_f + p_b), 0.0)
         else:
             values = [z * (st["fs"] * st["w"]) for st, z in zip(states, Z)]
         if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes

@@ -24,8 +24,23 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from corona.mitsuba.common import array as _array, gather as _gather, logical_not as _not
+
 __all__ = ["LatticeCap", "LatticeLayer", "LatticeLobe", "LatticeS", "LatticeSampler", "OrderSampler",
            "lattice_layer_params"]
+
+#: The most Bragg orders the per-lane cap (:class:`LatticeCap`) may hold: each costs every lane a
+#: Mie lookup per wavelength (a sample's cost grows with them: benchmarks/sphere_lattice_cost.py);
+#: a wider lattice is refused at load (:func:`lattice_layer_params`).
+LATTICE_ORDERS_MAX = 20_000
+#: The Bragg orders' share of the lattice lobe's samples (:class:`LatticeSampler`) ...
+ORDER_SHARE = 0.5
+#: ... scaled by ``e^{-G₁²δ²} / ORDER_SHARE_DW`` where the first order's Debye–Waller factor is
+#: below this (a jitter of about a fifth of the spacing: the orders fade into the diffuse part) ...
+ORDER_SHARE_DW = 0.1
+#: ... and no order branch below this share (the orders' weight is then below ~1e-6 of the
+#: diffuse part's near them, which the sphere's sampler covers).
+ORDER_SHARE_MIN = 1e-6
 
 
 def _mie_pattern(sphere_bsdf, st, wi, wo, active):
@@ -53,8 +68,9 @@ class LatticeS:
         A = np.asarray(lattice.lattice_vectors, dtype=np.float64)
         B = np.asarray(lattice.reciprocal_vectors, dtype=np.float64)
         w = float(lattice.peak_width)
-        self.A = A / (2.0 * np.pi)            # f = q · a_i / 2π
-        self.B = B
+        # Python floats (numpy scalars would make numpy masks in scalar variants)
+        self.A = (A / (2.0 * np.pi)).tolist()            # f = q · a_i / 2π
+        self.B = B.tolist()
         self.jitter2 = float(lattice.jitter) ** 2
         self.inv_2w2 = 0.5 / (w * w)
         self.amp = (2.0 * np.pi) ** 2 * float(lattice.number_density) / (2.0 * np.pi * w * w)
@@ -69,13 +85,13 @@ class LatticeS:
         """``out + amp Σ_{G ≠ 0} e^{-G²δ²} e^{-|q - G|²/2w²}`` over the ``(2m + 1)²`` peaks nearest
         ``q`` (those with ``|G|² ≤ g_max2`` where given)."""
         A, B = self.A, self.B
-        f1 = dr.round(qx * A[0, 0] + qy * A[0, 1])
-        f2 = dr.round(qx * A[1, 0] + qy * A[1, 1])
+        f1 = dr.round(qx * A[0][0] + qy * A[0][1])
+        f2 = dr.round(qx * A[1][0] + qy * A[1][1])
         for dh in range(-self.m, self.m + 1):
             for dk in range(-self.m, self.m + 1):
                 h, k = f1 + dh, f2 + dk
-                gx = h * B[0, 0] + k * B[1, 0]
-                gy = h * B[0, 1] + k * B[1, 1]
+                gx = h * B[0][0] + k * B[1][0]
+                gy = h * B[0][1] + k * B[1][1]
                 g2 = gx * gx + gy * gy
                 dx, dy = qx - gx, qy - gy
                 e = -(dx * dx + dy * dy) * self.inv_2w2
@@ -115,17 +131,24 @@ class OrderSampler:
         self.structure = LatticeS(lattice)
         self.g_max2 = float(g_max) ** 2
         self.w = float(lattice.peak_width)
+        #: the first order's Debye–Waller factor ``e^{-G₁²δ²}`` (0 without an order)
+        self.first_dw = float(W[0] / ((2.0 * np.pi) ** 2 * lattice.number_density)) if W.size else 0.0
+        # the orders whose weight float32 holds (a jitter of microns leaves none: e^{-G²δ²} underflows)
+        keep = np.asarray(W, dtype=np.float32) > 0
+        G, W = G[keep], W[keep]
         self.total = float(np.sum(W))
-        self.Gx = mi.Float(np.asarray(G[:, 0], dtype=np.float32))
-        self.Gy = mi.Float(np.asarray(G[:, 1], dtype=np.float32))
-        self.orders = mi.DiscreteDistribution(mi.Float(np.asarray(W, dtype=np.float32)))
         self.count = int(G.shape[0])
+        if self.count == 0:                # nothing to sample: density 0 (LatticeSampler skips it)
+            self.Gx = self.Gy = self.orders = None
+            return
+        self.Gx, self.Gy = _array(mi.Float, G[:, 0]), _array(mi.Float, G[:, 1])
+        self.orders = mi.DiscreteDistribution(_array(mi.Float, W))
 
     def sample(self, wi, k, u_order, u_peak, active=True):
         """``(wo_x, wo_y, valid)``: an order's direction in the plane (the side is the caller's)."""
         idx = self.orders.sample(u_order, active)
-        gx = dr.gather(mi.Float, self.Gx, idx, active)
-        gy = dr.gather(mi.Float, self.Gy, idx, active)
+        gx = _gather(mi.Float, self.Gx, idx, active)
+        gy = _gather(mi.Float, self.Gy, idx, active)
         xi = mi.warp.square_to_std_normal(u_peak)
         px = (gx + self.w * xi.x) / k - wi.x
         py = (gy + self.w * xi.y) / k - wi.y
@@ -133,7 +156,9 @@ class OrderSampler:
         return px, py, valid
 
     def density_q(self, qx, qy):
-        """``Σ_{|G| ≤ G_max} π_G g_G(q)`` [µm²]: the sampled orders' density in q."""
+        """``Σ_{|G| ≤ G_max} π_G g_G(q)`` [µm²]: the sampled orders' density in q (0 without one)."""
+        if self.count == 0:
+            return dr.zeros(mi.Float, dr.width(qx))
         amp = self.structure.amp / self.total               # (2π)² n / (2π w² Σ W)
         return self.structure.peaks(qx, qy, amp, mi.Float(0.0), self.g_max2 * (1 + 1e-6))
 
@@ -197,16 +222,23 @@ class LatticeSampler:
     ----------
     sphere_bsdf : the ``corona`` plugin of the same sphere (bare: no pane)
     lattice : corona.Lattice (fixed)
-    alpha : float
-        The order branch's share.
+    alpha : float, optional
+        The order branch's share; by default :data:`ORDER_SHARE`, scaled down with the first
+        order's Debye–Waller factor ``e^{-G₁²δ²}`` below :data:`ORDER_SHARE_DW` (the orders carry
+        that share of the energy near them: a jitter of a spacing leaves the diffuse part) and 0
+        below :data:`ORDER_SHARE_MIN`.  0 where no order's weight is left (then the sphere's
+        sampler alone, ``pdf = pdf_sphere``).
     """
 
-    def __init__(self, sphere_bsdf, lattice, alpha: float = 0.5):
+    def __init__(self, sphere_bsdf, lattice, alpha: float | None = None):
         from corona import tables
         self.bsdf = sphere_bsdf
         self.lobe = LatticeLobe(sphere_bsdf, lattice)
         self.orders = OrderSampler(lattice, 2.0 * 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3))
-        self.alpha = float(alpha)
+        if alpha is None:
+            alpha = ORDER_SHARE * min(1.0, self.orders.first_dw / ORDER_SHARE_DW)
+            alpha = alpha if alpha >= ORDER_SHARE_MIN else 0.0
+        self.alpha = float(alpha) if self.orders.count else 0.0
         self.ctx = mi.BSDFContext()
         self.ctx.type_mask = +(mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection)
 
@@ -237,6 +269,9 @@ class LatticeSampler:
     def sample(self, si, u1, u2, active=True):
         """``(wo, pdf)``; pdf 0 where the sample failed (an order past the horizon)."""
         active = mi.Bool(active)
+        if self.alpha == 0.0:              # no order branch: the sphere's sampler alone
+            bs, _ = self.bsdf.sample(self.ctx, si, u1, u2, active)
+            return bs.wo, dr.select(active & (bs.pdf > 0), self.pdf(si, bs.wo, active), 0.0)
         pick_order = u1 < self.alpha
         u = dr.select(pick_order, u1 / self.alpha, (u1 - self.alpha) / (1.0 - self.alpha))
         states, _ = self.bsdf._states(si, active)
@@ -252,7 +287,7 @@ class LatticeSampler:
         px, py, valid = self.orders.sample(si.wi, (2.0 * dr.pi) / lam, u_order, u2, active & pick_order)
         up, down, p_up = self._side(si, px, py, active & pick_order & valid, states)
         wo_order = dr.select(u_side < p_up, up, down)
-        bs, _ = self.bsdf.sample(self.ctx, si, u, u2, active & ~pick_order)
+        bs, _ = self.bsdf.sample(self.ctx, si, u, u2, active & _not(pick_order))
         wo = dr.select(pick_order, wo_order, bs.wo)
         ok = dr.select(pick_order, valid, bs.pdf > 0) & active
         return wo, dr.select(ok, self.pdf(si, wo, active, states), 0.0)
@@ -264,6 +299,8 @@ class LatticeSampler:
         if states is None:
             states, _ = self.bsdf._states(si, active)
         p_sphere = self.bsdf.pdf(self.ctx, si, wo, active)
+        if self.alpha == 0.0:
+            return dr.select(active, p_sphere, 0.0)
         return dr.select(active, self.alpha * self._order_pdf(si, wo, active, states)
                          + (1.0 - self.alpha) * p_sphere, 0.0)
 
@@ -300,16 +337,19 @@ class LatticeCap:
         self.w = w
         k_max = 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
         G, W = lattice.bragg_peaks(2.0 * k_max + lattice_cap.RIM_REACH * w)
+        keep = np.asarray(W, dtype=np.float32) > 0        # a jitter's e^{-G²δ²} below float32: no energy
+        G, W = G[keep], W[keep]
         Gn = np.hypot(G[:, 0], G[:, 1])
         order = np.argsort(Gn, kind="stable")
         G, W, Gn = G[order], W[order], Gn[order]
         self.count = int(G.shape[0])
-        # one Vector4f an order: (G_x, G_y, W_G, |G|)
-        self.orders = mi.Float(np.stack([G[:, 0], G[:, 1], W, Gn], axis=-1).ravel().astype(np.float32))
+        # one Vector4f an order: (G_x, G_y, W_G, |G|) (without an order one unread zero entry)
+        self.orders = _array(mi.Float, np.stack([G[:, 0], G[:, 1], W, Gn], axis=-1).ravel() if self.count
+                             else np.zeros(4))
         us, tn, tw = lattice_cap.rim_rules()
         self.n_rule = int(tn.shape[1])
         self.rule_u0, self.rule_du, self.rule_n = float(us[0]), float(us[1] - us[0]), int(us.size)
-        self.rule = mi.Float(np.concatenate([tn, tw], axis=1).ravel().astype(np.float32))
+        self.rule = _array(mi.Float, np.concatenate([tn, tw], axis=1).ravel())
         self.rim_u = float(lattice_cap.RIM_U)
         self.reach = float(lattice_cap.RIM_REACH)
         material = sphere_bsdf.material
@@ -325,7 +365,7 @@ class LatticeCap:
             D = lattice_cap.diffuse_rows_mu(rows, radius, jitter)
         self.has_diffuse = bool(np.any(D > 0))
         self.n_mu = int(D.shape[1])
-        self.D = mi.Float(D.ravel().astype(np.float32))
+        self.D = _array(mi.Float, D.ravel())
 
     def _psum(self, st, wi, px, py, active):
         """(forward, backward) ``P`` at ``wo = (p, ±c)``: each side's ``P`` by its chord's lobe."""
@@ -368,17 +408,17 @@ class LatticeCap:
                 scale = o.z / (k * k)
                 # the rim rule near the horizon (read linearly in u); node 0 is the peak's centre
                 # far from it (P/c (1 + 3/8u²))
-                near = reach & ~far
+                near = reach & _not(far)
                 g = dr.clip((u - self.rule_u0) * (1.0 / self.rule_du), 0.0, self.rule_n - 1.001)
                 j = mi.UInt32(dr.floor(g))
                 t = g - mi.Float(j)
                 inv_r = 1.0 / dr.maximum(rho, 1e-12)
                 c2 = dr.maximum(1.0 - rho * rho, 1e-12)
                 def node(q, on, ef, eb):
-                    t0 = dr.gather(mi.Float, self.rule, j * (2 * R) + q, on)
-                    t1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + q, on)
-                    w0 = dr.gather(mi.Float, self.rule, j * (2 * R) + R + q, on)
-                    w1 = dr.gather(mi.Float, self.rule, (j + 1) * (2 * R) + R + q, on)
+                    t0 = _gather(mi.Float, self.rule, j * (2 * R) + q, on)
+                    t1 = _gather(mi.Float, self.rule, (j + 1) * (2 * R) + q, on)
+                    w0 = _gather(mi.Float, self.rule, j * (2 * R) + R + q, on)
+                    w1 = _gather(mi.Float, self.rule, (j + 1) * (2 * R) + R + q, on)
                     tq, wq = dr.lerp(t0, t1, t), dr.lerp(w0, w1, t)
                     r = 1.0 - eps * tq * tq
                     wt = scale * wq / dr.sqrt(eps * (1.0 + r))
@@ -406,7 +446,7 @@ class LatticeCap:
             return (i + 1, *e)
 
         zero = [mi.Float(0.0) for _ in range(2 * n)]
-        out = dr.while_loop(state=(mi.UInt32(0), *zero), cond=cond, body=body)[1:]
+        out = dr.while_loop(state=(mi.UInt32(0), *zero), cond=cond, body=body)[1:] if self.count else zero
         res = []
         for m, st in enumerate(states):
             e_f, e_b = out[2 * m], out[2 * m + 1]
@@ -415,7 +455,7 @@ class LatticeCap:
                 b = dr.minimum(mi.UInt32(dr.floor(g)), self.n_mu - 2)
                 f = g - mi.Float(b)
                 k0 = st["j"] * self.n_mu + b
-                d = [dr.gather(mi.Float, self.D, k0 + o, active) for o in (0, 1, self.n_mu, self.n_mu + 1)]
+                d = [_gather(mi.Float, self.D, k0 + o, active) for o in (0, 1, self.n_mu, self.n_mu + 1)]
                 e_f = e_f + dr.lerp(dr.lerp(d[0], d[1], f), dr.lerp(d[2], d[3], f), st["t"])
             res.append((e_f, e_b))
         return res
@@ -438,7 +478,9 @@ def lattice_layer_params(params: dict, textures: dict):
     parameters make (:func:`corona.parameters.material_from_parameters`, its checks and errors) and
     the parameters of the sphere plugin's Mie rows (the same sphere, ``process=poisson`` at the
     lattice's area fraction).  One-line errors for what the lattice path does not take: a glass
-    substrate and area_fraction or radius textures that vary."""
+    substrate, area_fraction or radius textures that vary, and a lattice wider than
+    :data:`LATTICE_ORDERS_MAX` Bragg orders."""
+    from corona import tables
     from corona._validation import CoronaError
     from corona.parameters import material_from_parameters
     import warnings
@@ -452,6 +494,17 @@ def lattice_layer_params(params: dict, textures: dict):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         material = material_from_parameters(**params)
+    lattice = material.lattice
+    # the cap's orders, |G| <= 2 k_max: about π (2 k_max)² A_c / (2π)² for a cell of area A_c
+    g_max = 2.0 * 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
+    cell_max = LATTICE_ORDERS_MAX * 4.0 * np.pi / (g_max * g_max)
+    spacing_max = math.sqrt(cell_max * lattice.spacing ** 2 / lattice.cell_area)
+    if lattice.spacing > spacing_max * (1 + 1e-9):
+        raise CoronaError(f"the lattice spacing {lattice.spacing:.4g} µm (radius={float(material.sphere.radius):g}, "
+                          f"area_fraction={float(material.area_fraction):.4g}) is out of range for shape='sphere' "
+                          f"with process={process!r} in the renderer; allowed at most {spacing_max:.4g} µm "
+                          f"(area_fraction at least π radius² / {cell_max:.4g} µm²: each of its Bragg orders, "
+                          f"at most {LATTICE_ORDERS_MAX}, costs every sample a Mie lookup)")
     if material.substrate is not None:
         raise CoronaError(f"substrate={params.get('substrate')!r} is out of range for shape='sphere' with "
                           f"process={process!r} in the renderer; allowed none (the sphere plugin's pane "
@@ -459,7 +512,7 @@ def lattice_layer_params(params: dict, textures: dict):
     rows = {k: v for k, v in params.items() if k != "jitter"}
     rows["process"] = "poisson"
     rows["area_fraction"] = float(material.area_fraction)
-    return material.lattice, rows
+    return lattice, rows
 
 
 class LatticeLayer:
@@ -533,7 +586,7 @@ class LatticeLayer:
         states, m = self._states(si, active)
         p_coh, p_lobe = self._selection(ctx, states)
         pick_coh = active & (sample1 < p_coh)
-        pick_lobe = active & ~pick_coh & (p_lobe > 0)
+        pick_lobe = active & _not(pick_coh) & (p_lobe > 0)
         u = dr.clip((sample1 - p_coh) / dr.maximum(p_lobe, 1e-30), 0.0, 0.99999994)
         wo_lobe, pdf_lobe = self.sampler.sample(si, u, sample2, pick_lobe)
         bs = dr.zeros(mi.BSDFSample3f)
