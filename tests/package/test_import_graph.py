@@ -35,7 +35,7 @@ REFERENCE_IMPORTERS = {
 #: tables; corona.reference beside the runtime, above the spec (it may use the model, the tables
 #: and the spec, never the plugin or the applications, and nothing else imports it).
 TIERS = (
-    ("shared", ("corona._validation", "corona._environment", "corona._executor", "corona._moved", "corona.color")),
+    ("shared", ("corona._validation", "corona._environment", "corona._executor", "corona.color")),
     ("model", ("corona.model",)),
     ("tables", ("corona.tables",)),
     ("spec", ("corona.parameters",)),
