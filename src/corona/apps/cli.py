@@ -34,7 +34,7 @@ class CoronaUsageError(click.ClickException):
 
 
 def _fail(err) -> None:
-    from corona.apps.render import one_line_error  # Mitsuba wraps plugin errors in a traceback
+    from corona._validation import one_line_error  # Mitsuba wraps plugin errors in a traceback
     raise CoronaUsageError(one_line_error(err))
 
 
@@ -208,7 +208,7 @@ def _timeout_seconds(ctx, param, value):
     """--timeout: a finite number of seconds in (0, TIMEOUT_MAX] (click's FloatRange lets inf through)."""
     import math
 
-    from corona.apps.sweep import TIMEOUT_MAX
+    from corona._executor import TIMEOUT_MAX
     if value is not None and not (math.isfinite(value) and 0 < value <= TIMEOUT_MAX):
         raise click.BadParameter(f"{value!r} is out of range; allowed a finite number of seconds in "
                                  f"(0, {TIMEOUT_MAX:g}]", ctx, param)
@@ -216,7 +216,7 @@ def _timeout_seconds(ctx, param, value):
 
 
 def executor_options(f):
-    """--workers / --scheduler / --timeout: where the jobs run (corona.apps.sweep.Executor)."""
+    """--workers / --scheduler / --timeout: where the jobs run (corona._executor.Executor)."""
     f = click.option("--timeout", type=float, default=10.0, callback=_timeout_seconds,
                      show_default=True, help="Seconds to wait for --scheduler and its first worker.")(f)
     f = click.option("--scheduler", default=None, metavar="ADDRESS",
@@ -254,7 +254,8 @@ def sweep(scene, defines, spp, out_dir, workers, scheduler, timeout, force, vari
     if not defines:
         _fail("no -D NAME=V1,V2,... given; a sweep needs at least one parameter list")
     try:
-        from corona.apps.sweep import Executor, parse_defines, point_label, run_sweep
+        from corona._executor import Executor
+        from corona.apps.sweep import parse_defines, point_label, run_sweep
         grid = parse_defines(defines)
         log = (lambda s: click.echo(s, err=True))
         with Executor(workers, scheduler, timeout=timeout, log=log) as ex:
@@ -449,7 +450,7 @@ def validate(out_dir, quick, cases, realisations, scatterers, seed, no_progress,
     """Compare the model with a brute-force wave-optics reference; write a report folder."""
     try:
         from corona.reference import validate as v
-        from corona.apps.sweep import Executor
+        from corona._executor import Executor
         log = (lambda s: click.echo(s, err=True))
         with Executor(None if scheduler else workers, scheduler, timeout=timeout, log=log) as ex:
             summary = v.run(out_dir, quick=quick, cases=cases.split(",") if cases else None,

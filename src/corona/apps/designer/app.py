@@ -156,7 +156,7 @@ class _App:
         except _Timeout as err:
             return _error(503, err)
         except (ValueError, OSError, MemoryError) as err:
-            from corona.apps.render import one_line_error
+            from corona._validation import one_line_error
             return _error(400, one_line_error(err))
 
     # -- routes -------------------------------------------------------------
