@@ -5,7 +5,7 @@ The model (docs/physics.md#the-model): the diffraction lobe of a layer is
 scatterer and ``T_s`` the structure factor of their positions.
 
 Data flows one way: :mod:`corona.model.shapes` + :mod:`corona.model.processes` →
-:class:`corona.Material` → :mod:`corona.tables` → the Mitsuba plugin
+:class:`corona.Material` → :mod:`corona.model.tabulated` → the Mitsuba plugin
 (:mod:`corona.mitsuba.bsdf`) → the applications (:mod:`corona.apps`).  The reference
 tier (:mod:`corona.reference`: simulations, brute force, validation) needs
 the ``reference`` extra and is never imported from here.

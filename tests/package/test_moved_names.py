@@ -17,6 +17,8 @@ OLD_MODULES = [
     "corona.mitsuba_bsdf", "corona.mitsuba_sphere", "corona.mitsuba_phase", "corona.lobe_kernels",
     "corona.volume", "corona.cli", "corona.render", "corona.sweep", "corona.fit", "corona.designer",
     "corona.pictures", "corona.post", "corona.scenes", "corona.micrograph",
+    # the re-export package of corona.model.tabulated and its renderer's rows (now corona.model.rows)
+    "corona.tables", "corona.tables.lobe",
 ]
 
 
@@ -25,6 +27,21 @@ def test_old_module_name_is_gone(old):
     sys.modules.pop(old, None)
     with pytest.raises(ModuleNotFoundError):
         importlib.import_module(old)
+
+
+def test_the_sweep_no_longer_gives_the_executors_names():
+    # corona.apps.sweep re-exported corona._executor's names; it keeps only those it uses
+    from corona.apps import sweep
+    gone = ["DASK_SCHEMES", "TIMEOUT", "TIMEOUT_MAX", "WORKERS_PER_CORE", "default_workers", "_cpus"]
+    assert [n for n in gone if hasattr(sweep, n)] == []
+
+
+def test_the_tables_and_rows_have_one_home():
+    from corona.model import render_lobe, rows, tabulated
+    for name in ("region_points", "relative_error", "row_energy_changes", "row_slopes", "structure_rows"):
+        assert getattr(rows, name).__module__ == "corona.model.rows", name
+    assert not hasattr(rows, "RenderLobe") and render_lobe.RenderLobe.__module__ == "corona.model.render_lobe"
+    assert tabulated.RadialTable.__module__ == "corona.model.tabulated"
 
 
 def test_no_alias_finder_on_the_meta_path():

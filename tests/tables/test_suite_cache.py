@@ -10,9 +10,8 @@ import pytest
 
 import corona
 import suite_cache
-from corona import tables
 from corona.model import tabulated
-from corona.tables.lobe import structure_rows
+from corona.model.rows import structure_rows
 
 
 def _hit(monkeypatch, make, get) -> dict:

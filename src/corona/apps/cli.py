@@ -322,7 +322,7 @@ def lobe(out_path, as_json, wavelength, **params):
                   "its numbers, or render it with corona render")
         if as_json and isinstance(m, SphereMaterial):       # the Mie lobe along d_x and its energies
             from corona._validation import check_range
-            from corona.tables import WAVELENGTH_MAX, WAVELENGTH_MIN
+            from corona.model.tabulated import WAVELENGTH_MAX, WAVELENGTH_MIN
             wavelength = check_range("wavelength", wavelength, WAVELENGTH_MIN, WAVELENGTH_MAX, unit="nm")
             d = np.linspace(0.0, 0.999, 201)
             e = m.directional_albedo(1.0, wavelength, n_phi=4)
@@ -334,7 +334,7 @@ def lobe(out_path, as_json, wavelength, **params):
             return
         if as_json:
             from corona._validation import check_range
-            from corona.tables import WAVELENGTH_MAX, WAVELENGTH_MIN
+            from corona.model.tabulated import WAVELENGTH_MAX, WAVELENGTH_MIN
             wavelength = check_range("wavelength", wavelength, WAVELENGTH_MIN, WAVELENGTH_MAX, unit="nm")
             R = m.length_scale
             from corona.apps.pictures import _u_extent
@@ -375,7 +375,7 @@ def tables():
 @tables.command("info")
 def tables_info():
     """Show where the cache is, how many tables and how big."""
-    from corona import tables as t
+    from corona.model import tabulated as t
     try:
         info = t.cache_info()
     except CoronaError as err:
@@ -387,7 +387,7 @@ def tables_info():
 @tables.command("clear")
 def tables_clear():
     """Delete every cached table (only the files the cache wrote)."""
-    from corona import tables as t
+    from corona.model import tabulated as t
     try:
         n = t.cache_clear()
         folder = t.cache_dir()
@@ -404,7 +404,8 @@ def doctor():
     """Report the environment (for bug reports)."""
     import platform
 
-    from corona import __version__, _environment, tables as t
+    from corona import __version__, _environment
+    from corona.model import tabulated as t
     lines = [f"corona {__version__}", f"python {platform.python_version()} on {platform.platform()}"]
     try:
         import drjit as dr

@@ -202,10 +202,10 @@ class LatticeSampler:
     """
 
     def __init__(self, sphere_bsdf, lattice, alpha: float = 0.5):
-        from corona import tables
+        from corona.model import tabulated
         self.bsdf = sphere_bsdf
         self.lobe = LatticeLobe(sphere_bsdf, lattice)
-        self.orders = OrderSampler(lattice, 2.0 * 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3))
+        self.orders = OrderSampler(lattice, 2.0 * 2.0 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3))
         self.alpha = float(alpha)
         self.ctx = mi.BSDFContext()
         self.ctx.type_mask = +(mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection)
@@ -293,12 +293,12 @@ class LatticeCap:
     """
 
     def __init__(self, sphere_bsdf, lattice):
-        from corona import tables
+        from corona.model import tabulated
         from corona.model.mie import lattice_cap
         self.bsdf = sphere_bsdf
         w = float(lattice.peak_width)
         self.w = w
-        k_max = 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
+        k_max = 2.0 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3)
         G, W = lattice.bragg_peaks(2.0 * k_max + lattice_cap.RIM_REACH * w)
         Gn = np.hypot(G[:, 0], G[:, 1])
         order = np.argsort(Gn, kind="stable")
@@ -318,9 +318,9 @@ class LatticeCap:
             def make():
                 return {"D": lattice_cap.diffuse_rows_mu(rows, radius, jitter)}
             key = {**material.table_params(), "lattice_jitter": jitter,
-                   "lattice_diffuse": [tables.code_key(lattice_cap.diffuse_rows_mu, make),
+                   "lattice_diffuse": [tabulated.code_key(lattice_cap.diffuse_rows_mu, make),
                                        lattice_cap.DIFFUSE_MU_NODES, lattice_cap.DIFFUSE_PHI]}
-            D = np.asarray(tables.cached(key, make, use_cache=material.use_cache)["D"])
+            D = np.asarray(tabulated.cached(key, make, use_cache=material.use_cache)["D"])
         else:
             D = lattice_cap.diffuse_rows_mu(rows, radius, jitter)
         self.has_diffuse = bool(np.any(D > 0))
