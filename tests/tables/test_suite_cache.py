@@ -28,7 +28,6 @@ def _hit(monkeypatch, make, get) -> dict:
             return build()
         return real(params, counted, **kw)
     monkeypatch.setattr(tabulated, "cached", spy)
-    monkeypatch.setattr(tables, "cached", spy)
     out = get(make(True))
     monkeypatch.undo()
     assert built == [], "the second read built a table: not a cache hit"
