@@ -3,11 +3,11 @@
 For each material: the relative error of the lobe against ``Material.lobe``
 (RMS and largest ``|v / v_model - 1|``) over uniform points of the reachable u
 disk where the model's lobe is above 1e-3 of its peak
-(:func:`corona.tables.lobe.region_points`),
+(:func:`corona.model.rows.region_points`),
 
 * ``before``: the bilinear 512² table of ``v`` (cells of 0.25 in u, range
   ``min(u_max, 64)``, zero beyond) that the renderer evaluated until issue 18;
-* ``after``: :class:`corona.tables.lobe.RenderLobe` (numpy, float64);
+* ``after``: :class:`corona.model.render_lobe.RenderLobe` (numpy, float64);
 * ``kernel``: the plugin's Dr.Jit kernel (:class:`corona.mitsuba.kernels.LobeKernel`,
   float32, llvm_ad_spectral) at the same points,
 
@@ -89,13 +89,13 @@ def _files(folder):
 
 def before_table(m):
     """The renderer's table until issue 18: v at the vertices of a 512² grid, bilinear."""
-    from corona import tables
-    n = tables.GRID2D_SIZE
-    u_range = min(tables.u_max_for(m.length_scale), 0.25 * n / 2)
+    from corona.model import tabulated
+    n = tabulated.GRID2D_SIZE
+    u_range = min(tabulated.u_max_for(m.length_scale), 0.25 * n / 2)
     cell = 2 * u_range / n
     c = -u_range + (np.arange(n) + 0.5) * cell
     ux, uy = np.meshgrid(c, c, indexing="xy")
-    return tables.GridTable(u_range, m.lobe_dimensionless(np.stack([ux, uy], -1)))
+    return tabulated.GridTable(u_range, m.lobe_dimensionless(np.stack([ux, uy], -1)))
 
 
 def plugin_bytes(m, kernel=None) -> int:
@@ -119,7 +119,7 @@ def main():
     ap.add_argument("--no-kernel", action="store_true", help="skip the Dr.Jit kernel")
     args = ap.parse_args()
     os.environ["CORONA_CACHE_DIR"] = tempfile.mkdtemp(prefix="corona-bench-")
-    from corona.tables import lobe as render_lobe
+    from corona.model import rows
     from corona.parameters import material_from_parameters
     folder = tempfile.mkdtemp(prefix="corona-bench-files-")
     mask, points = _files(folder)
@@ -155,21 +155,21 @@ def main():
             t0 = time.perf_counter()
             m.render_lobe
             build = time.perf_counter() - t0
-            u, v = render_lobe.region_points(m, args.points)
-        row = {"kind": m.render_kind, "u_max": float(corona.tables.u_max_for(m.length_scale))}
+            u, v = rows.region_points(m, args.points)
+        row = {"kind": m.render_kind, "u_max": float(corona.model.tabulated.u_max_for(m.length_scale))}
         if not m.isotropic:
-            b = render_lobe.relative_error(before_table(m).eval(u), v)
+            b = rows.relative_error(before_table(m).eval(u), v)
             row.update(rms_before=b["rms"], max_before=b["max"])
         else:
-            b = render_lobe.relative_error(m.table.eval(np.hypot(u[:, 0], u[:, 1])), v)
+            b = rows.relative_error(m.table.eval(np.hypot(u[:, 0], u[:, 1])), v)
             row.update(rms_before=b["rms"], max_before=b["max"])
-        a = render_lobe.relative_error(m.render_lobe.eval(u), v)
+        a = rows.relative_error(m.render_lobe.eval(u), v)
         row.update(rms_after=a["rms"], max_after=a["max"], points=a["points"])
         if not args.no_kernel and not m.isotropic:
             k = LobeKernel(m)
             val = np.array(k.value(mi.Float(u[:, 0].astype(np.float32)), mi.Float(u[:, 1].astype(np.float32)),
                                    mi.Bool(True)))
-            kk = render_lobe.relative_error(val, v)
+            kk = rows.relative_error(val, v)
             row.update(rms_kernel=kk["rms"], max_kernel=kk["max"])
             # cost of value + pdf at one wavelength, per 2^19 lanes, against one
             # bilinear lookup of the sampling table (what the plugin did before)
@@ -188,14 +188,14 @@ def main():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         m = material_from_parameters(**CASES["ellipse 1 µm, 1.6:1, 20° / hard-disk 0.3"])
-        u, v = render_lobe.region_points(m, args.points)
-    from corona import tables
+        u, v = rows.region_points(m, args.points)
+    from corona.model import tabulated
     for N in (512, 1024, 2048, 4096):
-        U = min(tables.u_max_for(m.length_scale), 64.0)
+        U = min(tabulated.u_max_for(m.length_scale), 64.0)
         c = -U + (np.arange(N) + 0.5) * 2 * U / N
         ux, uy = np.meshgrid(c, c, indexing="xy")
-        e = render_lobe.relative_error(
-            tables.GridTable(U, m.lobe_dimensionless(np.stack([ux, uy], -1))).eval(u), v)
+        e = rows.relative_error(
+            tabulated.GridTable(U, m.lobe_dimensionless(np.stack([ux, uy], -1))).eval(u), v)
         alternative[f"bilinear {N}²"] = dict(cell=2 * U / N, rms=e["rms"], max=e["max"],
                                              bytes_with_cdfs=3 * N * N * 4)
         print(f"alternative: ellipse, bilinear {N}²: rms {e['rms']:.2e} max {e['max']:.2e} "

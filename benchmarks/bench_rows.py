@@ -42,10 +42,10 @@ MATERIALS = {
 
 
 def measure(params: dict, samples: int, rng) -> dict:
-    from corona import tables
+    from corona.model import tabulated
     from corona.parameters import material_from_parameters
     base = material_from_parameters(**params, area_fraction=0.3)
-    tables.cache_clear()
+    tabulated.cache_clear()
     t0 = time.perf_counter()
     fas, tabs, row_error = base.area_fraction_rows()
     build = time.perf_counter() - t0

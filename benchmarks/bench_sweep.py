@@ -58,7 +58,7 @@ def sweep_command(out: str, workers: int, res: int, spp: int) -> dict:
 
 def noop_overhead(n: int) -> dict:
     """Seconds per empty task through Executor.map, on 2 local workers and in this process."""
-    from corona.apps.sweep import Executor
+    from corona._executor import Executor
     out = {}
     for name, workers in (("cluster_2_workers", 2), ("in_process", 0)):
         with Executor(workers=workers) as ex:

@@ -97,7 +97,7 @@ def one_scene(path: str) -> dict:
     from corona.mitsuba import phase as mitsuba_phase
     from corona.mitsuba import sphere as mitsuba_sphere
     from corona.model import processes
-    from corona.tables import lobe as render_lobe
+    from corona.model import rows
     from corona.model.mie import layer as sphere_material
     from corona.mitsuba import volume
     sphere_material.build_mie_rows = timed("mie", sphere_material.build_mie_rows)
@@ -109,7 +109,7 @@ def one_scene(path: str) -> dict:
     mi.load_file(path)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     cold = dict(spent)
-    # tables written in the background (corona.tables.cached(background=True)) on disk before the
+    # tables written in the background (corona.model.tabulated.cached(background=True)) on disk before the
     # count and the warm load: the wait past the load, writes_after_s (older trees: none)
     from corona.model import tabulated
     t0 = time.perf_counter()
@@ -163,16 +163,16 @@ def scenes(paths, timeout: float, root: str = ROOT) -> dict:
 
 def materials(repeats: int) -> dict:
     import corona  # noqa: F401
-    from corona import tables
+    from corona.model import tabulated
     from corona.parameters import material_from_parameters
     os.environ["CORONA_CACHE_DIR"] = tempfile.mkdtemp(prefix="corona-bench-")
     material_from_parameters(**MATERIALS["circle / hard-disk"]).table  # warm imports / data load
-    tables.cache_clear()
+    tabulated.cache_clear()
     results = {}
     for name, params in MATERIALS.items():
         build, load = [], []
         for _ in range(repeats):
-            tables.cache_clear()
+            tabulated.cache_clear()
             m = material_from_parameters(**params)
             t0 = time.perf_counter()
             t = m.table
@@ -188,7 +188,7 @@ def materials(repeats: int) -> dict:
         print(f"{name:34s} {results[name]['kind']:6s} {t.values.size:8d} samples  "
               f"build {results[name]['build_median_s'] * 1e3:8.1f} ms  "
               f"load {results[name]['load_median_s'] * 1e3:6.1f} ms", flush=True)
-    tables.cache_clear()
+    tabulated.cache_clear()
     return results
 
 

@@ -32,7 +32,7 @@ def main(n=16_384, out="benchmarks/results/sphere_lattice_cost.json"):
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
     from bsdf_checks import interaction
     # hexagonal cell area of 1 µm spheres at F_a: π / F_a; the limit's F_a: π G_max² / (4π N)
-    g_max = 2.0 * 2.0 * np.pi / (corona.tables.WAVELENGTH_MIN * 1e-3)
+    g_max = 2.0 * 2.0 * np.pi / (corona.model.tabulated.WAVELENGTH_MIN * 1e-3)
     fa_limit = float(np.pi * g_max ** 2 / (4.0 * np.pi * LATTICE_ORDERS_MAX)) * 1.001
     rows = []
     rng = np.random.default_rng(1)

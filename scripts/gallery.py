@@ -282,7 +282,7 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
     """Render the strips (all, or the names in ``only``) and rewrite the gallery page.
 
     Every panel of every strip is one point of a sweep: they all go to
-    ``executor`` (a :class:`corona.apps.sweep.Executor`: a local Dask cluster, an
+    ``executor`` (a :class:`corona._executor.Executor`: a local Dask cluster, an
     existing one, or this process) at once; then each strip is exposed,
     annotated and tiled here.  Returns ``{"seconds": total, "strips": {name:
     seconds}, "failed": {name: message}}`` (a strip's seconds: the render time
@@ -290,7 +290,8 @@ def build(only=None, variant: str | None = None, out_dir: str | None = None,
     """
     from corona.apps.pictures import display_srgb
     from corona.apps.render import setup_variant, write_images
-    from corona.apps.sweep import Executor, RenderJob, render_jobs
+    from corona._executor import Executor
+    from corona.apps.sweep import RenderJob, render_jobs
     root = repo_root()
     scenes_dir = os.path.join(root, "scenes")
     if not os.path.isdir(scenes_dir):
@@ -425,7 +426,7 @@ def main(argv=None) -> int:
                     help="local Dask cluster size (default: sized to the machine); 0: in this process")
     ap.add_argument("--scheduler", default=None, help="an existing Dask scheduler (tcp://host:8786)")
     a = ap.parse_args(argv)
-    from corona.apps.sweep import Executor
+    from corona._executor import Executor
     try:
         with Executor(a.workers, a.scheduler, log=print) as ex:
             res = build(only=a.only, variant=a.variant, executor=ex)

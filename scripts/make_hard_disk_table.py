@@ -175,7 +175,7 @@ def save_row(work_dir: str, raw: dict, first_chain: int = 0) -> None:
 def simulate_rows(etas, work_dir: str, executor=None, jobs: int = 1, progress: bool = True,
                   settings=row_settings) -> list:
     """Every row of ``etas``, one task per row of ``executor`` (a
-    :class:`corona.apps.sweep.Executor`; default: here, one after the other).
+    :class:`corona._executor.Executor`; default: here, one after the other).
     Each row is stored in ``work_dir`` as it arrives; a failed row is
     reported and the others finish.  Returns the raw rows (None where failed).
     """

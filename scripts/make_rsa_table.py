@@ -62,7 +62,7 @@ def simulate(args, executor=None, progress: bool = True) -> dict:
     """The raw accumulators of ``args.runs`` runs (seeds ``args.seed + run``).
 
     The runs go in chunks of ``args.chunk`` (one task of ``executor``, a
-    :class:`corona.apps.sweep.Executor`; default: here, one after the other); the
+    :class:`corona._executor.Executor`; default: here, one after the other); the
     chunk sums are added in chunk order, so the result is the same bits
     wherever the chunks ran (it depends on ``--chunk`` only through the order
     of floating-point additions).

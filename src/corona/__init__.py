@@ -5,7 +5,7 @@ The model (docs/physics.md#the-model): the diffraction lobe of a layer is
 scatterer and ``T_s`` the structure factor of their positions.
 
 Data flows one way: :mod:`corona.model.shapes` + :mod:`corona.model.processes` →
-:class:`corona.Material` → :mod:`corona.tables` → the Mitsuba plugin
+:class:`corona.Material` → :mod:`corona.model.tabulated` → the Mitsuba plugin
 (:mod:`corona.mitsuba.bsdf`) → the applications (:mod:`corona.apps`).  The reference
 tier (:mod:`corona.reference`: simulations, brute force, validation) needs
 the ``reference`` extra and is never imported from here.
@@ -17,8 +17,6 @@ loaded on first use (PEP 562), and the plugin by :func:`register`.
 # _environment must come first: when DRJIT_LIBLLVM_PATH is unset it points it at
 # a libLLVM >= 16 before Dr.Jit loads (a user's own setting is left alone)
 from corona import _environment  # noqa: F401
-from corona import _moved
-_moved.install()   # the previous release's module names (corona.mitsuba_bsdf, corona.cli, ...)
 from corona._environment import default_variant, set_default_variant
 from corona._validation import CoronaError, CoronaWarning
 from corona.model.material import Material
@@ -29,7 +27,7 @@ from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, Random
                      RegularPolygon, Shape, SizeDistribution, SoftEdge, Sphere, Square)
 from corona.model.substrate import GlassPane, Mirror
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 #: Names of the applications tier, imported on first use (PEP 562): ``import corona`` stays the model.
 _LAZY = ("fit_photograph", "from_micrograph")

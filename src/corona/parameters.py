@@ -175,7 +175,7 @@ SUBSTRATES = ("none", "glass", "mirror")
 IOR_MAX = 5.0
 SUBSTRATE_SIDES = ("front", "back")
 #: Largest circumradius of a scatterer [µm] (the length R of ``u = 2π R |d| / λ``).
-#: The radial table (``tables.RADIAL_MAX_SAMPLES`` samples up to |d| = 2 at 360 nm)
+#: The radial table (``tabulated.RADIAL_MAX_SAMPLES`` samples up to |d| = 2 at 360 nm)
 #: has a step of 0.14 in u there, which resolves the Airy core (first zero at
 #: u = 3.83) to 0.1 % in energy; at 1 mm the diffraction lobe is already narrower
 #: than 0.03°, below what a render resolves (docs/physics.md).
@@ -452,7 +452,7 @@ def _check_size(shape, p: dict):
 
 def _size_average_work(shape) -> float:
     """Terms of the size averages over a 2D table (see :data:`SIZE_AVERAGE_WORK_MAX`)."""
-    from corona import tables
+    from corona.model import tabulated
     from corona.model import shapes
     if isinstance(shape, shapes.Mixture):
         return sum(_size_average_work(sh) for sh, _ in shape.components)
@@ -460,8 +460,8 @@ def _size_average_work(shape) -> float:
         return 0.0              # a radial table: log-grid size average, cheap
     if isinstance(shape, shapes.SizeDistribution):
         R = shape.length_scale
-        q_max = math.sqrt(2.0) * min(tables.u_max_for(R), 0.25 * tables.GRID2D_SIZE / 2) / R
-        vertices = tables.GRID2D_SIZE ** 2 / 2
+        q_max = math.sqrt(2.0) * min(tabulated.u_max_for(R), 0.25 * tabulated.GRID2D_SIZE / 2) / R
+        vertices = tabulated.GRID2D_SIZE ** 2 / 2
         return vertices * len(shape._nodes(q_max)[0]) * shape.shape._cost
     if isinstance(shape, shapes.SoftEdge):
         return _size_average_work(shape.shape)

@@ -193,7 +193,7 @@ def test_picture_mirrors_columns_only_for_lobes_even_in_x():
 def test_grid_table_eval_scaled_is_eval_at_each_scale():
     """GridTable.eval_scaled (one pass, flat gathers) is GridTable.eval at d * s for each s,
     inside, on the edges and outside the vertex square (0), warped or not."""
-    from corona.tables import GridTable
+    from corona.model.tabulated import GridTable
     rng = np.random.default_rng(3)
     for warp in (0.0, 40.0):
         t = GridTable(8.0, rng.random((33, 33)), warp)
@@ -391,7 +391,7 @@ def test_closed_form_disk_lobe_is_the_render_lobe_at_every_wavelength(params):
     assert got.shape == ref.shape and np.all(np.isfinite(got))
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-13 * ref.max())
     # a mixture of a circle and this outline (the intensity and amplitude sums, a circle's |d|)
-    from corona.tables.lobe import RenderLobe, Term
+    from corona.model.render_lobe import RenderLobe, Term
     mix = RenderLobe("analytic", rl.R, rl.area, s_du=rl.s_du, s_minus_one=rl.s_minus_one,
                      terms=[Term("circle", {"radius": 0.5 * rl.R}, 0.3, np.pi * (0.5 * rl.R) ** 2, 0.1),
                             dataclasses.replace(rl.terms[0], weight=0.7)])
@@ -565,7 +565,7 @@ def test_mask_upload_is_stored_in_the_cache_and_usable(client):
     assert up["width"] == 32 and compute.UPLOAD_ID.match(up["id"])
     stored = os.path.join(app_module.designer_dir("uploads"), up["id"])
     assert os.path.isfile(stored)
-    from corona.tables import cache_dir
+    from corona.model.tabulated import cache_dir
     assert os.path.commonpath([stored, cache_dir()]) == cache_dir()
     q = {"shape": "mask", "filename": up["id"], "pixel_size": 0.5, "orientation": "random",
          "area_fraction": 0.3, "mode": "aperture", "size": 48}
@@ -655,7 +655,7 @@ def test_deeply_nested_json_to_fit_is_400(client):
 def test_errors_do_not_show_the_servers_cache_path(client):
     """A fit of an uploaded photograph without a light named the file by its absolute path in the
     table cache; the message names the upload by its id."""
-    from corona.tables import cache_dir
+    from corona.model.tabulated import cache_dir
     rng = np.random.default_rng(0)
     fog = _png_bytes(rng.integers(90, 110, (64, 64, 3)).astype(np.uint8))
     up = client.post("/api/upload?kind=photo&name=fog.png", content=fog).json()

@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from corona._executor import Executor
 from corona._validation import CoronaError
 from corona.apps.cli import main
-from corona.apps.sweep import Executor, parse_defines, point_name, run_sweep, sweep_points
+from corona.apps.sweep import parse_defines, point_name, run_sweep, sweep_points
 
 from bsdf_checks import one_line_error as _one_line_error
 
@@ -340,7 +341,7 @@ def test_many_local_workers_are_capped_at_the_points_and_cores(tmp_path, monkeyp
     cluster gets at most one worker per point and WORKERS_PER_CORE per core, said in one line."""
     import distributed
 
-    from corona.apps import sweep
+    from corona import _executor
     asked = {}
 
     class Recorder:
@@ -354,7 +355,7 @@ def test_many_local_workers_are_capped_at_the_points_and_cores(tmp_path, monkeyp
     assert asked["n"] == 2 and any("capped to 2" in s for s in logged), (asked, logged)
     with pytest.raises(CoronaError, match="stop here"):
         Executor(workers=1000).start(n_tasks=10**6)
-    assert asked["n"] == sweep.WORKERS_PER_CORE * sweep._cpus()
+    assert asked["n"] == _executor.WORKERS_PER_CORE * _executor._cpus()
     r = _sweep_cli("-D", "radius=2.5,5", "--out", str(tmp_path / "o"), "--workers", "1000")
     _one_line_error(r, "stop here")
     assert asked["n"] == 2

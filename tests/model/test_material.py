@@ -4,7 +4,7 @@ import pytest
 from scipy import special, stats
 
 import corona
-from corona import tables
+from corona.model import tabulated
 from corona.model.material import Material
 
 
@@ -149,15 +149,15 @@ def test_table_cache_roundtrip_and_damage(tmp_path, monkeypatch):
         return {"values": np.arange(10.0)}
 
     params = {"test": 1}
-    a = tables.cached(params, build)
-    b = tables.cached(params, build)
+    a = tabulated.cached(params, build)
+    b = tabulated.cached(params, build)
     assert len(calls) == 1 and np.array_equal(a["values"], b["values"])
-    path = tmp_path / (tables.cache_key(params) + ".npz")
+    path = tmp_path / (tabulated.cache_key(params) + ".npz")
     path.write_bytes(path.read_bytes()[:50])  # truncate: must be detected and rebuilt
-    c = tables.cached(params, build)
+    c = tabulated.cached(params, build)
     assert len(calls) == 2 and np.array_equal(c["values"], np.arange(10.0))
-    assert tables.cache_info()["tables"] == 1
-    assert tables.cache_clear() == 1 and tables.cache_info()["tables"] == 0
+    assert tabulated.cache_info()["tables"] == 1
+    assert tabulated.cache_clear() == 1 and tabulated.cache_info()["tables"] == 0
 
 
 def test_mixture_parameter_follows_the_decoupling_formula():

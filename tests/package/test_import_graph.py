@@ -30,14 +30,14 @@ REFERENCE_IMPORTERS = {
 
 
 #: The tiers, low to high (docs/contributing.md, "The tiers and the import policy"): an import may only point to the
-#: same tier or a lower one.  The shared infrastructure sits below the model; corona.parameters
-#: (the one parameter spec, which builds materials and reads the tables' settings) above the
-#: tables; corona.reference beside the runtime, above the spec (it may use the model, the tables
-#: and the spec, never the plugin or the applications, and nothing else imports it).
+#: same tier or a lower one.  The shared infrastructure sits below the model (which holds the
+#: tables and their cache: corona.model.tabulated, corona.model.rows); corona.parameters (the one
+#: parameter spec, which builds materials and reads the tables' settings) above the model;
+#: corona.reference beside the runtime, above the spec (it may use the model and the spec, never
+#: the plugin or the applications, and nothing else imports it).
 TIERS = (
-    ("shared", ("corona._validation", "corona._environment", "corona._executor", "corona._moved", "corona.color")),
+    ("shared", ("corona._validation", "corona._environment", "corona._executor", "corona.color")),
     ("model", ("corona.model",)),
-    ("tables", ("corona.tables",)),
     ("spec", ("corona.parameters",)),
     ("reference", ("corona.reference",)),
     ("plugin", ("corona.mitsuba",)),
@@ -215,9 +215,9 @@ def test_allowed_upward_arrows_are_still_there():
 
 @pytest.mark.parametrize("source, bad", [
     # an upward arrow inside a function is still one
-    ({"corona.model.m": "def f():\n    from corona.tables import x", "corona.tables": ""},
-     ["corona.model.m [model] -> corona.tables [tables]"]),
-    ({"corona.tables": "from corona.model import m", "corona.model.m": ""}, []),
+    ({"corona.model.m": "def f():\n    from corona.parameters import x", "corona.parameters": ""},
+     ["corona.model.m [model] -> corona.parameters [spec]"]),
+    ({"corona.parameters": "from corona.model import m", "corona.model.m": ""}, []),
     # the runtime reaching the reference tier, even from the tier that sits below it in rank
     ({"corona.mitsuba.b": "import corona.reference.r", "corona.reference.r": ""},
      ["corona.mitsuba.b [plugin] -> corona.reference.r [reference]"]),
@@ -274,7 +274,7 @@ def test_importing_the_model_imports_no_higher_tier():
     """``import corona.model.material`` (which runs the package root) loads the model and the shared
     infrastructure only; the applications' names of the root come on first use (PEP 562)."""
     code = ("import sys, corona.model.material\n"
-            "print(' '.join(sorted(m for m in sys.modules if m.startswith(('corona.tables', 'corona.parameters',"
+            "print(' '.join(sorted(m for m in sys.modules if m.startswith(('corona.parameters',"
             " 'corona.mitsuba', 'corona.apps', 'corona.reference')))))\n"
             "import corona, corona.apps.fit, corona.apps.micrograph\n"
             "assert corona.fit_photograph is corona.apps.fit.fit_photograph\n"

@@ -2,7 +2,7 @@
 
 The size every shape class takes first is the plugin's flat ``radius`` (circle radius,
 ellipse semi-axis x, square and rectangle half-width, polygon circumradius) and angles are
-degrees in both.  The previous release's spellings still work, with a DeprecationWarning.
+degrees in both.  The previous release's spellings were removed in 0.2.0.
 """
 import math
 import warnings
@@ -65,40 +65,23 @@ def test_angles_are_degrees():
     np.testing.assert_allclose(lat.lattice_vectors, [[0.0, 2.0], [-2.0, 0.0]], atol=1e-12)
 
 
-OLD = [   # (old spelling, the same scatterer in the new one, the new spelling named in the warning)
-    (lambda: corona.Square(side=2.0, angle=0.5), lambda: corona.Square(1.0, angle=math.degrees(0.5)),
-     "Square(1.0, angle=28.6"),
-    (lambda: corona.Square(2.0, 0.5), lambda: corona.Square(1.0, angle=math.degrees(0.5)), "Square(1.0, angle="),
-    (lambda: corona.Rectangle(2.0, 1.0, 0.3), lambda: corona.Rectangle(1.0, aspect=0.5, angle=math.degrees(0.3)),
-     "Rectangle(1.0, aspect=0.5, angle=17.18"),
-    (lambda: corona.Rectangle(width=2.0, height=1.0), lambda: corona.Rectangle(1.0, aspect=0.5),
-     "Rectangle(1.0, aspect=0.5, angle=0.0)"),
-    (lambda: corona.Ellipse(2.0, 1.0, 0.3), lambda: corona.Ellipse(2.0, aspect=0.5, angle=math.degrees(0.3)),
-     "Ellipse(2.0, aspect=0.5, angle=17.18"),
-    (lambda: corona.Ellipse(semi_axis_x=2.0, semi_axis_y=1.0), lambda: corona.Ellipse(2.0, aspect=0.5),
-     "Ellipse(2.0, aspect=0.5, angle=0.0)"),
-    (lambda: corona.RegularPolygon(5, 2.0, 0.3), lambda: corona.RegularPolygon(5, 2.0, angle=math.degrees(0.3)),
-     "RegularPolygon(5, 2.0, angle=17.18"),
+#: 0.1.0's spellings (full lengths or semi-axes, radians, positionally or by the old keywords),
+#: removed in 0.2.0: each is a TypeError now, not a shape built under another reading
+OLD = [
+    lambda: corona.Square(side=2.0, angle=0.5),
+    lambda: corona.Square(2.0, 0.5),
+    lambda: corona.Rectangle(2.0, 1.0, 0.3),
+    lambda: corona.Rectangle(width=2.0, height=1.0),
+    lambda: corona.Ellipse(2.0, 1.0, 0.3),
+    lambda: corona.Ellipse(semi_axis_x=2.0, semi_axis_y=1.0),
+    lambda: corona.RegularPolygon(5, 2.0, 0.3),
 ]
 
 
-@pytest.mark.parametrize("old, new, named", OLD, ids=range(len(OLD)))
-def test_old_spellings_warn_and_build_the_old_scatterer(old, new, named):
-    with pytest.warns(DeprecationWarning, match="old spelling") as rec:
-        shape = old()
-    assert named in str(rec[0].message)
-    assert rec[0].filename == __file__          # the warning points at the caller's line
-    q = np.array([[0.0, 0.0], [1.3, 0.2], [0.4, -0.9], [2.5, 1.7]])
-    np.testing.assert_allclose(shape.form_factor(q), new().form_factor(q), rtol=1e-12, atol=1e-14)
-
-
-def test_old_and_new_spellings_cannot_be_mixed():
-    with pytest.raises(corona.CoronaError, match="radius or side"):
-        corona.Square(1.0, side=2.0)
-    with pytest.raises(corona.CoronaError, match="aspect or semi_axis_y"):
-        corona.Ellipse(1.0, 0.5, aspect=0.5)
+@pytest.mark.parametrize("old", OLD, ids=range(len(OLD)))
+def test_old_spellings_are_gone(old):
     with pytest.raises(TypeError):
-        corona.Square(1.0, 0.0, 3.0)
+        old()
 
 
 @pytest.mark.parametrize("name", ["square", "ellipse"])

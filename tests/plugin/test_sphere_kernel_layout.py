@@ -124,7 +124,7 @@ def test_guide_tables_are_the_last_bin_at_or_below_each_mark(mi_variant):
     ``guide[j]`` is the last bin whose normalised float32 CDF is <= ``float32(j / G)`` (clipped to
     the bins), on rows with empty stretches, a zero row, a row of denormal-small values and random
     peaked rows."""
-    from corona import tables
+    from corona.model import tabulated
     from corona.mitsuba.common import guided_cdfs
     rng = np.random.default_rng(7)
     for n in (3, 17, 200, 833):
@@ -133,7 +133,7 @@ def test_guide_tables_are_the_last_bin_at_or_below_each_mark(mi_variant):
         v[2, n // 2:] = 0.0
         v[3] = 1e-38
         v[4, :n // 3] = 0.0
-        cdfs = tables.radial_cdfs(0.01, v)
+        cdfs = tabulated.radial_cdfs(0.01, v)
         g = guided_cdfs(cdfs)
         G, n_bins = g["G"], g["n_bins"]
         assert n_bins == n - 1

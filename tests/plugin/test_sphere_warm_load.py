@@ -8,7 +8,7 @@ import numpy as np
 def test_warm_load_reads_the_guided_rows_back(mi_variant, upload_branch, monkeypatch, tmp_path):
     import mitsuba as mi
 
-    from corona import tables
+    from corona.model import tabulated
     from corona.mitsuba import sphere
     made = []
     real = sphere.guided_cdfs
@@ -29,8 +29,8 @@ def test_warm_load_reads_the_guided_rows_back(mi_variant, upload_branch, monkeyp
     J = rows["x"].size
     assert cold == 2 * J and sum(made) == cold             # built once; the warm load read them back
     ds = float(rows["ds"])
-    ref = real([tables.RadialTable(ds, r).cdf for r in rows["P_f"]]
-               + [tables.RadialTable(ds, r).cdf for r in rows["P_b"]])
+    ref = real([tabulated.RadialTable(ds, r).cdf for r in rows["P_f"]]
+               + [tabulated.RadialTable(ds, r).cdf for r in rows["P_b"]])
     for bsdf in (first, second):
         assert (bsdf.G, bsdf.n_bins, bsdf.steps) == (ref["G"], ref["n_bins"], ref["steps"])
         assert np.array_equal(np.asarray(bsdf.cdf), ref["cdf"])

@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from scipy import special
 
 import corona
-from corona import parameters, tables
+from corona import parameters
 from corona.model import tabulated
 from corona.apps.cli import main as cli_main
 from corona.parameters import RADIUS_MAX, SPEC, material_from_parameters
@@ -428,8 +428,8 @@ def test_read_only_cache_builds_in_memory_and_warns_once(tmp_path, monkeypatch):
     monkeypatch.setattr(tabulated, "_warned_folders", set())   # the cache's home
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
-        out = tables.cached({"read-only": 1}, lambda: {"values": np.arange(3.0)})
-        out2 = tables.cached({"read-only": 2}, lambda: {"values": np.arange(4.0)})
+        out = tabulated.cached({"read-only": 1}, lambda: {"values": np.arange(3.0)})
+        out2 = tabulated.cached({"read-only": 2}, lambda: {"values": np.arange(4.0)})
     assert out["values"].tolist() == [0, 1, 2] and out2["values"].size == 4
     hits = [w for w in rec if issubclass(w.category, RuntimeWarning)]
     assert len(hits) == 1 and "building tables in memory" in str(hits[0].message)
@@ -439,15 +439,15 @@ def test_lock_path_that_is_a_folder(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(tabulated, "_warned_folders", set())   # the cache's home
     params = {"lock-is-a-folder": 1}
-    (tmp_path / f"{tables.cache_key(params)}.npz.lock").mkdir()
+    (tmp_path / f"{tabulated.cache_key(params)}.npz.lock").mkdir()
     with pytest.warns(RuntimeWarning, match="building tables in memory"):
-        out = tables.cached(params, lambda: {"values": np.ones(2)})
+        out = tabulated.cached(params, lambda: {"values": np.ones(2)})
     assert out["values"].tolist() == [1, 1]
 
 
 def test_tables_clear_on_a_read_only_cache_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
-    tables.cached({"ro-clear": 1}, lambda: {"values": np.ones(2)})
+    tabulated.cached({"ro-clear": 1}, lambda: {"values": np.ones(2)})
 
     def refuse(path, *a, **k):
         raise OSError(errno.EROFS, os.strerror(errno.EROFS), path)
@@ -457,7 +457,7 @@ def test_tables_clear_on_a_read_only_cache_is_one_line(tmp_path, monkeypatch):
 
 def test_tables_clear_deletes_only_the_cache_files(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
-    tables.cached({"mine-stays": 1}, lambda: {"values": np.ones(2)})
+    tabulated.cached({"mine-stays": 1}, lambda: {"values": np.ones(2)})
     own = {"data.npz": b"user", "notes.lock": b"user", "abc.npz": b"user", ".tmp-x.npz": b"user",
            f"{'0' * 31}.npz": b"user"}
     for name, data in own.items():

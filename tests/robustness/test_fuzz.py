@@ -291,7 +291,7 @@ def test_fuzz_designer(case, designer, inputs):
     from bsdf_checks import png_claiming
 
     from corona.apps.designer import app as app_module
-    from corona.tables import cache_dir
+    from corona.model.tabulated import cache_dir
     c, app = designer
     endpoint, q, variant = DESIGNER_CASES[case]
     q = {k: v for k, v in q.items() if not str(v).startswith("@")}       # files go through uploads

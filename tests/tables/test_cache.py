@@ -6,7 +6,6 @@ import os
 import numpy as np
 import pytest
 
-from corona import tables
 from corona._validation import CoronaError
 from corona.model import tabulated
 
@@ -22,7 +21,7 @@ def _build_in_process(args):
         time.sleep(0.3)  # wide window for a race
         return {"values": np.linspace(0, 1, 100_000)}
 
-    out = tables.cached({"concurrency": 1}, build)
+    out = tabulated.cached({"concurrency": 1}, build)
     return float(out["values"].sum())
 
 
@@ -42,27 +41,27 @@ def test_many_processes_build_one_valid_file(tmp_path):
 def test_older_format_is_rebuilt_not_misread(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     params = {"format-test": 1}
-    tables.cached(params, lambda: {"values": np.ones(3)})
-    path = tmp_path / (tables.cache_key(params) + ".npz")
+    tabulated.cached(params, lambda: {"values": np.ones(3)})
+    path = tmp_path / (tabulated.cache_key(params) + ".npz")
     with np.load(path) as f:
         data = {k: f[k] for k in f.files}
     meta = json.loads(str(data["__meta__"]))
-    meta["format"] = tables.FORMAT_VERSION - 1
+    meta["format"] = tabulated.FORMAT_VERSION - 1
     data["__meta__"] = np.array(json.dumps(meta))
     np.savez(path, **data)
-    out = tables.cached(params, lambda: {"values": np.full(3, 7.0)})
+    out = tabulated.cached(params, lambda: {"values": np.full(3, 7.0)})
     assert np.all(out["values"] == 7.0)
 
 
 def test_corrupted_bytes_are_detected(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     params = {"corrupt-test": 1}
-    tables.cached(params, lambda: {"values": np.arange(1000.0)})
-    path = tmp_path / (tables.cache_key(params) + ".npz")
+    tabulated.cached(params, lambda: {"values": np.arange(1000.0)})
+    path = tmp_path / (tabulated.cache_key(params) + ".npz")
     raw = bytearray(path.read_bytes())
     raw[len(raw) // 2] ^= 0xFF  # flip one byte inside the array data
     path.write_bytes(bytes(raw))
-    out = tables.cached(params, lambda: {"values": np.zeros(1000)})
+    out = tabulated.cached(params, lambda: {"values": np.zeros(1000)})
     assert np.all(out["values"] == 0.0)  # rebuilt, not the damaged bytes
 
 
@@ -71,12 +70,12 @@ def test_material_tables_come_back_from_cache(tmp_path, monkeypatch):
     import corona
     m1 = corona.Material(corona.Circle(1.0), corona.Poisson(0.2))
     v1 = m1.table.values
-    assert tables.cache_info()["tables"] == 1
+    assert tabulated.cache_info()["tables"] == 1
     m2 = corona.Material(corona.Circle(1.0), corona.Poisson(0.2))
     np.testing.assert_array_equal(m2.table.values, v1)
     m3 = corona.Material(corona.Circle(1.1), corona.Poisson(0.2))
     m3.table
-    assert tables.cache_info()["tables"] == 2  # another radius, another key
+    assert tabulated.cache_info()["tables"] == 2  # another radius, another key
 
 
 # --------------------------------------------------------------------------
@@ -85,7 +84,7 @@ def test_material_tables_come_back_from_cache(tmp_path, monkeypatch):
 _KILLED_WRITER = r"""
 import io, os, sys, time
 import numpy as np
-from corona import tables
+from corona.model import tabulated
 from corona._validation import CoronaError
 
 signal, stage = sys.argv[1], sys.argv[2]
@@ -109,9 +108,9 @@ def slow_build():
 
 if stage == "write":
     np.savez = half_savez
-    tables.cached({"killed-writer": 1}, lambda: {"values": np.arange(100_000.0)})
+    tabulated.cached({"killed-writer": 1}, lambda: {"values": np.arange(100_000.0)})
 else:
-    tables.cached({"killed-writer": 1}, slow_build)
+    tabulated.cached({"killed-writer": 1}, slow_build)
 """
 
 
@@ -137,10 +136,10 @@ def _start_and_kill(tmp_path, stage):
 
 
 def _cached_with_timeout(params, build, seconds=60):
-    """``tables.cached`` in a thread: a lock left by a dead writer must not block."""
+    """``tabulated.cached`` in a thread: a lock left by a dead writer must not block."""
     import concurrent.futures
     with concurrent.futures.ThreadPoolExecutor(1) as ex:
-        return ex.submit(tables.cached, params, build).result(timeout=seconds)
+        return ex.submit(tabulated.cached, params, build).result(timeout=seconds)
 
 
 @pytest.mark.slow
@@ -149,24 +148,24 @@ def test_writer_killed_mid_write_leaves_no_table(tmp_path, monkeypatch):
     _start_and_kill(tmp_path, "write")
     names = os.listdir(tmp_path)
     params = {"killed-writer": 1}
-    final = tables.cache_key(params) + ".npz"
+    final = tabulated.cache_key(params) + ".npz"
     assert final not in names                       # atomic: only the temporary file exists
     assert any(n.startswith(".tmp-") for n in names)
-    assert tables.cache_info()["tables"] == 0       # the half-written temporary is not a table
+    assert tabulated.cache_info()["tables"] == 0       # the half-written temporary is not a table
     out = _cached_with_timeout(params, lambda: {"values": np.full(10, 3.0)})
     assert np.all(out["values"] == 3.0)             # rebuilt, not the half-written bytes
-    assert tables.cache_info()["tables"] == 1
+    assert tabulated.cache_info()["tables"] == 1
     assert not any(n.startswith(".tmp-") for n in os.listdir(tmp_path))   # the stale temporary is gone
-    assert np.all(tables.cached(params, lambda: pytest.fail("rebuilt twice"))["values"] == 3.0)
-    assert tables.cache_clear() == 1 and not [n for n in os.listdir(tmp_path) if n.endswith(".npz")]
+    assert np.all(tabulated.cached(params, lambda: pytest.fail("rebuilt twice"))["values"] == 3.0)
+    assert tabulated.cache_clear() == 1 and not [n for n in os.listdir(tmp_path) if n.endswith(".npz")]
 
 
 def test_cache_clear_counts_tables_not_temporaries(tmp_path, monkeypatch):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
-    tables.cached({"clear-test": 1}, lambda: {"values": np.ones(3)})
+    tabulated.cached({"clear-test": 1}, lambda: {"values": np.ones(3)})
     (tmp_path / f".tmp-{'deadbeef' * 4}-x1y2.npz").write_bytes(b"half")   # a killed writer's
-    assert tables.cache_info()["tables"] == 1
-    assert tables.cache_clear() == 1 and os.listdir(tmp_path) == []
+    assert tabulated.cache_info()["tables"] == 1
+    assert tabulated.cache_clear() == 1 and os.listdir(tmp_path) == []
 
 
 @pytest.mark.slow
@@ -182,8 +181,8 @@ def test_damaged_file_is_rebuilt(tmp_path, monkeypatch, damage):
     """A truncated or otherwise damaged table (e.g. written by a non-atomic copy) is rebuilt."""
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     params = {"damage-test": 1}
-    tables.cached(params, lambda: {"values": np.arange(5000.0)})
-    path = tmp_path / (tables.cache_key(params) + ".npz")
+    tabulated.cached(params, lambda: {"values": np.arange(5000.0)})
+    path = tmp_path / (tabulated.cache_key(params) + ".npz")
     raw = path.read_bytes()
     if damage == "empty":
         path.write_bytes(b"")
@@ -195,11 +194,11 @@ def test_damaged_file_is_rebuilt(tmp_path, monkeypatch, damage):
         np.savez(path, values=np.arange(5000.0))
     else:  # a valid table of another key copied over this one
         other = {"damage-test": 2}
-        tables.cached(other, lambda: {"values": np.zeros(5000)})
-        path.write_bytes((tmp_path / (tables.cache_key(other) + ".npz")).read_bytes())
-    out = tables.cached(params, lambda: {"values": np.full(5000, 9.0)})
+        tabulated.cached(other, lambda: {"values": np.zeros(5000)})
+        path.write_bytes((tmp_path / (tabulated.cache_key(other) + ".npz")).read_bytes())
+    out = tabulated.cached(params, lambda: {"values": np.full(5000, 9.0)})
     assert np.all(out["values"] == 9.0)
-    assert np.all(tables.cached(params, lambda: pytest.fail("rebuilt twice"))["values"] == 9.0)
+    assert np.all(tabulated.cached(params, lambda: pytest.fail("rebuilt twice"))["values"] == 9.0)
 
 
 def test_radial_cdfs_and_totals_are_radial_tables_row_by_row():
@@ -208,20 +207,20 @@ def test_radial_cdfs_and_totals_are_radial_tables_row_by_row():
     rng = np.random.default_rng(7)
     rows = rng.normal(1.0, 1.0, (9, 57))
     rows[3] = 0.0
-    cdfs = tables.radial_cdfs(0.013, rows)
-    totals = tables.radial_totals(0.013, rows)
+    cdfs = tabulated.radial_cdfs(0.013, rows)
+    totals = tabulated.radial_totals(0.013, rows)
     for row, cdf, total in zip(rows, cdfs, totals):
-        ref = tables.RadialTable(0.013, row)
+        ref = tabulated.RadialTable(0.013, row)
         assert np.array_equal(cdf, ref.cdf)
         assert total == pytest.approx(ref.total, rel=1e-13, abs=1e-300)
     assert totals[3] == 0.0 and np.all(cdfs[3] == 0.0)
     with pytest.raises(ValueError, match="rows"):
-        tables.radial_cdfs(0.1, rows[0])
+        tabulated.radial_cdfs(0.1, rows[0])
     # rows in several blocks (the last one partial): still RadialTable's bits, row by row
     many = rng.normal(1.0, 1.0, (1500, 57)) * np.exp(rng.uniform(-20.0, 5.0, (1500, 57)))
     assert many.size > 2 * tabulated.RADIAL_CDF_BLOCK
-    for row, cdf in zip(many, tables.radial_cdfs(0.013, many)):
-        assert np.array_equal(cdf, tables.RadialTable(0.013, row).cdf)
+    for row, cdf in zip(many, tabulated.radial_cdfs(0.013, many)):
+        assert np.array_equal(cdf, tabulated.RadialTable(0.013, row).cdf)
 
 
 def test_code_key_follows_the_code():
@@ -242,11 +241,11 @@ def test_code_key_follows_the_code():
         def inner(y):
             return y * 4
         return inner(x)
-    assert tables.code_key(f) == tables.code_key(f)
-    assert tables.code_key(f) != tables.code_key(g)
-    assert tables.code_key(outer_a) != tables.code_key(outer_b)
-    assert tables.code_key(f, g) != tables.code_key(g, f)
-    assert tables.code_key(tables.RadialTable.__post_init__) == tables.code_key(tables.RadialTable.__post_init__)
+    assert tabulated.code_key(f) == tabulated.code_key(f)
+    assert tabulated.code_key(f) != tabulated.code_key(g)
+    assert tabulated.code_key(outer_a) != tabulated.code_key(outer_b)
+    assert tabulated.code_key(f, g) != tabulated.code_key(g, f)
+    assert tabulated.code_key(tabulated.RadialTable.__post_init__) == tabulated.code_key(tabulated.RadialTable.__post_init__)
 
 
 def test_checksum_is_that_of_the_bytes():
@@ -260,9 +259,9 @@ def test_checksum_is_that_of_the_bytes():
         a = np.ascontiguousarray(arrays[name])
         for part in (name.encode(), str(a.dtype).encode(), str(a.shape).encode(), a.tobytes()):
             h.update(part)
-    assert tables._checksum(arrays) == h.hexdigest()
+    assert tabulated._checksum(arrays) == h.hexdigest()
     changed = dict(arrays, e=np.array([0, 1, 2, 3, 5], dtype=np.uint32))
-    assert tables._checksum(changed) != h.hexdigest()
+    assert tabulated._checksum(changed) != h.hexdigest()
 
 
 def _background_build(cache, log):
@@ -273,7 +272,7 @@ def _background_build(cache, log):
             f.write("built\n")
         return {"values": np.linspace(0, 1, 2_000_000)}
 
-    out = tables.cached({"background": 1}, build, background=True)
+    out = tabulated.cached({"background": 1}, build, background=True)
     return float(out["values"].sum())
 
 
@@ -284,12 +283,12 @@ def test_background_write_is_waited_for_and_exact(tmp_path, monkeypatch):
     (one build in all); the process's exit waits for the write; the file holds the table."""
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     made = []
-    first = tables.cached({"bg": 1}, lambda: made.append(1) or {"values": np.arange(3_000_000.0)}, background=True)
-    again = tables.cached({"bg": 1}, lambda: pytest.fail("built twice"), background=True)
+    first = tabulated.cached({"bg": 1}, lambda: made.append(1) or {"values": np.arange(3_000_000.0)}, background=True)
+    again = tabulated.cached({"bg": 1}, lambda: pytest.fail("built twice"), background=True)
     assert made == [1] and np.array_equal(first["values"], again["values"])
     tabulated.wait_for_writes()
-    path = tmp_path / (tables.cache_key({"bg": 1}) + ".npz")
-    assert tabulated._read(str(path), tables.cache_key({"bg": 1})) is not None
+    path = tmp_path / (tabulated.cache_key({"bg": 1}) + ".npz")
+    assert tabulated._read(str(path), tabulated.cache_key({"bg": 1})) is not None
     # other processes against a background writer: one build, every process the same table
     cache, log = tmp_path / "procs", tmp_path / "log"
     cache.mkdir()
@@ -316,18 +315,18 @@ def test_background_write_of_a_table_changed_meanwhile_is_not_served(tmp_path, m
         gate.wait(10)
         return real(*args, **kwargs)
     monkeypatch.setattr(tabulated, "_write_atomic", slow_write)
-    out = tables.cached({"bg-changed": 1}, lambda: {"values": np.zeros(1000)}, background=True)
+    out = tabulated.cached({"bg-changed": 1}, lambda: {"values": np.zeros(1000)}, background=True)
     out["values"][:] = 5.0
     gate.set()
     tabulated.wait_for_writes()
     monkeypatch.setattr(tabulated, "_write_atomic", real)
-    rebuilt = tables.cached({"bg-changed": 1}, lambda: {"values": np.full(1000, 2.0)})
+    rebuilt = tabulated.cached({"bg-changed": 1}, lambda: {"values": np.full(1000, 2.0)})
     assert np.all(rebuilt["values"] == 2.0)
     # negative control: the same without the change is read back, not rebuilt
     gate.set()
-    tables.cached({"bg-kept": 1}, lambda: {"values": np.ones(1000)}, background=True)
+    tabulated.cached({"bg-kept": 1}, lambda: {"values": np.ones(1000)}, background=True)
     tabulated.wait_for_writes()
-    assert np.all(tables.cached({"bg-kept": 1}, lambda: pytest.fail("rebuilt"))["values"] == 1.0)
+    assert np.all(tabulated.cached({"bg-kept": 1}, lambda: pytest.fail("rebuilt"))["values"] == 1.0)
 
 
 @pytest.mark.slow
@@ -363,5 +362,5 @@ def test_an_empty_cache_variable_builds_in_memory_with_a_warning(monkeypatch):
     with pytest.raises(CoronaError, match="empty"):
         tabulated.cache_dir()
     with pytest.warns(RuntimeWarning, match="CORONA_CACHE_DIR='' is empty"):
-        out = tables.cached({"empty-variable": 1}, lambda: {"values": np.arange(3.0)})
+        out = tabulated.cached({"empty-variable": 1}, lambda: {"values": np.arange(3.0)})
     assert out["values"].tolist() == [0.0, 1.0, 2.0]

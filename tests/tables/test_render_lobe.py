@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import corona
-from corona.tables import lobe as render_lobe
+from corona.model import rows
 from corona.parameters import material_from_parameters
 
 from bsdf_checks import chi2_test, smooth_context
@@ -68,7 +68,7 @@ def test_kernel_matches_model(mi_variant, mask_file, name):
     m = _material(name, mask_file)
     grids = {"size-spread": "quadrant", "ellipse-spread": "half", "many-sided": "half", "mask": "half"}
     assert m.render_kind == ("grid" if name in grids else "analytic")
-    u, v = render_lobe.region_points(m, n=80000, scan=161, seed=1)
+    u, v = rows.region_points(m, n=80000, scan=161, seed=1)
     # and the forward peak, where the polygon kernel switches to its Taylor series
     r = np.linspace(0.0, 0.3, 13) * m.length_scale / max(m.shape.length_scale, 1e-9)
     near = np.stack([r * np.cos(0.7), r * np.sin(0.7)], -1)
@@ -79,7 +79,7 @@ def test_kernel_matches_model(mi_variant, mask_file, name):
         assert kernel.g_fold == grids[name]
     val = np.array(kernel.value(mi.Float(u[:, 0]), mi.Float(u[:, 1]), mi.Bool(True)))
     for got in (val, m.render_lobe.eval(u)):
-        e = render_lobe.relative_error(got, v)
+        e = rows.relative_error(got, v)
         assert e["points"] > 500
         assert e["rms"] <= RMS_MAX and e["max"] <= ABS_MAX, (name, e)
 
@@ -88,13 +88,13 @@ def test_old_bilinear_table_fails_the_bound(mask_file):
     """The check itself: the 512² bilinear table of v (the renderer before the warped tables)
     is far outside the bound for a square (the issue's example, 3.507 vs 3.340)."""
     m = material_from_parameters(shape="square", radius=1.5, process="hard-disk", area_fraction=0.3)
-    u, v = render_lobe.region_points(m, n=6000, scan=161, seed=1)
+    u, v = rows.region_points(m, n=6000, scan=161, seed=1)
     n = 512
-    U = min(corona.tables.u_max_for(m.length_scale), 64.0)
+    U = min(corona.model.tabulated.u_max_for(m.length_scale), 64.0)
     c = -U + (np.arange(n) + 0.5) * 2 * U / n
     ux, uy = np.meshgrid(c, c, indexing="xy")
-    old = corona.tables.GridTable(U, m.lobe_dimensionless(np.stack([ux, uy], -1)))
-    e = render_lobe.relative_error(old.eval(u), v)
+    old = corona.model.tabulated.GridTable(U, m.lobe_dimensionless(np.stack([ux, uy], -1)))
+    e = rows.relative_error(old.eval(u), v)
     assert e["rms"] > 2 * RMS_MAX and e["max"] > 5 * ABS_MAX
     # the issue's point: exact 3.507, the old table 3.340
     m3 = corona.Material(corona.Square(1.5), corona.HardDisk(0.3))

@@ -10,9 +10,8 @@ import pytest
 
 import corona
 import suite_cache
-from corona import tables
 from corona.model import tabulated
-from corona.tables.lobe import structure_rows
+from corona.model.rows import structure_rows
 
 
 def _hit(monkeypatch, make, get) -> dict:
@@ -29,7 +28,6 @@ def _hit(monkeypatch, make, get) -> dict:
             return build()
         return real(params, counted, **kw)
     monkeypatch.setattr(tabulated, "cached", spy)
-    monkeypatch.setattr(tables, "cached", spy)
     out = get(make(True))
     monkeypatch.undo()
     assert built == [], "the second read built a table: not a cache hit"

@@ -34,7 +34,7 @@ class CoronaUsageError(click.ClickException):
 
 
 def _fail(err) -> None:
-    from corona.apps.render import one_line_error  # Mitsuba wraps plugin errors in a traceback
+    from corona._validation import one_line_error  # Mitsuba wraps plugin errors in a traceback
     raise CoronaUsageError(one_line_error(err))
 
 
@@ -209,7 +209,7 @@ def _timeout_seconds(ctx, param, value):
     """--timeout: a finite number of seconds in (0, TIMEOUT_MAX] (click's FloatRange lets inf through)."""
     import math
 
-    from corona.apps.sweep import TIMEOUT_MAX
+    from corona._executor import TIMEOUT_MAX
     if value is not None and not (math.isfinite(value) and 0 < value <= TIMEOUT_MAX):
         raise click.BadParameter(f"{value!r} is out of range; allowed a finite number of seconds in "
                                  f"(0, {TIMEOUT_MAX:g}]", ctx, param)
@@ -217,7 +217,7 @@ def _timeout_seconds(ctx, param, value):
 
 
 def executor_options(f):
-    """--workers / --scheduler / --timeout: where the jobs run (corona.apps.sweep.Executor)."""
+    """--workers / --scheduler / --timeout: where the jobs run (corona._executor.Executor)."""
     f = click.option("--timeout", type=float, default=10.0, callback=_timeout_seconds,
                      show_default=True, help="Seconds to wait for --scheduler and its first worker.")(f)
     f = click.option("--scheduler", default=None, metavar="ADDRESS",
@@ -255,7 +255,8 @@ def sweep(scene, defines, spp, out_dir, workers, scheduler, timeout, force, vari
     if not defines:
         _fail("no -D NAME=V1,V2,... given; a sweep needs at least one parameter list")
     try:
-        from corona.apps.sweep import Executor, parse_defines, point_label, run_sweep
+        from corona._executor import Executor
+        from corona.apps.sweep import parse_defines, point_label, run_sweep
         grid = parse_defines(defines)
         log = (lambda s: click.echo(s, err=True))
         with Executor(workers, scheduler, timeout=timeout, log=log) as ex:
@@ -322,7 +323,7 @@ def lobe(out_path, as_json, wavelength, **params):
                   "its numbers, or render it with corona render")
         if as_json and isinstance(m, SphereMaterial):       # the Mie lobe along d_x and its energies
             from corona._validation import check_range
-            from corona.tables import WAVELENGTH_MAX, WAVELENGTH_MIN
+            from corona.model.tabulated import WAVELENGTH_MAX, WAVELENGTH_MIN
             wavelength = check_range("wavelength", wavelength, WAVELENGTH_MIN, WAVELENGTH_MAX, unit="nm")
             d = np.linspace(0.0, 0.999, 201)
             e = m.directional_albedo(1.0, wavelength, n_phi=4)
@@ -334,7 +335,7 @@ def lobe(out_path, as_json, wavelength, **params):
             return
         if as_json:
             from corona._validation import check_range
-            from corona.tables import WAVELENGTH_MAX, WAVELENGTH_MIN
+            from corona.model.tabulated import WAVELENGTH_MAX, WAVELENGTH_MIN
             wavelength = check_range("wavelength", wavelength, WAVELENGTH_MIN, WAVELENGTH_MAX, unit="nm")
             R = m.length_scale
             from corona.apps.pictures import _u_extent
@@ -375,7 +376,7 @@ def tables():
 @tables.command("info")
 def tables_info():
     """Show where the cache is, how many tables and how big."""
-    from corona import tables as t
+    from corona.model import tabulated as t
     try:
         info = t.cache_info()
     except CoronaError as err:
@@ -387,7 +388,7 @@ def tables_info():
 @tables.command("clear")
 def tables_clear():
     """Delete every cached table (only the files the cache wrote)."""
-    from corona import tables as t
+    from corona.model import tabulated as t
     try:
         n = t.cache_clear()
         folder = t.cache_dir()
@@ -404,7 +405,8 @@ def doctor():
     """Report the environment (for bug reports)."""
     import platform
 
-    from corona import __version__, _environment, tables as t
+    from corona import __version__, _environment
+    from corona.model import tabulated as t
     lines = [f"corona {__version__}", f"python {platform.python_version()} on {platform.platform()}"]
     try:
         import drjit as dr
@@ -450,7 +452,7 @@ def validate(out_dir, quick, cases, realisations, scatterers, seed, no_progress,
     """Compare the model with a brute-force wave-optics reference; write a report folder."""
     try:
         from corona.reference import validate as v
-        from corona.apps.sweep import Executor
+        from corona._executor import Executor
         log = (lambda s: click.echo(s, err=True))
         with Executor(None if scheduler else workers, scheduler, timeout=timeout, log=log) as ex:
             summary = v.run(out_dir, quick=quick, cases=cases.split(",") if cases else None,

@@ -689,9 +689,9 @@ class Spectrum:
     sampled evenly) and each one's weight in the image's channels."""
 
     def __init__(self, n: int, channels: int):
-        from corona import tables
+        from corona.model import tabulated
         from corona.color import spectrum_to_linear_srgb
-        k = np.linspace(1.0 / tables.WAVELENGTH_MAX, 1.0 / tables.WAVELENGTH_MIN, n)
+        k = np.linspace(1.0 / tabulated.WAVELENGTH_MAX, 1.0 / tabulated.WAVELENGTH_MIN, n)
         self.wavelengths = 1.0 / k[::-1]
         rgb = spectrum_to_linear_srgb(np.eye(n), self.wavelengths).T       # (3, n), dλ included
         if channels == 1:
@@ -908,14 +908,14 @@ def _local_minima(cost: np.ndarray) -> np.ndarray:
 
 def _u_needed(radius: float, rho_max: float) -> float:
     """The largest ``u = 2π R ρ / λ`` the model evaluates (shortest wavelength)."""
-    from corona import tables
-    return 2 * np.pi * radius * rho_max / (tables.WAVELENGTH_MIN * 1e-3)
+    from corona.model import tabulated
+    return 2 * np.pi * radius * rho_max / (tabulated.WAVELENGTH_MIN * 1e-3)
 
 
 def _n_wavelengths(radius: float, rho_max: float) -> int:
     """Wavelength samples so that the phase u = 2πRρ/λ moves < 0.3 rad between samples."""
-    from corona import tables
-    u_span = 2 * np.pi * radius * rho_max * 1e3 * (1 / tables.WAVELENGTH_MIN - 1 / tables.WAVELENGTH_MAX)
+    from corona.model import tabulated
+    u_span = 2 * np.pi * radius * rho_max * 1e3 * (1 / tabulated.WAVELENGTH_MIN - 1 / tabulated.WAVELENGTH_MAX)
     return int(np.clip(math.ceil(u_span / 0.3), 48, 320))
 
 

@@ -92,11 +92,11 @@ def far_field_corona(material, half_angle_deg: float = 10.0, size: int = 256,
     direction ``wo`` (d = wo.xy), times a black-body spectrum, integrated
     against the CIE 1931 colour matching functions.
     """
-    from corona import tables
+    from corona.model import tabulated
     t = np.radians(np.linspace(-half_angle_deg, half_angle_deg, size))
     tx, ty = np.meshgrid(t, t[::-1], indexing="xy")
     d = np.stack([np.sin(tx) * np.cos(ty), np.sin(ty)], -1)
-    lams = np.linspace(max(380.0, tables.WAVELENGTH_MIN), 780.0, n_wavelengths)
+    lams = np.linspace(max(380.0, tabulated.WAVELENGTH_MIN), 780.0, n_wavelengths)
     spd = blackbody(lams, temperature)
     spd = spd / spd.max()
     spectra = np.stack([material.lobe_tabulated(d, lam) * s for lam, s in zip(lams, spd)], -1)

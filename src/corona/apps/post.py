@@ -229,7 +229,7 @@ def plugin_response() -> tuple[np.ndarray, np.ndarray]:
 
 def _check_response(response, channels):
     lams, weights = (np.asarray(x, dtype=np.float64) for x in response)
-    from corona.tables import WAVELENGTH_MAX, WAVELENGTH_MIN
+    from corona.model.tabulated import WAVELENGTH_MAX, WAVELENGTH_MIN
     if weights.shape != (channels, lams.size) or lams.ndim != 1:
         raise CoronaError(f"response of shapes {lams.shape}, {weights.shape} is out of range; allowed "
                           f"wavelengths (n,) and weights ({channels}, n)")

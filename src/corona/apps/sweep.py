@@ -40,9 +40,7 @@ import time
 
 import numpy as np
 
-# the executor's home is corona._executor (the reference tier uses it too); its names stay here
-from corona._executor import (DASK_SCHEMES, TIMEOUT, TIMEOUT_MAX, WORKERS_PER_CORE, Executor,  # noqa: F401
-                              Outcome, _cpus, _WORKER, default_workers)
+from corona._executor import _WORKER, Executor, Outcome
 from corona._validation import CoronaError
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")

@@ -65,9 +65,9 @@ with it.  The lobe is tabulated in rows of ``F_a`` (the texture's range; a
 uniform value ± 0.1) close enough that interpolating linearly between two rows
 changes it by at most 0.1 % (:meth:`corona.Material.area_fraction_rows`;
 anisotropic lobes: rows of the radial ``S - 1``,
-:func:`corona.tables.lobe.structure_rows`), evaluated as the cubic Hermite
+:func:`corona.model.rows.structure_rows`), evaluated as the cubic Hermite
 interpolation between the two rows (slopes from the rows:
-:func:`corona.tables.lobe.row_slopes`; so ``∂/∂F_a`` is continuous) and sampled
+:func:`corona.model.rows.row_slopes`; so ``∂/∂F_a`` is continuous) and sampled
 as the mixture of the two rows with the linear weights, which is also the pdf.
 A uniform ``F_a`` is evaluated on one row at the value itself instead (that
 Hermite interpolation and its slope in ``F_a``, re-centred by each
@@ -102,7 +102,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from corona import tables
+from corona.model import tabulated
 from corona._validation import CoronaError, CoronaWarning
 from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_curves, channel_response,
                              fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
@@ -114,7 +114,7 @@ from corona.mitsuba.common import hermite_rows, pane_sample
 from corona.mitsuba.common import cos as _cos, sincos as _sincos
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
-from corona.tables.lobe import row_slopes
+from corona.model.rows import row_slopes
 from corona.model.substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
 
 #: Wavelengths [nm] of the plugin's table of a silvering spectrum (1 nm apart).
@@ -168,7 +168,7 @@ def _channel_tables(v, dv, du, lams_nm, weights):
     over its wavelengths) at the cost of one lookup.  Nodes ``ds = du λ_min / (2π CHANNEL_OVERSAMPLE)``
     apart (a finer step in ``u`` than the row's at every wavelength) up to the row's reach at
     ``λ_max``.  Returns ``(ds, g, dg)``, ``g`` and ``dg`` (channels, n_s), float64."""
-    lam = np.clip(np.asarray(lams_nm, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+    lam = np.clip(np.asarray(lams_nm, dtype=np.float64), tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX) * 1e-3
     w = np.asarray(weights, dtype=np.float64)
     ds = du * float(lam.min()) / (2.0 * np.pi * CHANNEL_OVERSAMPLE)
     u_grid = np.arange(v.size) * du
@@ -342,7 +342,7 @@ class CoronaBSDFMixin:
         elif process.varying_area_fraction and material.render_lobe.s_minus_one is not None:
             # anisotropic lobes: F_a only moves S, so rows of the radial S - 1 (Hermite in F_a), and
             # the energy of each row (the material's table's, changed by ∫ C ΔS)
-            from corona.tables.lobe import row_energy_changes, structure_rows
+            from corona.model.rows import row_energy_changes, structure_rows
             fas, s_rows, s_du, self.row_error = structure_rows(material, fa_lo, fa_hi, include=include)
             totals = material.table.total + row_energy_changes(material, s_rows, s_du)
             tabs = [material.table]
@@ -437,7 +437,7 @@ class CoronaBSDFMixin:
     def _centre(self, fa):
         """Put the uniform layer's one row at area fraction ``fa``: the cubic Hermite of the rows
         around it, its slope in F_a, their energies, and the sampling CDF of that row."""
-        from corona.tables import RadialTable
+        from corona.model.tabulated import RadialTable
         self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
         if not self.isotropic:    # rows of S - 1 and of the energy
             fas, s_rows, totals = self._window
@@ -470,7 +470,7 @@ class CoronaBSDFMixin:
         :func:`_channel_tables`, one packet per bin and channel, ``(g(i), g(i + 1), ∂g(i), ∂g(i + 1))``;
         sampled (and its pdf) from their sum over channels ``G(s)``: its CDF, its packets and
         ``(∫G d²s, ∫∂G d²s)``."""
-        from corona.tables import RadialTable
+        from corona.model.tabulated import RadialTable
         lam, w = channel_response()
         ds, g, dg = _channel_tables(v, dv, du, lam, w)
         nc, n_s = g.shape

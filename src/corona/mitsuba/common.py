@@ -19,10 +19,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from corona import tables
+from corona.model import tabulated
 from corona._validation import CoronaError
 from corona.parameters import SPEC
-from corona.tables.lobe import row_slopes
+from corona.model.rows import row_slopes
 
 #: Wavelengths per RGB / mono channel (equal-weight quantiles of its response).
 N_RESPONSE = 8
@@ -323,7 +323,7 @@ def cos(x):
 
 def hermite_rows(x, rows, at):
     """Cubic Hermite interpolation of ``rows`` (n, ...) over ``x`` (n,) at ``at`` (numpy, float64),
-    the tangents :func:`corona.tables.lobe.row_slopes`: (value, derivative in x) at ``at``.
+    the tangents :func:`corona.model.rows.row_slopes`: (value, derivative in x) at ``at``.
 
     ``at`` outside ``[x[0], x[-1]]`` is clamped to the nearer end (derivative there: the end row's).
     """
@@ -363,7 +363,7 @@ def guided_cdfs(cdfs) -> dict:
     ----------
     cdfs : sequence of ndarray
         Each row's CDF (float64, ``n_bins + 1`` values from 0, all rows the same
-        length), e.g. :attr:`corona.tables.RadialTable.cdf`; a row of total 0 stays 0.
+        length), e.g. :attr:`corona.model.tabulated.RadialTable.cdf`; a row of total 0 stays 0.
 
     Returns
     -------
@@ -487,14 +487,14 @@ def invert_radial_bin(rest, c0, c1, x0, dx, a, b, total, steps=None):
 # --------------------------------------------------------------------------
 def lambda_um(lam_nm):
     """Wavelength [nm] clamped to the tables' range [360, 830] nm, in µm (a zero stays finite)."""
-    return dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+    return dr.clip(lam_nm, tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX) * 1e-3
 
 
 def channel_curves():
     """(wavelengths [nm] (n,), responses (channels, n)) of the RGB / mono channels
     (CIE 1931 → linear sRGB, negative lobes clipped; ȳ for mono)."""
     from corona.color import XYZ_TO_SRGB, cie1931_xyz
-    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 2048)
+    lam = np.linspace(tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX, 2048)
     xyz = cie1931_xyz(lam).T                                     # (3, n)
     return lam, (xyz[1:2] if mi.is_monochromatic else np.maximum(XYZ_TO_SRGB @ xyz, 0.0))
 

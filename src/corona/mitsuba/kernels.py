@@ -1,7 +1,7 @@
 """Dr.Jit kernels of the renderer's lobe for anisotropic materials.
 
 The plugin (:mod:`corona.mitsuba.bsdf`) evaluates, samples and gives the pdf
-of the lobe ``v(u)`` of :class:`corona.tables.lobe.RenderLobe` through
+of the lobe ``v(u)`` of :class:`corona.model.render_lobe.RenderLobe` through
 :class:`LobeKernel` whenever the lobe is not radial.  Everything inside the
 methods is Dr.Jit (float32), traced once per variant; Python loops run over
 the (few) outlines and polygon edges only, never over lanes.
@@ -9,7 +9,7 @@ the (few) outlines and polygon edges only, never over lanes.
 * ``analytic``: ``Â`` of circles (Airy; ``J1`` by Abramowitz & Stegun 9.4.4
   and 9.4.6, |error| < 4e-8), ellipses (Airy of the scaled wave vector),
   rectangles (sinc × sinc) and polygons (edge sum; Taylor series of order
-  :data:`corona.tables.lobe.TAYLOR_ORDER` near q = 0), times the Gaussian of
+  :data:`corona.model.render_lobe.TAYLOR_ORDER` near q = 0), times the Gaussian of
   a soft edge, combined as ``P = Σ w_i |Â_i|² / ⟨|A|⟩``, ``C = |Σ w_i Â_i|² /
   ⟨|A|⟩``;
 * ``grid``: ``P`` (and ``C``) by a 4×4-tap cubic B-spline of the prefiltered
@@ -42,7 +42,7 @@ import numpy as np
 from corona._validation import CoronaError, check_range
 from corona.mitsuba.common import array as _array, gather as _gather, gather4
 from corona.mitsuba.common import cos as _cos, sin as _sin, sincos as _sincos
-from corona.tables.lobe import TAYLOR_ORDER, TAYLOR_U
+from corona.model.render_lobe import TAYLOR_ORDER, TAYLOR_U
 
 # Abramowitz & Stegun 9.4.4: x⁻¹ J1(x) = Σ a_k (x/3)^{2k}, |x| <= 3
 _J1_SMALL = (0.5, -0.56249985, 0.21093573, -0.03954289, 0.00443319, -0.00031761, 0.00001109)
@@ -391,7 +391,7 @@ class LobeKernel:
         return dr.select(inside, dr.maximum(v, 0.0), 0.0)
 
     def set_structure_rows(self, s_rows, s_slopes):
-        """Rows of ``S - 1`` over the area fraction (``(n_rows, s_n)``, :func:`corona.tables.lobe.structure_rows`)
+        """Rows of ``S - 1`` over the area fraction (``(n_rows, s_n)``, :func:`corona.model.rows.structure_rows`)
         and their slopes in ``F_a``: :meth:`value` then takes the row and Hermite weights of each lane."""
         rows, slopes = np.asarray(s_rows, dtype=np.float64), np.asarray(s_slopes, dtype=np.float64)
         # one packet per row and node i: S(i), S(i + 1), dS(i), dS(i + 1)

@@ -54,7 +54,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from corona import tables
+from corona.model import tabulated
 from corona._validation import CoronaError
 from corona.mitsuba.common import channel_response, variant_class  # the channels the corona BSDF uses
 
@@ -213,7 +213,7 @@ class CoronaMiePhaseMixin:
 
     def _row_of(self, lam):
         """Row j and weight t of a wavelength [nm] (spectral)."""
-        lam = dr.clip(lam, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
+        lam = dr.clip(lam, tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX)
         g = (self.two_pi_r / lam - self.x0) * self.inv_dx
         j = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0.0)), self.n_rows - 2)
         t = dr.clip(g - mi.Float(j), 0.0, 1.0)

@@ -52,7 +52,7 @@ rsa) ``S(q)`` and the forward lobe's energies (the cap) are tabulated in rows
 of F_a :data:`FA_ROW_STEP` apart over the texture's range (a uniform value:
 ± :data:`FA_ROW_STEP` about it, re-centred when an update leaves them) and
 read as the cubic Hermite interpolation between two rows, slopes from the
-rows (:func:`corona.tables.lobe.row_slopes`), so ``∂/∂F_a`` is continuous;
+rows (:func:`corona.model.rows.row_slopes`), so ``∂/∂F_a`` is continuous;
 the sampler draws the Mie ``P`` and does not depend on ``S``.
 
 ``radius`` takes a float or a texture, exposed to ``mi.traverse``
@@ -77,7 +77,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from corona import tables
+from corona.model import tabulated
 from corona._validation import CoronaError
 from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, picked, texture_range
 from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, layer_first, pane_delta_weights
@@ -86,7 +86,7 @@ from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
 from corona.mitsuba.common import hermite_rows, host_buffer, read_props as _read_props
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
-from corona.tables.lobe import row_slopes
+from corona.model.rows import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
 from corona.model.mie.layer import share_forward_energies
 
@@ -154,7 +154,7 @@ def _corners(e):
 def _guided_rows(material, rows) -> dict:
     """:func:`corona.mitsuba.common.guided_cdfs` of the forward then the backward rows of
     ``rows["P_f"]``, ``rows["P_b"]`` (radial densities ``2π s P(s)``), kept in the table cache
-    beside the rows (the rows' key plus :func:`corona.tables.code_key` of the code that makes
+    beside the rows (the rows' key plus :func:`corona.model.tabulated.code_key` of the code that makes
     them): a warm load reads them back instead of searching 2J rows."""
     ds = float(rows["ds"])
 
@@ -170,7 +170,7 @@ def _guided_rows(material, rows) -> dict:
         steps, r = 1, 0
         for v in lobes:
             for a in range(0, v.shape[0], step):
-                part = guided_cdfs(tables.radial_cdfs(ds, v[a:a + step]))
+                part = guided_cdfs(tabulated.radial_cdfs(ds, v[a:a + step]))
                 n = min(step, v.shape[0] - a)
                 if cdf is None:
                     cdf = np.empty((n_rows, K), np.float32)
@@ -181,8 +181,8 @@ def _guided_rows(material, rows) -> dict:
                 steps, r = max(steps, part["steps"]), r + n
         return {"cdf": cdf.ravel(), "guide": guide.ravel(), "G": np.array(G), "n_bins": np.array(n_bins),
                 "steps": np.array(steps)}
-    key = {**material.table_params(), "guided_rows": tables.code_key(guided_cdfs, tables.radial_cdfs, make)}
-    g = tables.cached(key, make, use_cache=material.use_cache, background=True)
+    key = {**material.table_params(), "guided_rows": tabulated.code_key(guided_cdfs, tabulated.radial_cdfs, make)}
+    g = tabulated.cached(key, make, use_cache=material.use_cache, background=True)
     return {"cdf": np.asarray(g["cdf"]), "guide": np.asarray(g["guide"]),
             **{k: int(g[k]) for k in ("G", "n_bins", "steps")}}
 
@@ -469,7 +469,7 @@ class SphereBSDFMixin:
 
     def _packed(self, fas, rows):
         """Rows in F_a packed for one Vector4f gather per node: (y_k, Δ y'_k, y_k+1, Δ y'_k+1) of each
-        interval k (Δ the row step, ``y'`` from :func:`corona.tables.lobe.row_slopes`)."""
+        interval k (Δ the row step, ``y'`` from :func:`corona.model.rows.row_slopes`)."""
         y = rows.reshape(rows.shape[0], -1)
         m = row_slopes(fas, y) * self.dfa
         return _array(mi.Float, np.stack([y[:-1], m[:-1], y[1:], m[1:]], axis=-1).ravel())
@@ -508,7 +508,7 @@ class SphereBSDFMixin:
     def _size_parameter(self, lam_nm, radius):
         """(λ [µm], ``x = 2π r/λ``) of one wavelength [nm] of the lane and its radius [µm] (within the
         rows' radii: :attr:`radius_cover`)."""
-        lam = dr.clip(lam_nm, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+        lam = dr.clip(lam_nm, tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX) * 1e-3
         return lam, (2.0 * dr.pi) * radius / lam
 
     def _lane_radius(self, si, active):

@@ -231,10 +231,10 @@ class LatticeSampler:
     """
 
     def __init__(self, sphere_bsdf, lattice, alpha: float | None = None):
-        from corona import tables
+        from corona.model import tabulated
         self.bsdf = sphere_bsdf
         self.lobe = LatticeLobe(sphere_bsdf, lattice)
-        self.orders = OrderSampler(lattice, 2.0 * 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3))
+        self.orders = OrderSampler(lattice, 2.0 * 2.0 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3))
         if alpha is None:
             alpha = ORDER_SHARE * min(1.0, self.orders.first_dw / ORDER_SHARE_DW)
             alpha = alpha if alpha >= ORDER_SHARE_MIN else 0.0
@@ -330,12 +330,12 @@ class LatticeCap:
     """
 
     def __init__(self, sphere_bsdf, lattice):
-        from corona import tables
+        from corona.model import tabulated
         from corona.model.mie import lattice_cap
         self.bsdf = sphere_bsdf
         w = float(lattice.peak_width)
         self.w = w
-        k_max = 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
+        k_max = 2.0 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3)
         G, W = lattice.bragg_peaks(2.0 * k_max + lattice_cap.RIM_REACH * w)
         keep = np.asarray(W, dtype=np.float32) > 0        # a jitter's e^{-G²δ²} below float32: no energy
         G, W = G[keep], W[keep]
@@ -358,9 +358,9 @@ class LatticeCap:
             def make():
                 return {"D": lattice_cap.diffuse_rows_mu(rows, radius, jitter)}
             key = {**material.table_params(), "lattice_jitter": jitter,
-                   "lattice_diffuse": [tables.code_key(lattice_cap.diffuse_rows_mu, make),
+                   "lattice_diffuse": [tabulated.code_key(lattice_cap.diffuse_rows_mu, make),
                                        lattice_cap.DIFFUSE_MU_NODES, lattice_cap.DIFFUSE_PHI]}
-            D = np.asarray(tables.cached(key, make, use_cache=material.use_cache)["D"])
+            D = np.asarray(tabulated.cached(key, make, use_cache=material.use_cache)["D"])
         else:
             D = lattice_cap.diffuse_rows_mu(rows, radius, jitter)
         self.has_diffuse = bool(np.any(D > 0))
@@ -480,7 +480,7 @@ def lattice_layer_params(params: dict, textures: dict):
     lattice's area fraction).  One-line errors for what the lattice path does not take: a glass
     substrate, area_fraction or radius textures that vary, and a lattice wider than
     :data:`LATTICE_ORDERS_MAX` Bragg orders."""
-    from corona import tables
+    from corona.model import tabulated
     from corona._validation import CoronaError
     from corona.parameters import material_from_parameters
     import warnings
@@ -496,7 +496,7 @@ def lattice_layer_params(params: dict, textures: dict):
         material = material_from_parameters(**params)
     lattice = material.lattice
     # the cap's orders, |G| <= 2 k_max: about π (2 k_max)² A_c / (2π)² for a cell of area A_c
-    g_max = 2.0 * 2.0 * np.pi / (tables.WAVELENGTH_MIN * 1e-3)
+    g_max = 2.0 * 2.0 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3)
     cell_max = LATTICE_ORDERS_MAX * 4.0 * np.pi / (g_max * g_max)
     spacing_max = math.sqrt(cell_max * lattice.spacing ** 2 / lattice.cell_area)
     if lattice.spacing > spacing_max * (1 + 1e-9):

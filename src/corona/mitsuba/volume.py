@@ -66,7 +66,7 @@ import math
 import numpy as np
 from scipy import optimize, special, stats
 
-from corona import tables
+from corona.model import tabulated
 from corona.model.mie import theory as mie
 from corona.model.layer import decoupled_lobe
 from corona._validation import CoronaError, _short, check_choice, check_positive, check_range
@@ -179,7 +179,7 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
         logpdf = lambda r: alpha * np.log(r) - B * r**g
     lo_r, hi_r = float(area.ppf(1e-4)), float(area.ppf(1 - 1e-4))
     if n is None:
-        n = int(np.clip(math.ceil(2 * np.pi * float(host_ior) * (hi_r - lo_r) / (tables.WAVELENGTH_MIN * 1e-3)),
+        n = int(np.clip(math.ceil(2 * np.pi * float(host_ior) * (hi_r - lo_r) / (tabulated.WAVELENGTH_MIN * 1e-3)),
                         *SIZE_NODES))
     t, wt = np.polynomial.legendre.leggauss(int(n))
     r = lo_r + (hi_r - lo_r) * 0.5 * (t + 1)
@@ -472,7 +472,7 @@ class MieVolume:
         self.volume_fraction = check_range("volume_fraction", volume_fraction, 0.0, 0.494, hi_open=True)
         self.truncation = check_truncation(truncation)
         self.use_cache = bool(use_cache)
-        x_top = 2 * np.pi * self.host_ior * float(self.radii.max()) / (tables.WAVELENGTH_MIN * 1e-3)
+        x_top = 2 * np.pi * self.host_ior * float(self.radii.max()) / (tabulated.WAVELENGTH_MIN * 1e-3)
         if x_top > X_MAX:
             raise CoronaError(f"radius={radius!r} is out of range with this distribution: the largest "
                               f"droplets reach x = {x_top:.0f} > {X_MAX:g} at 360 nm")
@@ -488,7 +488,7 @@ class MieVolume:
                 "variance": self.variance, "gamma_exponent": self.gamma_exponent, "ior": str(self.ior),
                 "ior_imag": self.ior_imag, "volume_fraction": self.volume_fraction,
                 "grid": [ROW_DX, MIN_ROWS, MAX_ROWS, THETA_DX, MIN_NODES, MAX_NODES, SIZE_NODES],
-                "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+                "wavelengths": [tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX]}
         if self.host_ior != 1.0:                   # (air keeps the keys of tables cached before)
             key["host_ior"] = self.host_ior
         return key
@@ -507,8 +507,8 @@ class MieVolume:
         ``sin(Θ/2) = k ds`` (k = 0 … M, forward half) then ``cos(Θ/2) = (2M - k) ds``
         (k = M … 2M, backward half), ``M ds = 1/√2``; K = 2M + 1 nodes."""
         r = self.radius
-        x_lo = self.k_scale * r / (tables.WAVELENGTH_MAX * 1e-3)
-        x_hi = self.k_scale * r / (tables.WAVELENGTH_MIN * 1e-3)
+        x_lo = self.k_scale * r / (tabulated.WAVELENGTH_MAX * 1e-3)
+        x_hi = self.k_scale * r / (tabulated.WAVELENGTH_MIN * 1e-3)
         spread = math.sqrt(self.variance)
         row_dx = max(ROW_DX, min(2.0, 0.25 * spread * x_lo))
         J = int(np.clip(math.ceil((x_hi - x_lo) / row_dx) + 1, MIN_ROWS, MAX_ROWS))
@@ -526,7 +526,7 @@ class MieVolume:
         truncation), ``s_gain`` (J,) the factor S brought to ``c_sca``, ``g`` (J,) the asymmetry of
         ``p``, ``truncated_fraction`` (J,) the fraction ``f`` of the scattering folded into the
         unscattered beam (0 without truncation)."""
-        arrays = tables.cached(self.key(), self._build, use_cache=self.use_cache)
+        arrays = tabulated.cached(self.key(), self._build, use_cache=self.use_cache)
         out = {k: np.asarray(v) for k, v in arrays.items()}
         out["truncated_fraction"] = np.zeros(out["p"].shape[0])
         return truncate_table(out, self.truncation) if self.truncation > 0 else out
@@ -564,7 +564,7 @@ class MieVolume:
 
     # ------------------------------------------------------------------
     def _row(self, wavelength):
-        lam = np.clip(np.asarray(wavelength, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
+        lam = np.clip(np.asarray(wavelength, dtype=np.float64), tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX)
         xr = self.table["x"]
         f = (self.k_scale * self.radius / (lam * 1e-3) - xr[0]) / (xr[1] - xr[0])
         j = np.clip(np.floor(f).astype(np.int64), 0, xr.size - 2)
@@ -824,8 +824,8 @@ def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, numb
     if peak * info["volume"].mean_volume * 1e-18 >= 0.494:
         raise CoronaError(f"density max {grid.max():g} is out of range: the droplets would fill a "
                           "volume fraction >= 0.494")
-    lam_ref = check_range("reference_wavelength", reference_wavelength, tables.WAVELENGTH_MIN,
-                          tables.WAVELENGTH_MAX, unit="nm")
+    lam_ref = check_range("reference_wavelength", reference_wavelength, tabulated.WAVELENGTH_MIN,
+                          tabulated.WAVELENGTH_MAX, unit="nm")
     s_ref = float(np.interp(lam_ref, info["wavelength"][::-1], info["sigma_t"][::-1]))
     if not float(grid.max()) * s_ref <= SIGMA_T_MAX:
         raise CoronaError(f"density max {grid.max():g} is out of range with this number density: σ_t "

@@ -50,7 +50,7 @@ class Material:
     albedo : float in [0, 1], default 0
         Diffuse (Lambertian) reflectance of the opaque part of the layer.
     use_cache : bool, default True
-        Keep expensive tables in the on-disk cache (:mod:`corona.tables`).
+        Keep expensive tables in the on-disk cache (:mod:`corona.model.tabulated`).
     substrate : corona.GlassPane, optional
         A thin glass pane the layer sits on (default: none, the layer
         alone).  It adds a specular reflection and weights every other

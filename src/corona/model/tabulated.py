@@ -2,8 +2,8 @@
 
 The model's own tabulation: a material's lobe weight is its table's integral
 (:attr:`corona.Material.lobe_weight`) and a Mie layer's lobe is read from its
-rows, so the table types and the cache sit in the model tier; the tables tier
-(:mod:`corona.tables`) re-exports every name and adds the renderer's rows.
+rows, so the table types and the cache sit in the model tier.  The renderer's rows over
+textured parameters are :mod:`corona.model.rows`.
 
 The lobe of a material is tabulated once in the dimensionless wave vector
 ``u = q R = 2π R d / λ`` (docs/physics.md#the-model), where ``R`` is the shape's

@@ -63,7 +63,7 @@ def _error(status: int, message: str) -> JSONResponse:
 def _scrub(message: str) -> str:
     """The server's folders out of a message for the client: an upload is named by its id,
     anything else inside the table cache as ``<cache>/...``."""
-    from corona.tables import cache_dir
+    from corona.model.tabulated import cache_dir
     try:
         root = cache_dir()
     except Exception:  # noqa: BLE001 - an unusable cache: nothing to hide then
@@ -75,8 +75,8 @@ def _scrub(message: str) -> str:
 
 
 def designer_dir(*parts: str) -> str:
-    """A folder of the designer inside the table cache (``corona.tables.cache_dir``)."""
-    from corona.tables import cache_dir
+    """A folder of the designer inside the table cache (``corona.model.tabulated.cache_dir``)."""
+    from corona.model.tabulated import cache_dir
     path = os.path.join(cache_dir(), "designer", *parts)
     os.makedirs(path, exist_ok=True)
     return path
@@ -156,7 +156,7 @@ class _App:
         except _Timeout as err:
             return _error(503, err)
         except (ValueError, OSError, MemoryError) as err:
-            from corona.apps.render import one_line_error
+            from corona._validation import one_line_error
             return _error(400, one_line_error(err))
 
     # -- routes -------------------------------------------------------------

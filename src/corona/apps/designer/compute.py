@@ -32,7 +32,7 @@ from collections import OrderedDict
 import numpy as np
 from scipy import special
 
-from corona import tables
+from corona.model import tabulated
 from corona._validation import CoronaError
 from corona.color import blackbody, spectrum_to_linear_srgb, tonemap_srgb
 from corona.parameters import DEFAULTS, PARAMETERS, SPEC, Parameter, material_from_parameters
@@ -113,7 +113,7 @@ PRESETS = {
 
 #: Wavelengths of the pictures [nm] (the visible range of the CIE functions).
 N_WAVELENGTHS = 48
-WAVELENGTHS = np.linspace(max(380.0, tables.WAVELENGTH_MIN), 780.0, N_WAVELENGTHS)
+WAVELENGTHS = np.linspace(max(380.0, tabulated.WAVELENGTH_MIN), 780.0, N_WAVELENGTHS)
 N_WAVELENGTHS_2D = 24          # anisotropic pictures evaluate the 2-D table per pixel and λ
 RING_WAVELENGTHS = (450.0, 550.0, 650.0)
 PROFILE_WAVELENGTH = 550.0
@@ -454,7 +454,7 @@ _mirror_checks: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # ma
 
 
 def _mirrored_x(m) -> bool:
-    """Whether the 2-D table of ``m`` (:class:`corona.tables.GridTable`, no warp) is even in
+    """Whether the 2-D table of ``m`` (:class:`corona.model.tabulated.GridTable`, no warp) is even in
     ``u_x``, ``v(-u_x, u_y) = v(u_x, u_y)`` to 1e-12 of its peak (its vertices are symmetric
     about 0), checked once per material."""
     with _profiles_lock:
@@ -470,7 +470,7 @@ def _mirrored_x(m) -> bool:
 
 
 def _disk_terms_lobe(rl, d: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """``rl.eval(d k R)`` (:meth:`corona.tables.lobe.RenderLobe.eval`) at every wavenumber ``k``
+    """``rl.eval(d k R)`` (:meth:`corona.model.render_lobe.RenderLobe.eval`) at every wavenumber ``k``
     [rad/µm] (nλ,), shape (..., nλ), for analytic terms that are circles and ellipses.
 
     Their amplitudes are real, ``|A| · 2 J1(t)/t`` with ``t = k |M d|`` (``M`` the outline's
@@ -525,7 +525,7 @@ def _render_lobe(m):
     with _profiles_lock:
         rl = _render_lobes.get(m)
     if rl is None:
-        from corona.tables.lobe import RenderLobe
+        from corona.model.render_lobe import RenderLobe
         s_du, s1 = m.radial_s_minus_one()
         rl = RenderLobe("analytic", m.length_scale, float(m.shape.area), terms=m.analytic_terms,
                         s_du=s_du, s_minus_one=None if np.all(s1 == 0.0) else s1)

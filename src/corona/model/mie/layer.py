@@ -53,7 +53,7 @@ fine grid of sizes (:func:`build_mie_rows`).  In each row the forward ``P`` (and
 ``SPREAD_COARSE_CHORD``, whose rings are smoothed)
 (a sliver beyond) and the backward ``P`` on the chord ``s' = |wo - wi| = 2 cos(Θ/2)``
 from the backscatter direction.  Since ``dΩ = s ds dφ`` exactly, each row is a
-radial table in the chord (:class:`corona.tables.RadialTable`: density
+radial table in the chord (:class:`corona.model.tabulated.RadialTable`: density
 ``2π s P(s)``, exact CDF inversion) with the chord computed accurately in float32
 as a vector norm.  A wavelength between two rows j, j+1 (weight t, linear in x)
 reads each row at the chord scaled by ``x / x_row`` (the rings at a fixed ``x·s``
@@ -73,7 +73,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from corona.model import tabulated as tables   # the table types and the cache
+from corona.model import tabulated   # the table types and the cache
 from corona.model.mie import theory as mie
 from corona._validation import CoronaError, check_choice, check_finite_array, check_range
 from corona.model import registry
@@ -237,7 +237,7 @@ def _grid(radius: float, radius_max: float, spread: float = 0.0, cover=None):
     angle, the rainbow, is not smeared).  The chord grid runs to
     ``√2 x_1 / x_0`` (a little past Θ = 90°): a row is read at the chord scaled by ``x / x_j``
     (see :func:`_scaled_blend`), up to ``√2 x_j+1 / x_j`` for the wavelengths above it."""
-    lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
+    lam_lo, lam_hi = tabulated.WAVELENGTH_MIN * 1e-3, tabulated.WAVELENGTH_MAX * 1e-3
     r_lo, r_hi = (radius, radius) if cover is None else cover
     x_lo, x_hi = 2 * np.pi * r_lo / lam_hi, 2 * np.pi * r_hi / lam_lo
     if spread == 0.0:
@@ -270,7 +270,7 @@ def index_phase_error(sphere: Sphere, r_lo: float, r_hi: float) -> float:
     """Largest phase error ``2 x |m(λ r/r') - m(λ)|`` [rad] over 360–830 nm and ``r' ∈ {r_lo, r_hi}`` of
     rows holding the index of ``sphere`` (radius r) read at radius r' (``x = 2π r'/λ``); 0 for a
     constant index."""
-    lam = np.linspace(tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX, 95)
+    lam = np.linspace(tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX, 95)
     r = float(sphere.radius)
     out = 0.0
     for rp in (float(r_lo), float(r_hi)):
@@ -611,7 +611,7 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     if sizes is None:
         basis = mie.AngularBasis(mu, int(mie.n_terms(x_top)), ANGULAR_DTYPE)
         # the total: the first rows and their midpoints, then re-estimated as the refinement goes
-        with tqdm(total=2 * J, unit="row", leave=False, delay=tables.PROGRESS_DELAY,
+        with tqdm(total=2 * J, unit="row", leave=False, delay=tabulated.PROGRESS_DELAY,
                   desc=f"corona: building the Mie sphere table ({r:g} µm)") as bar:
             rows = _evaluate_rows(sphere, x_rows, basis)
             bar.update(J)
@@ -628,7 +628,7 @@ def build_mie_rows(sphere: Sphere, sizes=None, radius_cover=None) -> dict:
     Ke = nodes.size
     plan = _size_plan(sphere, x_rows, lam, yq, pq, s_lo, s_hi)
     total = sum(p[3].size for p in plan)
-    with tqdm(total=total, unit="size", leave=False, delay=tables.PROGRESS_DELAY,
+    with tqdm(total=total, unit="size", leave=False, delay=tabulated.PROGRESS_DELAY,
               desc=f"corona: building the Mie sphere table ({r:g} µm, {spread:.0%} spread)") as bar:
         acc, s0, q_sca, q_ext, x2 = _average_sizes(plan, basis, J, Ke, bar)
     norm = 1.0 / (2 * np.pi * x2[:, None])
@@ -646,7 +646,7 @@ def build_preview_rows(sphere: Sphere, radius_cover=None) -> dict:
     x over the wavelength range (and the radii of ``radius_cover``), no refinement, a chord grid of
     ``PREVIEW_CHORD_DX / x_max``.  The keys and units of :func:`build_mie_rows` (one size)."""
     r = sphere.radius
-    lam_lo, lam_hi = tables.WAVELENGTH_MIN * 1e-3, tables.WAVELENGTH_MAX * 1e-3
+    lam_lo, lam_hi = tabulated.WAVELENGTH_MIN * 1e-3, tabulated.WAVELENGTH_MAX * 1e-3
     r_lo, r_hi = (r, r) if radius_cover is None else radius_cover
     x_rows = np.geomspace(2 * np.pi * r_lo / lam_hi, 2 * np.pi * r_hi / lam_lo, PREVIEW_ROWS)
     s_max = min(2.0, CHORD_MAX * x_rows[1] / x_rows[0] * (1.0 + 1e-9))
@@ -1068,7 +1068,7 @@ class SphereMaterial(MieMembers, Material):
                          SPREAD_CHORD_SMOOTH,
                          SIZE_INDEX_ORDER, SIZE_TAIL_ROWS, SPREAD_CHORD_RULE,
                          SIZE_RES_DX, SIZE_RES_PER_SIGMA, SIZE_STEP_RULE, SIZE_DM_PHASE, SIZE_DM_SMOOTH],
-               "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX]}
+               "angular_dtype": np.dtype(ANGULAR_DTYPE).name, "wavelengths": [tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX]}
         if self.radius_cover is not None:
             key["radius_cover"] = list(self.radius_cover)
         if self.is_preview:
@@ -1084,7 +1084,7 @@ class SphereMaterial(MieMembers, Material):
         :func:`build_preview_rows` (not cached)."""
         if self.is_preview:
             return build_preview_rows(self.sphere, self.radius_cover)
-        arrays = tables.cached(self.table_params(),
+        arrays = tabulated.cached(self.table_params(),
                                lambda: build_mie_rows(self.sphere, self.sizes, self.radius_cover),
                                use_cache=self.use_cache, background=True)
         return {k: np.asarray(v) for k, v in arrays.items()}
@@ -1098,7 +1098,7 @@ class SphereMaterial(MieMembers, Material):
         if not self.use_cache:
             return False
         try:
-            path = os.path.join(tables.cache_dir(), tables.cache_key(
+            path = os.path.join(tabulated.cache_dir(), tabulated.cache_key(
                 {k: v for k, v in self.table_params().items() if k != "preview"}) + ".npz")
         except CoronaError:
             return False
@@ -1143,8 +1143,8 @@ class SphereMaterial(MieMembers, Material):
             return None
         # in u = q r, radius-free for a hard core of the spheres' diameter; long enough for the cover's top
         top = self.length_scale if self.radius_cover is None else self.radius_cover[1]
-        u_max = tables.u_max_for(top)
-        n = min(int(np.ceil(u_max / tables.RADIAL_DU)) + 1, tables.RADIAL_MAX_SAMPLES)
+        u_max = tabulated.u_max_for(top)
+        n = min(int(np.ceil(u_max / tabulated.RADIAL_DU)) + 1, tabulated.RADIAL_MAX_SAMPLES)
         du = u_max / (n - 1)
         u = np.arange(n) * du
         S = self.process.structure_factor_radial(u / self.length_scale, self.shape)
@@ -1167,14 +1167,14 @@ class SphereMaterial(MieMembers, Material):
         ds = float(r["ds"])
         s = np.arange(r["P_f"].shape[1]) * ds
         C = r["C_f"] if r["C_f"].size else r["P_f"]
-        T_f = tables.radial_totals(ds, r["P_f"])          # RadialTable(ds, row).total per row
-        T_b = tables.radial_totals(ds, r["P_b"])
+        T_f = tabulated.radial_totals(ds, r["P_f"])          # RadialTable(ds, row).total per row
+        T_b = tabulated.radial_totals(ds, r["P_b"])
         if self.structure_table is None:
             e_mu = np.repeat(T_f[:, None], len(INCIDENCE_MU), axis=1)
         else:   # seconds for a hard core: kept in the table cache, per process
             key = {**self.table_params(), "forward_energy": 1, "process": self.process.key(),
                    "incidence_mu": len(INCIDENCE_MU)}
-            e_mu = np.asarray(tables.cached(key, lambda: {"e_f_mu": self._forward_energy_of_peers(s, C, T_f)},
+            e_mu = np.asarray(tabulated.cached(key, lambda: {"e_f_mu": self._forward_energy_of_peers(s, C, T_f)},
                                             use_cache=self.use_cache)["e_f_mu"])
         return {"T_f": T_f, "T_b": T_b, "e_f": e_mu[:, 0], "e_f_mu": e_mu, "e_b": T_b, "s": s}
 
@@ -1281,7 +1281,7 @@ class SphereMaterial(MieMembers, Material):
 
     def _row(self, wavelength):
         """Row index j and weight t of the wavelength(s) [nm] between rows (linear in x)."""
-        lam = np.clip(np.asarray(wavelength, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
+        lam = np.clip(np.asarray(wavelength, dtype=np.float64), tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX)
         xr = self.rows["x"]
         x = 2 * np.pi * self.length_scale / (lam * 1e-3)
         j = np.clip(np.searchsorted(xr, x, side="right") - 1, 0, xr.size - 2)
@@ -1289,7 +1289,7 @@ class SphereMaterial(MieMembers, Material):
 
     def _x(self, wavelength):
         """Size parameter ``2π r / λ`` of the mean sphere at ``wavelength`` [nm] (clipped to the range)."""
-        lam = np.clip(np.asarray(wavelength, dtype=np.float64), tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX)
+        lam = np.clip(np.asarray(wavelength, dtype=np.float64), tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX)
         return 2 * np.pi * self.length_scale / (lam * 1e-3)
 
     def _blend(self, key, j, t, x, s, cubic=True):
@@ -1362,7 +1362,7 @@ class SphereMaterial(MieMembers, Material):
         the orders' nodes (False: the diffuse part's).
         """
         wi = np.asarray(wi, dtype=np.float64)
-        lam = float(np.clip(wavelength, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX))
+        lam = float(np.clip(wavelength, tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX))
         key = (tuple(np.round(wi, 12)), lam)
         if key in self._lattice_cache:
             return self._lattice_cache[key]
@@ -1520,12 +1520,12 @@ class SphereMaterial(MieMembers, Material):
         s_b = np.linalg.norm(wo - wi, axis=-1)
         forward = s_f <= s_b
         dxy = np.linalg.norm((wo + wi)[..., :2], axis=-1)
-        u = 2 * np.pi * self.length_scale * dxy / (np.clip(lam, tables.WAVELENGTH_MIN,
-                                                           tables.WAVELENGTH_MAX) * 1e-3)
+        u = 2 * np.pi * self.length_scale * dxy / (np.clip(lam, tabulated.WAVELENGTH_MIN,
+                                                           tabulated.WAVELENGTH_MAX) * 1e-3)
         if self.lattice is None:
             S = self.structure_factor(u)
         else:   # the fixed lattice's S at the in-plane momentum transfer q = 2π (wo + wi)_xy / λ
-            lam_um = np.clip(lam, tables.WAVELENGTH_MIN, tables.WAVELENGTH_MAX) * 1e-3
+            lam_um = np.clip(lam, tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX) * 1e-3
             S = self.lattice.structure_factor_at(2 * np.pi * (wo + wi)[..., :2] / lam_um[..., None])
         if exact:
             P_f, C_f, P_b = self._exact(s_f, s_b, lam)
@@ -1545,7 +1545,7 @@ class SphereMaterial(MieMembers, Material):
         """Mie P, C (forward) and P (backward) computed directly at each direction (float64)."""
         r = self.sphere.radius
         s_nodes, s_w = (np.ones(1), np.ones(1)) if self.sizes is None else \
-            self.sizes._nodes(2.0 * 2 * np.pi / (tables.WAVELENGTH_MIN * 1e-3))
+            self.sizes._nodes(2.0 * 2 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3))
         out = [np.zeros(s_f.shape) for _ in range(3)]
         A1, A2 = np.zeros(s_f.shape, complex), np.zeros(s_f.shape, complex)
         flat = lam.ravel()
@@ -1641,8 +1641,8 @@ class SphereMaterial(MieMembers, Material):
     # sampling (the plugin's scheme in float64)
     # ------------------------------------------------------------------
     @functools.lru_cache(maxsize=64)
-    def _radial(self, which: str, j: int) -> tables.RadialTable:
-        return tables.RadialTable(float(self.rows["ds"]), self.rows["P_f" if which == "f" else "P_b"][j])
+    def _radial(self, which: str, j: int) -> tabulated.RadialTable:
+        return tabulated.RadialTable(float(self.rows["ds"]), self.rows["P_f" if which == "f" else "P_b"][j])
 
     def pdf_lobe(self, which: str, wi, wo, wavelength) -> np.ndarray:
         """Solid-angle density of :meth:`sample_lobe` (``which`` "f" or "b") at one wavelength [nm]:

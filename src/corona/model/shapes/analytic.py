@@ -6,19 +6,17 @@ import math
 import numpy as np
 from scipy import special
 
-from corona._validation import CoronaError, check_positive
+from corona._validation import check_positive
 from corona.model import registry
 from corona.model.shapes.base import (
     Shape,
     Term,
     _check_finite,
-    _g,
     _gauss_legendre,
     _q_array,
     _radial_array,
     _rotate,
     _sinc,
-    _warn_old_spelling,
 )
 
 
@@ -136,24 +134,6 @@ class Circle(Shape):
         return total
 
 
-def _old_two_lengths(cls: str, names: tuple[str, str], radius, legacy, x, y, aspect, angle):
-    """The previous release's ``cls(x, y, angle [rad])`` (positional or by the keywords ``names``):
-    ``(x, y)`` [µm] and the angle in degrees; ``radius`` stands for ``x`` when given positionally."""
-    if len(legacy) > 2:
-        raise TypeError(f"{cls} takes at most 3 positional arguments ({1 + len(legacy)} given)")
-    if legacy:
-        y = legacy[0]
-    if len(legacy) > 1:
-        angle = legacy[1]
-    if radius is not None and x is not None:
-        raise CoronaError(f"{cls}: give radius or {names[0]}, not both")
-    if aspect is not None:
-        raise CoronaError(f"{cls}: give aspect or {names[1]}, not both")
-    x = check_positive(names[0], radius if x is None else x, "µm")
-    y = check_positive(names[1], y, "µm")
-    return x, y, math.degrees(_check_finite("angle", angle, "rad"))
-
-
 class Ellipse(Shape):
     """An elliptical aperture or particle: semi-axis ``radius`` along x, ``aspect · radius`` along y.
 
@@ -180,10 +160,6 @@ class Ellipse(Shape):
     Isotropic only when a == b.  The attributes ``semi_axis_x`` and
     ``semi_axis_y`` are a and b [µm].
 
-    The previous release's spelling ``Ellipse(semi_axis_x, semi_axis_y, angle)``
-    (angle in radians, positional or by these keywords) still builds the same
-    ellipse as before, with a DeprecationWarning, for one release.
-
     References
     ----------
     Born & Wolf, *Principles of Optics*, §8.5.2; Goodman, *Introduction to
@@ -205,20 +181,11 @@ class Ellipse(Shape):
 
     _symmetry = 2
 
-    def __init__(self, radius: float | None = None, *legacy, aspect: float | None = None,
-                 angle: float = 0.0, semi_axis_x: float | None = None, semi_axis_y: float | None = None):
-        old = bool(legacy) or semi_axis_x is not None or semi_axis_y is not None
-        if not old:
-            self.semi_axis_x = check_positive("radius", radius, "µm")
-            aspect = 1.0 if aspect is None else check_positive("aspect", aspect)
-            self.semi_axis_y = self.semi_axis_x * aspect
-            self.angle = _check_finite("angle", angle, "degree")
-            return
-        # the previous release: Ellipse(semi_axis_x, semi_axis_y, angle [rad])
-        self.semi_axis_x, self.semi_axis_y, self.angle = _old_two_lengths(
-            "Ellipse", ("semi_axis_x", "semi_axis_y"), radius, legacy, semi_axis_x, semi_axis_y, aspect, angle)
-        _warn_old_spelling(f"Ellipse({_g(self.semi_axis_x)}, {_g(self.semi_axis_y)}, angle={_g(math.radians(self.angle))})",
-                           f"Ellipse({_g(self.semi_axis_x)}, aspect={_g(self.aspect)}, angle={_g(self.angle)})")
+    def __init__(self, radius: float | None = None, *, aspect: float | None = None, angle: float = 0.0):
+        self.semi_axis_x = check_positive("radius", radius, "µm")
+        aspect = 1.0 if aspect is None else check_positive("aspect", aspect)
+        self.semi_axis_y = self.semi_axis_x * aspect
+        self.angle = _check_finite("angle", angle, "degree")
 
     def __repr__(self):
         return f"Ellipse(radius={self.radius:g}, aspect={self.aspect:g}, angle={self.angle:g})"
@@ -299,11 +266,6 @@ class Rectangle(Shape):
     ``length_scale = √(W² + H²)/2`` (circumradius, half the diagonal).  The
     attributes ``width`` and ``height`` are the full side lengths W, H [µm].
 
-    The previous release's spelling ``Rectangle(width, height, angle)`` (full
-    side lengths, angle in radians, positional or by these keywords) still
-    builds the same rectangle as before, with a DeprecationWarning, for one
-    release.
-
     References
     ----------
     Born & Wolf, *Principles of Optics*, §8.5.1.
@@ -312,18 +274,10 @@ class Rectangle(Shape):
     _symmetry = 2
     _cost = 2.0
 
-    def __init__(self, radius: float | None = None, *legacy, aspect: float | None = None,
-                 angle: float = 0.0, width: float | None = None, height: float | None = None):
-        old = bool(legacy) or width is not None or height is not None
-        if not old:
-            r = check_positive("radius", radius, "µm")
-            aspect = 1.0 if aspect is None else check_positive("aspect", aspect)
-            self._set(2.0 * r, 2.0 * r * aspect, _check_finite("angle", angle, "degree"))
-            return
-        # the previous release: Rectangle(width, height, angle [rad])
-        self._set(*_old_two_lengths("Rectangle", ("width", "height"), radius, legacy, width, height, aspect, angle))
-        _warn_old_spelling(f"Rectangle({_g(self.width)}, {_g(self.height)}, angle={_g(math.radians(self.angle))})",
-                           f"Rectangle({_g(self.radius)}, aspect={_g(self.aspect)}, angle={_g(self.angle)})")
+    def __init__(self, radius: float | None = None, *, aspect: float | None = None, angle: float = 0.0):
+        r = check_positive("radius", radius, "µm")
+        aspect = 1.0 if aspect is None else check_positive("aspect", aspect)
+        self._set(2.0 * r, 2.0 * r * aspect, _check_finite("angle", angle, "degree"))
 
     def _set(self, width: float, height: float, angle_deg: float) -> None:
         self.width = width
@@ -406,12 +360,6 @@ class Square(Rectangle):
     angle : float, default 0
         Rotation [degree], counter-clockwise (the plugin's ``angle``).
 
-    Notes
-    -----
-    The previous release's spelling ``Square(side=s, angle=a)`` (the full
-    side, angle in radians), and a positional angle ``Square(s, a)``, still
-    build the same square as before, with a DeprecationWarning, for one release.
-
     Examples
     --------
     Along an edge normal, ``P/|A| = sinc²(q s/2)``: 1 at q = 0, ``(2/π)²`` at
@@ -428,23 +376,9 @@ class Square(Rectangle):
 
     _symmetry = 4
 
-    def __init__(self, radius: float | None = None, *legacy, angle: float = 0.0, side: float | None = None):
-        old = bool(legacy) or side is not None
-        if not old:
-            r = check_positive("radius", radius, "µm")
-            self._set(2.0 * r, 2.0 * r, _check_finite("angle", angle, "degree"))
-            return
-        # the previous release: Square(side, angle [rad])
-        if len(legacy) > 1:
-            raise TypeError(f"Square takes at most 2 positional arguments ({1 + len(legacy)} given)")
-        if legacy:
-            angle = legacy[0]
-        if radius is not None and side is not None:
-            raise CoronaError("Square: give radius or side, not both")
-        s = check_positive("side", radius if side is None else side, "µm")
-        self._set(s, s, math.degrees(_check_finite("angle", angle, "rad")))
-        _warn_old_spelling(f"Square(side={_g(s)}, angle={_g(math.radians(self.angle))})",
-                           f"Square({_g(self.radius)}, angle={_g(self.angle)})")
+    def __init__(self, radius: float | None = None, *, angle: float = 0.0):
+        r = check_positive("radius", radius, "µm")
+        self._set(2.0 * r, 2.0 * r, _check_finite("angle", angle, "degree"))
 
     def __repr__(self):
         return f"Square(radius={self.radius:g}, angle={self.angle:g})"

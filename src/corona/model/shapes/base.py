@@ -49,7 +49,6 @@ J. W. Goodman, *Introduction to Fourier Optics*, 3rd ed., ch. 4.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -108,22 +107,6 @@ def _check_shape(name: str, value) -> "Shape":
     if not isinstance(value, Shape):
         raise CoronaError(f"{name}={value!r} is not a corona Shape (Circle, Polygon, Mask, ...)")
     return value
-
-
-def _warn_old_spelling(old: str, new: str) -> None:
-    """One DeprecationWarning for a shape built with the previous release's spelling.
-
-    ``old`` and ``new`` are the two calls, written out (``new`` with the flat
-    ``radius`` [µm] and the angle in degrees, as the plugin's parameters).
-    """
-    warnings.warn(f"{old} uses the old spelling (full side lengths or semi-axes, angles in radians), "
-                  f"which is kept for one release; write {new} (the flat radius in µm as the plugin's "
-                  "`radius`, angles in degrees)", DeprecationWarning, stacklevel=3)
-
-
-def _g(x: float) -> str:
-    """``x`` written for a call in a message (shortest round-tripping form)."""
-    return repr(float(x))
 
 
 def _rotate(q: np.ndarray, angle: float):

@@ -7,7 +7,7 @@ import numpy as np
 
 from corona._validation import CoronaError, check_positive
 from corona.model import registry
-from corona.model.shapes.base import _TWO_PI, Shape, Term, _check_finite, _check_int, _g, _q_array, _warn_old_spelling
+from corona.model.shapes.base import _TWO_PI, Shape, Term, _check_finite, _check_int, _q_array
 
 
 def _orient(ax, ay, bx, by, cx, cy):
@@ -307,12 +307,6 @@ class RegularPolygon(Polygon):
     angle : float, default 0
         Rotation [degree], counter-clockwise (the plugin's ``angle``).
 
-    Notes
-    -----
-    A positional angle, ``RegularPolygon(sides, radius, angle)``, is the
-    previous release's spelling (radians): it still builds the same polygon as
-    before, with a DeprecationWarning, for one release.
-
     Examples
     --------
     ``RegularPolygon(4, r, angle=45)`` is the square of half-width ``r/√2``:
@@ -324,17 +318,10 @@ class RegularPolygon(Polygon):
     True
     """
 
-    def __init__(self, sides: int, radius: float, *legacy, angle: float = 0.0):
+    def __init__(self, sides: int, radius: float, *, angle: float = 0.0):
         self.sides = _check_int("sides", sides, 3, 100_000)
         self.radius = check_positive("radius", radius, "µm")
-        if legacy:   # the previous release: RegularPolygon(sides, radius, angle [rad])
-            if len(legacy) > 1:
-                raise TypeError(f"RegularPolygon takes at most 3 positional arguments ({2 + len(legacy)} given)")
-            self.angle = math.degrees(_check_finite("angle", legacy[0], "rad"))
-            _warn_old_spelling(f"RegularPolygon({self.sides}, {_g(self.radius)}, {_g(legacy[0])})",
-                               f"RegularPolygon({self.sides}, {_g(self.radius)}, angle={_g(self.angle)})")
-        else:
-            self.angle = _check_finite("angle", angle, "degree")
+        self.angle = _check_finite("angle", angle, "degree")
         phi = math.radians(self.angle) + _TWO_PI * np.arange(self.sides) / self.sides
         v = self.radius * np.stack([np.cos(phi), np.sin(phi)], axis=-1)
         self._set_vertices(v)

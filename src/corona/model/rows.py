@@ -5,17 +5,15 @@ area fraction for anisotropic shapes (:func:`structure_rows`, :func:`row_energy_
 the slopes of Catmull–Rom rows (:func:`row_slopes`), and the points where the renderer's
 lobe is checked against the exact one (:func:`region_points`, :func:`relative_error`).
 
-The lobe as the renderer evaluates it (:class:`RenderLobe`, the closed-form outlines
-:func:`analytic_terms`, the B-spline grids :class:`CubicGrid`) is part of the model, which
-builds its own sampling tables with it: it lives in :mod:`corona.model.render_lobe`, and its
-names stay importable from here.
+The lobe as the renderer evaluates it (:class:`~corona.model.render_lobe.RenderLobe`, the
+closed-form outlines, the B-spline grids) is :mod:`corona.model.render_lobe`; the table types
+and the cache are :mod:`corona.model.tabulated`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from corona.model.render_lobe import (EDGE_MAX, SUPERSAMPLE, TAYLOR_ORDER, TAYLOR_U,  # noqa: F401
-                                      CubicGrid, RenderLobe, Term, analytic_terms, terms_amplitudes)
+from corona.model.render_lobe import terms_amplitudes
 
 
 def region_points(material, n: int = 100_000, frac: float = 1e-3, scan: int = 401, seed: int = 0):
@@ -28,8 +26,8 @@ def region_points(material, n: int = 100_000, frac: float = 1e-3, scan: int = 40
     ``scan × scan`` grid of the exact lobe (at a fifth of the threshold, two
     cells of margin).  Returns ``u`` (m, 2) and the exact ``v`` there.
     """
-    from corona import tables
-    reach = 2 * np.pi * material.length_scale * tables.D_MAX / (tables.WAVELENGTH_MIN * 1e-3)
+    from corona.model import tabulated
+    reach = 2 * np.pi * material.length_scale * tabulated.D_MAX / (tabulated.WAVELENGTH_MIN * 1e-3)
     c = np.linspace(-reach, reach, scan)
     ux, uy = np.meshgrid(c, c, indexing="xy")
     v = material.lobe_dimensionless(np.stack([ux, uy], -1))
@@ -86,9 +84,9 @@ def structure_rows(material, lo: float, hi: float, include=(), tolerance: float 
     """``S(|u|/R) - 1`` of an anisotropic material's process at rows of area fraction.
 
     The anisotropic lobe ``v = [P + C (S - 1)] / R²`` depends on ``F_a`` only
-    through ``S`` (:mod:`corona.tables.lobe`), so a layer whose ``F_a`` varies
+    through ``S`` (:mod:`corona.model.render_lobe`), so a layer whose ``F_a`` varies
     needs rows of the radial ``S - 1`` alone, on the step of
-    :attr:`RenderLobe.s_du`.  The rows start at the process's tabulation nodes
+    :attr:`~corona.model.render_lobe.RenderLobe.s_du`.  The rows start at the process's tabulation nodes
     and ``include`` and are bisected until the linear interpolation of ``S``
     at every interval's midpoint is within ``tolerance`` (relative, default
     :data:`corona.model.material.ROW_TOLERANCE`) of the exact one; since
@@ -104,8 +102,8 @@ def structure_rows(material, lo: float, hi: float, include=(), tolerance: float 
     error : float
         The largest relative midpoint error of the final rows.
     """
-    from corona import tables
-    from corona.tables import ROW_TOLERANCE
+    from corona.model import tabulated
+    from corona.model.tabulated import ROW_TOLERANCE
     tolerance = ROW_TOLERANCE if tolerance is None else tolerance
     rl = material.render_lobe
     process, shape = material.process, material.shape
@@ -127,13 +125,13 @@ def structure_rows(material, lo: float, hi: float, include=(), tolerance: float 
         inner = nodes[(nodes > lo) & (nodes < hi)]
         fas = np.unique(np.concatenate([[lo, hi], inner]))
         rows = {f: s_of(f) for f in fas.tolist()}
-        keys, worst = tables.bisect_rows(
+        keys, worst = tabulated.bisect_rows(
             rows, lambda mids: [s_of(m) for m in mids],
             lambda lerp, e: np.max(np.abs(lerp - e) / np.maximum(e + 1.0, 1e-6)), tolerance, max_rows)
         return {"area_fraction": np.array(keys), "s_minus_one": np.stack([rows[k] for k in keys]),
                 "error": np.array(worst)}
 
-    arrays = tables.cached({**material.table_params(), "s_rows": [lo, hi], "tolerance": tolerance,
+    arrays = tabulated.cached({**material.table_params(), "s_rows": [lo, hi], "tolerance": tolerance,
                             "max_rows": max_rows, "include": include}, build, use_cache=material.use_cache)
     return (np.asarray(arrays["area_fraction"], dtype=np.float64),
             np.asarray(arrays["s_minus_one"], dtype=np.float64), s_du, float(arrays["error"]))
