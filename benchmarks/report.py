@@ -261,6 +261,16 @@ def headline() -> list[str]:
         rows.append((f"corona post, {pp['width']}x{pp['height']} frame, radial lobe (5 µm droplets, fov 60°)",
                      f"{pp['best_s']:.1f} s wall, {pp['best_cpu_s']:.1f} s CPU (best of {len(pp['seconds'])}; "
                      f"load {pp['load_average']:.1f} on {pp['cores']} cores)", "≤ 10 s on 2 cores"))
+    st = _load("suite_times")
+    if st:
+        for name, v in st.get("results", {}).items():
+            wall = f"{v['wall_s']:.0f} s wall" if "wall_s" in v else "—"
+            cpu = (f"{v['cpu_s']:.0f} s CPU" if "cpu_s" in v else
+                   f"{v['cpu_s_in_tests']:.0f} s CPU in the tests" if "cpu_s_in_tests" in v else "")
+            load = v.get("load_average_1min") or [float("nan")] * 2
+            rows.append((f"Test suite, {name} (`make test-fast` / `make test`; suite_times)",
+                         f"{wall}, {cpu} (load {load[0]:.1f}–{load[-1]:.1f} on {st['machine'].get('cores', '?')} "
+                         "shared cores)", f"≤ {v['goal_s']:g} s on 2 idle cores" if "goal_s" in v else "—"))
     g = _load("gpu")
     if g:
         rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else

@@ -69,7 +69,7 @@ def chi2_bsdf(bsdf, theta_deg, ctx=None, uv=None, wavelengths=(450.0, 520.0, 600
     return run_chi2(test), test
 
 
-#: Chi-square runs of a full session, an upper bound (88 at the time of writing: every test marked
+#: Chi-square runs of a full session, an upper bound (114 at the time of writing: every test marked
 #: ``chi2`` runs one).  Each run tests at the Šidák-corrected level
 #: ``1 - (1 - CHI2_SIGNIFICANCE) ** (1 / count)`` (Mitsuba's ``test_count``), so that a correct
 #: plugin fails any chi-square test of the session with probability at most CHI2_SIGNIFICANCE.

@@ -238,6 +238,7 @@ RADIUS_CASES = ([("poisson", tex, pane) for tex in (False, True) for pane in (Fa
                 + [("hard-disk", tex, pane) for tex in (False, True) for pane in (False, True)])
 
 
+@pytest.mark.slow     # reverse-mode AD of a sphere layer, a kernel compiled per case: 6-28 s of CPU each, cold
 @pytest.mark.parametrize("process,textured,pane,upload_branch", _BRANCHES(RADIUS_CASES), ids=lambda v: str(v),
                          indirect=["upload_branch"])
 def test_radius_derivatives_match_central_differences(mi_variant, upload_branch, process, textured, pane):

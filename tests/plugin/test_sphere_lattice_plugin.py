@@ -452,6 +452,7 @@ def test_furnace_from_the_plugins_sample_weights(mi_variant, params, theta):
         assert np.all(mean >= 0.95), mean
 
 
+@pytest.mark.slow     # 6.4 s of CPU with the tables cached
 def test_furnace_through_a_rayleigh_anomaly(mi_variant):
     """Through the 554.6 nm grazing exit of the h² + hk + k² = 39 shell (hexagonal 4 µm, normal
     incidence): the plugin's albedo ≤ 1; negative control, uncapped (w = 1) it gains energy."""
@@ -505,6 +506,7 @@ def test_finite_at_a_zero_interaction(mi_variant):
     assert_finite_at_a_zero_interaction(_layer({**HEX4, "jitter": 0.05}))
 
 
+@pytest.mark.slow     # builds the jittered lattice's table in an empty cache: 10 s of CPU
 def test_jittered_diffuse_table_is_kept_in_the_cache(mi_variant, tmp_path, monkeypatch):
     """A jittered lattice's diffuse table (seconds of quadrature) is built once: the second load
     reads it from the table cache, equal to a fresh build; another jitter is another table."""

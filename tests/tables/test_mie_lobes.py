@@ -112,8 +112,10 @@ def _spread_reference(radius, spread, lam, theta, distribution, dX=0.01, ior=Non
     return P / (2 * np.pi * np.sum(w * X**2))
 
 
-@pytest.mark.parametrize("radius,spread,distribution,lam", [(2.1, 0.1, "lognormal", 517.7),
-                                                            (3.3, 0.25, "schulz", 633.1)])
+@pytest.mark.parametrize("radius,spread,distribution,lam", [
+    (2.1, 0.1, "lognormal", 517.7),
+    # (slow: 6 s of CPU with the table cached, the brute-force average over the wide spread)
+    pytest.param(3.3, 0.25, "schulz", 633.1, marks=pytest.mark.slow)])
 def test_size_distribution_lobes_match_brute_force_mie(radius, spread, distribution, lam):
     # the rows average one shared grid of sizes (and index nodes for water's dispersion); the
     # reference averages Mie theory at the wavelength itself on a finer grid of sizes
@@ -163,6 +165,7 @@ def test_large_droplet_spread_matches_brute_force_mie(ior, lam):
         assert np.sqrt(np.sum(w * (one / ref - 1) ** 2) / np.sum(w)) > 0.05, name
 
 
+@pytest.mark.slow     # the brute-force averages over a 50 % spread: 8 and 25 s of CPU with the tables cached
 @pytest.mark.parametrize("radius,spread", [(2.0, 0.5), (1.0, 0.5)])
 def test_wide_spread_between_rows_matches_brute_force_mie(radius, spread):
     # half-way between the two rows about 551.9 nm, where a blend of rows read at the chord scaled
