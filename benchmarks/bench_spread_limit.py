@@ -27,7 +27,7 @@ import json, sys, time
 import corona
 from corona import parameters
 from corona.parameters import material_from_parameters
-m = material_from_parameters(shape="polygon", sides=int(sys.argv[1]), size_spread=0.5)
+m = material_from_parameters(shape="polygon", sides=int(sys.argv[1]), size_spread=0.5, radius=0.5)   # the issue-47 case (0.1.0 default radius)
 t0, c0 = time.perf_counter(), time.process_time()
 table = m.table
 print(json.dumps({"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,

@@ -943,9 +943,9 @@ def _offered_looks():
     """A look per shape the designer offers (small sizes: cheap tables)."""
     from corona.parameters import SHAPES
     looks = {"circle": dict(radius=1.0, area_fraction=0.3),
-             "ellipse": dict(radius=1.0, aspect=2.0, angle=20.0),
+             "ellipse": dict(radius=1.0, aspect=2.0, angle=20.0, area_fraction=0.2),
              "square": dict(radius=1.0, process="lattice-square", jitter=0.1),
-             "rectangle": dict(radius=1.0, aspect=0.5, orientation="random"),
+             "rectangle": dict(radius=1.0, aspect=0.5, orientation="random", area_fraction=0.2),
              "polygon": dict(radius=1.0, sides=5, process="poisson"),
              "mask": dict(pixel_size=0.1, area_fraction=0.2),
              "mixture": dict(mixture="circle:1:0.5, square:0.8:0.5", angle=15.0),

@@ -49,14 +49,14 @@ def test_amplitude_is_the_hankel_transform_of_the_ring():
 
 def test_spec_validation_and_unused_warning():
     assert SPEC["inner_ratio"].applies == ("shape=annulus", "shape=mixture")
-    m = material_from_parameters(shape="annulus", radius=3.0, inner_ratio=0.7)
+    m = material_from_parameters(shape="annulus", radius=3.0, inner_ratio=0.7, area_fraction=0.2)
     assert isinstance(m.shape, Annulus) and m.shape.radius == 3.0 and m.shape.inner_ratio == 0.7
     with pytest.raises(corona.CoronaError, match=r"inner_ratio=0.95 is out of range; allowed \[0, 0.9\]"):
-        material_from_parameters(shape="annulus", inner_ratio=0.95)
+        material_from_parameters(shape="annulus", inner_ratio=0.95, area_fraction=0.2)
     with pytest.warns(corona.CoronaWarning, match="inner_ratio"):
         material_from_parameters(shape="circle", radius=2.0, inner_ratio=0.3)
     # a mixture's annuli read it too
-    mix = material_from_parameters(shape="mixture", mixture="annulus:3:1, circle:1:1", inner_ratio=0.3)
+    mix = material_from_parameters(shape="mixture", mixture="annulus:3:1, circle:1:1", inner_ratio=0.3, area_fraction=0.2)
     assert repr(mix.shape.components[0][0]) == "Annulus(radius=3, inner_ratio=0.3)"
 
 

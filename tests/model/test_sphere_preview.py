@@ -34,7 +34,7 @@ def _lobe_distance(a, b, th):
 
 def test_preview_is_a_coarse_copy_of_the_exact_table(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))         # cold: the exact rows build here
-    monkeypatch.setattr(layer.tables, "PROGRESS_DELAY", 0.0)
+    monkeypatch.setattr(layer.tabulated, "PROGRESS_DELAY", 0.0)
     m = material_from_parameters(shape="sphere", radius=R, area_fraction=0.1, process="poisson",
                                  size_spread=0.0)
     assert not m.rows_cached()
