@@ -19,7 +19,7 @@ cosines** ``p = v_xy``; and since ``lobe(d) = lobe(-d)`` (``|Â(-q)| = |Â(q)|``
 for a real profile, ``S(-q) = S(q)``) correlation and convolution coincide.
 
 How the pinhole is handled (fields of view up to 176°)
------------------------------------------------------
+------------------------------------------------------
 A pinhole image is uniform in the tangent plane ``t = v_xy / v_z``, not in
 ``p = t / sqrt(1 + |t|²)``.  So the image is moved to a grid uniform in ``p``
 (step ``Δp`` = the pixel pitch at the image centre, nodes on the pixel centres
