@@ -150,28 +150,26 @@ def _notify(family) -> None:
         callback(family)
 
 
-def add_shape(family: ShapeFamily) -> ShapeFamily:
-    """Register a built-in shape family (its module calls this once, at import)."""
-    _check_name("shape", family.name, SHAPE_FAMILIES)
-    SHAPE_FAMILIES[family.name] = family
+def _add(kind: str, table: dict, family):
+    """Register ``family`` in ``table`` and tell the spec; a refusal leaves nothing registered."""
+    _check_name(kind, family.name, table)
+    table[family.name] = family
     try:
         _notify(family)
     except Exception:         # refused by the spec (a clashing parameter): nothing of it stays
-        del SHAPE_FAMILIES[family.name]
+        del table[family.name]
         raise
     return family
+
+
+def add_shape(family: ShapeFamily) -> ShapeFamily:
+    """Register a built-in shape family (its module calls this once, at import)."""
+    return _add("shape", SHAPE_FAMILIES, family)
 
 
 def add_process(family: ProcessFamily) -> ProcessFamily:
     """Register a built-in process family (its module calls this once, at import)."""
-    _check_name("process", family.name, PROCESS_FAMILIES)
-    PROCESS_FAMILIES[family.name] = family
-    try:
-        _notify(family)
-    except Exception:         # refused by the spec (a clashing parameter): nothing of it stays
-        del PROCESS_FAMILIES[family.name]
-        raise
-    return family
+    return _add("process", PROCESS_FAMILIES, family)
 
 
 def _class_factory(kind: str, name: str, cls, names: tuple, with_shape: bool = False) -> Callable:
