@@ -391,13 +391,9 @@ def earlier(names: list[str]) -> list[str]:
            "written, a `note`; the notes once here are in git history). Not current figures.", "",
            "| file | date | machine |", "|---|---|---|"]
     for name in names:
-        d = _load(name) or {}
-        m = d.get("machine", {})
-        if isinstance(m, str):      # a machine written as one line of text
-            date, machine = d.get("date", "?"), m
-        else:
-            date, machine = m.get("date", "?"), f"{m.get('cpu', '?')}, {m.get('cores', m.get('cpu_count', '?'))} cores"
-        out.append(f"| `{name}.json` | {str(date)[:10]} | {machine} |")
+        m = (_load(name) or {}).get("machine", {})
+        out.append(f"| `{name}.json` | {str(m.get('date', '?'))[:10]} | {m.get('cpu', '?')}, "
+                   f"{m.get('cores', m.get('cpu_count', '?'))} cores |")
     return out + [""]
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import sys
 import time
 import warnings
@@ -30,6 +29,8 @@ def main(n=16_384, out="benchmarks/results/sphere_lattice_cost.json"):
     corona.register()
     from corona.mitsuba.sphere_lattice import LATTICE_ORDERS_MAX
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from common import machine
     from bsdf_checks import interaction
     # hexagonal cell area of 1 µm spheres at F_a: π / F_a; the limit's F_a: π G_max² / (4π N)
     g_max = 2.0 * 2.0 * np.pi / (corona.model.tabulated.WAVELENGTH_MIN * 1e-3)
@@ -63,8 +64,7 @@ def main(n=16_384, out="benchmarks/results/sphere_lattice_cost.json"):
                       "Bragg orders the per-lane cap holds (4 wavelengths a lane, 16384 lanes, median of 3 "
                       "after a warm-up)",
               "limit_orders": int(LATTICE_ORDERS_MAX), "variant": mi.variant(),
-              "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared)",
-              "date": time.strftime("%Y-%m-%d"), "rows": rows}
+              "machine": machine(), "rows": rows}
     with open(out, "w") as f:
         json.dump(result, f, indent=1)
 
