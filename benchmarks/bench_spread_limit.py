@@ -38,7 +38,7 @@ print(json.dumps({"seconds": time.perf_counter() - t0, "cpu_seconds": time.proce
 
 
 def main(argv=None):
-    from common import machine
+    from common import write
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--full", action="store_true", help="(accepted for run_all; same run)")
     ap.add_argument("--out", default=os.path.join(HERE, "results", "spread_limit.json"))
@@ -54,12 +54,9 @@ def main(argv=None):
         res.update(sides=sides, size_spread=0.5, load_average=os.getloadavg()[0])
         results[name] = res
         print(name, json.dumps(res), flush=True)
-    out = {"machine": machine(), "benchmark": "spread_limit",
+    write("spread_limit", {"benchmark": "spread_limit",
            "before": "issue 47: the hexagon of spread 0.5 built in 134 s under load (one thread; limit 1.2e9 terms)",
-           "results": results}
-    os.makedirs(os.path.dirname(a.out), exist_ok=True)
-    with open(a.out, "w", encoding="utf-8") as f:
-        json.dump(out, f, indent=1)
+           "results": results}, path=a.out)
 
 
 if __name__ == "__main__":

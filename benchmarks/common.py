@@ -33,9 +33,10 @@ def machine() -> dict:
     return info
 
 
-def write(name: str, payload: dict) -> str:
-    os.makedirs(RESULTS, exist_ok=True)
-    path = os.path.join(RESULTS, f"{name}.json")
+def write(name: str, payload: dict, path: str | None = None) -> str:
+    """``{"machine": machine(), **payload}`` as JSON into ``path`` (default ``results/<name>.json``)."""
+    path = path or os.path.join(RESULTS, f"{name}.json")
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     with open(path, "w") as f:
         json.dump({"machine": machine(), **payload}, f, indent=2)
     print(f"wrote {path}")
