@@ -3,6 +3,7 @@
     python scripts/volume_pictures.py series      # docs/volumes_tau_series.png (about a minute)
     corona render scenes/moon_altocumulus.xml --spp 512 -D res=128 --out docs --name volumes_moon
     corona render scenes/streetlight_fog.xml --spp 256 -D res=256 --out docs --name volumes_streetlight
+    corona render scenes/streetlight_mist.xml --spp 256 -D res=256 --out docs --name volumes_mist
     python scripts/volume_pictures.py glory       # docs/volumes_glory.png: multiple scattering, truncated peak
 """
 from __future__ import annotations

@@ -161,9 +161,11 @@ RGB_VARIANTS = [("llvm_ad_rgb", 16, 2), ("scalar_rgb", 8, 1)]   # scalar: Python
 #: Scenes whose layer takes, in a scalar variant, the plugin path of another scene rendered there
 #: (scalar_rgb runs the plugin's Python-scalar branches; the emitters' RGB form is the scene's and
 #: is checked for every scene in llvm_ad_rgb): aperture-mode hard-disk circles as babinet.xml,
-#: particle-mode radial circles (hard-disk, rsa) as teaser.xml, Poisson spheres as lunar_corona.xml.
+#: particle-mode radial circles (hard-disk, rsa) as teaser.xml, Poisson spheres as lunar_corona.xml,
+#: a corona_mie medium as streetlight_fog.xml.
 SCALAR_SAME_PATH = {"sweep_radius.xml", "sweep_area_fraction.xml", "sweep_incidence.xml", "monochromatic.xml",
-                    "circle_vs_square.xml", "sampling.xml", "lycopodium.xml", "glory_fogbow.xml"}
+                    "circle_vs_square.xml", "sampling.xml", "lycopodium.xml", "glory_fogbow.xml",
+                    "streetlight_mist.xml"}
 RGB_CASES = [pytest.param(path, *v, id=f"{os.path.basename(path)}-{v[0]}") for path in SCENES
              for v in RGB_VARIANTS if not (v[0].startswith("scalar") and os.path.basename(path) in SCALAR_SAME_PATH)]
 
