@@ -27,10 +27,11 @@ def series(taus=(0.05, 0.3, 1.0, 3.0), radius=5.0, size=128, spp=256, fov=24.0):
 
     from corona.mitsuba import volume
     from corona.mitsuba.phase import channel_response
+    from corona.model.mie.volume import MieVolume
     mi.set_variant("llvm_ad_rgb")
     corona.register()
     kw = dict(distribution="gamma", variance=0.01)
-    v = volume.MieVolume(radius, **kw)
+    v = MieVolume(radius, **kw)
     T = v.table
     h = 0.01
     panels, contrasts = [], []
@@ -68,9 +69,10 @@ def glory_scene(truncation=5.0, radius=10.0, variance=0.01, sigma_t=0.05, res=12
     ``truncation`` degrees (0: none): the camera 300 m above a 200 m deck of 10 µm droplets,
     the sun behind it, multiple scattering on."""
     from corona.mitsuba import volume
+    from corona.model.mie.volume import MieVolume
     mi.set_variant(variant)
     corona.register()
-    v = volume.MieVolume(radius, "gamma", variance)
+    v = MieVolume(radius, "gamma", variance)
     N = sigma_t / (v.cross_sections(550.0)["c_ext"] * 1e-12)          # droplets per m³
     med = volume.homogeneous_medium(radius, number_density=N, distribution="gamma",
                                     variance=variance, truncation=truncation)

@@ -8,8 +8,9 @@ import pytest
 
 import corona
 from corona.mitsuba import volume
+from corona.model.mie import volume as droplets
 from corona.model.processes import percus_yevick_3d
-from corona.mitsuba.volume import MieVolume, size_nodes
+from corona.model.mie.volume import MieVolume, size_nodes
 
 miepython = pytest.importorskip("miepython")
 
@@ -161,18 +162,17 @@ def test_size_averaged_scattering_is_the_sum_over_sizes(coherent):
     """The table build's size average (S1 ± S2 in real products, pairs in blocks by series
     length) against miepython's S1, S2 and efficiencies summed size by size and row by row,
     with rows and sizes whose series lengths differ (several blocks), an absorbing index."""
-    from corona.mitsuba import volume
     lam = np.array([380.0, 520.0, 790.0])
     m = np.array([1.34 + 0.01j, 1.335 + 0.01j, 1.33 + 0.01j])
     k = 2 * np.pi / (lam * 1e-3)
-    radii, weights = volume.size_nodes(3.0, "gamma", 0.1, n=40)
+    radii, weights = droplets.size_nodes(3.0, "gamma", 0.1, n=40)
     mu = np.cos(np.linspace(0.0, np.pi, 181))
-    old_block = volume.PAIR_BLOCK
+    old_block = droplets.PAIR_BLOCK
     try:
-        volume.PAIR_BLOCK = 16                                       # several blocks per row
-        P, C, c_ext, c_sca = volume.size_averaged_scattering(m, k, radii, weights, mu, coherent=coherent)
+        droplets.PAIR_BLOCK = 16                                       # several blocks per row
+        P, C, c_ext, c_sca = droplets.size_averaged_scattering(m, k, radii, weights, mu, coherent=coherent)
     finally:
-        volume.PAIR_BLOCK = old_block
+        droplets.PAIR_BLOCK = old_block
     assert (C is None) == (not coherent)
     for j in range(lam.size):
         x = k[j] * radii
@@ -419,7 +419,7 @@ def test_unknown_plugin_parameter_is_an_error(mi_variant):
 # ----------------------------------------------------------------------
 def test_lwc_number_density_and_sigma_t(mi_variant):
     med, info = volume.homogeneous_medium(10.0, lwc=0.3, return_info=True)
-    N = 0.3 / (volume.WATER_DENSITY * 4 / 3 * np.pi * (10e-6) ** 3)
+    N = 0.3 / (droplets.WATER_DENSITY * 4 / 3 * np.pi * (10e-6) ** 3)
     assert info["number_density"] == pytest.approx(N, rel=1e-9)
     v = MieVolume(10.0)
     assert np.allclose(info["sigma_t"], N * v.table["c_ext"] * 1e-12)
@@ -738,7 +738,7 @@ def test_scene_unit_is_bounded(mi_variant):
     for bad in (1e300, 1e10, 1e-10, float("inf")):
         with pytest.raises(corona.CoronaError, match="scene_unit"):
             volume.homogeneous_medium(5.0, lwc=0.1, scene_unit=bad)
-    for unit in volume.SCENE_UNIT_RANGE:
+    for unit in droplets.SCENE_UNIT_RANGE:
         med, info = volume.homogeneous_medium(5.0, lwc=0.1, scene_unit=unit, return_info=True)
         assert np.all(np.isfinite(info["sigma_t"].astype(np.float32))) and np.isfinite(np.float32(med["scale"]))
         scene = volume.slab_scene(med, size=8, spp=4)
