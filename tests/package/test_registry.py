@@ -297,3 +297,36 @@ def test_a_bad_process_for_the_plugin_is_one_clear_error(mi_variant, restored_re
     _one_line_error(lambda: corona.register_process("inherits", Inherits), "inherits with_area_fraction from HardDisk",
                     "define Inherits.with_area_fraction")
     assert "inherits" not in registry.PROCESS_FAMILIES
+
+
+_TWEAK = '''
+import numpy as np, corona
+
+class Tweak(corona.HardDisk):
+    def structure_factor_radial(self, q_abs, shape):
+        return 1.0 + FACTOR * (super().structure_factor_radial(q_abs, shape) - 1.0)
+
+    def structure_factor_at(self, q, shape):
+        q = np.asarray(q, dtype=np.float64)
+        return self.structure_factor_radial(np.hypot(q[..., 0], q[..., 1]), shape)
+'''
+
+
+def test_an_edited_user_class_is_not_served_its_old_table(mi_variant):
+    """A user's class of the same module, name and attributes whose code changed between two
+    loads (an edit between runs) gets a table of its own: the plugin evaluates the new one."""
+    import mitsuba as mi
+    from corona.model import tabulated
+    classes = []
+    for factor in ("0.2", "0.9"):
+        ns = {"__name__": "users_module"}
+        exec(compile(_TWEAK.replace("FACTOR", factor), "users_module.py", "exec"), ns)
+        classes.append(ns["Tweak"])
+    first, second = classes[0](0.35), classes[1](0.35)
+    assert first.key() == second.key()        # the same name and attributes: only the code differs
+    assert tabulated.identity(first) != tabulated.identity(second)
+    assert tabulated.identity(corona.HardDisk(0.35)) == corona.HardDisk(0.35).key()   # built-ins as before
+    for process in (first, second):
+        bsdf = mi.load_dict({"type": "corona", "shape": "circle", "radius": 3.0,
+                             "process": corona.scatterer(process)})
+        _plugin_vs_model(bsdf, corona.Material(corona.Circle(3.0), process), rtol=2e-3)
