@@ -41,8 +41,8 @@ def series(taus=(0.05, 0.3, 1.0, 3.0), radius=5.0, size=128, spp=256, fov=24.0):
     for tau in taus:
         N = tau / (v.cross_sections(550.0)["c_ext"] * h)
         st = N * T["c_ext"]
-        med = {"type": "homogeneous", "sigma_t": volume._spectrum(T["wavelength"], st / st.max()),
-               "scale": float(st.max()), "albedo": volume._spectrum(T["wavelength"], T["c_sca"] / T["c_ext"]),
+        med = {"type": "homogeneous", "sigma_t": volume.spectrum_dict(T["wavelength"], st / st.max()),
+               "scale": float(st.max()), "albedo": volume.spectrum_dict(T["wavelength"], T["c_sca"] / T["c_ext"]),
                "phase": {"type": "corona_mie", "radius": radius, **kw}}
         img = np.array(mi.render(mi.load_dict(volume.slab_scene(med, thickness=h, fov=fov, size=size,
                                                                    spp=spp, max_depth=64)), seed=1))

@@ -276,9 +276,9 @@ def _medium(radius, tau, thickness, **kw):
     N = tau / (v.cross_sections(550.0)["c_ext"] * thickness)     # per µm² per scene unit
     T = v.table
     st = N * T["c_ext"]
-    med = {"type": "homogeneous", "sigma_t": volume._spectrum(T["wavelength"], st / st.max()),
+    med = {"type": "homogeneous", "sigma_t": volume.spectrum_dict(T["wavelength"], st / st.max()),
            "scale": float(st.max()),
-           "albedo": volume._spectrum(T["wavelength"], T["c_sca"] / T["c_ext"]),
+           "albedo": volume.spectrum_dict(T["wavelength"], T["c_sca"] / T["c_ext"]),
            "phase": {"type": "corona_mie", "radius": radius, **kw}}
     return med, N
 

@@ -16,13 +16,13 @@ from corona.model import tabulated
 from corona.model.mie.volume import medium_coefficients
 from corona._validation import CoronaError, _short, check_range
 
-__all__ = ["homogeneous_medium", "heterogeneous_medium", "slab_scene", "radial_profile"]
+__all__ = ["homogeneous_medium", "heterogeneous_medium", "slab_scene", "radial_profile", "spectrum_dict"]
 
 
 # ----------------------------------------------------------------------
 # media
 # ----------------------------------------------------------------------
-def _spectrum(wavelengths, values):
+def spectrum_dict(wavelengths, values):
     """A Mitsuba spectrum dict: irregular in spectral variants, the channel means in RGB / mono."""
     import mitsuba as mi
     lam = np.asarray(wavelengths, dtype=np.float64)
@@ -133,8 +133,8 @@ def homogeneous_medium(radius, *, lwc=None, number_density=None, number_density_
                                 use_cache, host_ior, truncation)
     lam = info["wavelength"]
     scale = float(np.max(info["sigma_t"]))          # RGB spectra must lie in [0, 1]: σ_t = scale × shape
-    med = {"type": "homogeneous", "sigma_t": _spectrum(lam, info["sigma_t"] / scale), "scale": scale,
-           "albedo": _spectrum(lam, info["albedo"]), "phase": phase}
+    med = {"type": "homogeneous", "sigma_t": spectrum_dict(lam, info["sigma_t"] / scale), "scale": scale,
+           "albedo": spectrum_dict(lam, info["albedo"]), "phase": phase}
     return (med, info) if return_info else med
 
 
@@ -193,7 +193,7 @@ def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, numb
         lo, hi = box
         vol["to_world"] = mi.ScalarTransform4f().translate(lo.tolist()).scale((hi - lo).tolist())
     med = {"type": "heterogeneous", "sigma_t": vol, "scale": s_ref,
-           "albedo": _spectrum(info["wavelength"], info["albedo"]), "phase": phase}
+           "albedo": spectrum_dict(info["wavelength"], info["albedo"]), "phase": phase}
     return (med, info) if return_info else med
 
 
