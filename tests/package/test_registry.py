@@ -256,13 +256,15 @@ def test_a_users_process_reaches_the_plugin_by_name_and_as_an_instance(mi_varian
 @pytest.mark.slow
 def test_a_built_in_process_instance_is_the_named_process(mi_variant):
     """An instance of a built-in process evaluates as the same process by name, for the flat layer
-    and the Mie sphere (the lattice of spheres too: its own code path)."""
+    (a mixture and an aperture too) and the Mie sphere (the lattice of spheres too: its own code path)."""
     import mitsuba as mi
     from bsdf_checks import plugin_eval
     wi = np.array([np.sin(0.3), 0.0, np.cos(0.3)])
     wo_xy = -wi[:2] + np.random.default_rng(0).uniform(-0.3, 0.3, (200, 2))
     wo = np.column_stack([wo_xy, -np.sqrt(1 - (wo_xy**2).sum(1))])
     for given in ({"shape": "circle", "radius": 2.0, "process": "lattice-hex", "area_fraction": 0.3},
+                  {"shape": "mixture", "mixture": "circle:3:1, square:2:1", "process": "hard-disk", "area_fraction": 0.3},
+                  {"shape": "circle", "radius": 3.0, "mode": "aperture", "process": "rsa", "area_fraction": 0.3},
                   {"shape": "sphere", "radius": 2.0, "process": "hard-disk", "area_fraction": 0.3},
                   {"shape": "sphere", "radius": 2.0, "process": "lattice-hex", "area_fraction": 0.3}):
         process = material_from_parameters(**given).process
