@@ -99,9 +99,9 @@ def one_scene(path: str) -> dict:
     from corona.model import processes
     from corona.model import rows
     from corona.model.mie import layer as sphere_material
-    from corona.mitsuba import volume
+    from corona.model.mie import volume as droplets
     sphere_material.build_mie_rows = timed("mie", sphere_material.build_mie_rows)
-    volume.MieVolume._build = timed("mie", volume.MieVolume._build)
+    droplets.MieVolume._build = timed("mie", droplets.MieVolume._build)
     mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "diffuse"}}})
     folder = os.environ["CORONA_CACHE_DIR"]
     load0 = os.getloadavg()[0]

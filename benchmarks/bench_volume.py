@@ -31,10 +31,11 @@ def run(variant: str, size: int, spp: int, repeat: int) -> dict:
     import mitsuba as mi
 
     from corona.mitsuba import volume
+    from corona.model.mie.volume import MieVolume
     mi.set_variant(variant)
     corona.register()
     kw = dict(distribution="gamma", variance=0.01)
-    v = volume.MieVolume(5.0, **kw)
+    v = MieVolume(5.0, **kw)
     h, tau = 0.01, 1.0
     sigma_t = tau / h
     g = float(v.cross_sections(550.0)["g"])

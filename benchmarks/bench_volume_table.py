@@ -35,8 +35,8 @@ def one(kwargs: dict, save: str | None = None) -> dict:
     import numpy as np
 
     import corona  # noqa: F401
-    from corona.mitsuba import volume
-    v = volume.MieVolume(**kwargs, use_cache=False)
+    from corona.model.mie.volume import MieVolume
+    v = MieVolume(**kwargs, use_cache=False)
     v.grid()
     t0, c0 = time.perf_counter(), time.process_time()
     table = v._build()

@@ -28,10 +28,11 @@ def series(taus=(0.05, 0.3, 1.0, 3.0), radius=5.0, size=128, spp=256, fov=24.0):
 
     from corona.mitsuba import volume
     from corona.mitsuba.phase import channel_response
+    from corona.model.mie.volume import MieVolume
     mi.set_variant("llvm_ad_rgb")
     corona.register()
     kw = dict(distribution="gamma", variance=0.01)
-    v = volume.MieVolume(radius, **kw)
+    v = MieVolume(radius, **kw)
     T = v.table
     h = 0.01
     panels, contrasts = [], []
@@ -41,8 +42,8 @@ def series(taus=(0.05, 0.3, 1.0, 3.0), radius=5.0, size=128, spp=256, fov=24.0):
     for tau in taus:
         N = tau / (v.cross_sections(550.0)["c_ext"] * h)
         st = N * T["c_ext"]
-        med = {"type": "homogeneous", "sigma_t": volume._spectrum(T["wavelength"], st / st.max()),
-               "scale": float(st.max()), "albedo": volume._spectrum(T["wavelength"], T["c_sca"] / T["c_ext"]),
+        med = {"type": "homogeneous", "sigma_t": volume.spectrum_dict(T["wavelength"], st / st.max()),
+               "scale": float(st.max()), "albedo": volume.spectrum_dict(T["wavelength"], T["c_sca"] / T["c_ext"]),
                "phase": {"type": "corona_mie", "radius": radius, **kw}}
         img = np.array(mi.render(mi.load_dict(volume.slab_scene(med, thickness=h, fov=fov, size=size,
                                                                    spp=spp, max_depth=64)), seed=1))
@@ -69,9 +70,10 @@ def glory_scene(truncation=5.0, radius=10.0, variance=0.01, sigma_t=0.05, res=12
     ``truncation`` degrees (0: none): the camera 300 m above a 200 m deck of 10 µm droplets,
     the sun behind it, multiple scattering on."""
     from corona.mitsuba import volume
+    from corona.model.mie.volume import MieVolume
     mi.set_variant(variant)
     corona.register()
-    v = volume.MieVolume(radius, "gamma", variance)
+    v = MieVolume(radius, "gamma", variance)
     N = sigma_t / (v.cross_sections(550.0)["c_ext"] * 1e-12)          # droplets per m³
     med = volume.homogeneous_medium(radius, number_density=N, distribution="gamma",
                                     variance=variance, truncation=truncation)

@@ -55,12 +55,13 @@ __all__ = ["CoronaError", "CoronaWarning",
            "set_default_variant", "register", "register_shape", "register_process", "scatterer"]
 
 
-def scatterer(shape):
-    """``shape`` (a :class:`corona.Shape` instance, a user's subclass too) as the value of the
-    plugin's ``shape`` property: ``mi.load_dict({'type': 'corona', 'shape': corona.scatterer(s)})``
+def scatterer(value):
+    """``value`` (a :class:`corona.Shape` or :class:`corona.Process` instance, a user's subclass
+    too) as the value of the plugin's ``shape`` or ``process`` property:
+    ``mi.load_dict({'type': 'corona', 'shape': corona.scatterer(s), 'process': corona.scatterer(p)})``
     (:func:`corona.mitsuba.common.scatterer`; docs/adding_a_scatterer.md)."""
     from corona.mitsuba.common import scatterer as _scatterer
-    return _scatterer(shape)
+    return _scatterer(value)
 
 
 def register() -> None:

@@ -194,4 +194,141 @@ def test_a_users_family_reaches_the_plugin_by_name_and_as_an_instance(mi_variant
     bsdf = mi.load_dict({"type": "corona", "shape": corona.scatterer(blob), "process": "poisson",
                          "area_fraction": 0.2})
     _plugin_vs_model(bsdf, corona.Material(blob, corona.Poisson(0.2)), rtol=2e-3)
-    _one_line_error(lambda: corona.scatterer("circle"), "not a corona.Shape instance")
+    _one_line_error(lambda: corona.scatterer("circle"), "'circle' is neither a corona.Shape nor a corona.Process")
+
+
+class _Softened(corona.HardDisk):
+    """Hard disks whose correlations are weakened: ``S = 1 + (1 - softness) (S_hd - 1)``."""
+
+    def __init__(self, area_fraction, softness=0.5):
+        super().__init__(area_fraction)
+        self.softness = softness
+
+    def structure_factor_radial(self, q_abs, shape):
+        return 1.0 + (1.0 - self.softness) * (super().structure_factor_radial(q_abs, shape) - 1.0)
+
+    def structure_factor_at(self, q, shape):
+        q = np.asarray(q, dtype=np.float64)
+        return self.structure_factor_radial(np.hypot(q[..., 0], q[..., 1]), shape)
+
+    def with_area_fraction(self, area_fraction):
+        return _Softened(area_fraction, self.softness)
+
+
+def test_a_users_process_reaches_the_plugin_by_name_and_as_an_instance(mi_variant, restored_registry):
+    """A process of the user's (a subclass with its own S) through mi.load_dict: by a registered
+    name with its own checked parameter, and as an instance (corona.scatterer), registered or not;
+    each against Material.lobe of the same layer built without the plugin or the registry."""
+    import mitsuba as mi
+    softness = Parameter("softness", "float", "", 0.5, "softened: 1 - the hard-disk correlation kept",
+                         low=0.0, high=1.0)
+    corona.register_process("softened", _Softened, ["area_fraction", softness])
+    reference = corona.Material(corona.Circle(3.0), _Softened(0.35, 0.3))
+    by_name = mi.load_dict({"type": "corona", "shape": "circle", "radius": 3.0, "process": "softened",
+                            "area_fraction": 0.35, "softness": 0.3})
+    _plugin_vs_model(by_name, reference, rtol=2e-3)
+    # negative control: the plain hard disks' lobe (softness 0) is not what the plugin evaluates
+    with pytest.raises(AssertionError, match="reference"):
+        _plugin_vs_model(by_name, corona.Material(corona.Circle(3.0), corona.HardDisk(0.35)), rtol=2e-3)
+    with pytest.raises(Exception, match=r"CoronaError: softness=1.5 is out of range; allowed \[0, 1\]"):
+        mi.load_dict({"type": "corona", "process": "softened", "softness": 1.5})
+    # instances: the user's (isotropic and with an anisotropic shape instance), complete as given
+    instance = mi.load_dict({"type": "corona", "shape": "circle", "radius": 3.0,
+                             "process": corona.scatterer(_Softened(0.35, 0.3))})
+    _plugin_vs_model(instance, reference, rtol=2e-3)
+    # its area fraction and lengths are its own: neither is a parameter of the scene
+    assert not {"radius.value", "area_fraction.value"} & set(mi.traverse(instance).keys())
+    import warnings
+    with warnings.catch_warnings():        # its description warns of no unused area_fraction
+        warnings.simplefilter("error", corona.CoronaWarning)
+        assert "Circle(radius=3)" in str(instance)
+    ellipse = corona.Ellipse(3.0, aspect=0.5)
+    both = mi.load_dict({"type": "corona", "shape": corona.scatterer(ellipse),
+                         "process": corona.scatterer(_Softened(0.3, 0.6))})
+    _plugin_vs_model(both, corona.Material(ellipse, _Softened(0.3, 0.6)), rtol=2e-3)
+    # a given area_fraction is the instance's own, not the plugin's: unused, one warning
+    with pytest.warns(corona.CoronaWarning, match="area_fraction"):
+        bsdf = mi.load_dict({"type": "corona", "shape": "circle", "radius": 3.0, "area_fraction": 0.1,
+                             "process": corona.scatterer(_Softened(0.35, 0.3))})
+    _plugin_vs_model(bsdf, reference, rtol=2e-3)
+
+
+@pytest.mark.slow
+def test_a_built_in_process_instance_is_the_named_process(mi_variant):
+    """An instance of a built-in process evaluates as the same process by name, for the flat layer
+    (a mixture and an aperture too) and the Mie sphere (the lattice of spheres too: its own code path)."""
+    import mitsuba as mi
+    from bsdf_checks import plugin_eval
+    wi = np.array([np.sin(0.3), 0.0, np.cos(0.3)])
+    wo_xy = -wi[:2] + np.random.default_rng(0).uniform(-0.3, 0.3, (200, 2))
+    wo = np.column_stack([wo_xy, -np.sqrt(1 - (wo_xy**2).sum(1))])
+    for given in ({"shape": "circle", "radius": 2.0, "process": "lattice-hex", "area_fraction": 0.3},
+                  {"shape": "mixture", "mixture": "circle:3:1, square:2:1", "process": "hard-disk", "area_fraction": 0.3},
+                  {"shape": "circle", "radius": 3.0, "mode": "aperture", "process": "rsa", "area_fraction": 0.3},
+                  {"shape": "sphere", "radius": 2.0, "process": "hard-disk", "area_fraction": 0.3},
+                  {"shape": "sphere", "radius": 2.0, "process": "lattice-hex", "area_fraction": 0.3}):
+        process = material_from_parameters(**given).process
+        named = plugin_eval(mi.load_dict({"type": "corona", **given}), wi, wo)[0]
+        rest = {k: v for k, v in given.items() if k not in ("process", "area_fraction")}
+        held = plugin_eval(mi.load_dict({"type": "corona", **rest, "process": corona.scatterer(process)}), wi, wo)[0]
+        assert np.max(named) > 0 and np.allclose(held, named, rtol=1e-6, atol=1e-6 * np.max(named)), given
+
+
+def test_a_bad_process_for_the_plugin_is_one_clear_error(mi_variant, restored_registry):
+    import mitsuba as mi
+    from corona._validation import one_line_error
+
+    def refused(props, *words):
+        with pytest.raises(Exception) as err:
+            mi.load_dict({"type": "corona", **props})
+        text = one_line_error(err.value)
+        assert "CoronaError" in str(err.value) and all(w in text for w in words), text
+    refused({"process": corona.scatterer(corona.Circle(1.0))}, "process=corona.scatterer(Circle(radius=1))",
+            "allowed a registered process name", "hard-disk", "corona.Process instance")
+    refused({"shape": corona.scatterer(corona.HardDisk(0.3))}, "shape=corona.scatterer(HardDisk(area_fraction=0.3))",
+            "corona.Shape instance")
+    refused({"process": mi.load_dict({"type": "uniform", "value": 0.3})}, "process=a Texture", "allowed")
+    refused({"process": "softened"}, "process='softened'", "poisson")
+    refused({"shape": "circle", "radius": {"type": "checkerboard"}, "process": corona.scatterer(corona.HardDisk(0.3))},
+            "radius cannot be a texture", "a process instance")
+    _one_line_error(lambda: corona.scatterer(3), "3 is neither a corona.Shape nor a corona.Process")
+
+    class Inherits(corona.HardDisk):          # S of its own, but the parent's with_area_fraction
+        def structure_factor_radial(self, q_abs, shape):
+            return np.ones_like(np.asarray(q_abs, dtype=np.float64))
+    _one_line_error(lambda: corona.register_process("inherits", Inherits), "inherits with_area_fraction from HardDisk",
+                    "define Inherits.with_area_fraction")
+    assert "inherits" not in registry.PROCESS_FAMILIES
+
+
+_TWEAK = '''
+import numpy as np, corona
+
+class Tweak(corona.HardDisk):
+    def structure_factor_radial(self, q_abs, shape):
+        return 1.0 + FACTOR * (super().structure_factor_radial(q_abs, shape) - 1.0)
+
+    def structure_factor_at(self, q, shape):
+        q = np.asarray(q, dtype=np.float64)
+        return self.structure_factor_radial(np.hypot(q[..., 0], q[..., 1]), shape)
+'''
+
+
+def test_an_edited_user_class_is_not_served_its_old_table(mi_variant):
+    """A user's class of the same module, name and attributes whose code changed between two
+    loads (an edit between runs) gets a table of its own: the plugin evaluates the new one."""
+    import mitsuba as mi
+    from corona.model import tabulated
+    classes = []
+    for factor in ("0.2", "0.9"):
+        ns = {"__name__": "users_module"}
+        exec(compile(_TWEAK.replace("FACTOR", factor), "users_module.py", "exec"), ns)
+        classes.append(ns["Tweak"])
+    first, second = classes[0](0.35), classes[1](0.35)
+    assert first.key() == second.key()        # the same name and attributes: only the code differs
+    assert tabulated.identity(first) != tabulated.identity(second)
+    assert tabulated.identity(corona.HardDisk(0.35)) == corona.HardDisk(0.35).key()   # built-ins as before
+    for process in (first, second):
+        bsdf = mi.load_dict({"type": "corona", "shape": "circle", "radius": 3.0,
+                             "process": corona.scatterer(process)})
+        _plugin_vs_model(bsdf, corona.Material(corona.Circle(3.0), process), rtol=2e-3)

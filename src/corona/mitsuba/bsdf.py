@@ -212,14 +212,15 @@ class CoronaBSDFMixin:
             self.mixture_largest = max(r for _, r, w in self.mixture_items if w > 0)
         # sizes that do not follow `radius`: a mask's pixels, a point file's positions, a mixture's
         # radii (unless the radius is a texture)
-        # (the families that do not read `radius`, or whose positions are absolute: corona.model.registry)
+        # (the families that do not read `radius`, or whose positions are absolute: corona.model.registry;
+        # a process instance, complete as given: corona.scatterer)
         full = {**DEFAULTS, **params}
-        self.fixed_radius = ((not SPEC["radius"].applies_to(full)
-                              or isinstance(full["process"], str) and process_family(full["process"]).absolute)
+        self.fixed_radius = (not isinstance(full["process"], str)
+                             or (not SPEC["radius"].applies_to(full) or process_family(full["process"]).absolute)
                              and not self.mixture_scaled)
         if self.fixed_radius and "radius" in self._textured:
-            raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or "
-                              "process='points' (their sizes and positions are absolute); give a float")
+            raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask', process='points' "
+                              "or a process instance (their sizes and positions are absolute); give a float")
         ranges = self._ranges()
         # absolute lengths (edge_width, exclusion_diameter, jitter) belong to the largest radius at
         # load; `radius` scales the whole layer with them (σ/R fixed), so the table in u is unchanged
@@ -1117,6 +1118,8 @@ class CoronaBSDFMixin:
         # the material at the current (largest) values, not at the table's headroom
         (_, fa), (_, radius), (_, albedo) = self._ranges()
         now = {**self.params, "area_fraction": min(max(fa, 1e-6), 1 - 1e-6), "albedo": albedo}
+        if not SPEC["area_fraction"].applies_to({**DEFAULTS, **now}):   # a point file's, an instance's own
+            del now["area_fraction"]
         if self.mixture_scaled:
             now["mixture"] = self._mixture_at(radius)
         elif not self.fixed_radius:

@@ -20,7 +20,7 @@ import mitsuba as mi
 import numpy as np
 
 from corona.model import tabulated
-from corona._validation import CoronaError
+from corona._validation import CoronaError, _short
 from corona.parameters import SPEC
 from corona.model.rows import row_slopes
 
@@ -54,8 +54,8 @@ def read_props(props) -> tuple[dict, dict]:
         if name not in SPEC:
             raise CoronaError(f"corona BSDF: unknown parameter '{name}'; known: {', '.join(sorted(SPEC))}")
         value = props.get(name)
-        if name == "shape" and isinstance(value, ScattererObject):
-            out[name] = value.shape          # a corona.Shape instance (corona.scatterer)
+        if name in ("shape", "process") and not isinstance(value, str):
+            out[name] = instance_of(name, value)          # corona.scatterer(...)
             continue
         if name in TEXTURED and isinstance(value, mi.Texture):
             textures[name] = value
@@ -83,31 +83,66 @@ def read_props(props) -> tuple[dict, dict]:
 
 
 class ScattererObject(mi.Object):
-    """A :class:`corona.Shape` instance as a Mitsuba property (:func:`scatterer`)."""
+    """A :class:`corona.Shape` or :class:`corona.Process` instance as a Mitsuba property
+    (:func:`scatterer`)."""
 
-    def __init__(self, shape):
+    def __init__(self, value):
         super().__init__()
-        self.shape = shape
+        self.value = value
 
     def to_string(self):
-        return f"ScattererObject[{self.shape!r}]"
+        return f"ScattererObject[{self.value!r}]"
 
 
-def scatterer(shape) -> ScattererObject:
-    """``shape`` (any :class:`corona.Shape`, a user's subclass too) as the value of the plugin's
-    ``shape`` property: ``mi.load_dict({'type': 'corona', 'shape': corona.scatterer(my_shape)})``.
+def _kinds():
+    from corona.model.processes.base import Process
+    from corona.model.shapes.base import Shape
+    return {"shape": Shape, "process": Process}
+
+
+def scatterer(value) -> ScattererObject:
+    """``value`` (any :class:`corona.Shape` or :class:`corona.Process`, a user's subclass too) as
+    the value of the plugin's ``shape`` or ``process`` property:
+    ``mi.load_dict({'type': 'corona', 'shape': corona.scatterer(my_shape),
+    'process': corona.scatterer(my_process)})``.
 
     Mitsuba 3.9's properties hold only its own (nanobind) types, so a plain Python object is
     refused by ``mi.load_dict`` before any plugin sees it; this wraps it in an ``mi.Object``.
-    The shape is complete as given (its own size, soft edge, orientation, size spread): the layer
-    adds the process, the mode, the albedo and the substrate.  Without a kernel term the plugin
-    tabulates its numpy form factor, as it tabulates a mask.
+    The instance is complete as given.  A shape keeps its own size, soft edge, orientation and
+    size spread (the layer adds the process, the mode, the albedo and the substrate); without a
+    kernel term the plugin tabulates its numpy form factor, as it tabulates a mask.  A process
+    keeps its own area fraction and lengths: the plugin neither textures nor differentiates
+    them (``area_fraction`` and ``radius`` are plain values there, as with a point file).
     """
-    from corona.model.shapes.base import Shape
-    if not isinstance(shape, Shape):
-        raise CoronaError(f"corona.scatterer: shape={shape!r} is not a corona.Shape instance (a subclass of "
-                          "corona.Shape implementing area, length_scale and amplitude)")
-    return ScattererObject(shape)
+    if not isinstance(value, tuple(_kinds().values())):
+        raise CoronaError(f"corona.scatterer: {_short(value)} is neither a corona.Shape nor a "
+                          "corona.Process instance (a subclass of either: corona.Shape implementing area, "
+                          "length_scale and amplitude; corona.Process implementing structure_factor_at and "
+                          "area_fraction)")
+    return ScattererObject(value)
+
+
+def instance_of(name: str, value):
+    """The instance a ``shape`` / ``process`` property holds (:func:`scatterer`), checked to be of
+    that kind; anything else that is not a name is one :class:`CoronaError`.
+
+    A process instance is held fixed: its area fraction is its own (no rows over F_a, no
+    texture, not differentiated), so the plugin uses a shallow copy with
+    ``varying_area_fraction = False`` (the model's physics unchanged, ``Material.lobe`` the same).
+    """
+    import copy
+    kind = _kinds()[name]
+    held = value.value if isinstance(value, ScattererObject) else None
+    if not isinstance(held, kind):
+        what = (f"corona.scatterer({_short(held)})" if isinstance(value, ScattererObject)
+                else f"a {type(value).__name__}")
+        raise CoronaError(f"corona BSDF: {name}={what} is out of range; allowed a registered {name} name "
+                          f"({', '.join(SPEC[name].choices)}) or corona.scatterer(<a corona.{kind.__name__} "
+                          "instance>)")
+    if name == "process" and held.varying_area_fraction:
+        held = copy.copy(held)
+        held.varying_area_fraction = False
+    return held
 
 
 def spectrum_samples(texture, wavelengths=None):

@@ -1,6 +1,6 @@
 """``corona_mie``: a Mitsuba 3 phase function of Mie droplets (docs/volumes.md).
 
-The phase function of a volume of spheres (:class:`corona.mitsuba.volume.MieVolume`):
+The phase function of a volume of spheres (:class:`corona.model.mie.volume.MieVolume`):
 a radius and index (water with its dispersion by default, ``ior_imag`` for
 absorbing particles), one size or a size distribution, and optionally the
 hard-sphere structure factor of a dense medium.
@@ -35,7 +35,7 @@ sin(Θ/2)`` (forward half) and ``|wo - wi| / 2 = cos(Θ/2)`` (backward half),
 so the forward peak and the glory keep their float32 accuracy and no
 trigonometry is needed); RGB and mono variants evaluate each channel's row, the phase
 function averaged over the channel's spectral response weighted by ``σ_s``
-(:meth:`corona.mitsuba.volume.MieVolume.rgb_table`).  Wavelengths are clamped to
+(:meth:`corona.model.mie.volume.MieVolume.rgb_table`).  Wavelengths are clamped to
 [360, 830] nm (a zero wavelength too).
 
 Sampling.  ``sample1`` picks one of the lane's wavelengths (or channels)
@@ -101,7 +101,7 @@ def _opaque(dtype, value):
 
 
 def _volume_from_props(props):
-    from corona.mitsuba.volume import MieVolume
+    from corona.model.mie.volume import MieVolume
     names = [n for n in props.keys() if not n.startswith("_")] if hasattr(props, "keys") else []
     unknown = [n for n in names if n not in _KEYS and n != "id"]
     if unknown:
@@ -158,7 +158,7 @@ class CoronaMiePhaseMixin:
             lam, w = channel_response()
             rows = self.volume.rgb_table(lam, w)
         self.n_rows = int(rows.shape[0])
-        from corona.mitsuba.volume import node_dv
+        from corona.model.mie.volume import node_dv
         dv = node_dv(ds, self.M)
         mass = 4 * np.pi * 0.5 * (rows[:, 1:] + rows[:, :-1]) * dv
         cdf = np.concatenate([np.zeros((rows.shape[0], 1)), np.cumsum(mass, axis=1)], axis=1)
@@ -199,7 +199,7 @@ class CoronaMiePhaseMixin:
     # ------------------------------------------------------------------
     def _angle(self, wi, wo):
         """(bin i, fraction f in v) of the scattering angle between -wi and wo on the chord nodes
-        (corona.mitsuba.volume.node_bin): no trigonometry, accurate at both ends."""
+        (corona.model.mie.volume.node_bin): no trigonometry, accurate at both ends."""
         a = dr.squared_norm(wo + wi) * 0.25          # sin²(Θ/2)
         b = dr.squared_norm(wo - wi) * 0.25          # cos²(Θ/2)
         fwd = a <= b

@@ -195,7 +195,8 @@ class SphereBSDFMixin:
         params, textures = _read_props(props)
         process = params.get("process", SPEC["process"].default)
         lattice = None
-        if str(process).startswith("lattice"):   # the Mie rows of the same sphere; the lattice apart
+        from corona.model.processes.lattice import Lattice
+        if isinstance(process, Lattice) or str(process).startswith("lattice"):   # the Mie rows; the lattice apart
             from corona.mitsuba.sphere_lattice import lattice_layer_params
             lattice, params = lattice_layer_params(params, textures)
         albedo_tex = textures.pop("albedo", None)

@@ -358,7 +358,7 @@ class Material:
     # the table (what the renderer evaluates and samples)
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
-        return {"shape": self.shape.key(), "process": self.process.key(),
+        return {"shape": tabulated.identity(self.shape), "process": tabulated.identity(self.process),
                 "isotropic": self.isotropic, "du": tabulated.RADIAL_DU,
                 "max_samples": tabulated.RADIAL_MAX_SAMPLES, "grid": tabulated.GRID2D_SIZE,
                 "wavelength_min": tabulated.WAVELENGTH_MIN, "render": self.render_kind,

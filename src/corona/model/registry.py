@@ -250,7 +250,9 @@ def register_process(name: str, cls, parameters=("area_fraction",), *, factory: 
     """Make a :class:`~corona.Process` class a process family: ``process=name`` everywhere.
 
     ``parameters`` as in :func:`register_shape` (default: the area fraction alone);
-    ``factory(p, shape) -> Process`` defaults to ``cls(**{name: p[name]})``.
+    ``factory(p, shape) -> Process`` defaults to ``cls(**{name: p[name]})``.  A class whose
+    ``S`` the area fraction moves (``varying_area_fraction = True``: the plugin builds rows over
+    F_a, textures and differentiates it) defines its own ``with_area_fraction``.
     """
     from corona.model.processes.base import Process
     _check_name("process", name, PROCESS_FAMILIES)
@@ -258,6 +260,13 @@ def register_process(name: str, cls, parameters=("area_fraction",), *, factory: 
         raise CoronaError(f"register_process({name!r}, {cls!r}): not a corona.Process subclass; a process "
                           "family is a class deriving from corona.Process (structure_factor_at, "
                           "area_fraction, isotropic)")
+    if cls.varying_area_fraction and "with_area_fraction" not in vars(cls):
+        # the plugin builds rows over F_a with it: an inherited one makes the parent's process
+        owner = next(c for c in cls.__mro__ if "with_area_fraction" in vars(c))
+        raise CoronaError(f"register_process({name!r}, {cls.__name__}): {cls.__name__} has varying_area_fraction = "
+                          f"True but inherits with_area_fraction from {owner.__name__} (the plugin's rows over "
+                          f"the area fraction would be {owner.__name__}'s); define {cls.__name__}.with_area_fraction "
+                          "or set varying_area_fraction = False")
     names, new = _split_parameters("process", name, parameters)
     if factory is None:
         factory = _class_factory("process", name, cls, names, with_shape=True)

@@ -572,6 +572,31 @@ def code_key(*functions) -> str:
     return h.hexdigest()[:16]
 
 
+def identity(obj) -> dict:
+    """The cache key of a shape or a process: ``obj.key()`` and, for a class defined outside corona
+    (a user's family, or a user's subclass of a built-in, whose ``key`` may be the parent's), its
+    qualified name and a fingerprint of the code its classes outside corona define (methods,
+    properties, plain class constants: :func:`code_key`), so that a table made by another or an
+    earlier version of that class is not read back.  (Code it calls elsewhere is not covered: a
+    user who changes such a helper clears the cache, ``corona tables clear``.)"""
+    key = obj.key()
+    cls = type(obj)
+    if cls.__module__.split(".")[0] == "corona":
+        return key
+    functions, constants = [], []
+    for c in cls.__mro__:
+        if c is object or c.__module__.split(".")[0] == "corona":
+            continue
+        for name, v in sorted(vars(c).items()):
+            v = getattr(v, "fget", None) or getattr(v, "func", None) or getattr(v, "__func__", None) or v
+            if hasattr(v, "__code__"):
+                functions.append(v)
+            elif isinstance(v, (bool, int, float, str, tuple)) and not name.startswith("__"):
+                constants.append((c.__qualname__, name, v))
+    h = hashlib.sha256((code_key(*functions) + repr(constants)).encode()).hexdigest()[:16]
+    return {**key, "class": f"{cls.__module__}.{cls.__qualname__}", "code": h}
+
+
 def _checksum(arrays: dict) -> str:
     h = hashlib.sha256()
     for name in sorted(arrays):

@@ -1061,7 +1061,7 @@ class SphereMaterial(MieMembers, Material):
     # tables
     # ------------------------------------------------------------------
     def table_params(self) -> dict:
-        key = {"sphere_format": SPHERE_FORMAT, "shape": self.shape.key(),
+        key = {"sphere_format": SPHERE_FORMAT, "shape": tabulated.identity(self.shape),
                "rows_x": [ROW_DLNX, ROW_DX_START, ROW_DX_MIN, ROW_DX_FINE, ROW_TOLERANCE, ROW_TEST_STRIDE],
                "chord_dx": [CHORD_DX, CHORD_DX_SPREAD, SPREAD_COARSE_CHORD], "nodes": [MIN_NODES, MAX_NODES], "rows": [MIN_ROWS, MAX_ROWS],
                "sizes": [SIZE_DX, SIZE_PER_SIGMA, MAX_SIZE_SAMPLES, MAX_SIZE_TOTAL, SIZE_TAIL, SIZE_DM, SIZE_ROW_DX, SIZE_ROW_DLNX, SIZE_ROW_RULE,
@@ -1172,7 +1172,7 @@ class SphereMaterial(MieMembers, Material):
         if self.structure_table is None:
             e_mu = np.repeat(T_f[:, None], len(INCIDENCE_MU), axis=1)
         else:   # seconds for a hard core: kept in the table cache, per process
-            key = {**self.table_params(), "forward_energy": 1, "process": self.process.key(),
+            key = {**self.table_params(), "forward_energy": 1, "process": tabulated.identity(self.process),
                    "incidence_mu": len(INCIDENCE_MU)}
             e_mu = np.asarray(tabulated.cached(key, lambda: {"e_f_mu": self._forward_energy_of_peers(s, C, T_f)},
                                             use_cache=self.use_cache)["e_f_mu"])

@@ -371,7 +371,8 @@ def _gauss_legendre(n: int):
 
 def _keyable(v):
     if isinstance(v, Shape):
-        return v.key()
+        from corona.model.tabulated import identity
+        return identity(v)
     if isinstance(v, np.ndarray):
         import hashlib
         a = np.ascontiguousarray(v)
