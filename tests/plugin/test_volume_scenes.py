@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from corona.mitsuba.phase import channel_response
-from corona.mitsuba.volume import MieVolume
+from corona.model.mie.volume import MieVolume
 from test_volume import ring_contrast, variant  # noqa: F401  (the fixture)
 
 SCENES = os.path.join(os.path.dirname(__file__), os.pardir, os.pardir, "scenes")
