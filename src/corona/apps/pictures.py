@@ -92,15 +92,21 @@ def far_field_corona(material, half_angle_deg: float = 10.0, size: int = 256,
     direction ``wo`` (d = wo.xy), times a black-body spectrum, integrated
     against the CIE 1931 colour matching functions.
     """
+    d, lams, spd = _corona_view(half_angle_deg, size, temperature, n_wavelengths)
+    spectra = np.stack([material.lobe_tabulated(d, lam) * s for lam, s in zip(lams, spd)], -1)
+    return spectrum_to_linear_srgb(spectra, lams)
+
+
+def _corona_view(half_angle_deg: float, size: int, temperature: float, n_wavelengths: int):
+    """The view of a corona picture: ``d = (sin θx cos θy, sin θy)`` at the pixel centres (size, size, 2),
+    the wavelengths [nm] of the visible range and the black body at ``temperature`` on them (peak 1)."""
     from corona.model import tabulated
     t = np.radians(np.linspace(-half_angle_deg, half_angle_deg, size))
     tx, ty = np.meshgrid(t, t[::-1], indexing="xy")
     d = np.stack([np.sin(tx) * np.cos(ty), np.sin(ty)], -1)
     lams = np.linspace(max(380.0, tabulated.WAVELENGTH_MIN), 780.0, n_wavelengths)
     spd = blackbody(lams, temperature)
-    spd = spd / spd.max()
-    spectra = np.stack([material.lobe_tabulated(d, lam) * s for lam, s in zip(lams, spd)], -1)
-    return spectrum_to_linear_srgb(spectra, lams)
+    return d, lams, spd / spd.max()
 
 
 def _u_extent(material, u_cap: float = 40.0) -> float:
@@ -211,15 +217,9 @@ def sphere_corona(material, half_angle_deg: float, size: int = 192, temperature:
     its transmitted lobe (:meth:`~corona.model.mie.layer.SphereMaterial.lobe`, which depends on λ beyond
     ``u``) at each pixel and wavelength; radial layers on one profile of 1024 points in ``|d|`` per
     wavelength, interpolated per pixel; a fixed lattice at each pixel (fewer pixels and wavelengths)."""
-    from corona.model import tabulated
     if not material.isotropic:
         size, n_wavelengths = min(size, 96), min(n_wavelengths, 12)
-    t = np.radians(np.linspace(-half_angle_deg, half_angle_deg, size))
-    tx, ty = np.meshgrid(t, t[::-1], indexing="xy")
-    d = np.stack([np.sin(tx) * np.cos(ty), np.sin(ty)], -1)
-    lams = np.linspace(max(380.0, tabulated.WAVELENGTH_MIN), 780.0, n_wavelengths)
-    spd = blackbody(lams, temperature)
-    spd = spd / spd.max()
+    d, lams, spd = _corona_view(half_angle_deg, size, temperature, n_wavelengths)
     if material.isotropic:
         rho = np.hypot(d[..., 0], d[..., 1])
         grid = np.linspace(0.0, float(rho.max()), 1024)
