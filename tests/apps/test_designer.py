@@ -806,6 +806,35 @@ def test_a_new_sphere_radius_shows_a_preview_then_the_exact_picture(monkeypatch)
     assert np.abs(other - exact).mean() > 0.15 * exact.mean()
 
 
+def test_a_sphere_table_in_the_disk_cache_is_read_not_rebuilt(tmp_path, monkeypatch):
+    """A radius whose exact table another command left in the cache (corona render, corona lobe)
+    is read from there when the designer needs it, not rebuilt, and gives the same answers; the
+    designer writes no table itself.  Negative control: without the file it builds."""
+    from corona.model import tabulated
+    from corona.model.mie import layer
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    params = {"shape": "sphere", "radius": 1.13, "area_fraction": 0.2, "process": "poisson"}
+    parsed = compute.parse({k: str(v) for k, v in params.items()})[0]
+    ref = _sphere_material(params)                 # what corona render does: builds and caches
+    _ = ref.rows
+    tabulated.wait_for_writes()
+    files = sorted(os.listdir(tmp_path))
+    built = []
+    real = layer.build_mie_rows
+    monkeypatch.setattr(layer, "build_mie_rows", lambda *a, **k: built.append(a) or real(*a, **k))
+    m = compute.material(parsed)
+    assert not compute.exact_ready(m)
+    compute.exact_material(parsed)
+    assert built == [] and compute.exact_ready(m)
+    for key in ("x", "P_f", "P_b", "s0"):
+        np.testing.assert_array_equal(m.rows[key], ref.rows[key])
+    assert compute.energy(parsed) == compute.energy(parsed, preview=True)
+    assert sorted(os.listdir(tmp_path)) == files                       # nothing written
+    # negative control: another radius, not in the cache, is built
+    compute.exact_material({**parsed, "radius": 1.17})
+    assert len(built) == 1 and sorted(os.listdir(tmp_path)) == files
+
+
 # ----------------------------------------------------------------------
 # the kernel sized from the lobe (issue 43 item 5); substrates (issue 47 items 10, 16)
 # ----------------------------------------------------------------------

@@ -321,8 +321,22 @@ def wait_exact(m):
     with _profiles_lock:
         lock = _exact_locks.setdefault(m, threading.Lock())
     with lock:
+        if "rows" not in m.__dict__ and not m.use_cache:
+            _read_cached_rows(m)
         _ = m.rows, m._derived
     return m
+
+
+def _read_cached_rows(m) -> None:
+    """The exact rows of ``m`` from the on-disk table cache when another command (corona render,
+    corona lobe) has built them: read, not rebuilt.  The designer itself writes none (a sphere
+    table is tens of MB; :func:`material`)."""
+    import copy
+    twin = copy.copy(m)
+    twin.__dict__ = {k: v for k, v in m.__dict__.items() if k != "rows"}
+    twin.use_cache = True
+    if twin.rows_cached():
+        m.__dict__["rows"] = twin.rows
 
 
 class _ExactBuilds:
