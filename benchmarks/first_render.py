@@ -12,9 +12,16 @@ Preview: for new sphere radii (hard disks, F_a 0.4, water) the time of
 ``SphereMaterial.preview()``'s rows and forward energies (what the designer shows first),
 in this process, against the exact rows' build of one radius.
 
+Designer: for new sphere radii (hard disks, F_a 0.4, water), the seconds from the request to
+the first picture of 256² pixels (the preview, while the exact table builds in the background),
+the exact table's build after it, and the exact picture.
+
+Each scene and the whole run record the 1-minute load average (the machine may be shared).
+
 Writes benchmarks/results/first_render.json.
 
     python benchmarks/first_render.py [--res 64] [--spp 4] [--scenes scenes/a.xml ...] [--timeout 600]
+                                      [--radii 5 13.7 25] [--exact-radius 13.7] [--designer-radii 4.3 11.1]
 """
 from __future__ import annotations
 
@@ -74,6 +81,34 @@ def preview_times(radii) -> dict:
     return out
 
 
+def designer_first_picture(radii) -> dict:
+    """The designer's answer to a new sphere radius (hard disks, F_a 0.4, water; 256² pixels, the
+    page's size): the seconds to its first picture (the preview, :func:`compute.shown_material`),
+    and to the exact picture once the background build is done, in this process, after the
+    server's warm-up (:func:`corona.apps.designer.warm_up`: the first preset once)."""
+    from corona.apps.designer import compute
+    pr = next(iter(compute.PRESETS.values()))         # what the server does at its start (warm_up)
+    compute.corona_png(pr["material"], {**pr["view"], "size": 64})
+    compute.profiles(pr["material"], pr["view"])
+    out = {}
+    for r in radii:
+        params, view, _ = compute.parse({"shape": "sphere", "radius": f"{r:g}", "area_fraction": "0.4",
+                                         "process": "hard-disk", "size": "256"})
+        t0 = time.perf_counter()
+        _, used = compute.corona_png(params, view, preview=True)
+        t1 = time.perf_counter()
+        while not compute.builds.idle():
+            time.sleep(0.05)
+        t2 = time.perf_counter()
+        _, used2 = compute.corona_png(params, view, preview=True)
+        t3 = time.perf_counter()
+        out[f"{r:g}"] = {"first_picture_s": round(t1 - t0, 3), "first_is_preview": bool(used["building"]),
+                         "exact_table_s": round(t2 - t1, 2), "exact_picture_s": round(t3 - t2, 3),
+                         "exact_is_preview": bool(used2["building"]),
+                         "load_avg_1min": round(os.getloadavg()[0], 2)}
+    return out
+
+
 def exact_time(radius: float) -> dict:
     from corona.parameters import material_from_parameters
     m = material_from_parameters(shape="sphere", radius=radius, area_fraction=0.4, process="hard-disk")
@@ -95,7 +130,9 @@ def main():
     ap.add_argument("--timeout", type=float, default=600.0)
     ap.add_argument("--radii", type=float, nargs="*", default=[5.0, 13.7, 25.0])
     ap.add_argument("--exact-radius", type=float, default=13.7)
+    ap.add_argument("--designer-radii", type=float, nargs="*", default=[4.3, 11.1])
     a = ap.parse_args()
+    load_start = round(os.getloadavg()[0], 2)
     import common
     scenes = ([os.path.abspath(s) for s in a.scenes] if a.scenes
               else sorted(glob.glob(os.path.join(ROOT, "scenes", "*.xml"))))
@@ -108,11 +145,16 @@ def main():
     print("preview:", preview, flush=True)
     exact = exact_time(a.exact_radius)
     print("exact:", exact, flush=True)
+    designer = designer_first_picture(a.designer_radii)
+    print("designer:", designer, flush=True)
     common.write("first_render", {
         "what": "cold first render of every scene from the command line (fresh process, empty table "
-                "cache; Dr.Jit's kernel cache as found), and the Mie preview against the exact rows",
+                "cache; Dr.Jit's kernel cache as found), the Mie preview against the exact rows, and "
+                "the designer's first picture of a new sphere radius",
         "res": a.res, "spp": a.spp, "cpu_affinity": len(os.sched_getaffinity(0)),
-        "scenes": results, "sphere_preview": preview, "sphere_exact": exact})
+        "load_avg_1min": {"start": load_start, "end": round(os.getloadavg()[0], 2)},
+        "results": {f"designer, new sphere radius {r} µm": v for r, v in designer.items()},
+        "scenes": results, "sphere_preview": preview, "sphere_exact": exact, "argv": sys.argv})
 
 
 if __name__ == "__main__":

@@ -322,6 +322,9 @@ BENCHMARKS = [
      "the BSDF alone and the anisotropic kernels' pieces"),
     ("sphere_kernel", "python benchmarks/bench_sphere_kernel.py", "the sphere layer's BSDF alone"),
     ("tables", "python benchmarks/bench_tables.py", "table builds, and every scene's tables cold"),
+    ("first_render", "python benchmarks/first_render.py",
+     "first use: every scene rendered cold from the command line (64², 4 spp), a new sphere radius's "
+     "preview against its exact table, and the designer's first picture of a new radius"),
     ("spread_build_idle", "python benchmarks/bench_spread_build.py --name spread_build_idle",
      "size-spread Mie tables' build"),
     ("mie", "python benchmarks/bench_mie.py", "Mie sphere tables: build time and render cost"),

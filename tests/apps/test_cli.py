@@ -299,3 +299,75 @@ def test_lobe_picture_without_matplotlib_is_one_line(tmp_path, monkeypatch):
     line = assert_one_line_error(run("lobe", "--radius", "5", "--out", tmp_path / "x.png"),
                                  "matplotlib", "corona-bsdf[reference]")
     assert not (tmp_path / "x.png").exists(), line
+
+
+# ----------------------------------------------------------------------------
+# corona lobe for spheres (issue 43 items 2 and 6): a picture, a progress bar with a total
+# ----------------------------------------------------------------------------
+@pytest.mark.slow
+def test_lobe_picture_of_spheres_shows_the_table_build(tmp_path, monkeypatch):
+    """`corona lobe --shape sphere --out` draws the Mie layer (it was refused); a radius whose table
+    is not in the (empty) cache builds it first, with a progress bar on stderr that has a total;
+    `--json --out` prints the numbers alone on stdout and writes the picture too."""
+    import re
+
+    import imageio.v3 as iio
+
+    from corona.model import tabulated
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(tabulated, "PROGRESS_DELAY", 0.0)        # the bar at once, however fast the build
+    out = tmp_path / "sphere.png"
+    r = CliRunner().invoke(main, ["lobe", "--shape", "sphere", "--radius", "2.9", "--area-fraction", "0.2",
+                                  "--process", "poisson", "--out", str(out)], catch_exceptions=False)
+    assert r.exit_code == 0, r.stderr
+    assert r.stdout.strip() == str(out)
+    img = iio.imread(out)
+    assert img.ndim == 3 and img.shape[1] > 2 * img.shape[0] and img.std() > 10   # the panels side by side
+    states = r.stderr.replace("\r", "\n").splitlines()
+    bars = [s for s in states if "building the Mie sphere table (2.9 µm)" in s]
+    assert bars, r.stderr
+    # every state of the bar shows "done/total", and the last one is complete
+    assert all(re.search(r"\| *\d+/\d+ \[", s) for s in bars), [s for s in bars if not re.search(r"\d+/\d+ \[", s)]
+    n, total = map(int, re.search(r"(\d+)/(\d+) \[", bars[-1]).groups())
+    assert n == total > 100
+    # the table is in the cache now: no bar the second time; --json --out: JSON alone on stdout
+    out2 = tmp_path / "again.png"
+    r = CliRunner().invoke(main, ["lobe", "--shape", "sphere", "--radius", "2.9", "--area-fraction", "0.2",
+                                  "--process", "poisson", "--json", "--out", str(out2)], catch_exceptions=False)
+    assert r.exit_code == 0, r.stderr
+    assert "building the Mie sphere table" not in r.stderr
+    assert json.loads(r.stdout)["length_scale_um"] == 2.9 and out2.stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_sphere_corona_is_mie_theory():
+    """The corona of the sphere picture (corona.apps.pictures.sphere_corona) is Mie theory: for a
+    dilute Poisson layer each pixel is F_a w dσ/dΩ / (π r² cos θ) (corona.model.mie.theory), weighted
+    by the black body and taken to linear sRGB; negative control: a radius 10 % off differs."""
+    import warnings
+
+    from corona.apps.pictures import sphere_corona
+    from corona.color import blackbody, spectrum_to_linear_srgb
+    from corona.model.mie import theory as mie
+    from corona.parameters import material_from_parameters
+    r, fa, n_lam, half = 3.0, 0.05, 6, 12.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = material_from_parameters(shape="sphere", radius=r, area_fraction=fa, process="poisson", ior=1.5)
+    img = sphere_corona(m, half, size=21, n_wavelengths=n_lam)
+    t = np.radians(np.linspace(-half, half, 21))
+    tx, ty = np.meshgrid(t, t[::-1], indexing="xy")
+    d = np.stack([np.sin(tx) * np.cos(ty), np.sin(ty)], -1)
+    cos_t = np.sqrt(1 - np.sum(d * d, -1))
+    lams = np.linspace(380.0, 780.0, n_lam)
+    spd = blackbody(lams, 3000.0)
+    spd = spd / spd.max()
+
+    def reference(radius):
+        f = np.stack([fa * float(m.energies(1.0, lam)["weight"])
+                      * mie.differential_cross_section(1.5, radius, lam * 1e-3, cos_t) / (np.pi * radius**2) / cos_t
+                      for lam in lams], -1)
+        return spectrum_to_linear_srgb(f * spd, lams)
+    ref = reference(r)
+    np.testing.assert_allclose(img, ref, rtol=0.01, atol=2e-3 * ref.max())
+    assert np.abs(reference(1.1 * r) - img).max() > 0.05 * ref.max()

@@ -709,8 +709,15 @@ def test_every_endpoint_answers_for_spheres(sphere_client, params):
         assert res.status_code == 200, res.text
 
 
+def _exact(params):
+    """Build the exact tables of ``params`` first: a new sphere radius is answered with a preview
+    until they are built (test_a_new_sphere_radius_shows_a_preview_then_the_exact_picture)."""
+    compute.exact_material(compute.parse({k: str(v) for k, v in params.items()})[0])
+
+
 def test_sphere_energy_split_is_the_white_furnace(sphere_client):
     params = SPHERES[1]
+    _exact(params)
     got = sphere_client.get("/api/material", params=params).json()
     m = _sphere_material(params)
     e = m.directional_albedo(1.0, 550.0)          # integral of eval over the sphere of directions
@@ -725,7 +732,9 @@ def test_profiles_are_mie(sphere_client):
     # a dilute Poisson layer: T_a is one sphere's dσ/dΩ / (π r²) and the lobe F_a T_a (S = 1, the
     # cap inactive up to O(F_a²)); the rings at 550 nm are the maxima of Mie's pattern
     params = SPHERES[2]
+    _exact(params)
     p = sphere_client.get("/api/profiles", params=params).json()
+    assert p["preview"] is False
     theta = np.radians(p["angle"])
     r = 3.0
     ref = mie.differential_cross_section(1.5, r, 0.55, np.cos(theta)) / (math.pi * r * r)
@@ -739,6 +748,91 @@ def test_profiles_are_mie(sphere_client):
     i = np.nonzero((v[1:-1] > v[:-2]) & (v[1:-1] >= v[2:]))[0] + 1
     expected = np.degrees(th[i][:3])
     np.testing.assert_allclose(p["rings"]["550"][:3], expected, rtol=2e-3)
+
+
+@pytest.mark.slow
+def test_a_new_sphere_radius_shows_a_preview_then_the_exact_picture(monkeypatch):
+    """Issue 43 item 6: a sphere radius without its exact Mie table is answered at once from the
+    coarse preview (X-Corona-Preview and X-Corona-Building set; the exact rows not built, their
+    build held back here so the answer cannot have waited for them) while the exact table builds in
+    the background (listed by /api/progress); once built, the answer is exact and says so."""
+    import threading
+    import time
+
+    from corona.apps.designer import create_app
+    params = {"shape": "sphere", "radius": 1.37, "area_fraction": 0.2, "process": "hard-disk"}
+    m = compute.material(compute.parse({k: str(v) for k, v in params.items()})[0])
+    assert not compute.exact_ready(m)
+    started, go = threading.Event(), threading.Event()
+    real = compute.wait_exact
+
+    def held(mat):
+        if mat is m:
+            started.set()
+            assert go.wait(300)
+        return real(mat)
+    monkeypatch.setattr(compute, "wait_exact", held)
+    with TestClient(create_app(timeout=600.0), base_url="http://127.0.0.1") as c:
+        res = c.get("/api/corona.png", params={**params, "size": 64})
+        preview = png(res).astype(float)
+        assert res.headers["X-Corona-Preview"] == "1" and res.headers["X-Corona-Building"] == "1"
+        assert "rows" not in m.__dict__ and not compute.exact_ready(m)      # answered without the exact table
+        assert started.wait(60)
+        builds = c.get("/api/progress").json()["builds"]
+        assert [b["state"] for b in builds] == ["running"] and "1.37 µm" in builds[0]["what"], builds
+        # the other views of the page answer from the same preview meanwhile, and say so
+        for ep in ("/api/profiles", "/api/material", "/api/kernel_info"):
+            res = c.get(ep, params=params)
+            assert res.status_code == 200, res.text
+            assert res.json()["preview"] is True, ep
+        assert "rows" not in m.__dict__
+        go.set()
+        deadline = time.monotonic() + 600
+        while c.get("/api/progress").json()["builds"]:
+            assert time.monotonic() < deadline, "the exact table did not get built"
+            time.sleep(0.1)
+        assert compute.exact_ready(m)
+        res = c.get("/api/corona.png", params={**params, "size": 64})
+        exact = png(res).astype(float)
+        assert res.headers["X-Corona-Preview"] == "0" and res.headers["X-Corona-Building"] == "0"
+        for ep in ("/api/profiles", "/api/material", "/api/kernel_info"):
+            assert c.get(ep, params=params).json()["preview"] is False, ep
+    # the preview is a picture of the same corona: close to the exact one, pixel by pixel (0.6 % of
+    # the mean); negative control: the preview of a radius 30 % larger is far from it (28 %)
+    assert np.abs(preview - exact).mean() < 0.05 * exact.mean(), (np.abs(preview - exact).mean(), exact.mean())
+    mat, view, _ = compute.parse({k: str(v) for k, v in {**params, "radius": 1.78, "size": 64}.items()})
+    img, _ = compute.corona_linear(compute.material(mat).preview(), view)
+    other = compute.tonemap_srgb(img, exposure=2.0 ** compute.exposure_of(img, None)).astype(float)
+    assert np.abs(other - exact).mean() > 0.15 * exact.mean()
+
+
+def test_a_sphere_table_in_the_disk_cache_is_read_not_rebuilt(tmp_path, monkeypatch):
+    """A radius whose exact table another command left in the cache (corona render, corona lobe)
+    is read from there when the designer needs it, not rebuilt, and gives the same answers; the
+    designer writes no table itself.  Negative control: without the file it builds."""
+    from corona.model import tabulated
+    from corona.model.mie import layer
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    params = {"shape": "sphere", "radius": 1.13, "area_fraction": 0.2, "process": "poisson"}
+    parsed = compute.parse({k: str(v) for k, v in params.items()})[0]
+    ref = _sphere_material(params)                 # what corona render does: builds and caches
+    _ = ref.rows
+    tabulated.wait_for_writes()
+    files = sorted(os.listdir(tmp_path))
+    built = []
+    real = layer.build_mie_rows
+    monkeypatch.setattr(layer, "build_mie_rows", lambda *a, **k: built.append(a) or real(*a, **k))
+    m = compute.material(parsed)
+    assert not compute.exact_ready(m)
+    compute.exact_material(parsed)
+    assert built == [] and compute.exact_ready(m)
+    for key in ("x", "P_f", "P_b", "s0"):
+        np.testing.assert_array_equal(m.rows[key], ref.rows[key])
+    assert compute.energy(parsed) == compute.energy(parsed, preview=True)
+    assert sorted(os.listdir(tmp_path)) == files                       # nothing written
+    # negative control: another radius, not in the cache, is built
+    compute.exact_material({**parsed, "radius": 1.17})
+    assert len(built) == 1 and sorted(os.listdir(tmp_path)) == files
 
 
 # ----------------------------------------------------------------------
@@ -910,7 +1004,7 @@ def test_progress_reports_the_table_builds(monkeypatch):
         return b"", {"exposure": 0.0, "field": 1.0}
     monkeypatch.setattr(compute, "corona_png", slow)
     with TestClient(create_app(), base_url="http://127.0.0.1") as c:
-        assert c.get("/api/progress").json() == {"jobs": [], "bars": []}
+        assert c.get("/api/progress").json() == {"jobs": [], "builds": [], "bars": []}
         t = threading.Thread(target=lambda: c.get("/api/corona.png"))
         t.start()
         seen = []
@@ -959,8 +1053,8 @@ def _offered_looks():
 @pytest.mark.parametrize("shape", list(_offered_looks()))
 def test_exported_command_runs_in_the_cli(client, shape, tmp_path, monkeypatch):
     """Issue 43 item 2/5: the designer's exported ``corona lobe`` command, for every shape it offers
-    (and a mirror of gold), is accepted by the CLI and does its work (a picture, or for spheres,
-    which corona lobe does not draw, the numbers)."""
+    (and a mirror of gold), is accepted by the CLI and does its work (a picture; for spheres also
+    the numbers, with --json added)."""
     import shlex
 
     from corona.apps.cli import main
@@ -978,10 +1072,11 @@ def test_exported_command_runs_in_the_cli(client, shape, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     res = CliRunner().invoke(main, argv[1:], catch_exceptions=False)
     assert res.exit_code == 0, (argv, res.output)
+    assert (tmp_path / "lobe.png").stat().st_size > 1000
     if shape == "sphere":
+        res = CliRunner().invoke(main, argv[1:] + ["--json"], catch_exceptions=False)
+        assert res.exit_code == 0, (argv, res.output)
         out = json.loads(res.stdout)
         m = _sphere_material(params)
         assert out["coherent_transmittance"] == pytest.approx(m.directional_albedo(1.0, 550.0, n_phi=4)["coherent"],
                                                               rel=1e-6)
-    else:
-        assert (tmp_path / "lobe.png").stat().st_size > 1000

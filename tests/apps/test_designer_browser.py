@@ -187,3 +187,30 @@ def test_page_follows_the_spec_keeps_the_look_in_the_url_and_shows_progress(monk
             driver.quit()
     errors = [e["message"] for e in logs if e.get("level") == "SEVERE"]
     assert errors == []
+
+
+def test_a_new_sphere_radius_shows_a_preview_then_the_exact_picture():
+    """Issue 43 item 6 in the browser: a look of spheres of a radius without a table (from the
+    address) shows the preview at once, captioned so, with the build's progress; the exact picture
+    replaces it when the table is built, without a console error."""
+    from designer_screenshot import chrome, wait_for
+
+    from corona.apps.designer import running
+    with running() as url:
+        driver = chrome(1400, 900)
+        try:
+            driver.get(url + "?shape=sphere&radius=7.3&area_fraction=0.2&process=poisson")
+            wait_for(driver, "return document.getElementById('corona-a').dataset.building === '1';",
+                     timeout=60, what="the preview")
+            assert "coarse Mie table" in driver.execute_script("return document.getElementById('cap-a').textContent;")
+            wait_for(driver, "const b = document.getElementById('busy'); return !b.hidden && "
+                             "document.getElementById('busy-text').textContent.includes('7.3');",
+                     timeout=60, what="the build's progress")
+            wait_for(driver, "const i = document.getElementById('corona-a'); return i.dataset.building === '0' "
+                             "&& i.dataset.preview === '0';", timeout=600, what="the exact picture")
+            assert "preview" not in driver.execute_script("return document.getElementById('cap-a').textContent;")
+            logs = driver.get_log("browser")
+        finally:
+            driver.quit()
+    errors = [e["message"] for e in logs if e.get("level") == "SEVERE"]
+    assert errors == []

@@ -297,18 +297,25 @@ def material_options(f):
 
 @main.command()
 @material_options
-@click.option("--out", "out_path", default="lobe.png", show_default=True, help="PNG file to write.")
-@click.option("--json", "as_json", is_flag=True, help="Print the numbers as JSON instead of a picture.")
+@click.option("--out", "out_path", default="lobe.png", show_default=True,
+              help="PNG file to write (with --json: only when given).")
+@click.option("--json", "as_json", is_flag=True, help="Print the numbers as JSON (and write the picture only "
+              "when --out is given).")
 @click.option("--wavelength", type=float, default=550.0, show_default=True, help="nm (for --json)")
 def lobe(out_path, as_json, wavelength, **params):
-    """Pictures (or numbers) of a material's form factor, structure factor, lobe and corona."""
+    """Pictures (or numbers) of a material's form factor, structure factor, lobe and corona.
+
+    Every shape: a picture (``--out``), the numbers (``--json``) or both (``--json --out``).  A new
+    sphere radius builds its Mie table first (seconds to a minute; a progress bar on stderr).
+    """
     import numpy as np
     ctx = click.get_current_context()
+    picture = not as_json or ctx.get_parameter_source("out_path") != click.core.ParameterSource.DEFAULT
     # only the options given on the command line count as given (the others keep their
     # defaults, and a parameter the shape or process does not use is warned about)
     params = {k: v for k, v in params.items()
               if ctx.get_parameter_source(k) != click.core.ParameterSource.DEFAULT}
-    if not as_json:
+    if picture:
         if not out_path or os.path.isdir(out_path):
             _fail(f"--out {out_path!r} is {'a folder' if out_path else 'empty'}; expected a file path "
                   f"such as {os.path.join(out_path, 'lobe.png')!r}")
@@ -318,25 +325,20 @@ def lobe(out_path, as_json, wavelength, **params):
         from corona.parameters import material_from_parameters
         m = material_from_parameters(**params)
         from corona.model.mie.layer import SphereMaterial
-        if isinstance(m, SphereMaterial) and not as_json:   # a Mie layer: no lobe tables to draw
-            _fail("corona lobe draws no picture of shape='sphere' (Mie droplets) yet; add --json for "
-                  "its numbers, or render it with corona render")
-        if as_json and isinstance(m, SphereMaterial):       # the Mie lobe along d_x and its energies
-            from corona._validation import check_range
-            from corona.model.tabulated import WAVELENGTH_MAX, WAVELENGTH_MIN
-            wavelength = check_range("wavelength", wavelength, WAVELENGTH_MIN, WAVELENGTH_MAX, unit="nm")
-            d = np.linspace(0.0, 0.999, 201)
-            e = m.directional_albedo(1.0, wavelength, n_phi=4)
-            click.echo(json.dumps({
-                "material": repr(m), "area_fraction": m.area_fraction, "wavelength_nm": wavelength,
-                "coherent_transmittance": e["coherent"], "diffuse_transmittance": e["lobe_transmission"],
-                "reflectance": e["lobe_reflection"], "length_scale_um": m.length_scale,
-                "d": d.tolist(), "lobe": m.lobe(np.stack([d, 0 * d], -1), wavelength).tolist()}))
-            return
+        sphere = isinstance(m, SphereMaterial)
         if as_json:
             from corona._validation import check_range
             from corona.model.tabulated import WAVELENGTH_MAX, WAVELENGTH_MIN
             wavelength = check_range("wavelength", wavelength, WAVELENGTH_MIN, WAVELENGTH_MAX, unit="nm")
+        if as_json and sphere:       # the Mie lobe along d_x and its energies
+            d = np.linspace(0.0, 0.999, 201)
+            e = m.directional_albedo(1.0, wavelength, n_phi=4)
+            out = {
+                "material": repr(m), "area_fraction": m.area_fraction, "wavelength_nm": wavelength,
+                "coherent_transmittance": e["coherent"], "diffuse_transmittance": e["lobe_transmission"],
+                "reflectance": e["lobe_reflection"], "length_scale_um": m.length_scale,
+                "d": d.tolist(), "lobe": m.lobe(np.stack([d, 0 * d], -1), wavelength).tolist()}
+        elif as_json:
             R = m.length_scale
             from corona.apps.pictures import _u_extent
             u = np.linspace(0, _u_extent(m), 201)  # a cut along u_x (radial tables: the profile)
@@ -355,14 +357,13 @@ def lobe(out_path, as_json, wavelength, **params):
                 "structure_factor_Ts": terms["S"].tolist(),
                 "d": (u * lam_um / (2 * np.pi * R)).tolist(), "lobe": lobe.tolist(),
             }
-            click.echo(json.dumps(out))
-            return
-        from corona.apps.pictures import lobe_figure
-        os.makedirs(os.path.dirname(out_path) or ".", exist_ok=True)   # as render's --out: made if new
-        path = lobe_figure(m, out_path)
+        if picture:
+            from corona.apps.pictures import lobe_figure, sphere_lobe_figure
+            os.makedirs(os.path.dirname(out_path) or ".", exist_ok=True)   # as render's --out: made if new
+            path = (sphere_lobe_figure if sphere else lobe_figure)(m, out_path)
     except (CoronaError, ValueError, OSError) as err:
         _fail(err)
-    click.echo(path)
+    click.echo(json.dumps(out) if as_json else path)     # with --json, stdout holds the JSON alone
 
 
 # ----------------------------------------------------------------------

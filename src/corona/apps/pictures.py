@@ -92,15 +92,21 @@ def far_field_corona(material, half_angle_deg: float = 10.0, size: int = 256,
     direction ``wo`` (d = wo.xy), times a black-body spectrum, integrated
     against the CIE 1931 colour matching functions.
     """
+    d, lams, spd = _corona_view(half_angle_deg, size, temperature, n_wavelengths)
+    spectra = np.stack([material.lobe_tabulated(d, lam) * s for lam, s in zip(lams, spd)], -1)
+    return spectrum_to_linear_srgb(spectra, lams)
+
+
+def _corona_view(half_angle_deg: float, size: int, temperature: float, n_wavelengths: int):
+    """The view of a corona picture: ``d = (sin θx cos θy, sin θy)`` at the pixel centres (size, size, 2),
+    the wavelengths [nm] of the visible range and the black body at ``temperature`` on them (peak 1)."""
     from corona.model import tabulated
     t = np.radians(np.linspace(-half_angle_deg, half_angle_deg, size))
     tx, ty = np.meshgrid(t, t[::-1], indexing="xy")
     d = np.stack([np.sin(tx) * np.cos(ty), np.sin(ty)], -1)
     lams = np.linspace(max(380.0, tabulated.WAVELENGTH_MIN), 780.0, n_wavelengths)
     spd = blackbody(lams, temperature)
-    spd = spd / spd.max()
-    spectra = np.stack([material.lobe_tabulated(d, lam) * s for lam, s in zip(lams, spd)], -1)
-    return spectrum_to_linear_srgb(spectra, lams)
+    return d, lams, spd / spd.max()
 
 
 def _u_extent(material, u_cap: float = 40.0) -> float:
@@ -199,6 +205,74 @@ def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: 
     ax[1, 3].axis("off")
     ax[1, 3].text(0.02, 0.95, "\n".join(lines), va="top", family="monospace", fontsize=10,
                   transform=ax[1, 3].transAxes)
+    fig.suptitle(repr(material), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    return path
+
+
+def sphere_corona(material, half_angle_deg: float, size: int = 192, temperature: float = 3000.0,
+                  n_wavelengths: int = 32) -> np.ndarray:
+    """:func:`far_field_corona` of a layer of Mie spheres (:class:`corona.model.mie.layer.SphereMaterial`):
+    its transmitted lobe (:meth:`~corona.model.mie.layer.SphereMaterial.lobe`, which depends on λ beyond
+    ``u``) at each pixel and wavelength; radial layers on one profile of 1024 points in ``|d|`` per
+    wavelength, interpolated per pixel; a fixed lattice at each pixel (fewer pixels and wavelengths)."""
+    if not material.isotropic:
+        size, n_wavelengths = min(size, 96), min(n_wavelengths, 12)
+    d, lams, spd = _corona_view(half_angle_deg, size, temperature, n_wavelengths)
+    if material.isotropic:
+        rho = np.hypot(d[..., 0], d[..., 1])
+        grid = np.linspace(0.0, float(rho.max()), 1024)
+        dg = np.stack([grid, 0 * grid], -1)
+        prof = spectrum_to_linear_srgb(np.stack([material.lobe(dg, lam) * s for lam, s in zip(lams, spd)], -1), lams)
+        return np.stack([np.interp(rho, grid, prof[:, c]) for c in range(3)], -1)
+    spectra = np.stack([material.lobe(d, lam) * s for lam, s in zip(lams, spd)], -1)
+    return spectrum_to_linear_srgb(spectra, lams)
+
+
+def sphere_lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: float | None = None):
+    """Save the pictures of a layer of Mie spheres (``corona lobe --shape sphere --out``): the
+    transmitted lobe ``F_a T_a T_s`` [1/sr] along θ at 450, 550 and 650 nm (log scale; Mie theory,
+    not the Fraunhofer tables of :func:`lobe_figure`), the structure factor ``T_s(q r)``, the
+    far-field corona around a 3000 K point light (:func:`sphere_corona`) and the energies at
+    ``wavelength`` [nm] (:meth:`corona.Material.directional_albedo`)."""
+    try:
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise CoronaError("lobe pictures need matplotlib: pip install 'corona-bsdf[reference]' "
+                          "(or use `corona lobe --json` for the numbers)") from None
+    R = material.length_scale
+    if half_angle_deg is None:      # the first few rings: u ≈ 14 at 550 nm, as lobe_figure
+        half_angle_deg = float(np.degrees(np.arcsin(min(1.0, 14 * 0.55 / (2 * np.pi * R)))))
+    theta = np.radians(np.linspace(0.0, 2.0 * half_angle_deg, 600))
+    d = np.stack([np.sin(theta), 0 * theta], -1)
+    fig = Figure(figsize=(18, 4.8))
+    ax = fig.subplots(1, 4)
+    for lam, colour in ((450.0, "tab:blue"), (550.0, "tab:green"), (650.0, "tab:red")):
+        ax[0].plot(np.degrees(theta), np.maximum(material.lobe(d, lam), 1e-300), color=colour, label=f"{lam:g} nm")
+    ax[0].set_yscale("log")
+    ax[0].set(title="lobe F_a T_a T_s along θ (Mie theory)", xlabel="θ [degree]", ylabel="lobe [1/sr]")
+    ax[0].legend(fontsize=8)
+    u = np.linspace(0.0, 30.0, 400)
+    if material.isotropic:
+        ax[1].plot(u, material.structure_factor(u))
+        ax[1].axhline(1, color="0.7", lw=0.8)
+        ax[1].set(title=f"structure factor T_s ({type(material.process).__name__})", xlabel="u = q r", ylabel="S")
+    else:
+        ax[1].axis("off")
+        ax[1].text(0.02, 0.95, f"{type(material.process).__name__}: Bragg peaks and\nDebye–Waller background "
+                   "(the corona picture)", va="top", transform=ax[1].transAxes)
+    img = sphere_corona(material, half_angle_deg)
+    ax[2].imshow(tonemap_srgb(img, percentile=99.0), extent=[-half_angle_deg, half_angle_deg] * 2)
+    ax[2].set(title="far-field corona (3000 K point light, sRGB)", xlabel="degree", ylabel="degree")
+    e = material.directional_albedo(1.0, wavelength, n_phi=4 if material.isotropic else None)
+    lines = [f"area fraction F_a = {material.area_fraction:.3g}", f"sphere radius r = {R:.3g} µm", "",
+             f"at {wavelength:g} nm, normal incidence:",
+             f"coherent transmittance = {e['coherent']:.4f}",
+             f"lobe transmission = {e['lobe_transmission']:.4f}",
+             f"lobe reflection (backward) = {e['lobe_reflection']:.4f}"]
+    ax[3].axis("off")
+    ax[3].text(0.02, 0.95, "\n".join(lines), va="top", family="monospace", fontsize=10, transform=ax[3].transAxes)
     fig.suptitle(repr(material), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=80)

@@ -171,37 +171,43 @@ class _App:
 
     async def progress(self, request: Request):
         """What the server computes now (GET /api/progress, polled by the page while it waits):
-        ``jobs`` (what, seconds) and ``bars``, the progress bars of the table builds running in
-        this process (every ``tqdm`` bar: description, count, total or null, unit, seconds)."""
+        ``jobs`` (what, seconds), ``builds`` (the exact tables of new sphere radii building in the
+        background while the page shows their previews: what, state, seconds; the page asks again
+        when none is left, :func:`compute.shown_material`) and ``bars``, the progress bars of the
+        table builds running in this process (every ``tqdm`` bar: description, count, total or
+        null, unit, seconds)."""
         now = time.monotonic()
         with self._jobs_lock:
             jobs = [{"what": w, "seconds": round(now - t0, 2)} for w, t0 in self.jobs.values()]
-        return JSONResponse({"jobs": jobs, "bars": _progress_bars()},
+        builds = compute.builds.status()
+        jobs += [{"what": b["what"], "seconds": b["seconds"]} for b in builds if b["state"] == "running"]
+        return JSONResponse({"jobs": jobs, "builds": builds, "bars": _progress_bars()},
                             headers={"Cache-Control": "no-store"})
 
     async def kernel_info(self, request: Request):
         async def go():
             material, _, opts = compute.parse(self._query(request), designer_dir("uploads"))
-            return JSONResponse(await self._run(compute.kernel_plan, material, opts, what="sizing the kernel"))
+            return JSONResponse(await self._run(compute.kernel_plan, material, opts, True, what="sizing the kernel"))
         return await self._guard(go)
 
     async def corona_png(self, request: Request):
         async def go():
             material, view, _ = compute.parse(self._query(request), designer_dir("uploads"))
             t0 = time.perf_counter()
-            png, used = await self._run(compute.corona_png, material, view, what="the corona picture")
+            png, used = await self._run(compute.corona_png, material, view, True, what="the corona picture")
             headers = {"X-Corona-Exposure": f"{used['exposure']:.4f}", "X-Corona-Field": f"{used['field']:.6g}",
                        "X-Corona-Seconds": f"{time.perf_counter() - t0:.4f}", "Cache-Control": "no-store",
                        "X-Corona-Preview": "1" if used.get("preview") else "0",
+                       "X-Corona-Building": "1" if used.get("building") else "0",
                        "Access-Control-Expose-Headers": "X-Corona-Exposure, X-Corona-Field, X-Corona-Seconds, "
-                                                        "X-Corona-Preview"}
+                                                        "X-Corona-Preview, X-Corona-Building"}
             return Response(png, media_type="image/png", headers=headers)
         return await self._guard(go)
 
     async def profiles(self, request: Request):
         async def go():
             material, view, _ = compute.parse(self._query(request), designer_dir("uploads"))
-            return JSONResponse(await self._run(compute.profiles, material, view, what="the profiles"))
+            return JSONResponse(await self._run(compute.profiles, material, view, 400, True, what="the profiles"))
         return await self._guard(go)
 
     async def material(self, request: Request):
@@ -209,7 +215,7 @@ class _App:
             material, view, _ = compute.parse(self._query(request), designer_dir("uploads"))
 
             def both():
-                return {**compute.energy(material), **compute.exports(material, view),
+                return {**compute.energy(material, preview=True), **compute.exports(material, view),
                         "parameters": {k: os.path.basename(v) if compute.SPEC[k].kind == "file" else v
                                        for k, v in material.items()}}
             return JSONResponse(await self._run(both, what="the energy split"))

@@ -298,6 +298,147 @@ def material(params: dict):
     return _materials.get(key, make)
 
 
+# ----------------------------------------------------------------------
+# a new sphere radius: a preview at once, the exact Mie table in the background
+# ----------------------------------------------------------------------
+_previews = _LRU(8)
+_preview_lock = threading.Lock()        # previews are built one at a time (a fraction of a second each)
+_exact_locks: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # material -> Lock
+
+
+def exact_ready(m) -> bool:
+    """Whether ``m``'s tables are ready for an exact answer at once: always, except for a sphere
+    layer whose exact Mie rows (:meth:`corona.model.mie.layer.SphereMaterial.rows_cached`) and their
+    totals are not built yet (a new radius: seconds to a minute)."""
+    return not _is_sphere(m) or (m.rows_cached() and "_derived" in m.__dict__)
+
+
+def wait_exact(m):
+    """Build the exact tables of ``m`` in this thread (or wait for the thread building them) and
+    return ``m``; one build per material however many threads ask."""
+    if not _is_sphere(m):
+        return m
+    with _profiles_lock:
+        lock = _exact_locks.setdefault(m, threading.Lock())
+    with lock:
+        if "rows" not in m.__dict__ and not m.use_cache:
+            _read_cached_rows(m)
+        _ = m.rows, m._derived
+    return m
+
+
+def _read_cached_rows(m) -> None:
+    """The exact rows of ``m`` from the on-disk table cache when another command (corona render,
+    corona lobe) has built them: read, not rebuilt.  The designer itself writes none (a sphere
+    table is tens of MB; :func:`material`)."""
+    import copy
+    twin = copy.copy(m)
+    twin.__dict__ = {k: v for k, v in m.__dict__.items() if k != "rows"}
+    twin.use_cache = True
+    if twin.rows_cached():
+        m.__dict__["rows"] = twin.rows
+
+
+class _ExactBuilds:
+    """The exact Mie tables of new sphere radii, built on one thread of their own while the
+    requests answer with previews: one build at a time, the newest wish first; at most
+    :attr:`keep` wishes wait (older ones are dropped: a radius slider passes through many radii,
+    and the page asks again for the one it shows).  A build that fails is remembered and its
+    error given to the next request for that material."""
+
+    keep = 2
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.waiting: list = []                     # materials, newest last
+        self.running = None                         # (material, start time)
+        self.failed: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # material -> message
+        self.thread = None
+
+    def want(self, m) -> None:
+        with self.lock:
+            if self.running is not None and self.running[0] is m:
+                return
+            self.waiting = [w for w in self.waiting if w is not m][-(self.keep - 1):] + [m]
+            if self.thread is None:
+                self.thread = threading.Thread(target=self._work, name="corona-designer-tables", daemon=True)
+                self.thread.start()
+
+    def _work(self) -> None:
+        import time
+        while True:
+            with self.lock:
+                if not self.waiting:
+                    self.thread = None
+                    return
+                m = self.waiting.pop()
+                self.running = (m, time.monotonic())
+            try:
+                wait_exact(m)
+            except Exception as err:  # noqa: BLE001 - told to the next request for this material
+                from corona._validation import one_line_error
+                self.failed[m] = one_line_error(err)
+            finally:
+                with self.lock:
+                    self.running = None
+
+    def status(self) -> list[dict]:
+        """The builds running and waiting: ``what``, ``state`` and ``seconds`` (running ones)."""
+        import time
+        with self.lock:
+            out = []
+            if self.running is not None:
+                m, t0 = self.running
+                out.append({"what": f"the exact Mie table of {m.length_scale:g} µm spheres", "state": "running",
+                            "seconds": round(time.monotonic() - t0, 2)})
+            out += [{"what": f"the exact Mie table of {m.length_scale:g} µm spheres", "state": "waiting",
+                     "seconds": 0.0} for m in reversed(self.waiting)]
+        return out
+
+    def idle(self) -> bool:
+        with self.lock:
+            return self.running is None and not self.waiting
+
+
+#: The exact tables building in the background (GET /api/progress lists them).
+builds = _ExactBuilds()
+
+
+def shown_material(params: dict, preview: bool = True) -> tuple:
+    """The material to answer a request with and whether it is a preview.
+
+    ``preview`` False: the material of ``params`` with its exact tables (built here or waited for).
+    Else the material of ``params`` when its tables are ready (:func:`exact_ready`); otherwise (a new
+    sphere radius) its coarse preview (:meth:`corona.model.mie.layer.SphereMaterial.preview`, a
+    fraction of a second) while the exact table is built in the background (:data:`builds`): the
+    page shows the preview and asks again when GET /api/progress lists no build."""
+    m = material(params)
+    if not preview:
+        return wait_exact(m), False
+    if exact_ready(m):
+        return m, False
+    failed = builds.failed.get(m)
+    if failed is not None:
+        raise CoronaError(f"the exact Mie table of radius={m.length_scale:g} µm could not be built: {failed}")
+    key = tuple(sorted((k, v) for k, v in params.items()))
+
+    def make():
+        p = m.preview()
+        _ = p.rows, p._derived
+        return p
+    with _preview_lock:
+        preview = _previews.get(key, make)
+    if exact_ready(m):           # built meanwhile
+        return m, False
+    builds.want(m)
+    return preview, True
+
+
+def exact_material(params: dict):
+    """The material of ``params`` with its exact tables (built here, or waited for)."""
+    return wait_exact(material(params))
+
+
 def _is_sphere(m) -> bool:
     """Whether ``m`` is a layer of Mie spheres (its lobe depends on λ beyond ``u``)."""
     from corona.model.mie.layer import SphereMaterial
@@ -631,10 +772,16 @@ def png_bytes(rgb8: np.ndarray, compress_level: int = 1) -> bytes:
     return buf.getvalue()
 
 
-def corona_png(params: dict, view: dict) -> tuple[bytes, dict]:
-    """The corona PNG of GET /api/corona.png and what was used (``exposure`` [EV], ``field``)."""
-    m = material(params)
+def corona_png(params: dict, view: dict, preview: bool = False) -> tuple[bytes, dict]:
+    """The corona PNG of GET /api/corona.png and what was used (``exposure`` [EV], ``field``,
+    ``preview``: half the pixels or a coarse table, ``building``: the exact table of a new sphere
+    radius is building and this picture is its preview).  ``preview``: a new sphere radius may be
+    answered from its preview (:func:`shown_material`; the server's way), else it waits for the
+    exact table."""
+    m, building = shown_material(params, preview)
     img, used = corona_linear(m, view)
+    used["building"] = building
+    used["preview"] = used["preview"] or building
     ev = exposure_of(img, view.get("exposure"))
     used["exposure"] = ev
     return png_bytes(tonemap_srgb(img, exposure=2.0**ev)), used
@@ -643,7 +790,7 @@ def corona_png(params: dict, view: dict) -> tuple[bytes, dict]:
 # ----------------------------------------------------------------------
 # profiles and rings
 # ----------------------------------------------------------------------
-def profiles(params: dict, view: dict, n: int = 400) -> dict:
+def profiles(params: dict, view: dict, n: int = 400, preview: bool = False) -> dict:
     """T_a, T_s and the lobe along θ at 550 nm (GET /api/profiles).
 
     ``angle`` [degree] from 0 to the view's diagonal; ``T_a`` [1/sr] =
@@ -651,9 +798,10 @@ def profiles(params: dict, view: dict, n: int = 400) -> dict:
     ``T_s`` the structure factor, ``lobe`` = ``F_a T_a T_s`` [1/sr] as the BSDF
     (decoupling rule for random shapes).  Anisotropic materials: cuts along
     x and along y (``*_y``).  ``rings`` [degree]: the first maxima of the
-    lobe after the centre at 450, 550, 650 nm.
+    lobe after the centre at 450, 550, 650 nm.  ``preview``: a new sphere radius may be answered
+    from its preview (:func:`shown_material`), and the result's ``preview`` says whether it was.
     """
-    m = material(params)
+    m, preview = shown_material(params, preview)
     field = view.get("field") or auto_field(m)
     lam = PROFILE_WAVELENGTH * 1e-3
     R = m.length_scale
@@ -683,6 +831,7 @@ def profiles(params: dict, view: dict, n: int = 400) -> dict:
             out["T_s" + suffix] = _finite(m.process.structure_factor_at(qq, m.shape))
             out["lobe" + suffix] = _finite(w * (R / lam) ** 2 * m.lobe_dimensionless(qq * R))
     out["rings"] = ring_radii(m)
+    out["preview"] = preview
     return out
 
 
@@ -721,7 +870,7 @@ def ring_radii(m, n_rings: int = 4) -> dict:
 # ----------------------------------------------------------------------
 # energy split and exports
 # ----------------------------------------------------------------------
-def energy(params: dict) -> dict:
+def energy(params: dict, preview: bool = False) -> dict:
     """Where the light of a light at normal incidence goes, at 550 nm: the model's white furnace
     (:meth:`corona.Material.directional_albedo`, the substrate included).
 
@@ -730,8 +879,10 @@ def energy(params: dict) -> dict:
     (the lobe through), ``lobe_reflection`` (the lobe back: off a pane or a mirror, a sphere's
     backward lobe), ``reflectance`` (the opaque part's diffuse reflection) and the ``absorbed``
     rest (what the model drops or the layer absorbs); every lobe over the propagating directions.
+    ``preview``: a new sphere radius may be answered from its preview (:func:`shown_material`), and
+    the result's ``preview`` says whether it was.
     """
-    m = material(params)
+    m, preview = shown_material(params, preview)
     e = m.directional_albedo(1.0, 550.0, n_phi=4 if m.isotropic else None)   # normal incidence: radial
     parts = {"coherent_transmittance": e["coherent"], "specular_reflection": e["specular"],
              "diffuse_transmittance": e["lobe_transmission"], "lobe_reflection": e["lobe_reflection"],
@@ -740,7 +891,7 @@ def energy(params: dict) -> dict:
     return {**parts, "absorbed": float(max(0.0, 1.0 - sum(parts.values()))),
             "area_fraction": float(m.area_fraction), "length_scale": float(m.length_scale),
             "isotropic": bool(m.isotropic), "substrate": params.get("substrate") or "none",
-            "material": repr(m)}
+            "material": repr(m), "preview": preview}
 
 
 def _export_value(p: Parameter, v):
@@ -766,8 +917,7 @@ def exports(params: dict, view: dict) -> dict:
     for p, v in items:
         cmd += [f"--{p.name.replace('_', '-')}", f"{v:.10g}" if p.kind == "float" and not isinstance(v, str)
                 else str(v)]
-    # corona lobe draws no Mie picture: for spheres the command prints the lobe's numbers
-    cmd += ["--json"] if params.get("shape") == "sphere" else ["--out", "lobe.png"]
+    cmd += ["--out", "lobe.png"]      # every shape, spheres too (their Mie lobe and corona)
     return {"xml": "\n".join(xml), "load_dict": d, "load_dict_python": "mi.load_dict(" + repr(d) + ")",
             "command": " ".join(shlex.quote(c) for c in cmd)}
 
@@ -888,7 +1038,7 @@ def _lobe_square_energy(m):
     return big.ravel()[order], np.cumsum(e[order], axis=0), e.sum(0)
 
 
-def kernel_plan(params: dict, opts: dict) -> dict:
+def kernel_plan(params: dict, opts: dict, preview: bool = False) -> dict:
     """The kernel's size and what it holds (GET /api/kernel_info; the kernel files use it too).
 
     ``pixel_scale`` [degree] and ``kernel_size`` [pixel] as given; either one left out is sized
@@ -897,9 +1047,11 @@ def kernel_plan(params: dict, opts: dict) -> dict:
     :data:`KERNEL_PIXELS_PER_RING` pixels per ring at the shortest wavelength, between
     :data:`KERNEL_SIZE_MIN` and :data:`KERNEL_SIZE_MAX` pixels.  ``share``: the lobe's energy inside
     the kernel over its whole energy per channel (R, G, B); ``warning`` when the least is below
-    :data:`KERNEL_SHARE_MIN`.
+    :data:`KERNEL_SHARE_MIN`.  ``preview``: a new sphere radius may be sized from its preview
+    (:func:`shown_material`; the page's kernel_info, not the kernel files), and the result's
+    ``preview`` says whether it was.
     """
-    m = material(params)
+    m, preview = shown_material(params, preview)
     view = kernel_view(m)
     theta, cum, total = _lobe_square_energy(m)
     tot = np.where(total > 0, total, 1.0)
@@ -936,7 +1088,7 @@ def kernel_plan(params: dict, opts: dict) -> dict:
     out = {"pixel_scale": float(scale), "kernel_size": n, "half_width": float((h + 0.5) * scale),
            "share": [float(x) for x in got], "share_min": float(got.min()),
            "needed_half_width": None if not math.isfinite(needed) else needed, "view": view,
-           "lobe_energy": [float(x) for x in total]}
+           "lobe_energy": [float(x) for x in total], "preview": preview}
     if got.min() < KERNEL_SHARE_MIN:
         need = (f"±{needed:.3g}°" if math.isfinite(needed) and needed <= KERNEL_MAX_HALF_WIDTH
                 else f"more than ±{KERNEL_MAX_HALF_WIDTH:g}°, the widest kernel")
@@ -958,7 +1110,7 @@ def kernel(params: dict, opts: dict, plan: dict | None = None) -> np.ndarray:
     wavelength-independent layer gives equal channels.  The sum over the kernel is the delta
     weight plus the lobe's energy inside it (``plan["share"]`` of the whole).
     """
-    m = material(params)
+    m = exact_material(params)
     plan = plan or kernel_plan(params, opts)
     scale = math.radians(plan["pixel_scale"])
     h = plan["kernel_size"] // 2

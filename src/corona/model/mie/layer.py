@@ -469,6 +469,8 @@ def _refine_rows(sphere, rows: dict, basis, ds, bar=None) -> dict:
         for key, est in zip(("P_f", "P_b"), ests):
             err = np.maximum(err, _lobe_error(est, new[key][:, ::ROW_TEST_STRIDE], ds * ROW_TEST_STRIDE))
         if bar is not None:
+            if bar.total is not None and bar.n + xm.size >= bar.total:   # past the estimate: no bar
+                bar.total = bar.n + xm.size + 1                            # without a total meanwhile
             bar.update(xm.size)
         bad = err > ROW_TOLERANCE
         return pairs[bad], put({k: v[bad] for k, v in new.items()}), err[bad]

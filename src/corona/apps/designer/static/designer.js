@@ -288,6 +288,28 @@ const busy = {
   },
 };
 
+// a new sphere radius: the server answered with a preview and builds the exact table in the
+// background; show its progress and ask again once GET /api/progress lists no build
+let watchingBuild = false;
+async function watchBuild() {
+  if (watchingBuild) return;
+  watchingBuild = true;
+  busy.start();
+  try {
+    for (;;) {
+      await new Promise((r) => setTimeout(r, 400));
+      try {
+        const res = await fetch("/api/progress", { cache: "no-store" });
+        if (res.ok && !((await res.json()).builds || []).length) break;
+      } catch (e) { /* the next poll tries again */ }
+    }
+  } finally {
+    watchingBuild = false;
+    busy.end();
+  }
+  changed(state.preview);          // picture A asks for B again when comparing
+}
+
 const timings = {};
 function showTiming(what, ms) {
   timings[what] = ms;
@@ -327,9 +349,13 @@ function pictureHandler(side) {
     img.src = url;
     img.dataset.url = url;
     const preview = res.headers.get("X-Corona-Preview") === "1";
+    const building = res.headers.get("X-Corona-Building") === "1";
     img.dataset.preview = preview ? "1" : "0";
+    img.dataset.building = building ? "1" : "0";
     $("cap-" + side).textContent = `±${field.toPrecision(3)}° · ${ev.toFixed(1)} EV${state.values.exposure ? "" : " (auto)"}`
-      + (preview ? " · preview: half the pixels while the slider moves, exact when let go" : "");
+      + (building ? " · preview: a coarse Mie table while the exact one builds; the exact picture follows"
+        : preview ? " · preview: half the pixels while the slider moves, exact when let go" : "");
+    if (building) watchBuild();
     if (side === "a") {
       clearError();
       showTiming("corona", ms);
