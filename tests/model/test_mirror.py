@@ -470,7 +470,8 @@ def test_rgb_channels_average_the_fringes():
 
 @pytest.mark.slow
 @pytest.mark.chi2
-@pytest.mark.parametrize("theta", [0, 25, 60])
+# 25° merged into 60°: the same path through sample/pdf (no branch on the angle of wi)
+@pytest.mark.parametrize("theta", [0, 60])
 def test_chi2_reflected_lobe(mi_variant, theta):
     import mitsuba as mi
     ctx = mi.BSDFContext()
