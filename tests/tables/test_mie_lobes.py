@@ -113,7 +113,7 @@ def _spread_reference(radius, spread, lam, theta, distribution, dX=0.01, ior=Non
 
 
 @pytest.mark.parametrize("radius,spread,distribution,lam", [
-    (2.1, 0.1, "lognormal", 517.7),
+    pytest.param(2.1, 0.1, "lognormal", 517.7, marks=pytest.mark.slow),   # the brute-force average: 1.4 s CPU
     # (slow: 6 s of CPU with the table cached, the brute-force average over the wide spread)
     pytest.param(3.3, 0.25, "schulz", 633.1, marks=pytest.mark.slow)])
 def test_size_distribution_lobes_match_brute_force_mie(radius, spread, distribution, lam):
