@@ -271,6 +271,11 @@ def headline() -> list[str]:
             rows.append((f"Test suite, {name} (`make test-fast` / `make test`; suite_times)",
                          f"{wall}, {cpu} (load {load[0]:.1f}–{load[-1]:.1f} on {st['machine'].get('cores', '?')} "
                          "shared cores)", f"≤ {v['goal_s']:g} s on 2 idle cores" if "goal_s" in v else "—"))
+        n = st.get("items")
+        if isinstance(n, dict) and "selected" in n:
+            rows.append(("Test suite, items (suite_times)",
+                         f"{n['selected']}: {n['selected'] - n.get('slow', 0)} not slow, {n.get('slow', 0)} slow "
+                         f"({n.get('chi2', 0)} chi-square, {n.get('render', 0)} render)", "—"))
     g = _load("gpu")
     if g:
         rows.append(("GPU (cuda_ad_spectral)", "skipped: " + g["reason"] if g.get("skipped") else
@@ -350,8 +355,8 @@ BENCHMARKS = [
     ("designer", "python benchmarks/bench_designer.py", "the designer's updates"),
     ("post", "python benchmarks/bench_post.py", "corona post on a 4K frame"),
     ("gpu", "python benchmarks/bench_gpu.py", "the render benchmark on a GPU"),
-    ("suite_times", "python benchmarks/suite_times.py [--full]",
-     "the test suite's wall time"),
+    ("suite_times", "python benchmarks/suite_times.py [-m EXPR | --full] [-n WORKERS]",
+     "the test suite's wall time and item counts"),
 ]
 
 #: the longest a section's "more figures" may be (the full data: the results file)

@@ -93,6 +93,7 @@ def test_far_field_values_and_no_wrap_around():
     assert np.all(out[16, 95] < 0.01 * out[16, 1])
 
 
+@pytest.mark.slow     # 2.5 s of CPU warm
 def test_huge_pixels_keep_the_energy():
     """A 4x6 image of a 170° field (pixels of ~70°): a white image gets T_c plus about the
     lobe's whole energy at its centre, not the near-zero a point per pixel would give."""
@@ -424,7 +425,9 @@ def _per_node_kernel(m, response, ny, nx, step):
 
 
 @pytest.mark.parametrize("params", [dict(shape="square", radius=5.0, area_fraction=0.3, mode="particle"),
-                                    dict(shape="polygon", sides=6, radius=8.0, area_fraction=0.3, mode="particle"),
+                                    pytest.param(dict(shape="polygon", sides=6, radius=8.0, area_fraction=0.3,
+                                                      mode="particle"),   # 3 s of CPU warm
+                                                 marks=pytest.mark.slow),
                                     dict(shape="ellipse", radius=3.0, aspect=1.5, area_fraction=0.3,
                                          mode="particle")])
 def test_anisotropic_kernel_from_the_table_equals_the_lobe_at_each_node(params, monkeypatch):
@@ -453,6 +456,7 @@ def test_anisotropic_kernel_from_the_table_equals_the_lobe_at_each_node(params, 
     assert np.abs(coarse - want).max() > 1e-2 * want.max()
 
 
+@pytest.mark.slow     # 2 s of CPU warm
 def test_anisotropic_kernel_evaluates_the_lobe_a_bounded_number_of_times(monkeypatch):
     """The 3840x2160 frame with a square took 254 s and 5 GB: the lobe in float64 at every node of
     the padded grid x 24 wavelengths (here 960x540: 46 M evaluations).  Now the lobe is read from
@@ -474,6 +478,7 @@ def test_anisotropic_kernel_evaluates_the_lobe_a_bounded_number_of_times(monkeyp
     assert count[0] < 10_000_000, count[0]
 
 
+@pytest.mark.slow     # 4K-frame cost checks and four particle tables: 5 s of CPU warm
 def test_anisotropic_kernel_beyond_the_limit_is_one_line():
     """Pixels coarse against the lobe on a large frame (a 20 µm square, 3840x2160 at 90°: 2.5e8
     evaluations) is refused in one line naming the limit; the 10 µm square of the same frame

@@ -470,7 +470,8 @@ def test_rgb_channels_average_the_fringes():
 
 @pytest.mark.slow
 @pytest.mark.chi2
-@pytest.mark.parametrize("theta", [0, 25, 60])
+# 25° merged into 60°: the same path through sample/pdf (no branch on the angle of wi)
+@pytest.mark.parametrize("theta", [0, 60])
 def test_chi2_reflected_lobe(mi_variant, theta):
     import mitsuba as mi
     ctx = mi.BSDFContext()
@@ -502,6 +503,7 @@ def test_sample_weight_is_eval_over_pdf_and_furnace(mi_variant):
         np.testing.assert_allclose(w[ok], np.array(e)[0][ok] / np.array(p)[ok], rtol=1e-4)
 
 
+@pytest.mark.slow     # the scalar variant, lane by lane: 1.3 s of CPU warm
 def test_vectorised_rgb_fringes_equal_the_scalar_variant(mi_variant):
     """The vectorised RGB plugin (its response wavelengths a symbolic Dr.Jit loop) gives the
     mirror's eval, pdf and sampled weights of the scalar variant (one Python loop over them,

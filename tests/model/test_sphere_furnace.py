@@ -36,6 +36,7 @@ def test_furnace_sweep_numpy(params):
     assert worst[0] <= 1.0 + 1e-4, worst
 
 
+@pytest.mark.slow     # the plugin's furnace sweep: 2-3 s of CPU warm per layer, 6 s cold
 @pytest.mark.parametrize("params", LAYERS[:3], ids=lambda p: ",".join(f"{k}={v}" for k, v in p.items()))
 def test_furnace_sweep_plugin(params, mi_variant):
     import mitsuba as mi

@@ -9,6 +9,7 @@ only moves the failure from import time to call time.
 from __future__ import annotations
 
 import ast
+import functools
 import pathlib
 import subprocess
 import sys
@@ -123,6 +124,7 @@ def _eager_nodes(tree):
                 stack.append(child)
 
 
+@functools.lru_cache(maxsize=None)      # the source tree's graph parsed once per session, not per test
 def _graph(src: pathlib.Path = SRC, eager_only: bool = False):
     modules = _modules(src)
     return {name: _imports(name, path, modules, eager_only) for name, path in modules.items()}

@@ -89,6 +89,8 @@ def test_every_kernel_term_has_a_kernel_and_every_outline_a_rasteriser():
         assert np.isclose(np.sum(sd < 0) * (x[1] - x[0]) ** 2, shape.area, rtol=0.05), fam.name
 
 
+@pytest.mark.slow     # the reference tier (numba), a table per process: 6 s of CPU cold
+@pytest.mark.reference
 def test_every_process_has_a_reference_position_source(tmp_path):
     pytest.importorskip("numba")
     from corona.reference import wave

@@ -12,7 +12,10 @@ from corona.parameters import material_from_parameters
 from bsdf_checks import (assert_eval_matches, chi2_test, furnace, interaction, run_chi2, smooth_context,
                          transmitted_lobe)
 
-ANGLES = [0, 30, 60, 80]
+# incidences of the chi-square runs: the pole (0), off the pole with the horizon cutting one side
+# (60; 30 was merged into it: sample/pdf branch on the side of wi only, cos_i > 0 or < 0, never on
+# its angle, so 30 and 60 take the same path with the lobe at another place), grazing (80)
+ANGLES = [0, 60, 80]
 CIRCLE_POISSON = {"process": "poisson", "radius": 0.4, "area_fraction": 0.3}
 
 

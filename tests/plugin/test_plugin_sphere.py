@@ -63,7 +63,8 @@ def test_eval_matches_numpy_reference(layers, name):
 @pytest.mark.slow
 @pytest.mark.chi2
 @pytest.mark.parametrize("component", [1, 2])
-@pytest.mark.parametrize("deg", [0, 30, 60, 80])
+# 30° merged into 60°: the sphere plugin branches on the side of wi only, not its angle
+@pytest.mark.parametrize("deg", [0, 60, 80])
 def test_chi2_lobes(layers, component, deg):
     # the forward (1) and backward (2) lobes separately; ires=32: the test's own integration of
     # the pdf near the pole needs it for the forward peak at normal incidence

@@ -327,7 +327,8 @@ def test_chi2_with_a_mixture_radius_texture(mi_variant):
 # --------------------------------------------------------------------------------------------------
 # the F_a row of each lane: the plugin's guide grid over the rows against a search of the rows
 # --------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("process,lo,hi", [("hard-disk", 0.005, 0.6), ("rsa", 0.01, 0.5)])
+@pytest.mark.parametrize("process,lo,hi", [pytest.param("hard-disk", 0.005, 0.6, marks=pytest.mark.slow),  # 1.7 s CPU
+                                            ("rsa", 0.01, 0.5)])
 def test_row_of_each_area_fraction(mi_variant, process, lo, hi):
     import mitsuba as mi
     probe = mi.load_dict({"type": "corona", "radius": 5.0, "process": process,

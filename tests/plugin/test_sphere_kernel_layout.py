@@ -66,6 +66,7 @@ def _assert_close(a, b, what):
         assert err <= 2e-5 * scale, f"{what}: {name} differs by {err:.3g} (scale {scale:.3g})"
 
 
+@pytest.mark.slow     # 3 s of CPU warm, 3 s cold per layer
 @pytest.mark.parametrize("name", list(LAYERS))
 def test_packed_lobe_rows_read_the_plain_rows(mi_variant, monkeypatch, name):
     import mitsuba as mi

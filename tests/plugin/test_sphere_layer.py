@@ -55,7 +55,7 @@ def test_glass_eval_matches_numpy_reference(panes, side):
     assert np.max(np.abs(val - alone)) > 1e-2 * ref.max()
 
 
-@pytest.mark.parametrize("side", ["front", "back"])
+@pytest.mark.parametrize("side", ["front", pytest.param("back", marks=pytest.mark.slow)])   # 1.3 s CPU each
 def test_glass_white_furnace_by_sampling(panes, side):
     # E[weight] of sample() is the directional albedo of the numpy reference (its own
     # quadrature of eval plus the delta weights) and <= 1

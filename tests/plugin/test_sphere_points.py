@@ -51,7 +51,8 @@ def test_eval_matches_numpy(bsdf, deg):
 
 @pytest.mark.slow
 @pytest.mark.chi2
-@pytest.mark.parametrize("deg", [0.0, 30.0, 60.0])
+# 30° merged into 60°: the sphere plugin branches on the side of wi only, not its angle
+@pytest.mark.parametrize("deg", [0.0, 60.0])
 def test_chi2(bsdf, deg):
     from bsdf_checks import smooth_context
     ok, test = chi2_bsdf(bsdf, deg, smooth_context(), sample_count=300_000, res=101, ires=32)

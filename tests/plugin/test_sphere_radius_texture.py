@@ -101,6 +101,7 @@ def test_water_texture_within_its_span_and_refused_beyond(mi_variant):
             raise CoronaError(str(err).splitlines()[-1].split("CoronaError: ")[-1]) from None
 
 
+@pytest.mark.slow     # 2 s of CPU warm per process
 @pytest.mark.parametrize("process", ["poisson", "hard-disk"])
 def test_furnace_at_each_texel(textured, process):
     # what a texel returns of what it receives is its own numpy layer's directional albedo, <= 1

@@ -3,8 +3,10 @@ and equal to the ones built from the rows."""
 import warnings
 
 import numpy as np
+import pytest
 
 
+@pytest.mark.slow     # loads the layer twice per branch: 2 s of CPU warm
 def test_warm_load_reads_the_guided_rows_back(mi_variant, upload_branch, monkeypatch, tmp_path):
     import mitsuba as mi
 

@@ -122,6 +122,7 @@ def test_chi2_negative_control(variant, tmp_path, monkeypatch):
     assert (tmp_path / "chi2_data.py").exists()
 
 
+@pytest.mark.slow     # 2 s of CPU warm per variant, 5 s cold
 @pytest.mark.parametrize("variant", ["llvm_ad_spectral", "scalar_spectral"], indirect=True)
 def test_plugin_eval_equals_table(variant):
     v = MieVolume(20.0)

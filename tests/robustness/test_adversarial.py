@@ -248,6 +248,7 @@ def test_size_average_work_at_the_limit_is_accepted(sides):
     assert parameters._size_average_work(m.shape) <= parameters.SIZE_AVERAGE_WORK_MAX
 
 
+@pytest.mark.slow     # two size averages of a wide spread: 4 s of CPU warm
 def test_threaded_size_average_equals_the_serial_one(monkeypatch):
     """The size average runs its chunks on every core: the result is the serial one, bit for bit
     (each point's sum is computed in the same order), on a 2D set of q."""

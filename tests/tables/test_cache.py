@@ -276,6 +276,7 @@ def _background_build(cache, log):
     return float(out["values"].sum())
 
 
+@pytest.mark.slow     # starts a pool of three Python processes
 def test_background_write_is_waited_for_and_exact(tmp_path, monkeypatch):
     """``cached(..., background=True)``: the table is written by the writer thread while the caller
     goes on. A second call of the key in the same process, made at once, waits for the file (the

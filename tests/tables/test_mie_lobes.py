@@ -113,7 +113,7 @@ def _spread_reference(radius, spread, lam, theta, distribution, dX=0.01, ior=Non
 
 
 @pytest.mark.parametrize("radius,spread,distribution,lam", [
-    (2.1, 0.1, "lognormal", 517.7),
+    pytest.param(2.1, 0.1, "lognormal", 517.7, marks=pytest.mark.slow),   # the brute-force average: 1.4 s CPU
     # (slow: 6 s of CPU with the table cached, the brute-force average over the wide spread)
     pytest.param(3.3, 0.25, "schulz", 633.1, marks=pytest.mark.slow)])
 def test_size_distribution_lobes_match_brute_force_mie(radius, spread, distribution, lam):
@@ -189,6 +189,7 @@ def test_wide_spread_between_rows_matches_brute_force_mie(radius, spread):
         assert rms < 0.01 and abs(scale) < 0.005, (name, lam, rms, scale)
 
 
+@pytest.mark.slow     # two size-spread tables each (one of the old size grid) and a brute-force average 0.0025 apart: 10-18 s of CPU cold
 @pytest.mark.parametrize("radius,spread,lam", [(2.0, 0.02, 361.3), (5.0, 0.01, 829.1)])
 def test_narrow_spread_at_short_wavelength_matches_brute_force_mie(radius, spread, lam, monkeypatch):
     # half-way between two rows at x = 35-38 (water): a narrow spread averages few of the sharp Mie
@@ -223,6 +224,7 @@ def test_narrow_spread_at_short_wavelength_matches_brute_force_mie(radius, sprea
                 assert rms > 0.02, (lam, rms)
 
 
+@pytest.mark.slow     # two 20 µm / 1 % water tables (one of the old index nodes): 80 s of CPU cold
 def test_narrow_spread_of_large_drops_forward_lobe_matches_brute_force_mie(monkeypatch):
     # water 20 µm / 1 %: the forward lobe holds the interference of the diffracted and the
     # transmitted light (phase 2 x (m - 1), x ~ 230), which a narrow spread leaves coherent; the
