@@ -4,7 +4,10 @@
 Simulations of :func:`corona.reference.breath_figure.simulate_breath_figure` (defaults: θ = 90°,
 flux 0.1 µm/s, nucleation 0.05 µm⁻² s⁻¹ on the free area, nuclei 0.25 µm), two seeds in a 400 µm box,
 measured at the times of :data:`corona.reference.breath_figure_optics.TABLE_TIMES` by
-:func:`corona.reference.breath_figure_optics.breath_figure_table` (about 40 s on one core here).
+:func:`corona.reference.breath_figure_optics.breath_figure_table`.  The table is shipped (185 kB), so
+nothing is simulated at run time; rebuilding it takes about 50 s of CPU here (the two simulations
+about 5 s each, the structure factors and partials the rest; the wall time is in the table's
+metadata).
 
 Usage: PYTHONPATH=src .venv/bin/python scripts/make_breath_figure_table.py
 """
@@ -30,8 +33,9 @@ def main() -> None:
             "flux_um_per_s": 0.1, "nucleation_rate": 0.05, "nucleus_radius_um": 0.25,
             "seconds": round(float(t.pop("seconds")), 1)}
     path = os.path.join(ROOT, "src", "corona", "data", "breath_figure.npz")
-    np.savez_compressed(path, **{k: np.asarray(v, dtype=np.float64) for k, v in t.items()},
-                        x_edges=bfo.TABLE_X_EDGES, metadata=json.dumps(meta))
+    np.savez_compressed(path, **{k: np.asarray(v, dtype=np.float32 if k == "partial" else np.float64)
+                                 for k, v in t.items()},
+                        metadata=json.dumps(meta))
     print(f"wrote {path} ({os.path.getsize(path)} bytes) in {meta['seconds']} s")
 
 

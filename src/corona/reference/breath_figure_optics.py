@@ -273,6 +273,64 @@ def _structure_rings(x, y, L, q_max, dq_ring, n_ring):
     return out.sum(axis=0)
 
 
+@nb.njit(cache=True, parallel=True)
+def _partial_rings(x, y, cls, K, L, q_max, dq_ring, n_ring):
+    """Ring sums of ``Re(ρ_i ρ_k*) / N`` (``ρ_i = Σ_{j∈i} e^{-i q·r_j}``) and the lattice points per
+    ring (half lattice): (n_ring, K, K), (n_ring,)."""
+    N = x.shape[0]
+    dq = 2.0 * math.pi / L
+    nmax = int(q_max / dq)
+    out = np.zeros((nmax + 1, n_ring, K, K))
+    cnt = np.zeros((nmax + 1, n_ring))
+    for n in nb.prange(nmax + 1):
+        qy = n * dq
+        mmax = int(math.sqrt(max(q_max * q_max - qy * qy, 0.0)) / dq)
+        m0 = 1 if n == 0 else -mmax
+        wr = np.empty(N)
+        wi = np.empty(N)
+        sr = np.empty(N)
+        si = np.empty(N)
+        for j in range(N):
+            ph = -(m0 * dq * x[j] + qy * y[j])
+            wr[j] = math.cos(ph)
+            wi[j] = math.sin(ph)
+            sr[j] = math.cos(-dq * x[j])
+            si[j] = math.sin(-dq * x[j])
+        rr = np.zeros(K)
+        ri = np.zeros(K)
+        for m in range(m0, mmax + 1):
+            q = math.sqrt((m * dq) ** 2 + qy * qy)
+            ring = int(q / dq_ring)
+            if q <= q_max and ring < n_ring:
+                rr[:] = 0.0
+                ri[:] = 0.0
+                for j in range(N):
+                    rr[cls[j]] += wr[j]
+                    ri[cls[j]] += wi[j]
+                for i in range(K):
+                    for k in range(K):
+                        out[n, ring, i, k] += (rr[i] * rr[k] + ri[i] * ri[k]) / N
+                cnt[n, ring] += 1.0
+            for j in range(N):
+                r = wr[j] * sr[j] - wi[j] * si[j]
+                wi[j] = wr[j] * si[j] + wi[j] * sr[j]
+                wr[j] = r
+    return out.sum(axis=0), cnt.sum(axis=0)
+
+
+def partial_structure_rings(centres, classes, K: int, box: float, *, length: float, u_max: float, du: float):
+    """The partial structure factors ``S_ik = Re⟨ρ_i ρ_k*⟩ / N`` (normalised by all ``N`` droplets,
+    so ``S_ik → x_i δ_ik`` at large q) averaged over rings ``[j du, (j + 1) du)`` of ``u = |q| length``:
+    (n_ring, K, K); rings without a lattice point: NaN."""
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    L = float(box)
+    n_ring = int(math.ceil(u_max / du))
+    s, n = _partial_rings(np.mod(c[:, 0], L), np.mod(c[:, 1], L), np.asarray(classes, np.int64), int(K), L,
+                          u_max / length, du / length, n_ring)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n[:, None, None] > 0, s / np.maximum(n, 1)[:, None, None], np.nan)
+
+
 def structure_factor_rings(centres, box: float, *, length: float, u_max: float, du: float):
     """``S`` of the centres averaged over rings ``[i du, (i + 1) du)`` of ``u = |q| length``
     (box lattice; rings without a lattice point: NaN)."""
@@ -290,6 +348,8 @@ TABLE_SEEDS = (1, 2)
 TABLE_BOX = 400.0
 #: Size classes of the table: log bins of a / R (R = ⟨a³⟩/⟨a²⟩).
 TABLE_X_EDGES = np.geomspace(0.01, 5.0, 61)
+#: Size classes of the table's partial structure factors (equal covered area).
+TABLE_CLASSES = 12
 #: Rings of the table's S in u = q R.
 TABLE_U_MAX, TABLE_DU = 12.0, 0.25
 
@@ -299,22 +359,36 @@ def breath_figure_table(times=TABLE_TIMES, seeds=TABLE_SEEDS, box: float = TABLE
     """What the lobe of a breath figure needs at each time, averaged over seeds (hemispherical caps,
     the simulator's defaults otherwise): the area-weighted mean contact radius ``R = ⟨a³⟩/⟨a²⟩``
     [µm], the number-mean radius, the coverage, the droplets per area [µm⁻²], the number fractions
-    and mean ``a/R`` of the size classes :data:`TABLE_X_EDGES`, and ``S`` of the centres over rings of
-    ``u = q R`` (:data:`TABLE_DU` wide up to :data:`TABLE_U_MAX`)."""
+    and mean ``a/R`` of the size bins (``x_edges``: :data:`TABLE_X_EDGES` split at the class edges), and ``S`` of the centres over rings of
+    ``u = q R`` (:data:`TABLE_DU` wide up to :data:`TABLE_U_MAX`), and the partial structure factors
+    ``partial`` (n_t, rings, K, K) of :data:`TABLE_CLASSES` classes of equal covered area in
+    ``a/R`` (``class_edges``, the same at every time)."""
     from tqdm import tqdm
     from corona.reference.breath_figure import simulate_breath_figure
     times = np.asarray(times, dtype=np.float64)
     nt, nx = times.size, TABLE_X_EDGES.size - 1
     n_ring = int(math.ceil(TABLE_U_MAX / TABLE_DU))
     acc = {k: np.zeros(nt) for k in ("R", "mean_radius", "coverage", "density")}
-    counts = np.zeros((nt, nx))
-    xsum = np.zeros((nt, nx))
     S = np.zeros((nt, n_ring))
     t0 = __import__("time").perf_counter()
+    runs = [simulate_breath_figure(times, box=box, seed=int(seed)) for seed in seeds]
+    # the partial structure factors' classes: TABLE_CLASSES of equal covered area in a / R,
+    # pooled over every time and seed (the same classes at every time, so rows interpolate)
+    xs = np.concatenate([bf.radii[i] / (np.sum(bf.radii[i] ** 3) / np.sum(bf.radii[i] ** 2))
+                         for bf in runs for i in range(nt)])
+    order = np.argsort(xs)
+    w = np.cumsum(xs[order] ** 2) / np.sum(xs ** 2)
+    inner = [xs[order][np.searchsorted(w, k / TABLE_CLASSES)] for k in range(1, TABLE_CLASSES)]
+    class_edges = np.concatenate([[0.0], inner, [np.inf]])
+    # the size bins split at the class edges too: each bin lies in one class
+    x_edges = np.unique(np.concatenate([TABLE_X_EDGES, inner]))
+    nx = x_edges.size - 1
+    counts = np.zeros((nt, nx))
+    xsum = np.zeros((nt, nx))
+    partial = np.zeros((nt, n_ring, TABLE_CLASSES, TABLE_CLASSES))
     with tqdm(total=len(seeds) * nt, desc="corona: breath-figure table", unit="frame",
               disable=not progress, leave=False) as bar:
-        for seed in seeds:
-            bf = simulate_breath_figure(times, box=box, seed=int(seed))
+        for bf in runs:
             for i in range(nt):
                 a = bf.radii[i]
                 R = float(np.sum(a ** 3) / np.sum(a ** 2))
@@ -323,17 +397,24 @@ def breath_figure_table(times=TABLE_TIMES, seeds=TABLE_SEEDS, box: float = TABLE
                 acc["coverage"][i] += bf.coverage[i]
                 acc["density"][i] += a.size / box ** 2
                 x = a / R
-                k = np.clip(np.searchsorted(TABLE_X_EDGES, x) - 1, 0, nx - 1)
+                k = np.clip(np.searchsorted(x_edges, x, side="right") - 1, 0, nx - 1)
                 counts[i] += np.bincount(k, minlength=nx)
                 xsum[i] += np.bincount(k, weights=x, minlength=nx)
-                S[i] += structure_factor_rings(bf.centres[i], box, length=R, u_max=TABLE_U_MAX, du=TABLE_DU)
+                cls = np.clip(np.searchsorted(class_edges, x, side="right") - 1, 0, TABLE_CLASSES - 1)
+                p = partial_structure_rings(bf.centres[i], cls, TABLE_CLASSES, box, length=R,
+                                            u_max=TABLE_U_MAX, du=TABLE_DU)
+                partial[i] += p
+                S[i] += np.einsum("rik->r", p)           # Σ_ik S_ik: the S of all the centres
                 bar.update(1)
     ns = len(seeds)
     out = {k: v / ns for k, v in acc.items()}
     out["times"] = times
     out["fraction"] = counts / counts.sum(axis=1, keepdims=True)
-    out["x"] = np.where(counts > 0, xsum / np.maximum(counts, 1), np.sqrt(TABLE_X_EDGES[:-1] * TABLE_X_EDGES[1:]))
+    out["x"] = np.where(counts > 0, xsum / np.maximum(counts, 1), np.sqrt(x_edges[:-1] * x_edges[1:]))
+    out["x_edges"] = x_edges
     out["S"] = S / ns
+    out["partial"] = partial / ns
+    out["class_edges"] = class_edges
     out["u"] = (np.arange(n_ring) + 0.5) * TABLE_DU
     out["seconds"] = __import__("time").perf_counter() - t0
     return out

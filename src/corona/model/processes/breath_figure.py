@@ -2,9 +2,10 @@
 
 :class:`BreathFigure` is ``process=breath-figure`` (docs/physics.md#breath-figures).  It sets the
 droplets' sizes as well as their positions: the layer's scatterers are opaque disks of the
-droplets' contact radii (:meth:`BreathFigure.layer_shape`), and its lobe is the local monodisperse
-approximation (Pedersen, J. Appl. Cryst. 27, 595, 1994), the closest of three to the exact far
-field of simulated droplets (benchmarks/results/breath_figure_lobe.json).  The table
+droplets' contact radii (:meth:`BreathFigure.layer_shape`), and its lobe sums the partial structure
+factors of 12 size classes measured on the simulations, the closest of three rules to the exact far
+field of simulated droplets at 10 and 20 s (benchmarks/results/breath_figure_lobe.json;
+docs/physics.md#breath-figures-processbreath-figure).  The table
 ``data/breath_figure.npz`` is made by ``scripts/make_breath_figure_table.py`` with the simulator of
 :mod:`corona.reference.breath_figure`; numpy and scipy only here.
 """
@@ -80,10 +81,9 @@ class BreathFigure(Process):
     droplets' number is that of the hemispherical run at that time, an approximation).
 
     Seen from above each droplet is an opaque disk of its contact radius (the footprint of a cap of
-    θ <= 90°).  The lobe is the local monodisperse approximation (Pedersen 1994): each size class
-    ``i`` (number fraction ``x_i``, radius ``a_i``) sits in a hard-disk fluid of its own size at the
-    layer's coverage η (the hard-disk table, η clipped to its 0.72),
-    ``⟨|Â|² S⟩ = Σ_i x_i |Â_i(q)|² S_HD(2 a_i q; η)``.
+    θ <= 90°).  The lobe is :meth:`intensity` by :attr:`RULE`: the partial structure factors of the
+    table's 12 size classes (docs/physics.md#breath-figures-processbreath-figure says why, and what
+    the other rules measure).
 
     Parameters
     ----------
@@ -119,8 +119,13 @@ class BreathFigure(Process):
         self._fraction = mix(t["fraction"])
         self._radii = mix(t["x"]) * self._R
         self._S = mix(t["S"])
+        self._partial = mix(t["partial"].astype(np.float64))
+        self._density = float(np.exp(mix(np.log(t["density"]))))
         self._u = t["u"]
         keep = self._fraction > 0
+        x = (self._radii / self._R)[keep]
+        edges = t["class_edges"]
+        self._class = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
         self._fraction, self._radii = self._fraction[keep] / self._fraction[keep].sum(), self._radii[keep]
 
     def __repr__(self):
@@ -128,7 +133,8 @@ class BreathFigure(Process):
 
     def key(self) -> dict:
         m = load_table()["metadata"]
-        return {**super().key(), "table": f"{m.get('format_version')}:{m.get('date')}"}
+        return {**super().key(), "rule": self.RULE, "join": self.PARTIAL_JOIN,
+                "table": f"{m.get('format_version')}:{m.get('date')}"}
 
     # --- the droplets -------------------------------------------------------------
     @property
@@ -170,19 +176,70 @@ class BreathFigure(Process):
         ok = np.isfinite(self._S)
         return np.interp(u, self._u[ok], self._S[ok], left=self._S[ok][0], right=1.0)
 
-    def lobe_intensity_radial(self, q_abs, shape) -> np.ndarray:
-        """``Σ_i x_i |Â_i(q)|² S_HD(2 a_i q; η) / Σ_i x_i π a_i²`` [µm²] (the local monodisperse
-        approximation; class docstring)."""
+    #: The rule of the layer's lobe (:meth:`intensity`): the closest of the three to the exact far
+    #: field of simulated droplets (benchmarks/results/breath_figure_lobe.json).
+    RULE = "partial"
+    RULES = ("local-monodisperse", "decoupling", "partial")
+    #: Width in ``u = q R`` over which the partial structure factors join their large-q limit.
+    PARTIAL_JOIN = 2.0
+
+    @property
+    def number_density(self) -> float:
+        """Droplets per area [µm⁻²]."""
+        return self._density
+
+    def _amplitudes(self, q):
         from scipy.special import j1
-        from corona.model.processes.hard_disk import ETA_MAX, structure_factor_table
+        z = q[..., None] * self._radii
+        return np.pi * self._radii ** 2 * np.where(z > 1e-8, 2.0 * j1(z) / np.maximum(z, 1e-300), 1.0)
+
+    def intensity(self, q_abs, rule: str | None = None) -> np.ndarray:
+        """The diffuse intensity per droplet ``⟨|Σ_j Â_j e^{-iq·r_j}|²⟩ / N`` [µm⁴] at ``|q|``
+        [rad/µm] by ``rule`` (default :attr:`RULE`):
+
+        * ``"local-monodisperse"`` (Pedersen 1994): ``Σ_i x_i |Â_i|² S_HD(2 a_i q; η)``, η the
+          coverage (clipped to the hard-disk table's 0.72);
+        * ``"decoupling"`` (Kotlarchyk & Chen 1983): ``⟨|Â|²⟩ + |⟨Â⟩|² (S - 1)``, S of all the centres;
+        * ``"partial"``: ``Σ_ik F̄_i F̄_k S_ik + Σ_k X_k (⟨|Â|²⟩_k - F̄_k²)`` over the table's 12 size
+          classes (number fractions ``X_k``, mean amplitudes ``F̄_k``, measured partial structure
+          factors ``S_ik``, joined linearly to their limit ``X_i δ_ik`` over :attr:`PARTIAL_JOIN` beyond
+          the table's rings).
+        """
+        from corona._validation import check_choice
+        rule = check_choice("rule", self.RULE if rule is None else rule, self.RULES)
         q = np.abs(np.asarray(q_abs, dtype=np.float64))
-        eta = min(self._coverage, ETA_MAX)
-        out = np.zeros(q.shape)
-        for a, x in zip(self._radii, self._fraction):
-            z = q * a
-            amp = np.pi * a * a * np.where(z > 1e-8, 2.0 * j1(z) / np.maximum(z, 1e-300), 1.0)
-            out += x * amp * amp * structure_factor_table(2.0 * z, eta)
-        return out / float(np.sum(self._fraction * np.pi * self._radii ** 2))
+        F = self._amplitudes(q)                                  # (..., n_sizes)
+        x = self._fraction
+        if rule == "local-monodisperse":
+            from corona.model.processes.hard_disk import ETA_MAX, structure_factor_table
+            eta = min(self._coverage, ETA_MAX)
+            S = np.stack([structure_factor_table(2.0 * q * a, eta) for a in self._radii], -1)
+            return np.sum(x * F * F * S, axis=-1)
+        if rule == "decoupling":
+            P = np.sum(x * F * F, axis=-1)
+            C = np.sum(x * F, axis=-1) ** 2
+            return P + C * (self.structure_factor_radial(q) - 1.0)
+        K = self._partial.shape[-1]
+        onehot = np.zeros((x.size, K))
+        onehot[np.arange(x.size), self._class] = 1.0
+        X = x @ onehot                                           # class fractions
+        Xs = np.where(X > 0, X, 1.0)
+        Fk = (x * F) @ onehot / Xs                               # (..., K) mean amplitudes
+        F2k = (x * F * F) @ onehot / Xs
+        u = q * self._R
+        ok = np.isfinite(self._partial[:, 0, 0])
+        # beyond the rings S_ik joins its limit x_i δ_ik linearly over PARTIAL_JOIN in u (continuous)
+        ug = np.append(self._u[ok], self._u[ok][-1] + self.PARTIAL_JOIN)
+        Sik = np.empty(q.shape + (K, K))
+        for i in range(K):
+            for k in range(K):
+                limit = X[i] if i == k else 0.0
+                Sik[..., i, k] = np.interp(u, ug, np.append(self._partial[ok, i, k], limit), right=limit)
+        return np.einsum("...i,...ik,...k->...", Fk, Sik, Fk) + np.sum(X * (F2k - Fk * Fk), axis=-1)
+
+    def lobe_intensity_radial(self, q_abs, shape) -> np.ndarray:
+        """:meth:`intensity` by :attr:`RULE` over ``⟨|A|⟩ = Σ_i x_i π a_i²`` [µm²]."""
+        return self.intensity(q_abs) / float(np.sum(self._fraction * np.pi * self._radii ** 2))
 
 
 def _factory(p, shape):
