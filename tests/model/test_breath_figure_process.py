@@ -52,11 +52,14 @@ def test_layer_holds_the_droplets():
     assert 0.5 < m.area_fraction < 0.72                # the coverage of a breath figure with renucleation
     assert m.area_fraction == pytest.approx(np.sum(frac * np.pi * radii ** 2) * m.process.number_density,
                                             rel=0.02)    # F_a = n <|A|>, both from the table
-    # the lobe is the process's rule: P / R² at large q, where every S_ik -> x_i δ_ik
-    q = np.array([40.0]) / m.process.mean_radius
-    P, _ = m._form_factors(q, radial=True)
-    v = m.lobe_terms(q * m.length_scale, radial=True)["v"][0]
-    assert v * m.length_scale ** 2 == pytest.approx(P[0], rel=1e-6)
+    # the lobe is the process's rule (partial structure factors inside the table's rings, qR <= 12;
+    # the local monodisperse rule beyond, where the small droplets are still correlated)
+    q = np.array([5.0, 40.0]) / m.process.mean_radius
+    mean_area = np.sum(frac * np.pi * radii ** 2)
+    v = m.lobe_terms(q * m.length_scale, radial=True)["v"] * m.length_scale ** 2 * mean_area
+    np.testing.assert_allclose(v, m.process.intensity(q, "partial"), rtol=1e-9)
+    assert v[1] == pytest.approx(m.process.intensity(q[1:], "local-monodisperse")[0], rel=1e-9)
+    assert abs(v[0] / m.process.intensity(q[:1], "local-monodisperse")[0] - 1) > 0.01
 
 
 @pytest.mark.parametrize("t", [10.0, 40.0])

@@ -133,7 +133,7 @@ class BreathFigure(Process):
 
     def key(self) -> dict:
         m = load_table()["metadata"]
-        return {**super().key(), "rule": self.RULE, "join": self.PARTIAL_JOIN,
+        return {**super().key(), "rule": self.RULE, "join": self.PARTIAL_JOIN, "tail": "local-monodisperse",
                 "table": f"{m.get('format_version')}:{m.get('date')}"}
 
     # --- the droplets -------------------------------------------------------------
@@ -180,7 +180,7 @@ class BreathFigure(Process):
     #: field of simulated droplets (benchmarks/results/breath_figure_lobe.json).
     RULE = "partial"
     RULES = ("local-monodisperse", "decoupling", "partial")
-    #: Width in ``u = q R`` over which the partial structure factors join their large-q limit.
+    #: Width in ``u = q R`` over which the partial structure factors join the local monodisperse rule.
     PARTIAL_JOIN = 2.0
 
     @property
@@ -202,8 +202,8 @@ class BreathFigure(Process):
         * ``"decoupling"`` (Kotlarchyk & Chen 1983): ``⟨|Â|²⟩ + |⟨Â⟩|² (S - 1)``, S of all the centres;
         * ``"partial"``: ``Σ_ik F̄_i F̄_k S_ik + Σ_k X_k (⟨|Â|²⟩_k - F̄_k²)`` over the table's 12 size
           classes (number fractions ``X_k``, mean amplitudes ``F̄_k``, measured partial structure
-          factors ``S_ik``, joined linearly to their limit ``X_i δ_ik`` over :attr:`PARTIAL_JOIN` beyond
-          the table's rings).
+          factors ``S_ik``); beyond the table's rings (``qR > 12``), where the small droplets are still
+          correlated, the local monodisperse rule, joined linearly over :attr:`PARTIAL_JOIN`.
         """
         from corona._validation import check_choice
         rule = check_choice("rule", self.RULE if rule is None else rule, self.RULES)
@@ -228,14 +228,18 @@ class BreathFigure(Process):
         F2k = (x * F * F) @ onehot / Xs
         u = q * self._R
         ok = np.isfinite(self._partial[:, 0, 0])
-        # beyond the rings S_ik joins its limit x_i δ_ik linearly over PARTIAL_JOIN in u (continuous)
-        ug = np.append(self._u[ok], self._u[ok][-1] + self.PARTIAL_JOIN)
+        ug = self._u[ok]
         Sik = np.empty(q.shape + (K, K))
         for i in range(K):
             for k in range(K):
-                limit = X[i] if i == k else 0.0
-                Sik[..., i, k] = np.interp(u, ug, np.append(self._partial[ok, i, k], limit), right=limit)
-        return np.einsum("...i,...ik,...k->...", Fk, Sik, Fk) + np.sum(X * (F2k - Fk * Fk), axis=-1)
+                Sik[..., i, k] = np.interp(u, ug, self._partial[ok, i, k])
+        inside = np.einsum("...i,...ik,...k->...", Fk, Sik, Fk) + np.sum(X * (F2k - Fk * Fk), axis=-1)
+        # beyond the rings (u > 12) the small droplets are still correlated (their dry zones, at
+        # q a ~ 1): the local monodisperse rule there, joined linearly over PARTIAL_JOIN in u
+        w = np.clip((u - ug[-1]) / self.PARTIAL_JOIN, 0.0, 1.0)
+        if not np.any(w > 0):
+            return inside
+        return (1.0 - w) * inside + w * self.intensity(q, "local-monodisperse")
 
     def lobe_intensity_radial(self, q_abs, shape) -> np.ndarray:
         """:meth:`intensity` by :attr:`RULE` over ``⟨|A|⟩ = Σ_i x_i π a_i²`` [µm²]."""
