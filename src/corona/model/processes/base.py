@@ -32,6 +32,9 @@ class Process:
         process sets the sizes too (a breath figure's droplets)."""
         return shape
 
+    #: True when :meth:`lobe_intensity_radial` gives the layer's lobe (not the decoupling rule).
+    own_lobe: bool = False
+
     def lobe_intensity_radial(self, q_abs, shape):
         """``⟨|Â|² S⟩/⟨|A|⟩`` [µm²] at ``|q|`` when the process sets the layer's lobe beyond the
         decoupling rule (a breath figure's local monodisperse approximation); None: the rule."""

@@ -95,6 +95,7 @@ class BreathFigure(Process):
     """
 
     isotropic = True
+    own_lobe = True
 
     def __init__(self, breath_time: float = 20.0, contact_angle: float = 90.0):
         self.contact_angle = check_range("contact_angle", contact_angle, CONTACT_ANGLE_MIN, CONTACT_ANGLE_MAX,
