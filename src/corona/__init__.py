@@ -22,7 +22,7 @@ from corona._validation import CoronaError, CoronaWarning
 from corona.model.material import Material
 from corona.model.mie import layer as _mie_layer  # noqa: F401  (Material(corona.Sphere(r)) returns its class)
 from corona.model.registry import register_process, register_shape
-from corona.model.processes import HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
+from corona.model.processes import BreathFigure, HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,
                      RegularPolygon, Shape, SizeDistribution, SoftEdge, Sphere, Square)
 from corona.model.substrate import GlassPane, Mirror
@@ -50,7 +50,7 @@ def __dir__():
 __all__ = ["CoronaError", "CoronaWarning",
            "Shape", "Circle", "Ellipse", "Rectangle", "Square", "Polygon", "RegularPolygon", "Mask",
            "SoftEdge", "RandomOrientation", "SizeDistribution", "Mixture", "Sphere",
-           "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk",
+           "Process", "Poisson", "SequentialAdsorption", "Lattice", "PointSet", "HardDisk", "BreathFigure",
            "Material", "GlassPane", "Mirror", "from_micrograph", "fit_photograph", "default_variant",
            "set_default_variant", "register", "register_shape", "register_process", "scatterer"]
 

@@ -146,6 +146,7 @@ class Material:
             process = Poisson()
         if not isinstance(process, Process):
             raise CoronaError(f"process={process!r} is not a corona point process (e.g. corona.Poisson())")
+        shape = process.layer_shape(shape)      # a process that sets the sizes gives its own
         self.shape = shape
         self.process = process
         self.mode = check_choice("mode", mode, MODES)
@@ -293,6 +294,10 @@ class Material:
                 bragg = process.bragg_cell_mean(q, cell / R, peak_factor=shape.coherent_form_factor)
             else:
                 S = S_smooth = process.structure_factor_at(q, shape)
+        own = (process.lobe_intensity_radial(q if radial else np.hypot(q[..., 0], q[..., 1]), shape)
+               if process.own_lobe else None)
+        if own is not None:             # the process's own rule (a breath figure's), not the decoupling
+            return {"P": P, "C": C, "S": S, "v": decoupled_lobe(own, 0.0, 1.0, R)}
         v = decoupled_lobe(P, C, S_smooth, R, bragg)
         return {"P": P, "C": C, "S": S, "v": v}
 

@@ -10,6 +10,8 @@ plugin, the CLI's ``render`` and ``lobe``) never imports it.
   (:func:`corona.model.processes.rsa.rsa_configuration`) turned into the shipped S(q) table;
 * :mod:`corona.reference.breath_figure` — breath figures: droplets that nucleate,
   grow, coalesce and evaporate on a plane;
+* :mod:`corona.reference.breath_figure_optics` — their exact far field and the approximations of
+  a polydisperse layer; the table of ``process=breath-figure``;
 * :mod:`corona.reference.wave` — the brute-force wave-optics reference
   (random screens, FFT);
 * :mod:`corona.reference.validate` — ``corona validate``: model vs brute force,

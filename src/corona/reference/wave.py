@@ -495,8 +495,21 @@ def positions_source(process: Process, shape: Shape, *, n_scatterers: int = N_SC
         return PositionSource((x1 - x0, y1 - y0), lambda r, rng: pts.copy(),
                               f"measured point set, N={len(pts)} (one realisation, treated as "
                               "periodic)", realisations_max=1)
+    from corona.model.processes import BreathFigure
+    if isinstance(process, BreathFigure):
+        from corona.reference.breath_figure import simulate_breath_figure
+        Lb = float(process.table_box)
+
+        def breath(r, rng):
+            return simulate_breath_figure([process.simulation_time], box=Lb,
+                                          seed=int(rng.integers(2**31 - 1))).centres[0]
+        return PositionSource((Lb, Lb), breath,
+                              f"breath figure at {process.simulation_time:g} s of the hemispherical run "
+                              "(centres only: the rasteriser draws each droplet's size from the mixture, "
+                              "uncorrelated with its place; the droplets' own far field is "
+                              "corona.reference.breath_figure_optics.far_field_rings)", exact_count=False)
     raise CoronaError(f"process={process!r} is not supported by the brute force; supported: "
-                      "HardDisk, SequentialAdsorption, Lattice, Poisson, PointSet")
+                      "HardDisk, SequentialAdsorption, Lattice, Poisson, PointSet, BreathFigure")
 
 
 def _lattice_source(process: Lattice, n_scatterers: int) -> PositionSource:

@@ -21,7 +21,9 @@ Processes, one module each:
 * :class:`Lattice` — square / hexagonal lattices with Gaussian jitter
   (Debye–Waller background plus broadened Bragg peaks);
 * :class:`PointSet` — measured centres, ``S`` estimated by a tapered
-  periodogram.
+  periodogram;
+* :class:`BreathFigure` — condensed droplets at a time after the breath (sizes and positions
+  from a shipped simulation table; the local monodisperse approximation).
 
 Every lookup here is numpy/scipy only; the simulations that make the tables
 live in :mod:`corona.reference` (extra ``corona-bsdf[reference]``).
@@ -34,6 +36,7 @@ from corona.model.processes.rsa import RSA_JAMMING_LIMIT, RSA_SATURATION, Sequen
 from corona.model.processes.lattice import Lattice
 from corona.model.processes.point_set import PointSet
 from corona.model.processes.hard_sphere import percus_yevick_3d
+from corona.model.processes.breath_figure import BreathFigure
 
-__all__ = ["Process", "Poisson", "HardDisk", "SequentialAdsorption", "Lattice", "PointSet",
+__all__ = ["Process", "Poisson", "HardDisk", "SequentialAdsorption", "Lattice", "PointSet", "BreathFigure",
            "rsa_structure_factor", "RSA_JAMMING_LIMIT", "RSA_SATURATION"]

@@ -27,6 +27,19 @@ class Process:
     def validate(self, shape) -> None:
         """Raise a clear error if this process cannot hold ``shape`` as given."""
 
+    def layer_shape(self, shape):
+        """The layer's scatterers: ``shape`` as given, or the process's own population when the
+        process sets the sizes too (a breath figure's droplets)."""
+        return shape
+
+    #: True when :meth:`lobe_intensity_radial` gives the layer's lobe (not the decoupling rule).
+    own_lobe: bool = False
+
+    def lobe_intensity_radial(self, q_abs, shape):
+        """``⟨|Â|² S⟩/⟨|A|⟩`` [µm²] at ``|q|`` when the process sets the layer's lobe beyond the
+        decoupling rule (a breath figure's local monodisperse approximation); None: the rule."""
+        return None
+
     def layer_area_fraction(self, shape) -> float:
         """The area fraction of a layer of ``shape`` on this process, checked: :meth:`validate`,
         then one clear error unless it lies in (0, 1) (what every material needs)."""
