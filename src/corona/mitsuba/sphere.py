@@ -85,7 +85,7 @@ from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin,
 from corona.mitsuba.common import pane_reflectance, pane_sample, pane_smooth_factors, positive as _positive, selection
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
-from corona.mitsuba.common import hermite_rows, host_buffer, read_props as _read_props
+from corona.mitsuba.common import centre_rows, host_buffer, read_props as _read_props
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from corona.model.rows import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
@@ -96,7 +96,9 @@ __all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "sphere_bsdf_class"
 #: A uniform radius's rows serve radii this factor below and above it (an optimiser's steps need no
 #: rebuild); a radius texture's rows serve its range.
 RADIUS_HEADROOM = 1.05
-#: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa).
+#: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa)
+#: (a uniform value: ± one step about it; the flat layers' rows span ± ``bsdf.FA_WINDOW`` at the
+#: spacing their material picks; both centre through :func:`corona.mitsuba.common.centre_rows`).
 FA_ROW_STEP = 0.05
 #: The most memory [bytes] the lobes' rows take as packed Catmull–Rom intervals (four floats a node:
 #: one Vector4f gather reads a row's interval; beyond it the plain rows are held instead, read by
@@ -455,14 +457,12 @@ class SphereBSDFMixin:
 
     def _centre_area_fraction(self, fa):
         """The layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the
-        cubic Hermite between the F_a rows, :func:`corona.mitsuba.common.hermite_rows`), read as
+        cubic Hermite between the F_a rows, :func:`corona.mitsuba.common.centre_rows`), read as
         value + slope × (F_a - ``fa_centre``) so that ``∂/∂F_a`` is the rows' and an update
         (:meth:`parameters_changed`) re-centres them without recompiling."""
         fas, S, E = self.fa_window
-        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
-        s_at, ds_at = hermite_rows(fas, S, fa)
+        self.fa_centre, ((s_at, ds_at), (e_at, de_at)) = centre_rows(fas, fa, S, E)
         self.S_centre = _array(mi.Float, np.stack([s_at[:-1], s_at[1:], ds_at[:-1], ds_at[1:]], axis=-1).ravel())
-        e_at, de_at = hermite_rows(fas, E, fa)
         # the slopes apart: a render without derivatives reads only the values
         self.Ef_corners = _array(mi.Float, _corners(e_at).ravel())
         self.Ef_slopes = _array(mi.Float, _corners(de_at).ravel())
