@@ -193,7 +193,7 @@ def test_lattice_sampler_chi2(mi_variant, kind, jitter, theta):
     import mitsuba as mi
     from mitsuba.chi2 import ChiSquareTest, SphericalDomain
     from bsdf_checks import interaction, run_chi2
-    _, _, sampler = _mixture(kind, jitter)
+    bsdf, _, sampler = _mixture(kind, jitter)     # the plugin kept: the sampler reads its rows
     th = np.radians(theta)
     wi = (float(np.sin(th)), 0.0, float(np.cos(th)))
 
@@ -662,3 +662,34 @@ def test_wide_lattices_are_refused_in_one_line(mi_variant):
         bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.0155,
                              "process": "lattice-hex"})
     assert 0.9 * LATTICE_ORDERS_MAX < bsdf.lobe.cap.count <= LATTICE_ORDERS_MAX
+
+
+def test_a_dropped_plugin_is_freed_and_its_lobe_says_so(mi_variant):
+    """The plugin holds its lobe, the lobe (MieRowsLobe, and a lattice's LatticeLayer over it) holds
+    the plugin weakly: a dropped plugin's tables go at once, without the garbage collector (a strong
+    reference back would keep them until a full collection), and its lobe's later use is one
+    CoronaError, not an AttributeError deep in a kernel."""
+    import gc
+    import warnings
+    import weakref
+
+    import mitsuba as mi
+    from bsdf_checks import interaction
+    for params in ({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.1}, HEX4):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            bsdf = mi.load_dict(params)
+        rows = getattr(bsdf.lobe, "rows", bsdf.lobe)
+        states, _ = rows.states(interaction(4, (0.0, 0.0, 1.0)), True)   # serves while the plugin lives
+        assert len(states) == 4
+        alive = weakref.ref(bsdf)
+        was = gc.isenabled()
+        gc.disable()
+        try:
+            del bsdf
+            assert alive() is None, params
+        finally:
+            if was:
+                gc.enable()
+        with pytest.raises(corona.CoronaError, match="sphere plugin of this MieRowsLobe was dropped"):
+            rows.states(interaction(4, (0.0, 0.0, 1.0)), True)

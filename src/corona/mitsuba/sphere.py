@@ -1036,7 +1036,8 @@ class MieRowsLobe:
     lookups a lobe built on the same rows reads (:meth:`states`, :meth:`pattern`,
     :meth:`spectrum`: the lattice's, :mod:`corona.mitsuba.sphere_lattice`).  It holds no table of
     its own: the plugin's, rebuilt by its ``parameters_changed``, are read at each call.  It holds
-    the plugin weakly (the plugin holds it: no reference cycle keeps a dropped plugin's tables).
+    the plugin weakly (the plugin holds it: no reference cycle keeps a dropped plugin's tables), so
+    it serves while its plugin lives (a lattice piece built on it, too): after, one error says so.
 
     Parameters
     ----------
@@ -1044,7 +1045,15 @@ class MieRowsLobe:
     """
 
     def __init__(self, bsdf):
-        self._bsdf = weakref.proxy(bsdf)
+        self._ref = weakref.ref(bsdf)
+
+    @property
+    def _bsdf(self):
+        b = self._ref()
+        if b is None:
+            raise CoronaError("corona: the sphere plugin of this MieRowsLobe was dropped; keep the plugin "
+                              "(mi.load_dict's result) alive while its lobe is used")
+        return b
 
     @property
     def material(self):
