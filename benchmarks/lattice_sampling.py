@@ -32,7 +32,7 @@ def main(n=1_000_000):
     rng = np.random.default_rng(1)
     for kind, a, jitter in (("hexagonal", 4.0, 0.0), ("square", 3.0, 0.15)):
         lat = corona.Lattice(kind, a, jitter=jitter)
-        smp = LatticeSampler(bsdf, lat)
+        smp = LatticeSampler(bsdf.lobe, lat)
         for theta in (0.0, 30.0):
             th = np.radians(theta)
             si = interaction(n, (float(np.sin(th)), 0.0, float(np.cos(th))))

@@ -44,7 +44,7 @@ def main(n=16_384, out="benchmarks/results/sphere_lattice_cost.json"):
             bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "process": "lattice-hex",
                                  "area_fraction": float(fa), "jitter": jitter})
             load = time.perf_counter() - t0
-        orders = bsdf.lattice_layer.cap.count
+        orders = bsdf.lobe.cap.count
         for theta in (0.0, 60.0):
             th = np.radians(theta)
             si = interaction(n, (float(np.sin(th)), 0.0, float(np.cos(th))))

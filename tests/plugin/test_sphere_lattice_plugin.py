@@ -139,7 +139,7 @@ def test_lattice_lobe_matches_numpy_between_and_at_orders(mi_variant, kind, a, j
         bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.1})
     lat = corona.Lattice(kind, a, jitter=jitter)
     ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)
-    lobe = LatticeLobe(bsdf, lat)
+    lobe = LatticeLobe(bsdf.lobe, lat)
     th = np.radians(theta)
     wi = np.array([np.sin(th), 0.0, np.cos(th)])
     lams = (450.0, 520.0, 600.0, 700.0)
@@ -180,7 +180,7 @@ def _mixture(kind, jitter, domain=3.0):
         warnings.simplefilter("ignore")
         bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.1})
     lat = corona.Lattice(kind, 2.5, jitter=jitter, domain_size=domain * 2.5)
-    return bsdf, lat, LatticeSampler(bsdf, lat)
+    return bsdf, lat, LatticeSampler(bsdf.lobe, lat)
 
 
 @pytest.mark.slow
@@ -195,7 +195,7 @@ def test_lattice_sampler_chi2(mi_variant, kind, jitter, theta):
     import mitsuba as mi
     from mitsuba.chi2 import ChiSquareTest, SphericalDomain
     from bsdf_checks import interaction, run_chi2
-    _, _, sampler = _mixture(kind, jitter)
+    bsdf, _, sampler = _mixture(kind, jitter)     # the plugin kept: the sampler reads its rows
     th = np.radians(theta)
     wi = (float(np.sin(th)), 0.0, float(np.cos(th)))
 
@@ -224,7 +224,7 @@ def test_sample_weights_integrate_the_numpy_lobe(mi_variant, theta):
     bsdf, _, _ = _mixture("square", 0.15)
     lat = corona.Lattice("square", 3.0, jitter=0.15)
     from corona.mitsuba.sphere_lattice import LatticeSampler
-    smp = LatticeSampler(bsdf, lat)
+    smp = LatticeSampler(bsdf.lobe, lat)
     ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)
     th = np.radians(theta)
     wi = (float(np.sin(th)), 0.0, float(np.cos(th)))
@@ -262,7 +262,7 @@ def test_furnace_from_sample_weights_through_a_rayleigh_anomaly(mi_variant):
         warnings.simplefilter("ignore")
         bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.1})
     lat = corona.Lattice("hexagonal", 4.0)
-    smp = LatticeSampler(bsdf, lat)
+    smp = LatticeSampler(bsdf.lobe, lat)
     ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)
     b = np.linalg.norm(lat.reciprocal_vectors[0])
     lam_a = 2 * np.pi / (b * np.sqrt(39.0)) * 1e3
@@ -295,7 +295,7 @@ def _cap_ratio(bsdf, cap, ref, wis, lams):
     si = dr.zeros(mi.SurfaceInteraction3f, n)
     si.wi = mi.Vector3f(*(mi.Float(wis[:, i].astype(np.float32)) for i in range(3)))
     si.wavelengths = mi.Spectrum(*(mi.Float(lams[:, i].astype(np.float32)) for i in range(4)))
-    states, _ = bsdf._states(si, True)
+    states, _ = bsdf.lobe.states(si, True)
     got = np.array([np.asarray(a + b, dtype=np.float64) for a, b in cap.energies(si, states)])
     want = np.array([[ref.lattice_energy(wis[i], lams[i, m]) for i in range(n)] for m in range(4)])
     return got / want
@@ -326,7 +326,7 @@ def test_lattice_cap_energy_matches_the_model_quadrature(mi_variant, kind, a, ji
     th = np.arccos(rng.uniform(0.05, 1, n))
     ph = rng.uniform(0, 2 * np.pi, n)
     wis = np.c_[np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)]
-    r = _cap_ratio(bsdf, LatticeCap(bsdf, lat), ref, wis, rng.uniform(360, 830, (n, 4)))
+    r = _cap_ratio(bsdf, LatticeCap(bsdf.lobe, lat), ref, wis, rng.uniform(360, 830, (n, 4)))
     print("e_plugin / e_numpy:", r.min(), r.max())
     assert np.all(np.abs(r - 1) < 0.005)
 
@@ -350,16 +350,16 @@ def test_lattice_cap_energy_through_rayleigh_anomalies(mi_variant):
     lam_a = 2 * np.pi / (b * np.sqrt(39.0)) * 1e3
     lams = np.repeat((lam_a + np.linspace(-1.0, 0.5, 16))[:, None], 4, 1)
     wis = np.tile([0.0, 0.0, 1.0], (16, 1))
-    r = _cap_ratio(bsdf, LatticeCap(bsdf, lat), ref, wis, lams)
+    r = _cap_ratio(bsdf, LatticeCap(bsdf.lobe, lat), ref, wis, lams)
     assert np.all(np.abs(r - 1) < 0.005), (r.min(), r.max())
-    wrong = _cap_ratio(bsdf, LatticeCap(bsdf, corona.Lattice("hexagonal", 4.04)), ref, wis, lams)
+    wrong = _cap_ratio(bsdf, LatticeCap(bsdf.lobe, corona.Lattice("hexagonal", 4.04)), ref, wis, lams)
     assert np.max(np.abs(wrong - 1)) > 0.01
     th = np.radians(np.linspace(0, 60, 31))
     wis = np.c_[np.sin(th), 0 * th, np.cos(th)]
     for kind, a in (("hexagonal", 4.0), ("square", 3.0)):
         lat = corona.Lattice(kind, a)
         ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)
-        r = _cap_ratio(bsdf, LatticeCap(bsdf, lat), ref, wis, np.full((31, 4), 550.0))
+        r = _cap_ratio(bsdf, LatticeCap(bsdf.lobe, lat), ref, wis, np.full((31, 4), 550.0))
         assert np.all(np.abs(r - 1) < 0.005), (kind, r.min(), r.max())
 
 
@@ -377,17 +377,17 @@ def _layer(params, domain=None):
     from corona.mitsuba.sphere_lattice import LatticeLayer
     bsdf = mi.load_dict(params)
     if domain is not None:
-        lat = bsdf.lattice_layer.lattice
-        bsdf.lattice_layer = LatticeLayer(bsdf, corona.Lattice(lat.kind, lat.spacing, jitter=lat.jitter,
-                                                               domain_size=domain * lat.spacing))
+        lat = bsdf.lobe.lattice
+        bsdf.lobe = LatticeLayer(bsdf.lobe.rows, corona.Lattice(lat.kind, lat.spacing, jitter=lat.jitter,
+                                                                domain_size=domain * lat.spacing))
     return bsdf
 
 
 def test_plugin_loads_the_lattice_with_the_models_spacing(mi_variant):
     bsdf = _layer({**HEX4, "jitter": 0.1})
-    lat = bsdf.lattice_layer.lattice
+    lat = bsdf.lobe.lattice
     assert lat.kind == "hexagonal" and abs(lat.spacing - 4.0) < 1e-9 and lat.jitter == 0.1
-    assert abs(_layer(SQUARE3).lattice_layer.lattice.spacing - 3.0) < 1e-9
+    assert abs(_layer(SQUARE3).lobe.lattice.spacing - 3.0) < 1e-9
 
 
 @pytest.mark.parametrize("params, theta", [(HEX4, 0.0), (SQUARE3, 30.0), ({**SQUARE3, "jitter": 0.15}, 0.0)])
@@ -399,7 +399,7 @@ def test_eval_matches_the_numpy_model_at_and_between_orders(mi_variant, params, 
     from bsdf_checks import assert_eval_matches, plugin_eval
     from corona.model.mie.layer import SphereMaterial
     bsdf = _layer(params)
-    lat = bsdf.lattice_layer.lattice
+    lat = bsdf.lobe.lattice
     ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)
     th = np.radians(theta)
     wi = np.array([np.sin(th), 0.0, np.cos(th)])
@@ -413,7 +413,7 @@ def test_eval_matches_the_numpy_model_at_and_between_orders(mi_variant, params, 
     wo = np.concatenate([np.c_[p, cz], np.c_[p, -cz], d / np.linalg.norm(d, axis=1, keepdims=True)])
     assert_eval_matches(bsdf, ref.eval, wi, wo, rtol=0.0045, atol=5e-4)
     # negative control: without the cap (w = 1) the plugin's lobe is brighter than the model's
-    cap = bsdf.lattice_layer.cap
+    cap = bsdf.lobe.cap
     capped = cap.capped
     cap.capped = lambda si, states, active=True: [{**s, "w": 1.0} for s in capped(si, states, active)]
     try:
@@ -439,7 +439,7 @@ def test_plugin_chi2(mi_variant, params, theta):
 
 
 def _uncapped(bsdf):
-    cap = bsdf.lattice_layer.cap
+    cap = bsdf.lobe.cap
     capped = cap.capped
     cap.capped = lambda si, states, active=True: [{**s, "w": 1.0, "e_f": s["e_f"] / s["w"], "e_b": s["e_b"] / s["w"]}
                                                   for s in capped(si, states, active)]
@@ -465,7 +465,7 @@ def test_furnace_through_a_rayleigh_anomaly(mi_variant):
     incidence): the plugin's albedo ≤ 1; negative control, uncapped (w = 1) it gains energy."""
     from bsdf_checks import furnace
     bsdf = _layer(HEX4)
-    lat = bsdf.lattice_layer.lattice
+    lat = bsdf.lobe.lattice
     b = np.linalg.norm(lat.reciprocal_vectors[0])
     lam_a = 2 * np.pi / (b * np.sqrt(39.0)) * 1e3
     lams = tuple(float(v) for v in lam_a + np.array([-0.4, -0.1, 0.0, 0.2]))
@@ -528,8 +528,8 @@ def test_jittered_diffuse_table_is_kept_in_the_cache(mi_variant, tmp_path, monke
     assert calls == [0.15]                            # the second load built nothing
     m = second.material
     fresh = build(m.rows, float(m.length_scale), 0.15)
-    np.testing.assert_array_equal(np.asarray(second.lattice_layer.cap.D), fresh.ravel().astype(np.float32))
-    np.testing.assert_array_equal(np.asarray(first.lattice_layer.cap.D), np.asarray(second.lattice_layer.cap.D))
+    np.testing.assert_array_equal(np.asarray(second.lobe.cap.D), fresh.ravel().astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(first.lobe.cap.D), np.asarray(second.lobe.cap.D))
     _layer({**params, "jitter": 0.2})
     assert calls == [0.15, 0.2]
 
@@ -582,8 +582,8 @@ def test_jittered_lattice_keeps_its_light_and_samples(mi_variant, jitter):
     import mitsuba as mi
     from bsdf_checks import assert_finite_at_a_zero_interaction, furnace, plugin_eval
     bsdf, model = _jittered("lattice-hex", jitter)
-    smp = bsdf.lattice_layer.sampler
-    assert smp.alpha == 0.0 and smp.orders.count == 0 and bsdf.lattice_layer.cap.count == 0
+    smp = bsdf.lobe.sampler
+    assert smp.alpha == 0.0 and smp.orders.count == 0 and bsdf.lobe.cap.count == 0
     lams = (450.0, 520.0, 600.0, 700.0)
     mean, err = furnace(bsdf, 0.0, lams, n=50_000)
     ref = np.array([model.directional_albedo(1.0, lam)["total"] for lam in lams])
@@ -593,7 +593,7 @@ def test_jittered_lattice_keeps_its_light_and_samples(mi_variant, jitter):
     val, pdf = plugin_eval(bsdf, (0.3, 0.0, np.sqrt(0.91)), wo / np.linalg.norm(wo, axis=1, keepdims=True), lams)
     assert np.all(np.isfinite(val)) and np.all(np.isfinite(pdf)) and np.all(pdf > 0)
     assert_finite_at_a_zero_interaction(bsdf)
-    assert _jittered("lattice-hex", 0.15)[0].lattice_layer.sampler.alpha == 0.5
+    assert _jittered("lattice-hex", 0.15)[0].lobe.sampler.alpha == 0.5
 
 
 @pytest.mark.slow
@@ -668,4 +668,35 @@ def test_wide_lattices_are_refused_in_one_line(mi_variant):
         warnings.simplefilter("ignore")
         bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.0155,
                              "process": "lattice-hex"})
-    assert 0.9 * LATTICE_ORDERS_MAX < bsdf.lattice_layer.cap.count <= LATTICE_ORDERS_MAX
+    assert 0.9 * LATTICE_ORDERS_MAX < bsdf.lobe.cap.count <= LATTICE_ORDERS_MAX
+
+
+def test_a_dropped_plugin_is_freed_and_its_lobe_says_so(mi_variant):
+    """The plugin holds its lobe, the lobe (MieRowsLobe, and a lattice's LatticeLayer over it) holds
+    the plugin weakly: a dropped plugin's tables go at once, without the garbage collector (a strong
+    reference back would keep them until a full collection), and its lobe's later use is one
+    CoronaError, not an AttributeError deep in a kernel."""
+    import gc
+    import warnings
+    import weakref
+
+    import mitsuba as mi
+    from bsdf_checks import interaction
+    for params in ({"type": "corona", "shape": "sphere", "radius": 1.0, "area_fraction": 0.1}, HEX4):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            bsdf = mi.load_dict(params)
+        rows = getattr(bsdf.lobe, "rows", bsdf.lobe)
+        states, _ = rows.states(interaction(4, (0.0, 0.0, 1.0)), True)   # serves while the plugin lives
+        assert len(states) == 4
+        alive = weakref.ref(bsdf)
+        was = gc.isenabled()
+        gc.disable()
+        try:
+            del bsdf
+            assert alive() is None, params
+        finally:
+            if was:
+                gc.enable()
+        with pytest.raises(corona.CoronaError, match="sphere plugin of this MieRowsLobe was dropped"):
+            rows.states(interaction(4, (0.0, 0.0, 1.0)), True)

@@ -70,7 +70,7 @@ def test_renderer_takes_a_lattice(mi_variant):
     import mitsuba as mi
     bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "radius": 1.0, "process": "lattice-hex",
                          "area_fraction": 0.2})
-    assert bsdf.lattice_layer is not None and bsdf.lattice_layer.lattice.kind == "hexagonal"
+    assert bsdf.lattice is not None and bsdf.lobe.lattice.kind == "hexagonal"
     # the numpy model takes it from the same parameters
     from corona.parameters import material_from_parameters
     m = material_from_parameters(shape="sphere", radius=1.0, process="lattice-hex", area_fraction=0.2)

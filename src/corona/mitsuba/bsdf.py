@@ -110,7 +110,7 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                              pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
                              read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
                              wavelength_mixture)
-from corona.mitsuba.common import hermite_rows, pane_sample
+from corona.mitsuba.common import centre_rows, pane_sample
 from corona.mitsuba.common import cos as _cos, sincos as _sincos
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
@@ -439,17 +439,15 @@ class CoronaBSDFMixin:
         """Put the uniform layer's one row at area fraction ``fa``: the cubic Hermite of the rows
         around it, its slope in F_a, their energies, and the sampling CDF of that row."""
         from corona.model.tabulated import RadialTable
-        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
         if not self.isotropic:    # rows of S - 1 and of the energy
             fas, s_rows, totals = self._window
-            s1, ds1 = hermite_rows(fas, s_rows, fa)
-            tot, dtot = hermite_rows(fas, totals[:, None], fa)
+            self.fa_centre, ((s1, ds1), (tot, dtot)) = centre_rows(fas, fa, s_rows, totals[:, None])
             self.kernel.set_structure_centre(s1, ds1)
             self.totals = _array(mi.Float, tot)
             self.total_slopes = _array(mi.Float, dtot)
             return
         fas, rows, du = self._window
-        v, dv = hermite_rows(fas, rows, fa)
+        self.fa_centre, ((v, dv),) = centre_rows(fas, fa, rows)
         v = np.maximum(v, 0.0)
         row = RadialTable(du, v)
         # ∫ dv/dF_a d²u of the linear-in-u slope (RadialTable clamps its values at 0: not for a slope)

@@ -377,6 +377,15 @@ def hermite_rows(x, rows, at):
     return v, dv
 
 
+def centre_rows(x, at, *tables):
+    """A uniform layer's rows centred at one area fraction ``at`` (the flat and the sphere plugin's
+    ``F_a`` rows): ``(centre, [(value, slope), ...])``, ``centre`` ``at`` as an opaque Dr.Jit scalar (an
+    update moves it without recompiling: lanes read value + slope × (F_a - centre)) and per table of
+    rows over ``x`` its cubic Hermite value and slope in F_a at ``at`` (:func:`hermite_rows`)."""
+    centre = dr.opaque(mi.Float, at) if dr.is_array_v(mi.Float) else mi.Float(at)
+    return centre, [hermite_rows(x, rows, at) for rows in tables]
+
+
 def positive(x):
     """``x`` where it is > 0, else 1: a divisor safe in scalar variants too, where
     ``dr.select`` evaluates both branches (``value / pdf`` raised ZeroDivisionError)."""

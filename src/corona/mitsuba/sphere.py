@@ -71,6 +71,7 @@ off are refused.
 """
 from __future__ import annotations
 
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 
 import drjit as dr
@@ -84,18 +85,20 @@ from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin,
 from corona.mitsuba.common import pane_reflectance, pane_sample, pane_smooth_factors, positive as _positive, selection
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
-from corona.mitsuba.common import hermite_rows, host_buffer, read_props as _read_props
+from corona.mitsuba.common import centre_rows, host_buffer, read_props as _read_props
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from corona.model.rows import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
 from corona.model.mie.layer import share_forward_energies
 
-__all__ = ["NEWTON_STEPS", "SphereBSDFMixin", "sphere_bsdf_class"]
+__all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "sphere_bsdf_class"]
 
 #: A uniform radius's rows serve radii this factor below and above it (an optimiser's steps need no
 #: rebuild); a radius texture's rows serve its range.
 RADIUS_HEADROOM = 1.05
-#: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa).
+#: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa)
+#: (a uniform value: ± one step about it; the flat layers' rows span ± ``bsdf.FA_WINDOW`` at the
+#: spacing their material picks; both centre through :func:`corona.mitsuba.common.centre_rows`).
 FA_ROW_STEP = 0.05
 #: The most memory [bytes] the lobes' rows take as packed Catmull–Rom intervals (four floats a node:
 #: one Vector4f gather reads a row's interval; beyond it the plain rows are held instead, read by
@@ -233,15 +236,15 @@ class SphereBSDFMixin:
         for c in self.m_components[1:]:
             flags = flags | c
         self.m_flags = flags
-        #: spheres on a fixed lattice (corona.mitsuba.sphere_lattice.LatticeLayer), None otherwise
-        self.lattice_layer = None
+        #: the fixed lattice of ``process=lattice-*`` (its Bragg orders), None for a disordered layer
+        self.lattice = lattice
+        #: the lobe component, chosen once here: the disordered layer's Mie rows (:class:`MieRowsLobe`),
+        #: or the lattice's lobe over them (:class:`corona.mitsuba.sphere_lattice.LatticeLayer`);
+        #: eval, pdf and sample call its ``eval_pdf`` and ``sample``
+        self.lobe = MieRowsLobe(self)
         if lattice is not None:
             from corona.mitsuba.sphere_lattice import LatticeLayer
-            self.lattice_layer = LatticeLayer(self, lattice)
-
-    def _lattice_routed(self, ctx):
-        """Whether a call goes to the lattice layer (not the lattice sampler's own calls)."""
-        return self.lattice_layer is not None and ctx is not self.lattice_layer.inner_ctx
+            self.lobe = LatticeLayer(self.lobe, lattice)
 
     def _radius_init(self, radius_tex, params):
         """The radius texture (None: a uniform value, made after the tables) and the radii the rows serve."""
@@ -307,7 +310,7 @@ class SphereBSDFMixin:
         self.material = material
         rows = material.rows
         fa_rows = self._area_fraction_layers(material, fa_lo, fa_hi)     # before any derives its energies
-        der = material._derived
+        der = material.row_totals
         self.fa = float(material.area_fraction)
         x = rows["x"]
         self.x0, self.n_rows = float(x[0]), int(x.size)
@@ -436,13 +439,13 @@ class SphereBSDFMixin:
         self.fa_centred = False
         if not self.has_S:
             self.n_fa = 1
-            self.Ef = _array(mi.Float, material._derived["e_f_mu"].ravel())
-            self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material._derived["e_f_mu"]).ravel()), None
+            self.Ef = _array(mi.Float, material.row_totals["e_f_mu"].ravel())
+            self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material.row_totals["e_f_mu"]).ravel()), None
             self.fa_cover = (0.0, 1.0)
             return
         fas, layers = fa_rows
         S = np.array([m.structure_table[1] for m in layers])
-        E = np.array([m._derived["e_f_mu"] for m in layers])
+        E = np.array([m.row_totals["e_f_mu"] for m in layers])
         self.S_du, self.S_n = float(st[0]), int(S.shape[1])
         self.n_fa, self.fa0, self.dfa = int(fas.size), float(fas[0]), float(fas[1] - fas[0])
         self.fa_cover = (float(fas[0]), float(fas[-1]))
@@ -455,14 +458,12 @@ class SphereBSDFMixin:
 
     def _centre_area_fraction(self, fa):
         """The layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the
-        cubic Hermite between the F_a rows, :func:`corona.mitsuba.common.hermite_rows`), read as
+        cubic Hermite between the F_a rows, :func:`corona.mitsuba.common.centre_rows`), read as
         value + slope × (F_a - ``fa_centre``) so that ``∂/∂F_a`` is the rows' and an update
         (:meth:`parameters_changed`) re-centres them without recompiling."""
         fas, S, E = self.fa_window
-        self.fa_centre = dr.opaque(mi.Float, fa) if dr.is_array_v(mi.Float) else mi.Float(fa)
-        s_at, ds_at = hermite_rows(fas, S, fa)
+        self.fa_centre, ((s_at, ds_at), (e_at, de_at)) = centre_rows(fas, fa, S, E)
         self.S_centre = _array(mi.Float, np.stack([s_at[:-1], s_at[1:], ds_at[:-1], ds_at[1:]], axis=-1).ravel())
-        e_at, de_at = hermite_rows(fas, E, fa)
         # the slopes apart: a render without derivatives reads only the values
         self.Ef_corners = _array(mi.Float, _corners(e_at).ravel())
         self.Ef_slopes = _array(mi.Float, _corners(de_at).ravel())
@@ -817,8 +818,7 @@ class SphereBSDFMixin:
     # BSDF interface
     # ------------------------------------------------------------------
     def _eval_pdf(self, ctx, si, wo, active, cached=None):
-        if cached is None and self._lattice_routed(ctx):
-            return self.lattice_layer.eval_pdf(ctx, si, wo, active)
+        """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_sample`'s states)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
@@ -899,17 +899,19 @@ class SphereBSDFMixin:
         return self._spectrum([d["value"] for d in per]), dr.select(active, pdf, 0.0)
 
     def eval(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, mi.Bool(active))[0]
+        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))[0]
 
     def pdf(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, mi.Bool(active))[1]
+        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))[1]
 
     def eval_pdf(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, mi.Bool(active))
+        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))
 
     def sample(self, ctx, si, sample1, sample2, active=True):
-        if self._lattice_routed(ctx):
-            return self.lattice_layer.sample(ctx, si, sample1, sample2, active)
+        return self.lobe.sample(ctx, si, sample1, sample2, active)
+
+    def _sample(self, ctx, si, sample1, sample2, active=True):
+        """The disordered layer's sample (:meth:`MieRowsLobe.sample`)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
@@ -995,7 +997,7 @@ class SphereBSDFMixin:
         callback.put("radius", self.radius_tex, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys):
-        if self.lattice_layer is not None:
+        if self.lattice is not None:
             lo, hi = texture_range(self.fa_tex)
             r_lo, r_hi = texture_range(self.radius_tex)
             if abs(hi - self.fa) > 1e-7 or abs(r_hi - float(self.params.get("radius", SPEC["radius"].default))) > 1e-7:
@@ -1027,6 +1029,64 @@ class SphereBSDFMixin:
 
     def to_string(self):
         return f"CoronaSphereBSDF[{self.material!r}]"
+
+
+class MieRowsLobe:
+    """The lobe component of a sphere plugin (:class:`SphereBSDFMixin`) read from its Mie rows: the
+    disordered layer's coherent beam, lobes and pane (:meth:`eval_pdf`, :meth:`sample`), and the
+    lookups a lobe built on the same rows reads (:meth:`states`, :meth:`pattern`,
+    :meth:`spectrum`: the lattice's, :mod:`corona.mitsuba.sphere_lattice`).  It holds no table of
+    its own: the plugin's, rebuilt by its ``parameters_changed``, are read at each call.  It holds
+    the plugin weakly (the plugin holds it: no reference cycle keeps a dropped plugin's tables), so
+    it serves while its plugin lives (a lattice piece built on it, too): after, one error says so.
+
+    Parameters
+    ----------
+    bsdf : the sphere plugin
+    """
+
+    def __init__(self, bsdf):
+        self._ref = weakref.ref(bsdf)
+
+    @property
+    def _bsdf(self):
+        b = self._ref()
+        if b is None:
+            raise CoronaError("corona: the sphere plugin of this MieRowsLobe was dropped; keep the plugin "
+                              "(mi.load_dict's result) alive while its lobe is used")
+        return b
+
+    @property
+    def material(self):
+        """The numpy layer the rows are of (:class:`corona.model.mie.layer.SphereMaterial`)."""
+        return self._bsdf.material
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        """``(f |cos θo|, pdf)`` at ``wo`` (Mitsuba's ``eval_pdf``)."""
+        return self._bsdf._eval_pdf(ctx, si, wo, mi.Bool(active))
+
+    def sample(self, ctx, si, sample1, sample2, active=True):
+        """``(BSDFSample3f, weight)`` (Mitsuba's ``sample``)."""
+        return self._bsdf._sample(ctx, si, sample1, sample2, active)
+
+    def states(self, si, active=True):
+        """``(states, m)``: per wavelength of the lane its row, energies, coherent weight and cap (a
+        dict), and the wavelengths' mixture weight."""
+        return self._bsdf._states(si, active)
+
+    def pattern(self, st, wi, wo, active=True):
+        """``(P, forward)``: the Mie pattern at ``wo`` for one state ``st`` (wavelength) of
+        :meth:`states`, the forward rows for ``Θ < 90°`` from ``-wi`` (``forward``), the backward
+        rows beyond; ``P`` alone, whatever the layer's process."""
+        b = self._bsdf
+        s_f, s_b = dr.norm(wo + wi), dr.norm(wo - wi)
+        forward = s_f <= s_b
+        offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
+        return b._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0], forward
+
+    def spectrum(self, values):
+        """Per-wavelength values of :meth:`states`' order as a Spectrum."""
+        return self._bsdf._spectrum(values)
 
 
 def sphere_bsdf_class() -> type:

@@ -1,8 +1,12 @@
 """Dr.Jit pieces of spheres on a fixed lattice (docs/physics.md#spheres-on-a-lattice).
 
-:class:`LatticeS` (below), :class:`LatticeLobe` (``P S`` from a sphere plugin's rows),
+Each piece reads the sphere's Mie rows through the public interface of the sphere plugin's rows
+lobe (:class:`corona.mitsuba.sphere.MieRowsLobe`: ``states``, ``pattern``, ``spectrum``,
+``eval_pdf``, ``sample``), called ``rows`` below.
+:class:`LatticeS` (below), :class:`LatticeLobe` (``P S`` from the Mie rows),
 :class:`OrderSampler` (the Bragg orders), :class:`LatticeSampler` (the orders mixed with the
-sphere's own sampler), :class:`LatticeCap` (the cap per lane) and :class:`LatticeLayer` (the BSDF).
+sphere's own sampler), :class:`LatticeCap` (the cap per lane) and :class:`LatticeLayer` (the lobe
+component the sphere plugin holds for ``process=lattice-*``).
 :class:`LatticeS` evaluates a fixed :class:`corona.Lattice`'s structure factor per lane in closed
 form, as :meth:`corona.Lattice.structure_factor_at` does in numpy:
 
@@ -13,8 +17,8 @@ coordinates (``f = q · a_i / 2π`` rounded; ``m = ⌈1/2 + 6 w a / 2π⌉``, 1 
 crystallite of 20 spacings: the nearest 3 × 3 peaks), ``w`` the peaks' rms width.  It is what the
 renderer's lattice lobe ``F_s w P S`` needs besides the sphere plugin's Mie rows and the cap.
 :class:`LatticeCap` is the cap's energy per lane in closed form, and :class:`LatticeLayer` the
-assembled BSDF that the sphere plugin routes ``process=lattice-*`` to
-(docs/physics.md#spheres-on-a-lattice).
+assembled layer (coherent beam and lattice lobe) that the sphere plugin chooses at load for
+``process=lattice-*`` and calls for its eval, pdf and sample (docs/physics.md#spheres-on-a-lattice).
 """
 from __future__ import annotations
 
@@ -41,18 +45,6 @@ ORDER_SHARE_DW = 0.1
 #: ... and no order branch below this share (the orders' weight is then below ~1e-6 of the
 #: diffuse part's near them, which the sphere's sampler covers).
 ORDER_SHARE_MIN = 1e-6
-
-
-def _mie_pattern(sphere_bsdf, st, wi, wo, active):
-    """``(P, forward)``: the Mie pattern at ``wo`` for one state (wavelength) of the lane, read from
-    the sphere plugin's rows by its own lookup
-    (:meth:`~corona.mitsuba.sphere.SphereBSDFMixin._rows_at`): the forward rows for ``Θ < 90°``
-    from ``-wi`` (``forward``), the backward rows beyond.  ``P`` alone, whatever the plugin's own
-    process."""
-    s_f, s_b = dr.norm(wo + wi), dr.norm(wo - wi)
-    forward = s_f <= s_b
-    offset = dr.select(forward, mi.UInt32(0), mi.UInt32(sphere_bsdf.back_offset))
-    return sphere_bsdf._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0], forward
 
 
 class LatticeS:
@@ -171,34 +163,35 @@ class OrderSampler:
 class LatticeLobe:
     """The lattice layer's lobe per steradian, ``Z = P S`` (one size, ``C = P``), in Dr.Jit.
 
-    ``P`` is the Mie pattern read from a sphere plugin's rows by its own lookup (its
-    :meth:`~corona.mitsuba.sphere.SphereBSDFMixin._states` and
-    :meth:`~corona.mitsuba.sphere.SphereBSDFMixin._rows_at`: the forward rows for ``Θ < 90°`` from
+    ``P`` is the Mie pattern read from a sphere plugin's rows by their own lookup
+    (:meth:`corona.mitsuba.sphere.MieRowsLobe.states` and
+    :meth:`~corona.mitsuba.sphere.MieRowsLobe.pattern`: the forward rows for ``Θ < 90°`` from
     ``-wi``, the backward rows beyond), ``S`` the lattice's (:class:`LatticeS`) at
     ``q = k (wo + wi)_xy``, on both lobes (a crystal is a strict monolayer).  The cap ``F_s w``
     is not applied here (docs/physics.md#spheres-on-a-lattice).
 
     Parameters
     ----------
-    sphere_bsdf : the ``corona`` plugin of the same sphere (any isotropic process: the Mie rows
-        do not depend on it)
+    rows : corona.mitsuba.sphere.MieRowsLobe
+        The Mie rows of the same sphere (a plugin of any isotropic process: the rows do not depend
+        on it)
     lattice : corona.Lattice (fixed)
     """
 
-    def __init__(self, sphere_bsdf, lattice):
-        self.bsdf = sphere_bsdf
+    def __init__(self, rows, lattice):
+        self.rows = rows
         self.structure = LatticeS(lattice)
 
     def __call__(self, si, wo, active=True, states=None):
-        """Per wavelength of the lane: ``Z`` at ``wo`` (a list of mi.Float); ``states`` the sphere
-        plugin's (:meth:`~corona.mitsuba.sphere.SphereBSDFMixin._states`), made where not given."""
+        """Per wavelength of the lane: ``Z`` at ``wo`` (a list of mi.Float); ``states`` the rows'
+        (:meth:`corona.mitsuba.sphere.MieRowsLobe.states`), made where not given."""
         active = mi.Bool(active)
         wi = si.wi
         if states is None:
-            states, _ = self.bsdf._states(si, active)
+            states, _ = self.rows.states(si, active)
         out = []
         for st in states:
-            P, _ = _mie_pattern(self.bsdf, st, wi, wo, active)
+            P, _ = self.rows.pattern(st, wi, wo, active)
             k = (2.0 * dr.pi) / st["lam"]
             S = self.structure(k * (wo.x + wi.x), k * (wo.y + wi.y))
             out.append(dr.select(active, P * S, 0.0))
@@ -208,7 +201,8 @@ class LatticeLobe:
 class LatticeSampler:
     """The lattice lobe's sampler: a mixture of the Bragg orders (:class:`OrderSampler`, with
     probability ``alpha``) and the sphere plugin's own sampler of its Mie lobes (the diffuse part
-    ``P (1 - e^{-q²δ²})`` and the orders' Mie envelope), one-sample balance heuristic.
+    ``P (1 - e^{-q²δ²})`` and the orders' Mie envelope: the rows lobe's ``sample`` and ``eval_pdf``
+    with its coherent beam off), one-sample balance heuristic.
 
     The order branch picks one of the lane's wavelengths uniformly, an order for it, and the side
     of the layer in the ratio of ``Σ_λ P`` at the two candidate directions; so
@@ -220,7 +214,8 @@ class LatticeSampler:
 
     Parameters
     ----------
-    sphere_bsdf : the ``corona`` plugin of the same sphere (bare: no pane)
+    rows : corona.mitsuba.sphere.MieRowsLobe
+        The Mie rows of the same sphere (bare: no pane)
     lattice : corona.Lattice (fixed)
     alpha : float, optional
         The order branch's share; by default :data:`ORDER_SHARE`, scaled down with the first
@@ -230,26 +225,27 @@ class LatticeSampler:
         sampler alone, ``pdf = pdf_sphere``).
     """
 
-    def __init__(self, sphere_bsdf, lattice, alpha: float | None = None):
+    def __init__(self, rows, lattice, alpha: float | None = None):
         from corona.model import tabulated
-        self.bsdf = sphere_bsdf
-        self.lobe = LatticeLobe(sphere_bsdf, lattice)
+        self.rows = rows
+        self.lobe = LatticeLobe(rows, lattice)
         self.orders = OrderSampler(lattice, 2.0 * 2.0 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3))
         if alpha is None:
             alpha = ORDER_SHARE * min(1.0, self.orders.first_dw / ORDER_SHARE_DW)
             alpha = alpha if alpha >= ORDER_SHARE_MIN else 0.0
         self.alpha = float(alpha) if self.orders.count else 0.0
+        #: the rows lobe's own sampler: its lobes alone (the coherent beam off)
         self.ctx = mi.BSDFContext()
         self.ctx.type_mask = +(mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection)
 
     def _mie(self, si, wo, active, states=None):
-        """``Σ_λ P`` at ``wo`` over the lane's wavelengths, and the lane's states (the sphere
-        plugin's, made where not given)."""
+        """``Σ_λ P`` at ``wo`` over the lane's wavelengths, and the lane's states (the rows',
+        made where not given)."""
         if states is None:
-            states, _ = self.bsdf._states(si, active)
+            states, _ = self.rows.states(si, active)
         total = mi.Float(0.0)
         for st in states:
-            total += _mie_pattern(self.bsdf, st, si.wi, wo, active)[0]
+            total += self.rows.pattern(st, si.wi, wo, active)[0]
         return total, states
 
     def _side(self, si, px, py, active, states):
@@ -270,11 +266,11 @@ class LatticeSampler:
         """``(wo, pdf)``; pdf 0 where the sample failed (an order past the horizon)."""
         active = mi.Bool(active)
         if self.alpha == 0.0:              # no order branch: the sphere's sampler alone
-            bs, _ = self.bsdf.sample(self.ctx, si, u1, u2, active)
+            bs, _ = self.rows.sample(self.ctx, si, u1, u2, active)
             return bs.wo, dr.select(active & (bs.pdf > 0), self.pdf(si, bs.wo, active), 0.0)
         pick_order = u1 < self.alpha
         u = dr.select(pick_order, u1 / self.alpha, (u1 - self.alpha) / (1.0 - self.alpha))
-        states, _ = self.bsdf._states(si, active)
+        states, _ = self.rows.states(si, active)
         n = len(states)
         # the order branch: a wavelength, an order (the rest of u), the side (what is left of it)
         g = u * n
@@ -287,18 +283,18 @@ class LatticeSampler:
         px, py, valid = self.orders.sample(si.wi, (2.0 * dr.pi) / lam, u_order, u2, active & pick_order)
         up, down, p_up = self._side(si, px, py, active & pick_order & valid, states)
         wo_order = dr.select(u_side < p_up, up, down)
-        bs, _ = self.bsdf.sample(self.ctx, si, u, u2, active & _not(pick_order))
+        bs, _ = self.rows.sample(self.ctx, si, u, u2, active & _not(pick_order))
         wo = dr.select(pick_order, wo_order, bs.wo)
         ok = dr.select(pick_order, valid, bs.pdf > 0) & active
         return wo, dr.select(ok, self.pdf(si, wo, active, states), 0.0)
 
     def pdf(self, si, wo, active=True, states=None):
-        """The mixture's density of ``wo`` in solid angle (``states``: the sphere plugin's, made
-        where not given)."""
+        """The mixture's density of ``wo`` in solid angle (``states``: the rows', made where not
+        given)."""
         active = mi.Bool(active)
         if states is None:
-            states, _ = self.bsdf._states(si, active)
-        p_sphere = self.bsdf.pdf(self.ctx, si, wo, active)
+            states, _ = self.rows.states(si, active)
+        p_sphere = self.rows.eval_pdf(self.ctx, si, wo, active)[1]
         if self.alpha == 0.0:
             return dr.select(active, p_sphere, 0.0)
         return dr.select(active, self.alpha * self._order_pdf(si, wo, active, states)
@@ -318,21 +314,23 @@ class LatticeCap:
     (sorted by ``|G|``, each lane stopping past ``k_max (1 + |wi_xy|) + 8 w``; per wavelength
     an order is a branch taken where it reaches the layer, ``u < 8``, and the rule's other nodes
     a branch taken near the horizon), ``P`` read from the
-    sphere plugin's rows by its own lookup at both sides' directions.  ``D`` is the jittered
+    sphere's Mie rows by their own lookup (:meth:`corona.mitsuba.sphere.MieRowsLobe.pattern`) at
+    both sides' directions.  ``D`` is the jittered
     lattice's diffuse part per row of x and ``μ_i``
     (:func:`corona.model.mie.lattice_cap.diffuse_rows_mu`, read bilinearly; 0 for a perfect
     crystal).
 
     Parameters
     ----------
-    sphere_bsdf : the sphere plugin (its rows)
+    rows : corona.mitsuba.sphere.MieRowsLobe
+        The sphere's Mie rows
     lattice : corona.Lattice (fixed)
     """
 
-    def __init__(self, sphere_bsdf, lattice):
+    def __init__(self, rows, lattice):
         from corona.model import tabulated
         from corona.model.mie import lattice_cap
-        self.bsdf = sphere_bsdf
+        self.rows = rows
         w = float(lattice.peak_width)
         self.w = w
         k_max = 2.0 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3)
@@ -352,7 +350,7 @@ class LatticeCap:
         self.rule = _array(mi.Float, np.concatenate([tn, tw], axis=1).ravel())
         self.rim_u = float(lattice_cap.RIM_U)
         self.reach = float(lattice_cap.RIM_REACH)
-        material = sphere_bsdf.material
+        material = rows.material
         rows, radius, jitter = material.rows, float(material.length_scale), float(lattice.jitter)
         if jitter > 0.0:     # seconds of quadrature: kept in the table cache beside the rows
             def make():
@@ -372,7 +370,7 @@ class LatticeCap:
         cz = dr.safe_sqrt(1.0 - px * px - py * py)
         e_f, e_b = mi.Float(0.0), mi.Float(0.0)
         for side in (1.0, -1.0):
-            P, forward = _mie_pattern(self.bsdf, st, wi, mi.Vector3f(px, py, side * cz), active)
+            P, forward = self.rows.pattern(st, wi, mi.Vector3f(px, py, side * cz), active)
             e_f += dr.select(forward, P, 0.0)
             e_b += dr.select(forward, 0.0, P)
         return e_f, e_b
@@ -516,31 +514,31 @@ def lattice_layer_params(params: dict, textures: dict):
 
 
 class LatticeLayer:
-    """The sphere plugin's BSDF on a fixed lattice: the coherent beam ``C = |1 - F_s s₀|²`` along
+    """The lobe component of the sphere plugin on a fixed lattice (chosen at load for
+    ``process=lattice-*``, in place of the disordered :class:`corona.mitsuba.sphere.MieRowsLobe`,
+    whose rows it reads): the coherent beam ``C = |1 - F_s s₀|²`` along
     ``-wi`` and the lattice lobe ``F_s w P S`` (:class:`LatticeLobe`) with the per-lane cap
     (:class:`LatticeCap`); the coherent beam picked with the probability of its weight ``C`` (the
     lane's mean), the lobe otherwise (its capped energy is at most ``1 - C``: the pdf needs no
     cap), sampled by :class:`LatticeSampler`.
-    The sphere plugin routes its ``eval``/``pdf``/``sample`` here (its ``lattice_layer``); the
-    sampler's calls of the plugin's own lobe sampler come with :attr:`inner_ctx` and are not
-    routed.
+    The sphere plugin calls its :meth:`eval_pdf` and :meth:`sample` (its ``lobe``).
 
     Parameters
     ----------
-    sphere_bsdf : the sphere plugin (its rows: ``process=poisson``, no pane)
+    rows : corona.mitsuba.sphere.MieRowsLobe
+        The sphere's Mie rows (a plugin of ``process=poisson``, no pane)
     lattice : corona.Lattice (fixed)
     """
 
-    def __init__(self, sphere_bsdf, lattice):
-        self.bsdf = sphere_bsdf
+    def __init__(self, rows, lattice):
+        self.rows = rows
         self.lattice = lattice
-        self.cap = LatticeCap(sphere_bsdf, lattice)
-        self.sampler = LatticeSampler(sphere_bsdf, lattice)
+        self.cap = LatticeCap(rows, lattice)
+        self.sampler = LatticeSampler(rows, lattice)
         self.lobe = self.sampler.lobe
-        self.inner_ctx = self.sampler.ctx
 
     def _states(self, si, active):
-        states, m = self.bsdf._states(si, active)
+        states, m = self.rows.states(si, active)
         return self.cap.capped(si, states, active), m
 
     def _selection(self, ctx, states):
@@ -561,11 +559,9 @@ class LatticeLayer:
 
     def eval_pdf(self, ctx, si, wo, active, cached=None):
         """``(f |cos θo|, pdf)`` of the lattice lobe (the coherent beam is a delta)."""
-        b = self.bsdf
         active = mi.Bool(active)
         if cached is None:     # the pdf needs no cap (:meth:`_selection`), eval does
-            states, m = b._states(si, active)
-            states = self.cap.capped(si, states, active)
+            states, m = self._states(si, active)
         else:
             states, m = cached
         _, p_lobe = self._selection(ctx, states)
@@ -576,10 +572,10 @@ class LatticeLayer:
         Z = self.lobe(si, wo, active, states)
         values = [dr.select(on, z * (st["fs"] * st["w"]), 0.0) for st, z in zip(states, Z)]
         pdf = p_lobe * self.sampler.pdf(si, wo, active)
-        return b._spectrum(values), dr.select(active, pdf, 0.0)
+        return self.rows.spectrum(values), dr.select(active, pdf, 0.0)
 
     def sample(self, ctx, si, sample1, sample2, active=True):
-        b = self.bsdf
+        """``(BSDFSample3f, weight)``: the coherent beam or the lattice lobe (:class:`LatticeSampler`)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
@@ -602,7 +598,7 @@ class LatticeLayer:
         value, pdf = self.eval_pdf(ctx, si, bs.wo, lobe_ok, (states, m))
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
         weight = dr.select(pdf > 0, value / dr.maximum(pdf, 1e-30), 0.0)
-        coh = b._spectrum([st["coherent"] for st in states])
+        coh = self.rows.spectrum([st["coherent"] for st in states])
         weight = dr.select(pick_coh, coh / dr.maximum(p_coh, 1e-30), weight)
         ok = pick_coh | (lobe_ok & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)

@@ -1180,6 +1180,14 @@ class SphereMaterial(MieMembers, Material):
                                             use_cache=self.use_cache)["e_f_mu"])
         return {"T_f": T_f, "T_b": T_b, "e_f": e_mu[:, 0], "e_f_mu": e_mu, "e_b": T_b, "s": s}
 
+    @property
+    def row_totals(self) -> dict:
+        """Per row of x (numpy, read-only by convention): ``T_f``, ``T_b`` (``∫ P dΩ`` of the
+        forward and backward rows), ``e_f_mu`` (the forward lobe's energy with ``S`` per row and
+        ``μ_i`` of ``INCIDENCE_MU``), ``e_f`` (its normal-incidence column), ``e_b`` and the chords
+        ``s``: what the plugin tabulates beside the rows (:mod:`corona.mitsuba.sphere`)."""
+        return self._derived
+
     def _forward_energy_of_peers(self, s, C, T_f) -> np.ndarray:
         """:meth:`_forward_energy`, computed in one pass with the peers :func:`share_forward_energies`
         named that share this layer's rows and have not derived theirs yet (handed to them for when
