@@ -54,12 +54,12 @@ def test_layer_holds_the_droplets():
                                             rel=0.02)    # F_a = n <|A|>, both from the table
     # the lobe is the process's rule (partial structure factors inside the table's rings, qR <= 12;
     # the local monodisperse rule beyond, where the small droplets are still correlated)
-    q = np.array([5.0, 40.0]) / m.process.mean_radius
+    q = np.array([1.0, 40.0]) / m.process.mean_radius
     mean_area = np.sum(frac * np.pi * radii ** 2)
     v = m.lobe_terms(q * m.length_scale, radial=True)["v"] * m.length_scale ** 2 * mean_area
     np.testing.assert_allclose(v, m.process.intensity(q, "partial"), rtol=1e-9)
     assert v[1] == pytest.approx(m.process.intensity(q[1:], "local-monodisperse")[0], rel=1e-9)
-    assert abs(v[0] / m.process.intensity(q[:1], "local-monodisperse")[0] - 1) > 0.01
+    assert abs(v[0] / m.process.intensity(q[:1], "local-monodisperse")[0] - 1) > 0.1   # 0.44 measured
 
 
 @pytest.mark.parametrize("t", [10.0, 40.0])
@@ -75,9 +75,19 @@ def test_local_monodisperse_rule_keeps_the_sum_rule(monkeypatch, t):
     assert m.process.intensity(q, "decoupling")[0] > 5 * m.process.intensity(q, "local-monodisperse")[0]
 
 
-#: The chosen rule's RMS relative error over the rings against seed 7 (measured 0.15, 0.24, 0.69 over
+@pytest.mark.parametrize("t", [5.0, 10.0, 40.0])
+def test_shipped_rule_keeps_the_sum_rule(t):
+    # no more light through the layer than its open area lets through: the partial rule's class
+    # averages and the table's noise gave 1.03 (10 s) to 1.16 (40 s) of F_a (1 - F_a) before its scale
+    m = material_from_parameters(process="breath-figure", breath_time=t)
+    fa = m.area_fraction
+    assert m.diffuse_transmittance() == pytest.approx(fa * (1 - fa), rel=2e-3)
+    assert m.diffuse_transmittance() + m.coherent_transmittance <= (1 - fa) * (1 + 2e-3)
+
+
+#: The chosen rule's RMS relative error over the rings against seed 7 (measured 0.14, 0.22, 0.52 over
 #: seeds 7 and 8 in benchmarks/results/breath_figure_lobe.json), with headroom.
-TOLERANCE = {10.0: 0.3, 20.0: 0.4, 40.0: 1.0}
+TOLERANCE = {10.0: 0.3, 20.0: 0.4, 40.0: 0.8}
 
 
 @pytest.mark.slow
@@ -103,7 +113,7 @@ def test_lobe_against_the_far_field_of_simulated_droplets(t):
     assert rms(model) == pytest.approx(other[m.process.RULE], rel=1e-3)    # the layer's lobe is its rule
     assert rms(model) < TOLERANCE[t]
     assert other["decoupling"] > 3.0                             # negative control: 9-30 here
-    if t < 30.0:                                                 # the closest there (at 40 s: 0.55 vs 0.69)
+    if t < 30.0:                                                 # by a factor 3-4 there (at 40 s: 0.52 vs 0.55)
         assert other["partial"] < 0.5 * other["local-monodisperse"]
 
 

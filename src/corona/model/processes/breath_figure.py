@@ -134,7 +134,7 @@ class BreathFigure(Process):
 
     def key(self) -> dict:
         m = load_table()["metadata"]
-        return {**super().key(), "rule": self.RULE, "join": self.PARTIAL_JOIN, "tail": "local-monodisperse",
+        return {**super().key(), "rule": self.RULE, "join": self.PARTIAL_JOIN, "tail": "local-monodisperse", "sum_rule": True,
                 "table": f"{m.get('format_version')}:{m.get('date')}"}
 
     # --- the droplets -------------------------------------------------------------
@@ -194,7 +194,7 @@ class BreathFigure(Process):
         z = q[..., None] * self._radii
         return np.pi * self._radii ** 2 * np.where(z > 1e-8, 2.0 * j1(z) / np.maximum(z, 1e-300), 1.0)
 
-    def intensity(self, q_abs, rule: str | None = None) -> np.ndarray:
+    def intensity(self, q_abs, rule: str | None = None, *, _raw: bool = False) -> np.ndarray:
         """The diffuse intensity per droplet ``⟨|Σ_j Â_j e^{-iq·r_j}|²⟩ / N`` [µm⁴] at ``|q|``
         [rad/µm] by ``rule`` (default :attr:`RULE`):
 
@@ -204,7 +204,8 @@ class BreathFigure(Process):
         * ``"partial"``: ``Σ_ik F̄_i F̄_k S_ik + Σ_k X_k (⟨|Â|²⟩_k - F̄_k²)`` over the table's 12 size
           classes (number fractions ``X_k``, mean amplitudes ``F̄_k``, measured partial structure
           factors ``S_ik``); beyond the table's rings (``qR > 12``), where the small droplets are still
-          correlated, the local monodisperse rule, joined linearly over :attr:`PARTIAL_JOIN`.
+          correlated, the local monodisperse rule, joined linearly over :attr:`PARTIAL_JOIN`; the
+          part inside scaled to the sum rule (:meth:`_partial_scale`).
         """
         from corona._validation import check_choice
         rule = check_choice("rule", self.RULE if rule is None else rule, self.RULES)
@@ -235,12 +236,34 @@ class BreathFigure(Process):
             for k in range(K):
                 Sik[..., i, k] = np.interp(u, ug, self._partial[ok, i, k])
         inside = np.einsum("...i,...ik,...k->...", Fk, Sik, Fk) + np.sum(X * (F2k - Fk * Fk), axis=-1)
+        if _raw:
+            return inside
+        inside = inside * self._partial_scale()
         # beyond the rings (u > 12) the small droplets are still correlated (their dry zones, at
         # q a ~ 1): the local monodisperse rule there, joined linearly over PARTIAL_JOIN in u
         w = np.clip((u - ug[-1]) / self.PARTIAL_JOIN, 0.0, 1.0)
         if not np.any(w > 0):
             return inside
         return (1.0 - w) * inside + w * self.intensity(q, "local-monodisperse")
+
+    def _partial_scale(self) -> float:
+        """The factor that gives the partial rule the sum rule of non-overlapping droplets.
+
+        The class averages and the table's noise leave the partial rule's lobe 3-16 % above
+        ``F_a (1 - F_a)``, more light than the open area lets through; the local monodisperse rule
+        keeps the sum rule (each class's hard-disk S obeys it) and equals the partial rule beyond the
+        join, so the partial part inside the join is scaled to carry the local monodisperse rule's
+        energy there: ``∫ (1 - w) I_partial q dq = ∫ (1 - w) I_lm q dq``."""
+        if getattr(self, "_scale", None) is None:
+            from scipy.integrate import trapezoid
+            ok = np.isfinite(self._partial[:, 0, 0])
+            u_end = self._u[ok][-1]
+            q = np.linspace(0.0, (u_end + self.PARTIAL_JOIN) / self._R, 4001)
+            w = 1.0 - np.clip((q * self._R - u_end) / self.PARTIAL_JOIN, 0.0, 1.0)
+            lm = trapezoid(w * self.intensity(q, "local-monodisperse") * q, q)
+            part = trapezoid(w * self.intensity(q, "partial", _raw=True) * q, q)
+            self._scale = float(lm / part)
+        return self._scale
 
     def lobe_intensity_radial(self, q_abs, shape) -> np.ndarray:
         """:meth:`intensity` by :attr:`RULE` over ``⟨|A|⟩ = Σ_i x_i π a_i²`` [µm²]."""
