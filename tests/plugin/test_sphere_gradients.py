@@ -319,3 +319,53 @@ def test_radius_derivatives_match_central_differences(mi_variant, upload_branch,
             quantity = lambda: lanes()[1] * mask
             _assert_ad_matches(put, quantity, x, h, up, down, (process, textured, pane, what, theta), rtol=0.003)
     assert bsdf.material is material                          # no rebuild: r ± h inside the rows' radii
+
+
+@pytest.mark.slow     # forward-mode AD of a sphere layer (a kernel compiled): seconds of CPU, cold
+def test_radius_derivative_on_a_chord_node(mi_variant):
+    # eval reads a row of the lobe at the chord in node steps g = s x/(x_row ds), interpolated by
+    # the fraction g - floor(g): a chord exactly on a node (g an integer, which float32 hits once in
+    # some 10⁵ lookups) must keep the derivative of that fraction in r (a clip to [0, 1] there once
+    # dropped it: Dr.Jit's maximum(v, 0) takes 0's derivative at v = 0, 29 % of this derivative).
+    # The cubic rows are C1 in the chord, so the derivatives of lanes whose chords step through a
+    # node one float32 step at a time agree to far better than 1 %.
+    import mitsuba as mi
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bsdf = mi.load_dict({"type": "corona", "shape": "sphere", "process": "poisson", "area_fraction": 0.2,
+                             "radius": 2.0})
+    params = mi.traverse(bsdf)
+    rows = bsdf.material.rows
+    xr, ds = rows["x"], float(rows["ds"])
+    groups, wx, lam_lanes = [], [], []
+    for lam in (450.0, 520.0, 600.0, 674.0):
+        x = 2 * np.pi * 2.0 / (lam * 1e-3)
+        x_row = xr[np.searchsorted(xr, x, side="right") - 1]
+        for node in (40, 44, 48, 52, 56):
+            s = node * ds * x_row / x                      # the chord of that node of row j (wi = +z)
+            centre = np.float32(s * np.sqrt(1.0 - 0.25 * s * s))
+            steps = [centre]
+            for _ in range(64):
+                steps = [np.nextafter(steps[0], np.float32(0))] + steps + [np.nextafter(steps[-1], np.float32(1))]
+            wx += steps
+            lam_lanes += [lam] * len(steps)
+            groups.append(len(steps))
+    wx = np.array(wx, np.float32)
+    wo = mi.Vector3f(mi.Float(wx), 0.0, mi.Float(-np.sqrt(1.0 - wx.astype(np.float64) ** 2).astype(np.float32)))
+    lams = np.array(lam_lanes)[None, :].repeat(4, 0)
+    r = mi.Float(2.0)
+    dr.enable_grad(r)
+    params["radius.value"] = r
+    params.update()
+    ctx = mi.BSDFContext()
+    ctx.type_mask = mi.BSDFFlags.GlossyTransmission
+    y = dr.sum(bsdf.eval(ctx, _si(wx.size, np.array([0.0, 0.0, 1.0]), lams), wo))
+    dr.forward(r)
+    d = np.asarray(dr.grad(y), np.float64)
+    start = 0
+    for n in groups:
+        g = d[start:start + n]
+        mid = np.median(g)
+        assert abs(mid) > 0.1, (start, mid)
+        assert np.max(np.abs(g - mid)) < 0.01 * abs(mid), (start, mid, g[np.argmax(np.abs(g - mid))])
+        start += n

@@ -646,7 +646,7 @@ class SphereBSDFMixin:
             row = st["j"] + d              # read at the chord s x / x_row (r = x / x_row)
             g = s * (r * (1.0 / self.ds))
             i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
-            f = dr.clip(g - mi.Float(i), 0.0, 1.0)
+            f = dr.minimum(g - mi.Float(i), 1.0)   # >= 0; no clip at 0: its derivative there (a node) is 0
             inside = active & (g <= K - 1)
             k = row * K + i + offset
             scale = wgt * (r * r)
@@ -670,7 +670,7 @@ class SphereBSDFMixin:
         """``S`` at ``u = q r``: linear in u, the cubic Hermite in F_a between its rows; 1 beyond."""
         x = u * (1.0 / self.S_du)
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
-        f = dr.clip(x - mi.Float(i), 0.0, 1.0)
+        f = dr.minimum(x - mi.Float(i), 1.0)       # >= 0; no clip at 0 (a node): see _rows_at
         inside = active & (x <= self.S_n - 1)
         if hw[0] is _CENTRE:       # (S_i, S_i+1, their slopes in F_a) at the layer's one F_a
             v4 = gather4(self.S_centre, i, inside)
