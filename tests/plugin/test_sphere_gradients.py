@@ -369,3 +369,39 @@ def test_radius_derivative_on_a_chord_node(mi_variant):
         assert abs(mid) > 0.1, (start, mid)
         assert np.max(np.abs(g - mid)) < 0.01 * abs(mid), (start, mid, g[np.argmax(np.abs(g - mid))])
         start += n
+
+
+@pytest.mark.slow     # forward-mode AD of a sphere layer, a kernel compiled per case: seconds of CPU, cold
+@pytest.mark.parametrize("name", ["radius", "area_fraction"])
+def test_derivative_at_a_texture_least_value(mi_variant, name):
+    # the texel under the shading point holds the texture's least value: the end of the radii the rows
+    # cover (radius) or of the F_a rows and range (area_fraction).  The lane's value is clipped to those
+    # ends (a filter's overshoot); on the end itself the derivative is the texel's, not the bound's 0
+    # (Dr.Jit's clip passes the lower bound's there: each texel at a texture's minimum had none).
+    # Against the one-sided difference of second order (x + h, x + 2h keep the texture's range: the
+    # other texels hold lo, hi).
+    import mitsuba as mi
+    lo, hi = (1.97, 2.03) if name == "radius" else (0.05, 0.35)
+    x = float(np.float32(lo))
+    other = {"area_fraction": 0.2} if name == "radius" else {"radius": 2.0}
+    base = {"type": "corona", "shape": "sphere", "process": "hard-disk", name: _bitmap(x, lo, hi), **other}
+    bsdf, params, key = _loaded(base, False, name, True)
+    material = bsdf.material
+    h = 168 * 2.0 ** -23 if name == "radius" else 2e-4      # radius: x + h, x + 2h exact in float32
+    lams = _mid_row_lams(bsdf, x, 2 * h, 1000) if name == "radius" else None
+    put = _setter(params, key, True, lo, hi)
+    quantity = lambda: _quantity(bsdf, "eval", 0.0, lams)
+    q = []
+    for k in (0, 1, 2):
+        put(mi.Float(x + k * h))
+        q.append(_total(quantity()))
+    h = float(np.float32(x + h)) - x
+    fd = (4.0 * q[1] - 3.0 * q[0] - q[2]) / (2.0 * h)       # one-sided, second order
+    xf = mi.Float(x)
+    dr.enable_grad(xf)
+    put(xf)
+    y = quantity()
+    dr.forward(xf)
+    ad = _total(dr.grad(y))
+    assert abs(fd) > 1.0 and abs(ad - fd) < 0.01 * abs(fd), (ad, fd)
+    assert bsdf.material is material                        # no rebuild: the rows as loaded

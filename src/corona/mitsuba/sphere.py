@@ -481,7 +481,8 @@ class SphereBSDFMixin:
             return None
         if self.fa_centred:   # ("centre", F_a - F_a,centre where F_a has a gradient, else None)
             return _CENTRE, (fa - self.fa_centre if dr.grad_enabled(fa) else None)
-        g = dr.clip((fa - self.fa0) / self.dfa, 0.0, self.n_fa - 1.0)
+        g = (fa - self.fa0) / self.dfa                # itself on the end rows (as _lane_radius)
+        g = dr.select((g < 0.0) | (g > self.n_fa - 1.0), dr.clip(g, 0.0, self.n_fa - 1.0), g)
         k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
         t = g - mi.Float(k)
         t2 = t * t
@@ -513,7 +514,9 @@ class SphereBSDFMixin:
 
     def _lane_radius(self, si, active):
         """The lane's radius [µm]: the texture's (or the uniform value's), clipped to the rows' radii."""
-        return dr.clip(self.radius_tex.eval_1(si, active), self.radius_cover[0], self.radius_cover[1])
+        r, (lo, hi) = self.radius_tex.eval_1(si, active), self.radius_cover
+        # r itself on the ends (a texel at the texture's least radius: dr.clip there has lo's derivative, 0)
+        return dr.select((r < lo) | (r > hi), dr.clip(r, lo, hi), r)
 
     def _row(self, lam_nm, radius, active=True):
         """Row j of the lane's x (the row at or below it), the weight t of row j+1, λ [µm], x, x_j,
@@ -578,7 +581,8 @@ class SphereBSDFMixin:
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
         fa = self.fa_tex.eval_1(si, active)
         if self.fa_textured:
-            fa = dr.clip(fa, self.fa_range[0], self.fa_range[1])
+            lo, hi = self.fa_range          # fa itself on the ends (as _lane_radius)
+            fa = dr.select((fa < lo) | (fa > hi), dr.clip(fa, lo, hi), fa)
         return lams, m, mu_i, fa, self._fa_weights(fa), self._lane_radius(si, active)
 
     def _states(self, si, active, lane=None):
