@@ -483,7 +483,8 @@ class SphereBSDFMixin:
             return None
         if self.fa_centred:   # ("centre", F_a - F_a,centre where F_a has a gradient, else None)
             return _CENTRE, (fa - self.fa_centre if dr.grad_enabled(fa) else None)
-        g = dr.clip((fa - self.fa0) / self.dfa, 0.0, self.n_fa - 1.0)
+        g = (fa - self.fa0) / self.dfa                # itself on the end rows (as _lane_radius)
+        g = dr.select((g < 0.0) | (g > self.n_fa - 1.0), dr.clip(g, 0.0, self.n_fa - 1.0), g)
         k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
         t = g - mi.Float(k)
         t2 = t * t
@@ -515,7 +516,9 @@ class SphereBSDFMixin:
 
     def _lane_radius(self, si, active):
         """The lane's radius [µm]: the texture's (or the uniform value's), clipped to the rows' radii."""
-        return dr.clip(self.radius_tex.eval_1(si, active), self.radius_cover[0], self.radius_cover[1])
+        r, (lo, hi) = self.radius_tex.eval_1(si, active), self.radius_cover
+        # r itself on the ends (a texel at the texture's least radius: dr.clip there has lo's derivative, 0)
+        return dr.select((r < lo) | (r > hi), dr.clip(r, lo, hi), r)
 
     def _row(self, lam_nm, radius, active=True):
         """Row j of the lane's x (the row at or below it), the weight t of row j+1, λ [µm], x, x_j,
@@ -580,7 +583,8 @@ class SphereBSDFMixin:
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
         fa = self.fa_tex.eval_1(si, active)
         if self.fa_textured:
-            fa = dr.clip(fa, self.fa_range[0], self.fa_range[1])
+            lo, hi = self.fa_range          # fa itself on the ends (as _lane_radius)
+            fa = dr.select((fa < lo) | (fa > hi), dr.clip(fa, lo, hi), fa)
         return lams, m, mu_i, fa, self._fa_weights(fa), self._lane_radius(si, active)
 
     def _states(self, si, active, lane=None):
@@ -648,7 +652,7 @@ class SphereBSDFMixin:
             row = st["j"] + d              # read at the chord s x / x_row (r = x / x_row)
             g = s * (r * (1.0 / self.ds))
             i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
-            f = dr.clip(g - mi.Float(i), 0.0, 1.0)
+            f = dr.minimum(g - mi.Float(i), 1.0)   # >= 0; no clip at 0: its derivative there (a node) is 0
             inside = active & (g <= K - 1)
             k = row * K + i + offset
             scale = wgt * (r * r)
@@ -672,7 +676,7 @@ class SphereBSDFMixin:
         """``S`` at ``u = q r``: linear in u, the cubic Hermite in F_a between its rows; 1 beyond."""
         x = u * (1.0 / self.S_du)
         i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
-        f = dr.clip(x - mi.Float(i), 0.0, 1.0)
+        f = dr.minimum(x - mi.Float(i), 1.0)       # >= 0; no clip at 0 (a node): see _rows_at
         inside = active & (x <= self.S_n - 1)
         if hw[0] is _CENTRE:       # (S_i, S_i+1, their slopes in F_a) at the layer's one F_a
             v4 = gather4(self.S_centre, i, inside)
