@@ -112,6 +112,19 @@ STRIPS = [
            Panel("4 mm pane", {}),
            Panel("6 mm pane", {"thickness": 6000})],
           shared_exposure=1),
+    Strip("breath_figure_strip", "A breath on a cold pane: the breath figure's corona over time",
+          "breath_figure.xml",
+          "A street light (2100 K) 25 m behind a pane breathed on from the camera's side "
+          "(process=breath-figure: droplets nucleate, grow, touch and merge, and new ones nucleate in the "
+          "gaps; docs/physics.md#breath-figures-processbreath-figure). From left to right 5, 10, 20, 40 and "
+          "80 s after the breath: the droplets grow (area-weighted mean contact radius 1.8 to 17 µm) and the "
+          "ring around the lamp, the peak of the light that droplets keeping dry zones around them scatter, "
+          "shrinks as 1/R. Same exposure (the 10 s panel's). Above the strip: the size distribution, the structure "
+          "factor of the droplets' centres and the layer's diffuse intensity at 550 nm at the same times, "
+          "from the table the layer uses (`python scripts/breath_strip.py` makes both).\n\n"
+          "![Breath figure statistics](gallery/breath_figure_stats.png)",
+          [Panel(f"{t:g} s", {"breath_time": t, "res": 160, "spp": 32}) for t in (5.0, 10.0, 20.0, 40.0, 80.0)],
+          shared_exposure=1),
     Strip("teaser_spheres", "Teaser with transparent droplets (Mie spheres)", "teaser.xml",
           "The teaser's condensation (radius 5 µm, 40 % cover, hard disks) modelled two ways: left, opaque "
           "disks (Fraunhofer diffraction); right, transparent water spheres (Mie theory, water's "

@@ -1084,3 +1084,33 @@ def test_exported_command_runs_in_the_cli(client, shape, tmp_path, monkeypatch):
         m = _sphere_material(params)
         assert out["coherent_transmittance"] == pytest.approx(m.directional_albedo(1.0, 550.0, n_phi=4)["coherent"],
                                                               rel=1e-6)
+
+
+def test_breath_figure_in_the_designer(client):
+    """process=breath-figure (issue 46) in the page: offered with a breath-time slider over the
+    table's 5–80 s and a preset; its profile is the model's lobe, and its ring (the lobe's peak)
+    moves in as 1/R from 10 to 40 s; its picture answers; a time off the table is one line."""
+    spec = client.get("/api/parameters").json()
+    ps = {p["name"]: p for p in spec["parameters"]}
+    assert "breath-figure" in ps["process"]["choices"]
+    bt = ps["breath_time"]
+    assert bt["applies"] == ["process=breath-figure"] and bt["unit"] == "s"
+    assert (bt["slider"]["low"], bt["slider"]["high"]) == (5.0, 80.0)
+    assert spec["presets"]["breath on a pane"]["material"]["process"] == "breath-figure"
+    peaks, R = {}, {}
+    for t in (10.0, 40.0):
+        q = {"process": "breath-figure", "breath_time": t}
+        res = client.get("/api/profiles", params=q)
+        assert res.status_code == 200, res.text
+        p = res.json()
+        m = material_from_parameters(**q)
+        theta = np.radians(p["angle"])
+        d = np.stack([np.sin(theta), 0 * theta], -1)
+        # the profile comes from the interpolated lobe table (0.5 % of the peak at most, measured)
+        np.testing.assert_allclose(p["lobe"], m.lobe(d, 550.0), rtol=0, atol=1e-2 * max(p["lobe"]))
+        peaks[t], R[t] = p["angle"][int(np.argmax(p["lobe"]))], m.process.mean_radius
+        img = png(client.get("/api/corona.png", params={**q, "size": 64}))
+        assert img.shape == (64, 64, 3) and img.std() > 5
+    assert peaks[40.0] / peaks[10.0] == pytest.approx(R[10.0] / R[40.0], rel=0.2)   # 0.29 against 0.31
+    one_line_400(client.get("/api/corona.png", params={"process": "breath-figure", "breath_time": 200}),
+                 "breath_time=200", "[5, 80] s")

@@ -90,6 +90,7 @@ SLIDERS = {
     "temperature": (1500.0, 12000.0, False), "light_size": (0.01, 5.0, True),
     "exposure": (-5.0, 25.0, False), "field": (0.1, 45.0, True), "size": (64, 512, False),
     "pixel_scale": (0.001, 0.2, True), "kernel_size": (33, 1023, False),
+    "breath_time": (5.0, 80.0, True), "contact_angle": (10.0, 90.0, False),
 }
 
 #: Looks to start from (the scenes of scenes/ they come from).
@@ -104,6 +105,10 @@ PRESETS = {
         "material": {"shape": "circle", "radius": 15.0, "size_spread": 0.05, "area_fraction": 0.35,
                      "process": "rsa", "mode": "particle"},
         "view": {"temperature": 3200.0, "light_size": 0.12, "field": 8.0}},
+    "breath on a pane": {
+        "about": "a breath figure 20 s after the breath: droplets grown and merged (scenes/breath_figure.xml)",
+        "material": {"shape": "circle", "process": "breath-figure", "breath_time": 20.0, "mode": "particle"},
+        "view": {"temperature": 2100.0, "light_size": 0.3, "field": 10.0}},
     "voile fabric": {
         "about": "square pores of 40 µm on a jittered lattice: a curtain (scenes/fabric.xml)",
         "material": {"shape": "square", "radius": 20.0, "area_fraction": 0.25,

@@ -1,0 +1,91 @@
+"""The breath figure over time: a gallery strip of ``scenes/breath_figure.xml`` and its statistics.
+
+    python scripts/breath_strip.py [--stats-only] [--variant V]
+
+writes
+
+* ``docs/gallery/breath_figure_strip.png``: the scene at breath times of 5, 10, 20, 40 and 80 s
+  (160², 32 spp each, one exposure for all: that of the 10 s panel), through the gallery's
+  strip ``breath_figure_strip`` (scripts/gallery.py; ``docs/gallery.md`` is rewritten with its
+  commands, as ``python scripts/gallery.py --only breath_figure_strip`` does);
+* ``docs/gallery/breath_figure_stats.png``: at the same times, from the shipped table that the
+  layer uses (``corona.model.processes.breath_figure``): the droplets' size distribution, the
+  structure factor S(q) of their centres, and the diffuse intensity of the layer per area
+  against the scattering angle at 550 nm (the lobe the renders sample).
+
+Cost: about 15 s of CPU for the five renders at 160², a second for the plot.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+TIMES = (5.0, 10.0, 20.0, 40.0, 80.0)
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir))
+
+
+def stats_figure(path: str, times=TIMES, wavelength_nm: float = 550.0) -> None:
+    """The size distribution, S(q) and the diffuse intensity at ``times`` [s] into ``path``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from corona.model.processes.breath_figure import BreathFigure, load_table
+    table = load_table()
+    edges = table["x_edges"]
+    fig, axes = plt.subplots(1, 3, figsize=(13.5, 3.9), constrained_layout=True)
+    colours = plt.cm.viridis(np.linspace(0.0, 0.9, len(times)))
+    lam = wavelength_nm * 1e-3
+    for t, c in zip(times, colours):
+        p = BreathFigure(breath_time=t)
+        k = int(np.argmin(np.abs(table["times"] - p.simulation_time)))
+        if not np.isclose(table["times"][k], p.simulation_time):
+            raise SystemExit(f"breath_time={t:g} s is not a time of the table ({table['times']})")
+        # number of droplets per area and per µm of contact radius, in the table's bins of a/R
+        R = p.mean_radius
+        dens = table["fraction"][k] * p.number_density / (np.diff(edges) * R)
+        mid = 0.5 * (edges[1:] + edges[:-1]) * R
+        ok = dens > 0
+        axes[0].step(mid[ok], dens[ok], where="mid", color=c, label=f"{t:g} s (R = {R:.1f} µm)")
+        q = np.geomspace(0.02, 60.0, 600) / R
+        axes[1].plot(q, p.structure_factor_radial(q), color=c, label=f"{t:g} s")
+        theta = np.linspace(0.02, 15.0, 600)
+        qa = 2 * np.pi * np.sin(np.radians(theta)) / lam
+        axes[2].plot(theta, p.intensity(qa) * p.number_density, color=c, label=f"{t:g} s")
+    axes[0].set(xscale="log", yscale="log", xlabel="contact radius a [µm]",
+                ylabel="droplets per µm² per µm", title="size distribution")
+    axes[1].set(xscale="log", yscale="log", xlabel="q [rad/µm]", ylabel="S(q)", title="structure factor of the centres")
+    axes[1].axhline(1.0, color="0.6", lw=0.6)
+    axes[2].set(yscale="log", xlabel=f"scattering angle at {wavelength_nm:g} nm [degree]",
+                ylabel="n I(q) [µm²]", title="diffuse intensity per area (the lobe)")
+    for ax in axes:
+        ax.legend(fontsize=8)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python scripts/breath_strip.py", description=__doc__.splitlines()[0])
+    ap.add_argument("--stats-only", action="store_true", help="only the statistics figure (no renders)")
+    ap.add_argument("--variant", default=None)
+    a = ap.parse_args(argv)
+    out = os.path.join(ROOT, "docs", "gallery")
+    os.makedirs(out, exist_ok=True)
+    stats = os.path.join(out, "breath_figure_stats.png")
+    stats_figure(stats)
+    print(f"breath_strip: {os.path.relpath(stats, ROOT)}")
+    if a.stats_only:
+        return 0
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import gallery
+    from corona._executor import Executor
+    with Executor(0) as ex:
+        res = gallery.build(only=["breath_figure_strip"], variant=a.variant, executor=ex)
+    return 1 if res["failed"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
