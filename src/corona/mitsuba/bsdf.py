@@ -95,7 +95,6 @@ layer never transmits plus reflects more than it receives.
 """
 from __future__ import annotations
 
-import functools
 import warnings
 
 import drjit as dr
@@ -104,21 +103,15 @@ import numpy as np
 
 from corona.model import tabulated
 from corona._validation import CoronaError, CoronaWarning
-from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_curves, channel_response,
-                             fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
-                             invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
-                             pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
-                             read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
-                             wavelength_mixture)
-from corona.mitsuba.common import hermite_rows, pane_sample
-from corona.mitsuba.common import cos as _cos, sincos as _sincos
+from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
+                                   fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
+                                   hermite_rows, invert_radial_bin, lambda_um, pick_wavelength, positive as _positive,
+                                   read_props as _read_props, selection, texture_range, uniform as _uniform,
+                                   variant_class, wavelength_mixture)
+from corona.mitsuba.substrate import substrate_component
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
 from corona.model.rows import row_slopes
-from corona.model.substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
-
-#: Wavelengths [nm] of the plugin's table of a silvering spectrum (1 nm apart).
-SILVER_GRID = np.arange(360.0, 831.0, 1.0)
 
 __doc__ = __doc__.replace("{table}", rst_table())
 
@@ -128,12 +121,6 @@ FA_WINDOW = 0.1
 #: at the shortest response wavelength (:func:`_channel_tables`).
 CHANNEL_OVERSAMPLE = 2
 __all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
-
-
-@functools.lru_cache(maxsize=2)
-def _channel_envelopes(mono: bool):
-    """The double pass's fringe tables of the active variant's channels (built once per kind)."""
-    return channel_envelopes(*channel_curves(), N_RESPONSE)
 
 
 def _pack_rows(rows, slopes=None):
@@ -226,32 +213,24 @@ class CoronaBSDFMixin:
         self.radius_ref = ranges[1][1]
         self._setup(*ranges)
 
-        # --- the pane under the layer (docs/physics.md#the-layer-on-glass-substrateglass) ----------------------
-        pane = self.material.substrate
-        self.has_pane = pane is not None
-        if self.has_pane:
-            self.eta = float(pane.ior)
-            self.layer_on_front = pane.side == "front"
-            self._setup_double_pass(pane)
-
         # --- wavelengths of RGB / mono channels -------------------------------
         if not mi.is_spectral:
             lam, w = channel_response()
             self.channel_lambdas = lam           # (channels, N) nm
             self.channel_weights = w
 
+        # --- what lies under the layer (docs/physics.md#the-layer-on-glass-substrateglass): chosen once
+        self.substrate = substrate_component(self.material.substrate, getattr(self, "channel_lambdas", None),
+                                             getattr(self, "channel_weights", None))
+
         # --- components and flags ----------------------------------------------
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         comps = [mi.BSDFFlags.DeltaTransmission | sides,
                  mi.BSDFFlags.GlossyTransmission | sides,
                  mi.BSDFFlags.DiffuseReflection | sides]   # weight 0 where albedo = 0
-        if self.has_pane:
-            comps.append(mi.BSDFFlags.DeltaReflection | sides)   # 3: the pane's mirror image
-            comps.append(mi.BSDFFlags.GlossyReflection | sides)  # 4: the lobe seen in reflection
         if not self.isotropic:
             comps[1] = comps[1] | mi.BSDFFlags.Anisotropic
-            if self.has_pane:
-                comps[4] = comps[4] | mi.BSDFFlags.Anisotropic
+        comps += self.substrate.components(sides, not self.isotropic)   # the pane: 3 and 4
         if self._textured:
             comps = [c | mi.BSDFFlags.SpatiallyVarying for c in comps]
         self.m_components = comps
@@ -781,164 +760,12 @@ class CoronaBSDFMixin:
         """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
         return wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
 
-    def _pane_reflectance(self, cos_theta, lam_nm=None):
-        """``R'``: the thin pane's reflectance at ``|cos θ|`` (:func:`corona.mitsuba.common.pane_reflectance`);
-        a mirror's ``R + T² R_m / (1 - R R_m)``, ``R_m`` at ``lam_nm`` when given (else at 550 nm)."""
-        if self.is_mirror:
-            r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
-            rm = self.silver if lam_nm is None or not self.silver_varies else self._silver_at(lam_nm)
-            return r + dr.square(1.0 - r) * rm / (1.0 - r * rm)
-        return pane_reflectance(cos_theta, self.eta)
-
-    def _silver_at(self, lam_nm):
-        """``R_m(λ)`` of a silvering spectrum, linear between its 1 nm table entries (clamped)."""
-        x = dr.clip(mi.Float(lam_nm) - SILVER_GRID[0], 0.0, float(SILVER_GRID.size - 1))
-        i = mi.UInt32(dr.minimum(dr.floor(x), float(SILVER_GRID.size - 2)))
-        t = x - mi.Float(i)
-        return dr.lerp(_gather(mi.Float, self.silver_table, i), _gather(mi.Float, self.silver_table, i + 1), t)
-
-    def _face_reflectance(self, cos_theta):
-        """``R``: the Fresnel reflectance of the face the layer lies on, at ``|cos θ|``."""
-        return mi.fresnel(dr.abs(cos_theta), self.eta)[0]
-
-    def _pane_transmittance(self, cos_theta):
-        """``T' = 1 - R'`` of the pane at ``|cos θ|``; 0 for a mirror."""
-        if self.is_mirror:
-            return 0.0 * cos_theta
-        return 1.0 - self._pane_reflectance(cos_theta)
-
-    # --- the coherent double pass (docs/physics.md#the-coherent-double-pass-quetelet-rings) -----
-    def _setup_double_pass(self, pane):
-        """Constants of the pane's thickness, silvering and (RGB) the wavenumber bins."""
-        self.is_mirror = isinstance(pane, Mirror)
-        self.silver = float(pane.silver(550.0)) if self.is_mirror else 0.0
-        self.silver_varies = self.is_mirror and pane.spectral
-        if self.silver_varies:   # R_m(λ) per evaluated wavelength
-            self.silver_table = _array(mi.Float, pane.silver(SILVER_GRID))
-        self.coherent_pane = pane.coherent
-        if not self.coherent_pane:
-            return
-        self.thickness = float(pane.thickness)
-        if not mi.is_spectral:   # each response wavelength stands for its quantile bin: its fringe table
-            sigma, env = _channel_envelopes(bool(mi.is_monochromatic))
-            self.bin_sigma = sigma.ravel()
-            self.bin_sigma_table = _array(mi.Float, self.bin_sigma)
-            env = env.reshape(-1, env.shape[-1])
-            self.env_n = env.shape[-1]
-            self.env_re = _array(mi.Float, env.real.ravel())
-            self.env_im = _array(mi.Float, env.imag.ravel())
-
-    def _envelope_index(self, delta, active):
-        """Where ``Δ`` falls in the fringe tables (shared by every bin): (entry, weight, inside)."""
-        x = delta * (1.0 / DELTA_STEP)
-        inside = active & (x < self.env_n - 1)
-        i = mi.UInt32(dr.clip(dr.floor(x), 0, self.env_n - 2))
-        return i, x - mi.Float(i), inside
-
-    def _bin_average_cos(self, q, index, sin_cos):
-        """``G_q(Δ) = Re[e^{2πiΔσ_q} E_q(Δ)]``, the envelope linear between table entries, 0 beyond;
-        ``index`` from :meth:`_envelope_index`, ``sin_cos`` = sincos(2π σ_q Δ)."""
-        i, t, inside = index
-        k = i + q * self.env_n
-        re = dr.lerp(_gather(mi.Float, self.env_re, k, inside), _gather(mi.Float, self.env_re, k + 1, inside), t)
-        im = dr.lerp(_gather(mi.Float, self.env_im, k, inside), _gather(mi.Float, self.env_im, k + 1, inside), t)
-        s, c = sin_cos
-        return dr.select(inside, c * re - s * im, 0.0)
-
-    def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o, active=True):
-        """Per evaluated wavelength, the factor ``min(R_i, R_o) + C (P_i + P_o + 2 V Q)`` on ``f`` (a callable
-        ``(q, λ [nm]) -> Float`` for :meth:`_lobe_and_pdf`), ``Q`` the interference of the round
-        trips: exact per wavelength (spectral), averaged over each response bin (RGB/mono)."""
-        n = self.eta
-        ri = self._face_reflectance(cos_i)
-        ro = self._face_reflectance(cos_o)
-        c2 = layer["coherent"]
-        base = dr.minimum(ri, ro) + c2 * (self._pane_reflectance(cos_i) - ri + self._pane_reflectance(cos_o) - ro)
-        s2i = dr.fma(wi.x, wi.x, wi.y * wi.y)
-        s2o = dr.fma(wo.x, wo.x, wo.y * wo.y)
-        cri = dr.safe_sqrt(1.0 - s2i / (n * n))
-        cro = dr.safe_sqrt(1.0 - s2o / (n * n))
-        delta = (2.0 * self.thickness / n) * (s2o - s2i) / (cri + cro)        # 2 n t (cos r_s - cos r_o), µm
-        rb = self.silver if self.is_mirror else dr.sqrt(ri * ro)
-        a = (1.0 - ri) * (1.0 - ro) * rb
-        x = rb * dr.sqrt(ri * ro)
-        front = dr.minimum(ri, ro)
-        lobe = layer["plane"] * layer["weight"] / dr.maximum(layer["fa"], 1e-30)
-        cd = c2 * lobe                         # the visibility cap (substrate.double_pass_visibility)
-        slack = 1.0 - layer["reflect"]
-        inv = 1.0 / dr.maximum(cd, 1e-30)
-        e = (slack - c2 * c2 - lobe - cd) * inv
-        vis = dr.minimum(dr.minimum((slack - c2 * c2 - 2.0 * cd) * 0.5 * inv, (slack - c2 - cd) * inv), e)
-        vis = dr.maximum(vis, dr.safe_sqrt(e * (1.0 - c2) / dr.maximum(c2, 1e-30)))
-        vis = dr.select(cd > 0, dr.clip(vis, 0.0, 1.0), 1.0)
-        if not mi.is_spectral:   # the table position of each order's k |Δ|, the same for every bin
-            index = [self._envelope_index(k * dr.abs(delta), active) for k in range(1, RGB_ORDERS + 1)]
-
-        def factor(q, lam_nm):
-            b, aq, xq = base, a, x
-            if self.silver_varies:   # the silvering's R_m at this wavelength
-                rm = self._silver_at(lam_nm)
-                b = front + c2 * (self._pane_reflectance(cos_i, lam_nm) - ri + self._pane_reflectance(cos_o, lam_nm) - ro)
-                aq, xq = (1.0 - ri) * (1.0 - ro) * rm, rm * dr.sqrt(ri * ro)
-            if mi.is_spectral:
-                c = _cos(2.0 * dr.pi * delta / lambda_um(lam_nm))    # (not dr.cos: CUDA's cos.approx)
-                qv = aq * (c - xq) / (1.0 - 2.0 * xq * c + xq * xq)
-            else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
-                qv = mi.Float(0.0)
-                xk = mi.Float(1.0)
-                sigma = (float(self.bin_sigma[q]) if isinstance(q, int)       # (q traced: a symbolic loop's)
-                         else _gather(mi.Float, self.bin_sigma_table, q))
-                s1, c1 = _sincos(2.0 * dr.pi * sigma * dr.abs(delta))
-                sk, ck = s1, c1
-                for k in range(1, RGB_ORDERS + 1):   # e^{ikφ} by recurrence: one sincos a bin
-                    qv += xk * self._bin_average_cos(q, index[k - 1], (sk, ck))
-                    sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
-                    xk = xk * xq
-                qv = aq * qv
-            return b + 2.0 * c2 * vis * qv
-        return factor
-
-    def _layer_first(self, cos_i):
-        """True where light from ``wi`` meets the layer before the pane."""
-        return layer_first(cos_i, self.layer_on_front)
-
-    def _delta_weights(self, layer, cos_i, wavelengths=None):
-        """Weights of the coherent transmission and of the specular reflection (pane only); with
-        ``wavelengths`` and a silvering spectrum, the specular weight per wavelength (a Spectrum)."""
-        def weights(lam_nm=None):
-            r_i = self._pane_reflectance(cos_i, lam_nm)
-            return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
-                                      t_i=self._pane_transmittance(cos_i),
-                                      behind=0.0 if self.is_mirror else r_i,     # a mirror's back is black
-                                      front=self._face_reflectance(cos_i))
-        w_coh, w_spec = weights()
-        if wavelengths is not None and self.silver_varies:
-            lams, _ = self._wavelength_mixture(wavelengths)
-            w_spec = self._fold([weights(lam)[1] for lam in lams])
-        return w_coh, w_spec
-
-    def _reflected_lobe_energy(self, coherent, cos_i):
-        """The reflected lobe's energy over ``D`` at ``θi``, the two angles taken equal:
-        ``R + 2 C P`` (its selection weight)."""
-        r = self._face_reflectance(cos_i)
-        return r + 2.0 * coherent * (self._pane_reflectance(cos_i) - r)
-
     def _selection(self, ctx, layer, cos_i=None):
         """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
         honouring the context: each component's energy, roughly for the lobes."""
         flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
-                 mi.BSDFFlags.DiffuseReflection)
-        if not self.has_pane:
-            energies = (layer["coherent"], layer["lobe"], layer["reflect"])
-        else:
-            flags += (mi.BSDFFlags.DeltaReflection, mi.BSDFFlags.GlossyReflection)
-            first = self._layer_first(cos_i)
-            t_i = self._pane_transmittance(cos_i)
-            w_coh, w_spec = self._delta_weights(layer, cos_i)
-            energies = (w_coh, layer["lobe"] * t_i,
-                        dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
-                        dr.select(first, layer["lobe"] * self._reflected_lobe_energy(layer["coherent"], cos_i),
-                                  0.0))
+                 mi.BSDFFlags.DiffuseReflection) + self.substrate.flags()
+        energies = self.substrate.energies(layer, cos_i)
         return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
 
     # ------------------------------------------------------------------
@@ -958,41 +785,27 @@ class CoronaBSDFMixin:
         reflect = active & (cos_i * cos_o > 0) & off_delta
         if layer is None:
             layer = self._layer(si, active)
-        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
+        probs = self._selection(ctx, layer, cos_i)
+        p_lobe, p_refl = probs[1], probs[2]
         lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
 
-        lobe_sides = (transmit | reflect) if self.has_pane else transmit   # the pane: the lobe in reflection
-        coherent = self.has_pane and self.coherent_pane
-        modulation = self._double_pass_modulation(layer, wi, wo, cos_i, cos_o, reflect) if coherent else None
+        substrate = self.substrate
+        lobe_sides = substrate.lobe_sides(transmit, reflect)              # a pane: the lobe in reflection
+        modulation = substrate.modulation(layer, wi, wo, cos_i, cos_o, reflect)   # a thick pane's double pass
         f, pdf_d, *f_mod = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, lobe_sides, modulation)
         abs_cos_o = dr.abs(cos_o)
         lobe = f * abs_cos_o                                              # eval = f |cos θo|
         diffuse = layer["reflect"] * dr.inv_pi * abs_cos_o
-        if self.has_pane:   # Fresnel factors of the pane (module docstring's table)
-            first = self._layer_first(cos_i)
-            r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
-            t_i, t_o = self._pane_transmittance(cos_i), self._pane_transmittance(cos_o)
-            f_through, f_reflected, f_diffuse = pane_smooth_factors(
-                layer["coherent"], r_i, r_o, first, t_i=t_i, t_o=t_o,
-                front_i=self._face_reflectance(cos_i), front_o=self._face_reflectance(cos_o))
-            if coherent:   # the double pass: f [R_min + C (P_i + P_o + 2 V Q)] (f_reflected modulated)
-                lobe_reflected = dr.select(first, f_mod[0] * abs_cos_o, 0.0)
-            else:
-                lobe_reflected = lobe * f_reflected
-            lobe = lobe * f_through
-            diffuse = diffuse * f_diffuse
+        # Fresnel factors of a pane (module docstring's table), its lobe in reflection
+        lobe, diffuse, lobe_reflected = substrate.smooth(layer, cos_i, cos_o, lobe, diffuse, f_mod, abs_cos_o)
         value = dr.select(transmit & lobe_on, lobe, 0.0)
         if self.sampling == "cosine":
             pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
         pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
         value += dr.select(reflect & refl_on, diffuse, 0.0)
         pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
-        if self.has_pane:
-            rlobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
-            value += dr.select(reflect & rlobe_on, lobe_reflected, 0.0)
-            pdf += dr.select(reflect, p_pane[1] * pdf_d * abs_cos_o, 0.0)
-        return value, pdf
+        return substrate.add_reflected(ctx, value, pdf, reflect, lobe_reflected, probs, pdf_d, abs_cos_o)
 
     def eval(self, ctx, si, wo, active=True):
         return self._eval_pdf(ctx, si, wo, active)[0]
@@ -1008,19 +821,12 @@ class CoronaBSDFMixin:
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
         layer = self._layer(si, active)
-        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
+        substrate = self.substrate
+        probs = self._selection(ctx, layer, cos_i)
+        p_coh, p_lobe = probs[0], probs[1]
         pick_coh = active & (sample1 < p_coh)
         pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
-        if self.has_pane:   # after the reflection: 3 specular, 4 the lobe in reflection
-            p_spec, p_rlobe = p_pane
-            c3 = p_coh + p_lobe + p_refl
-            c4 = c3 + p_spec
-            pick_rlobe = active & (sample1 >= c4) & (p_rlobe > 0)
-            pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_rlobe <= 0)) & (p_spec > 0)
-            pick_refl = (active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
-                         & ((sample1 < c3) | ((p_spec <= 0) & (p_rlobe <= 0))))
-        else:
-            pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
+        pick_refl, picks = substrate.pick(active, sample1, probs)   # (a pane: 3 specular, 4 the lobe reflected)
 
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
@@ -1031,20 +837,15 @@ class CoronaBSDFMixin:
 
         if self.sampling == "cosine":   # lobe: the same warp, mirrored to the far side
             wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
-            lobe_valid = pick_lobe & (wo_cos.z > 0)
-            if self.has_pane:           # the lobe in reflection: the warp itself
-                wo_rlobe = wo_refl
-                rlobe_valid = pick_rlobe & (wo_cos.z > 0)
+            wo_rlobe = wo_refl          # the lobe in reflection (a pane): the warp itself
+            lobe_ok = wo_cos.z > 0
         else:
             # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
             # sample1's position inside the lobe's share picks the wavelength (equal weights)
             # and what is left of it the row (j with probability 1 - t, j + 1 with t)
             lams, _ = self._wavelength_mixture(si.wavelengths)
             s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
-            pick_any_lobe = pick_lobe
-            if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
-                s = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s)
-                pick_any_lobe = pick_lobe | pick_rlobe
+            s, pick_any_lobe = substrate.lobe_share(picks, probs, sample1, s, pick_lobe)
             row = layer["j"]
             if self.channel_tables_on:   # s = L |d| from the channels' sum (one row)
                 d = self._sample_u(sample2, row, layer["fa"], pick_any_lobe) / layer["L"]
@@ -1060,10 +861,9 @@ class CoronaBSDFMixin:
             r2 = dr.fma(ox, ox, oy * oy)
             oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
             wo_lobe = mi.Vector3f(ox, oy, oz)
-            lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
-            if self.has_pane:
-                wo_rlobe = mi.Vector3f(ox, oy, -oz)
-                rlobe_valid = pick_rlobe & (r2 < 1.0) & (oz != 0)
+            wo_rlobe = mi.Vector3f(ox, oy, -oz)   # the lobe in reflection (a pane): the same d
+            lobe_ok = (r2 < 1.0) & (oz != 0)
+        lobe_valid = pick_lobe & lobe_ok
 
         bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0),
@@ -1073,22 +873,12 @@ class CoronaBSDFMixin:
             dr.select(pick_lobe, mi.UInt32(+mi.BSDFFlags.GlossyTransmission),
                       mi.UInt32(+mi.BSDFFlags.DiffuseReflection)))
 
-        smooth = lobe_valid | pick_refl
-        pick_delta = pick_coh
-        if self.has_pane:
-            pane_sample(bs, wi, pick_spec, pick_rlobe, wo_rlobe)
-            smooth = smooth | rlobe_valid
-            pick_delta = pick_coh | pick_spec
+        smooth, pick_delta = substrate.sampled(bs, wi, picks, wo_rlobe, lobe_ok, lobe_valid | pick_refl, pick_coh)
 
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, layer)
-        bs.pdf = dr.select(pick_coh, p_coh, pdf)
         weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)          # no 0/0 (scalar variants too)
-        if self.has_pane:
-            w_coh, w_spec = self._delta_weights(layer, cos_i, si.wavelengths)
-            bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
-            weight = dr.select(pick_spec, w_spec / dr.maximum(p_spec, 1e-30), weight)
-        else:
-            w_coh = layer["coherent"]
+        w_coh, bs.pdf, weight = substrate.delta_sample(layer, cos_i, si.wavelengths, picks, probs,
+                                                       dr.select(pick_coh, p_coh, pdf), weight)
         weight = dr.select(pick_coh, w_coh / dr.maximum(p_coh, 1e-30), weight)
         ok = pick_delta | (smooth & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
