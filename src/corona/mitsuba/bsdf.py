@@ -104,10 +104,12 @@ import numpy as np
 from corona.model import tabulated
 from corona._validation import CoronaError, CoronaWarning
 from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
-                                   fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
-                                   hermite_rows, invert_radial_bin, lambda_um, pick_wavelength, positive as _positive,
+                                   gather as _gather, guided_cdfs, hermite_rows, positive as _positive,
                                    read_props as _read_props, selection, texture_range, uniform as _uniform,
-                                   variant_class, wavelength_mixture)
+                                   variant_class)
+from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, ChannelTables,
+                                  KernelLobe, PairedTable, RadialRow, RadialRowPairs, RadialRows, SampledTable,
+                                  Wavelengths)
 from corona.mitsuba.substrate import substrate_component
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
@@ -208,20 +210,17 @@ class CoronaBSDFMixin:
             raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask' or "
                               "process='points' (their sizes and positions are absolute); give a float")
         ranges = self._ranges()
+        # the wavelengths a lane evaluates (RGB / mono: the channels' response wavelengths)
+        self.wavelengths = Wavelengths()
+        self.channel_lambdas = self.wavelengths.lambdas        # (channels, N) nm; None when spectral
+        self.channel_weights = self.wavelengths.weights
         # absolute lengths (edge_width, exclusion_diameter, jitter) belong to the largest radius at
         # load; `radius` scales the whole layer with them (σ/R fixed), so the table in u is unchanged
         self.radius_ref = ranges[1][1]
         self._setup(*ranges)
 
-        # --- wavelengths of RGB / mono channels -------------------------------
-        if not mi.is_spectral:
-            lam, w = channel_response()
-            self.channel_lambdas = lam           # (channels, N) nm
-            self.channel_weights = w
-
         # --- what lies under the layer (docs/physics.md#the-layer-on-glass-substrateglass): chosen once
-        self.substrate = substrate_component(self.material.substrate, getattr(self, "channel_lambdas", None),
-                                             getattr(self, "channel_weights", None))
+        self.substrate = substrate_component(self.material.substrate, self.channel_lambdas, self.channel_weights)
 
         # --- components and flags ----------------------------------------------
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
@@ -353,7 +352,7 @@ class CoronaBSDFMixin:
             self.fa_cover = (float(fas[0]), float(fas[-1]))
             self.fa_rows_np = fas
             self.n_rows = 1
-            self._centre(float(np.float32(material.area_fraction)))
+            self._centre(float(np.float32(material.area_fraction)))     # (chooses the lobe's representation)
             self.tail = float(material._plane_integral - material.table.total)
             return
         self.fa_rows_np = fas
@@ -412,6 +411,34 @@ class CoronaBSDFMixin:
             self.fa_cover = (float(fas[0]), float(fas[-1]))
         # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
         self.tail = float(material._plane_integral - material.table.total)
+        self._choose_lobe()
+
+    def _choose_lobe(self):
+        """The lobe's representation (:mod:`corona.mitsuba.lobes`) over the tables just built:
+        chosen here, once per build (and re-centring), never in eval / pdf / sample."""
+        def table(du, n, packed, totals, cls=SampledTable, *first):
+            return cls(*first, du, n, packed, totals, self.cdf, self.guide, self.guide_size, self.n_bins,
+                       self.search_steps)
+        spectrum = self.wavelengths
+        if self.channel_tables_on:
+            sums = table(self.channel_ds, self.channel_n, self.channel_sample_packed, self.channel_totals)
+            if self.centred:
+                self.lobe = CentredChannelTables(spectrum, sums, self.channel_packed, self.channel_count,
+                                                 self.fa_centre)
+            else:
+                self.lobe = ChannelTables(spectrum, sums, self.channel_packed, self.channel_count)
+        elif not self.isotropic:
+            self.lobe = (CentredKernelLobe(spectrum, self.kernel, self.fa_centre) if self.centred
+                         else KernelLobe(spectrum, self.kernel))
+        elif self.centred:
+            self.lobe = CentredRadialRow(spectrum, table(self.du, self.n, self.packed, self.totals), self.fa_centre)
+        elif self.n_rows == 1:
+            self.lobe = RadialRow(spectrum, table(self.du, self.n, self.packed, self.totals))
+        elif self.row_pairs:
+            self.lobe = RadialRowPairs(spectrum, table(self.du, self.n, self.packed, self.totals, PairedTable,
+                                                       self.n_rows))
+        else:
+            self.lobe = RadialRows(spectrum, table(self.du, self.n, self.packed, self.totals))
 
     def _centre(self, fa):
         """Put the uniform layer's one row at area fraction ``fa``: the cubic Hermite of the rows
@@ -425,6 +452,7 @@ class CoronaBSDFMixin:
             self.kernel.set_structure_centre(s1, ds1)
             self.totals = _array(mi.Float, tot)
             self.total_slopes = _array(mi.Float, dtot)
+            self._choose_lobe()
             return
         fas, rows, du = self._window
         v, dv = hermite_rows(fas, rows, fa)
@@ -443,6 +471,7 @@ class CoronaBSDFMixin:
             self._set_channel_tables(v, dv, du)
         else:
             self._set_cdf([row.cdf])
+        self._choose_lobe()
 
     def _set_channel_tables(self, v, dv, du):
         """The RGB / mono channel tables of the one radial row ``v`` (slope ``dv`` in F_a):
@@ -564,201 +593,11 @@ class CoronaBSDFMixin:
                     coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite, energy=energy,
                     plane=plane)
 
-    def _radial_rows(self, ux, uy, row, active, t_fa=None, hermite=None):
-        """v(u) of radial row ``row`` (linear in |u|): (v_row, None, None).  With ``t_fa`` (the
-        layer's position between rows) and ``hermite`` (its Hermite weights) also row ``row + 1`` and
-        the cubic Hermite between them: (v_row, v_row+1, v(F_a)); a centred layer's one row takes
-        ``t_fa = F_a - its F_a`` and adds that times the row's slope: (v(F_a), None, None)."""
-        x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
-        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
-        t = x - mi.Float(i)
-        inside = active & (x <= self.n - 1)
-        k = row * (self.n - 1) + i       # the packet of bin i: v(i), v(i + 1), ∂v(i), ∂v(i + 1)
-        if self.row_pairs and t_fa is not None:     # rows j and j + 1 in one 8-float packet
-            r8 = dr.gather(mi.ArrayXf, self.packed, k, inside, shape=(8, dr.width(k)))
-            q, q1 = mi.Vector4f(r8[0], r8[1], r8[2], r8[3]), mi.Vector4f(r8[4], r8[5], r8[6], r8[7])
-        else:
-            q = gather4(self.packed, k, inside)
-        v0 = dr.lerp(q.x, q.y, t)
-        if t_fa is None:
-            return dr.select(inside, dr.maximum(v0, 0.0), 0.0), None, None
-        if self.centred:         # t_fa = F_a - the row's F_a: 0 in value, the slope for derivatives
-            return dr.select(inside, dr.maximum(dr.fma(t_fa, dr.lerp(q.z, q.w, t), v0), 0.0), 0.0), None, None
-        if not self.row_pairs:
-            q1 = gather4(self.packed, k + (self.n - 1), inside)
-        v1 = dr.lerp(q1.x, q1.y, t)
-        h00, h10, h01, h11 = hermite
-        v = h00 * v0 + h01 * v1 + h10 * dr.lerp(q.z, q.w, t) + h11 * dr.lerp(q1.z, q1.w, t)
-        return (dr.select(inside, dr.maximum(v0, 0.0), 0.0), dr.select(inside, dr.maximum(v1, 0.0), 0.0),
-                dr.select(inside, dr.maximum(v, 0.0), 0.0))
-
-    def _sample_u(self, s, row, fa, active):
-        """Invert the CDF of table row ``row``: s (Vector2f) -> u (Vector2f).
-
-        (2D tables: Mitsuba's distribution samples the F_a-interpolated mixture itself.)"""
-        if not self.isotropic:
-            return self.kernel.sample(s, active)
-        target = s.x
-        idx, c0, c1 = guided_search(self.cdf, self.guide, self.guide_size, self.n_bins,
-                                    self.search_steps, row, target, active)
-        # radial: density 2π u v_lin(u) in the bin; its CDF a cubic, solved by safeguarded Newton
-        # (channel tables: s and G(s) in place of u and v)
-        if self.channel_tables_on:
-            du, n, packed, totals = self.channel_ds, self.channel_n, self.channel_sample_packed, self.channel_totals
-        else:
-            du, n, packed, totals = self.du, self.n, self.packed, self.totals
-        u0 = mi.Float(idx) * du
-        if self.row_pairs and not self.channel_tables_on:   # row `row`'s half of its pair's packet
-            pair = dr.minimum(row, self.n_rows - 2)
-            q = gather4(packed, 2 * (pair * (n - 1) + idx) + (row - pair), active)
-        else:
-            q = gather4(packed, row * (n - 1) + idx, active)    # (bins of the CDF = of the rows)
-        a = q.x
-        b = q.y - a
-        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, totals, row, active))
-        r = u0 + t * du
-        sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
-        return mi.Vector2f(r * cos_phi, r * sin_phi)
-
     def _lobe_and_pdf(self, layer, wi, wo, wavelengths, active, modulation=None):
         """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths;
-        with ``modulation(q, λ)`` also the lobe with each wavelength's value times that factor."""
-        dx = wo.x + wi.x
-        dy = wo.y + wi.y
-        if self.channel_tables_on:
-            return self._channel_lobe_and_pdf(layer, dx, dy, active)
-        lams, mix = self._wavelength_mixture(wavelengths)
-        # a loop where the wavelengths are many (RGB / mono) or each costs many operations (the
-        # anisotropic kernels): compile time; the spectral radial rows stay unrolled (a few operations)
-        if (dr.is_array_v(mi.Float) and (not mi.is_spectral or not self.isotropic)
-                and not self._differentiated(layer, dx, dy)):
-            return self._looped_lobe_and_pdf(layer, dx, dy, active, modulation, lams)
-        values = []
-        pdf = mi.Float(0.0)
-        for lam_nm, m in zip(lams, mix):
-            value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
-            values.append(value)
-            pdf += m * p_d
-        if modulation is None:
-            return self._fold(values), pdf
-        return self._fold(values), pdf, self._fold([v * modulation(q, lam_nm)
-                                                     for q, (v, lam_nm) in enumerate(zip(values, lams))])
-
-    def _lobe_at(self, layer, dx, dy, lam_nm, active):
-        """One wavelength's lobe ``F_a (L/λ)² v(u)`` at ``d = (dx, dy)`` and its d-space pdf ``p_u k²``."""
-        j, t, L = layer["j"], layer["t"], layer["L"]
-        interpolate = self.n_rows > 1
-        L_lam = L * dr.rcp(lambda_um(lam_nm))      # L/λ (one division a wavelength)
-        k = 2.0 * dr.pi * L_lam                    # u = 2π L d / λ
-        ux, uy = dx * k, dy * k
-        if self.isotropic:                         # each row is sampled exactly ∝ v
-            if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
-                v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
-                p_u = v / dr.maximum(layer["energy"], 1e-30)
-            else:
-                v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
-                                                     layer["hermite"])
-                p_u = v / dr.maximum(layer["total"], 1e-30)
-            if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
-                p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
-                v = v_mid
-        else:                                      # the exact density of the kernel's sampling table
-            srow = None if layer["hermite"] is None else (j, *layer["hermite"])
-            dfa = layer["fa"] - self.fa_centre if self.centred else None
-            v = self.kernel.value(dx, dy, active, srow, dfa, scale=k)      # (d and k: see value)
-            p_u = self.kernel.pdf(ux, uy, active)
-        # F_a (L/λ)² v; p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
-        return layer["weight"] * dr.square(L_lam) * v, p_u * dr.square(k)
-
-    @staticmethod
-    def _differentiated(layer, dx, dy):
-        """True where a derivative flows through the lobe (Dr.Jit's reverse mode of a symbolic loop
-        needs a bound on its iterations: the wavelengths are unrolled then)."""
-        return any(dr.grad_enabled(x) for x in (dx, dy, *(v for v in layer.values() if v is not None
-                                                           and not isinstance(v, tuple))))
-
-    def _looped_lobe_and_pdf(self, layer, dx, dy, active, modulation=None, lams=None):
-        """:meth:`_lobe_and_pdf` as one symbolic Dr.Jit loop over the wavelengths (``lams``, the
-        lane's in spectral variants; the channels' response wavelengths in RGB / mono): a traced
-        body instead of one unrolled copy per wavelength, so the kernel compiles in a fraction of
-        the time; the same sums."""
-        if mi.is_spectral:
-            nc, per = len(lams), 1
-
-            def wavelength(q):
-                lam = lams[-1]
-                for k in range(nc - 2, -1, -1):
-                    lam = dr.select(q == k, lams[k], lam)
-                return lam, 1.0
-        else:
-            lam_all = np.asarray(self.channel_lambdas, dtype=np.float64)
-            nc, per = lam_all.shape
-            if getattr(self, "_loop_arrays", None) is None:
-                self._loop_arrays = (_array(mi.Float, lam_all.ravel()),
-                                     _array(mi.Float, np.asarray(self.channel_weights, dtype=np.float64).ravel()))
-            lam_arr, w_arr = self._loop_arrays
-
-            def wavelength(q):
-                return _gather(mi.Float, lam_arr, q), _gather(mi.Float, w_arr, q)
-        n = nc * per
-        zero = dr.zeros(mi.Float, dr.width(dx))
-        with_mod = modulation is not None
-
-        def body(q, chans, mods, pdf):
-            lam_nm, w = wavelength(q)
-            value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
-            pdf = dr.fma(1.0 / n, p_d, pdf)
-            c = q // per
-            factor = modulation(q, lam_nm) if with_mod else None
-            chans = [dr.select(c == i, dr.fma(w, value, a), a) for i, a in enumerate(chans)]
-            if with_mod:
-                mods = [dr.select(c == i, dr.fma(w, value * factor, a), a) for i, a in enumerate(mods)]
-            return q + 1, chans, mods, pdf
-
-        q0 = dr.zeros(mi.UInt32, dr.width(dx))
-        state = (q0, [mi.Float(zero) for _ in range(nc)], [mi.Float(zero) for _ in range(nc if with_mod else 0)],
-                 mi.Float(zero))
-        _, chans, mods, pdf = dr.while_loop(state, lambda q, *_: q < n, body, label="corona wavelengths")
-        spec = (lambda xs: mi.Spectrum(xs[0]) if nc == 1 else mi.Spectrum(xs))
-        if not with_mod:
-            return spec(chans), pdf
-        return spec(chans), pdf, spec(mods)
-
-    def _channel_lobe_and_pdf(self, layer, dx, dy, active):
-        """:meth:`_lobe_and_pdf` from the channel tables (:meth:`_set_channel_tables`): channel ``c``'s
-        lobe ``F_a L² g_c(s)`` at ``s = L |d|`` (plus ``ΔF_a ∂g_c`` for a centred layer: 0 in value), and
-        the d-space pdf of sampling ``s`` from ``G = Σ_c g_c``: ``L² G(s) / ∫G d²s``."""
-        L = layer["L"]
-        # (the 1e-24 keeps the gradient of |d| finite at d = 0)
-        x = dr.sqrt(dr.fma(dx, dx, dr.fma(dy, dy, 1e-24))) * L * (1.0 / self.channel_ds)
-        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.channel_n - 2)
-        t = x - mi.Float(i)
-        inside = active & (x <= self.channel_n - 1)
-        dfa = layer["fa"] - self.fa_centre if self.centred else None
-        nc = self.channel_count
-        scale = layer["weight"] * dr.square(L)
-        chans, g_sum = [], mi.Float(0.0)
-        for c in range(nc):
-            q = gather4(self.channel_packed, i * nc + c, inside)
-            g = dr.lerp(q.x, q.y, t)
-            if dfa is not None:
-                g = dr.fma(dfa, dr.lerp(q.z, q.w, t), g)
-            g = dr.select(inside, dr.maximum(g, 0.0), 0.0)
-            g_sum += g
-            chans.append(scale * g)
-        energy = _gather(mi.Float, self.channel_totals, mi.UInt32(0), active)
-        if dfa is not None:
-            energy = dr.fma(dfa, _gather(mi.Float, self.channel_totals, mi.UInt32(1), active), energy)
-        pdf = dr.square(L) * g_sum / dr.maximum(energy, 1e-30)
-        return (mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)), pdf
-
-    def _fold(self, values):
-        """The Spectrum of per-wavelength values: spectral as is, RGB/mono each channel's mean."""
-        return fold_spectrum(values, getattr(self, "channel_lambdas", None), getattr(self, "channel_weights", None))
-
-    def _wavelength_mixture(self, wavelengths):
-        """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
-        return wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
+        with ``modulation(q, λ)`` also the lobe with each wavelength's value times that factor
+        (the representation's: :mod:`corona.mitsuba.lobes`)."""
+        return self.lobe.lobe_and_pdf(layer, wo.x + wi.x, wo.y + wi.y, wavelengths, active, modulation)
 
     def _selection(self, ctx, layer, cos_i=None):
         """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
@@ -843,19 +682,9 @@ class CoronaBSDFMixin:
             # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
             # sample1's position inside the lobe's share picks the wavelength (equal weights)
             # and what is left of it the row (j with probability 1 - t, j + 1 with t)
-            lams, _ = self._wavelength_mixture(si.wavelengths)
             s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
             s, pick_any_lobe = substrate.lobe_share(picks, probs, sample1, s, pick_lobe)
-            row = layer["j"]
-            if self.channel_tables_on:   # s = L |d| from the channels' sum (one row)
-                d = self._sample_u(sample2, row, layer["fa"], pick_any_lobe) / layer["L"]
-            else:
-                pick, hero, rest = pick_wavelength(s, lams)
-                lam = lambda_um(hero)
-                if self.n_rows > 1 and self.isotropic:
-                    row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
-                u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
-                d = u * (lam / (2.0 * dr.pi * layer["L"]))
+            d = self.lobe.sample_d(sample2, layer, s, si.wavelengths, pick_any_lobe)
             ox = d.x - wi.x
             oy = d.y - wi.y
             r2 = dr.fma(ox, ox, oy * oy)
