@@ -107,9 +107,9 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                                    gather as _gather, guided_cdfs, hermite_rows, positive as _positive,
                                    read_props as _read_props, selection, texture_range, uniform as _uniform,
                                    variant_class)
-from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, ChannelTables,
-                                  KernelLobe, PairedTable, RadialRow, RadialRowPairs, RadialRows, SampledTable,
-                                  Wavelengths)
+from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, CentredRow,
+                                  ChannelTables, KernelLobe, OneRow, PackedRowGrid, PairedTable, RadialRow,
+                                  RadialRowPairs, RadialRows, RowGrid, SampledTable, Wavelengths)
 from corona.mitsuba.substrate import substrate_component
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
@@ -306,6 +306,59 @@ class CoronaBSDFMixin:
                              else float(params.get("radius", SPEC["radius"].default)))
         self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
         self.mode_aperture = material.mode == "aperture"
+        fas, tabs, s_rows, totals = self._area_fraction_rows(material, fa_lo, fa_hi)
+        # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
+        # re-centred by parameters_changed), plus its slope in F_a (module docstring)
+        self.centred = (process.varying_area_fraction and len(fas) > 1
+                        and not self.fa_tex.is_spatially_varying())
+        # RGB / mono, one radial row, no fringes of a coherent pane: a table per channel in s = L |d|
+        # (_channel_tables) instead of the row at each of the channels' wavelengths
+        pane = material.substrate
+        self.channel_tables_on = (not mi.is_spectral and material.isotropic and (self.centred or len(fas) == 1)
+                                  and not (pane is not None and pane.coherent))
+        if self.centred:
+            if material.isotropic:
+                self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
+            else:
+                from corona.mitsuba.kernels import LobeKernel
+                self.kernel = LobeKernel(material)
+                self._window = (fas, s_rows, np.asarray(totals, dtype=np.float64))
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
+            self.fa_rows_np = fas
+            self.n_rows = 1
+            self._centre(float(np.float32(material.area_fraction)))     # (chooses the lobe's representation)
+            self.tail = float(material._plane_integral - material.table.total)
+            return
+        self.fa_rows_np = fas
+        self.n_rows = len(fas)
+        self.fa_rows = _array(mi.Float, fas)
+        self._set_row_grid(fas, totals)
+        if self.isotropic:
+            self._set_radial_rows(fas, tabs)
+        else:
+            # the lobe as exact as the model (analytic form factors or cubic form-factor
+            # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
+            # table: corona.mitsuba.kernels
+            from corona.mitsuba.kernels import LobeKernel
+            self.kernel = LobeKernel(material)
+            if s_rows is not None and self.n_rows > 1:
+                self.kernel.set_structure_rows(s_rows, row_slopes(fas, s_rows))
+                if self.fa_tex.is_spatially_varying() and fas[0] < material.area_fraction:
+                    # sampled from the table at the lowest F_a (its S closest to 1), so that
+                    # eval / pdf ~ S(F_a) / S(lowest) stays bounded over the texture
+                    self._sample_table_at(at(cover), fas[0])
+        if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
+        # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
+        self.tail = float(material._plane_integral - material.table.total)
+        self._choose_lobe()
+
+    def _area_fraction_rows(self, material, fa_lo, fa_hi):
+        """The material's rows over the area fractions ``[fa_lo, fa_hi]`` (a uniform value: ± FA_WINDOW):
+        ``(fas, tabs, s_rows, totals)``, the rows' F_a, their radial tables, the anisotropic lobe's
+        rows of ``S - 1`` (else None) and the rows' energies; sets ``row_error`` (and ``fa_cover``
+        where one row serves the whole range)."""
+        process = material.process
         include = ()
         if process.varying_area_fraction and not self.fa_tex.is_spatially_varying():
             # a uniform value gets rows ± FA_WINDOW around it (exact at the value itself), so that an
@@ -333,31 +386,11 @@ class CoronaBSDFMixin:
         else:
             fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
             totals = np.array([material.table.total])
-        # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
-        # re-centred by parameters_changed), plus its slope in F_a (module docstring)
-        self.centred = (process.varying_area_fraction and len(fas) > 1
-                        and not self.fa_tex.is_spatially_varying())
-        # RGB / mono, one radial row, no fringes of a coherent pane: a table per channel in s = L |d|
-        # (_channel_tables) instead of the row at each of the channels' wavelengths
-        pane = material.substrate
-        self.channel_tables_on = (not mi.is_spectral and material.isotropic and (self.centred or len(fas) == 1)
-                                  and not (pane is not None and pane.coherent))
-        if self.centred:
-            if material.isotropic:
-                self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
-            else:
-                from corona.mitsuba.kernels import LobeKernel
-                self.kernel = LobeKernel(material)
-                self._window = (fas, s_rows, np.asarray(totals, dtype=np.float64))
-            self.fa_cover = (float(fas[0]), float(fas[-1]))
-            self.fa_rows_np = fas
-            self.n_rows = 1
-            self._centre(float(np.float32(material.area_fraction)))     # (chooses the lobe's representation)
-            self.tail = float(material._plane_integral - material.table.total)
-            return
-        self.fa_rows_np = fas
-        self.n_rows = len(fas)
-        self.fa_rows = _array(mi.Float, fas)
+        return fas, tabs, s_rows, totals
+
+    def _set_row_grid(self, fas, totals):
+        """The rows' energies and their slopes in F_a as Dr.Jit arrays, and with two rows or more
+        the guide grid that finds F_a's row (and its 16-float packets: vectorised variants)."""
         if self.n_rows > 1:
             # a uniform grid over the rows, its cells (at most 4096) narrower than the closest two
             # rows where possible: a cell's first row and `row_steps` (usually 1) comparisons find
@@ -383,35 +416,21 @@ class CoronaBSDFMixin:
             for c, x in enumerate((fas, np.asarray(totals, dtype=np.float64), row_slopes(fas, totals))):
                 block[:, 3 * c:3 * c + 3] = np.asarray(x, dtype=np.float64)[jj]
             self.row_scalars = _array(mi.Float, block.ravel())
-        if self.isotropic:
-            self.du = float(tabs[0].du)
-            self.n = int(tabs[0].values.size)
-            rows = np.stack([t.values for t in tabs])
-            # ∂v/∂F_a of each row (Hermite in F_a between rows); vectorised variants with rows to
-            # interpolate keep row pairs side by side (one wide packet gather a lookup)
-            self.row_pairs = self.n_rows > 1 and dr.is_array_v(mi.Float)
-            self.packed = (_pack_row_pairs(rows, row_slopes(fas, rows)) if self.row_pairs else
-                           _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None))
-            self._set_cdf([t.cdf for t in tabs])
-            if self.channel_tables_on:
-                self._set_channel_tables(rows[0], np.zeros_like(rows[0]), self.du)
-        else:
-            # the lobe as exact as the model (analytic form factors or cubic form-factor
-            # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
-            # table: corona.mitsuba.kernels
-            from corona.mitsuba.kernels import LobeKernel
-            self.kernel = LobeKernel(material)
-            if s_rows is not None and self.n_rows > 1:
-                self.kernel.set_structure_rows(s_rows, row_slopes(fas, s_rows))
-                if self.fa_tex.is_spatially_varying() and fas[0] < material.area_fraction:
-                    # sampled from the table at the lowest F_a (its S closest to 1), so that
-                    # eval / pdf ~ S(F_a) / S(lowest) stays bounded over the texture
-                    self._sample_table_at(at(cover), fas[0])
-        if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
-            self.fa_cover = (float(fas[0]), float(fas[-1]))
-        # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
-        self.tail = float(material._plane_integral - material.table.total)
-        self._choose_lobe()
+
+    def _set_radial_rows(self, fas, tabs):
+        """The radial rows (and their slopes in F_a) in packets, their CDFs, and the channel
+        tables where they are on."""
+        self.du = float(tabs[0].du)
+        self.n = int(tabs[0].values.size)
+        rows = np.stack([t.values for t in tabs])
+        # ∂v/∂F_a of each row (Hermite in F_a between rows); vectorised variants with rows to
+        # interpolate keep row pairs side by side (one wide packet gather a lookup)
+        self.row_pairs = self.n_rows > 1 and dr.is_array_v(mi.Float)
+        self.packed = (_pack_row_pairs(rows, row_slopes(fas, rows)) if self.row_pairs else
+                       _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None))
+        self._set_cdf([t.cdf for t in tabs])
+        if self.channel_tables_on:
+            self._set_channel_tables(rows[0], np.zeros_like(rows[0]), self.du)
 
     def _choose_lobe(self):
         """The lobe's representation (:mod:`corona.mitsuba.lobes`) over the tables just built:
@@ -419,6 +438,16 @@ class CoronaBSDFMixin:
         def table(du, n, packed, totals, cls=SampledTable, *first):
             return cls(*first, du, n, packed, totals, self.cdf, self.guide, self.guide_size, self.n_bins,
                        self.search_steps)
+        # where F_a falls among the rows
+        if self.centred:
+            self.rows = CentredRow(self.totals, self.total_slopes, self.fa_centre)
+        elif self.n_rows == 1:
+            self.rows = OneRow(self.totals)
+        else:
+            grid = (self.fa_rows, self.n_rows, self.row_guide, self.row_cells, self.row_cell_scale, self.row_steps,
+                    self.fa_cover[0], self.totals, self.total_slopes)
+            self.rows = RowGrid(*grid) if self.row_scalars is None else PackedRowGrid(self.row_scalars, *grid)
+        # the lobe
         spectrum = self.wavelengths
         if self.channel_tables_on:
             sums = table(self.channel_ds, self.channel_n, self.channel_sample_packed, self.channel_totals)
@@ -528,52 +557,8 @@ class CoronaBSDFMixin:
         """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
         and the energies of the coherent beam, the lobe and the reflection."""
         fa = dr.clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
-        if self.n_rows == 1:
-            j, t = mi.UInt32(0), mi.Float(0.0)
-            total = _gather(mi.Float, self.totals, j, active)
-            total_next = total
-            hermite = None
-            energy = total
-            if self.centred:     # = total in value; its derivative in F_a is the row's slope's energy
-                energy = dr.fma(fa - self.fa_centre, _gather(mi.Float, self.total_slopes, j, active), total)
-        else:
-            # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
-            # first row, or the next one where that lies inside the cell below fa (float32
-            # rounding at a cell's edge may leave fa an ulp below fa_rows[j]: t ~ -1e-6, harmless)
-            cell = dr.clip(dr.floor((fa - self.fa_cover[0]) * self.row_cell_scale), 0, self.row_cells - 1)
-            j = _gather(mi.UInt32, self.row_guide, mi.UInt32(cell), active)
-            for _ in range(self.row_steps - 1):
-                up = (_gather(mi.Float, self.fa_rows, j + 1, active) <= fa) & (j < self.n_rows - 2)
-                j = dr.select(up, j + 1, j)
-            # the last step reads the three rows at once (no gather waits for another)
-            if self.row_scalars is not None:      # one wide packet: F_a, energies, slopes of j .. j + 2
-                r = dr.gather(mi.ArrayXf, self.row_scalars, j, active, shape=(16, dr.width(j)))
-                f0, f1, f2 = r[0], r[1], r[2]
-                up = (f1 <= fa) & (j < self.n_rows - 2)
-                total, total_next = dr.select(up, r[4], r[3]), dr.select(up, r[5], r[4])
-                slope, slope_next = dr.select(up, r[7], r[6]), dr.select(up, r[8], r[7])
-            else:
-                f0 = _gather(mi.Float, self.fa_rows, j, active)
-                f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
-                f2 = _gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
-                up = (f1 <= fa) & (j < self.n_rows - 2)
-            j = dr.select(up, j + 1, j)
-            f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
-            if self.row_scalars is None:
-                total = _gather(mi.Float, self.totals, j, active)
-                total_next = _gather(mi.Float, self.totals, j + 1, active)
-                slope = _gather(mi.Float, self.total_slopes, j, active)
-                slope_next = _gather(mi.Float, self.total_slopes, j + 1, active)
-            # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
-            # the derivative at a row is the next interval's slope, not zero
-            h = dr.maximum(f1 - f0, 1e-12)
-            t = (fa - f0) / h
-            # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
-            t2 = dr.square(t)
-            t3 = t2 * t
-            hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
-            energy = (hermite[0] * total + hermite[2] * total_next
-                      + hermite[1] * slope + hermite[3] * slope_next)
+        rows = self.rows.locate(fa, active)      # the row j, its weight t, the energies, the Hermite weights
+        energy = rows["energy"]
         held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
         plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
         coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
@@ -589,9 +574,7 @@ class CoronaBSDFMixin:
             L = mi.Float(self.L_per_radius * self.radius_cover)
         else:
             L = self.radius_tex.eval_1(si, active) * self.L_per_radius
-        return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
-                    coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite, energy=energy,
-                    plane=plane)
+        return dict(fa=fa, **rows, weight=weight, L=L, coherent=coherent, lobe=lobe, reflect=reflect, plane=plane)
 
     def _lobe_and_pdf(self, layer, wi, wo, wavelengths, active, modulation=None):
         """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths;

@@ -16,7 +16,10 @@ representation flag:
 - :class:`KernelLobe` / :class:`CentredKernelLobe`: anisotropic lobes, the analytic or gridded
   kernel of :mod:`corona.mitsuba.kernels`.
 
-Each has ``lobe_and_pdf(layer, dx, dy, wavelengths, active, modulation)`` (the lobe ``f`` without
+Where the layer's ``F_a`` falls among the rows is one object too (:class:`OneRow`,
+:class:`CentredRow`, :class:`RowGrid`, :class:`PackedRowGrid`: ``locate(fa, active)``).
+
+Each lobe has ``lobe_and_pdf(layer, dx, dy, wavelengths, active, modulation)`` (the lobe ``f`` without
 the cosine as a Spectrum and the ``d``-space pdf averaged over the wavelengths, with a
 modulation also the modulated lobe) and ``sample_d(sample2, layer, s, wavelengths, active)``
 (``d = (wo + wi).xy`` for one wavelength picked by ``s``).  ``layer`` is the plugin's per-lane
@@ -34,7 +37,7 @@ from corona.mitsuba.common import (array, channel_response, fold_spectrum, gathe
 
 __all__ = ["Wavelengths", "SampledTable", "Lobe", "RadialRow", "CentredRadialRow", "RadialRows",
            "RadialRowPairs", "ChannelTables", "CentredChannelTables", "KernelLobe", "CentredKernelLobe",
-           "differentiated"]
+           "OneRow", "CentredRow", "RowGrid", "PackedRowGrid", "differentiated"]
 
 
 def differentiated(layer, dx, dy):
@@ -386,3 +389,103 @@ class CentredKernelLobe(KernelLobe):
 
     def dfa(self, layer):
         return layer["fa"] - self.fa_centre
+
+
+# --------------------------------------------------------------------------
+# where the layer's F_a falls among the rows (the plugin's per-lane state)
+# --------------------------------------------------------------------------
+class OneRow:
+    """One row at a fixed area fraction (``F_a`` does not move the lobe, or cannot vary): row 0,
+    its energy ``totals[0]``."""
+
+    def __init__(self, totals):
+        self.totals = totals
+
+    def locate(self, fa, active):
+        """The row ``j`` of ``fa``, the weight ``t`` of row ``j + 1``, the rows' energies, the cubic
+        Hermite weights in ``F_a`` (None: no second row) and the energy at ``fa``."""
+        j, t = mi.UInt32(0), mi.Float(0.0)
+        total = gather(mi.Float, self.totals, j, active)
+        return dict(j=j, t=t, total=total, total_next=total, hermite=None, energy=total)
+
+
+class CentredRow(OneRow):
+    """One row at the layer's uniform ``F_a`` (``fa_centre``): the energy is ``totals[0]`` in value
+    and its derivative in ``F_a`` the row's slope's energy ``total_slopes[0]``."""
+
+    def __init__(self, totals, total_slopes, fa_centre):
+        super().__init__(totals)
+        self.total_slopes, self.fa_centre = total_slopes, fa_centre
+
+    def locate(self, fa, active):
+        out = super().locate(fa, active)
+        out["energy"] = dr.fma(fa - self.fa_centre, gather(mi.Float, self.total_slopes, out["j"], active),
+                               out["total"])
+        return out
+
+
+class RowGrid:
+    """Rows at area fractions ``fa_rows`` (``n_rows >= 2``), found through a uniform guide grid
+    (``guide``: each cell's first row; ``cells`` cells from ``fa_lo``, ``scale`` cells per unit
+    ``F_a``; ``steps`` comparisons find the row); the energy cubic Hermite in ``F_a`` between
+    rows ``j`` and ``j + 1`` (``totals`` and their slopes ``total_slopes``)."""
+
+    def __init__(self, fa_rows, n_rows, guide, cells, scale, steps, fa_lo, totals, total_slopes):
+        self.fa_rows, self.n_rows, self.guide = fa_rows, n_rows, guide
+        self.cells, self.scale, self.steps, self.fa_lo = cells, scale, steps, fa_lo
+        self.totals, self.total_slopes = totals, total_slopes
+
+    def _last_step(self, j, fa, active):
+        """The last comparison: (up, F_a of rows j, j + 1, j + 2, the energies of the row found)."""
+        f0 = gather(mi.Float, self.fa_rows, j, active)
+        f1 = gather(mi.Float, self.fa_rows, j + 1, active)
+        f2 = gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
+        up = (f1 <= fa) & (j < self.n_rows - 2)
+
+        def energies(jj):
+            return (gather(mi.Float, self.totals, jj, active), gather(mi.Float, self.totals, jj + 1, active),
+                    gather(mi.Float, self.total_slopes, jj, active),
+                    gather(mi.Float, self.total_slopes, jj + 1, active))
+        return up, f0, f1, f2, energies
+
+    def locate(self, fa, active):
+        # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
+        # first row, or the next one where that lies inside the cell below fa (float32
+        # rounding at a cell's edge may leave fa an ulp below fa_rows[j]: t ~ -1e-6, harmless)
+        cell = dr.clip(dr.floor((fa - self.fa_lo) * self.scale), 0, self.cells - 1)
+        j = gather(mi.UInt32, self.guide, mi.UInt32(cell), active)
+        for _ in range(self.steps - 1):
+            up = (gather(mi.Float, self.fa_rows, j + 1, active) <= fa) & (j < self.n_rows - 2)
+            j = dr.select(up, j + 1, j)
+        # the last step reads the three rows at once (no gather waits for another)
+        up, f0, f1, f2, energies = self._last_step(j, fa, active)
+        j = dr.select(up, j + 1, j)
+        f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
+        total, total_next, slope, slope_next = energies(j)
+        # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
+        # the derivative at a row is the next interval's slope, not zero
+        h = dr.maximum(f1 - f0, 1e-12)
+        t = (fa - f0) / h
+        # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
+        t2 = dr.square(t)
+        t3 = t2 * t
+        hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
+        energy = (hermite[0] * total + hermite[2] * total_next
+                  + hermite[1] * slope + hermite[3] * slope_next)
+        return dict(j=j, t=t, total=total, total_next=total_next, hermite=hermite, energy=energy)
+
+
+class PackedRowGrid(RowGrid):
+    """:class:`RowGrid` reading what it needs of rows ``j .. j + 2`` (F_a, energies, slopes) in one
+    16-float packet a lane (``scalars``; vectorised variants)."""
+
+    def __init__(self, scalars, *args):
+        super().__init__(*args)
+        self.scalars = scalars
+
+    def _last_step(self, j, fa, active):
+        r = dr.gather(mi.ArrayXf, self.scalars, j, active, shape=(16, dr.width(j)))
+        up = (r[1] <= fa) & (j < self.n_rows - 2)
+        found = (dr.select(up, r[4], r[3]), dr.select(up, r[5], r[4]),
+                 dr.select(up, r[7], r[6]), dr.select(up, r[8], r[7]))
+        return up, r[0], r[1], r[2], lambda jj: found
