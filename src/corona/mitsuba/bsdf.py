@@ -95,7 +95,6 @@ layer never transmits plus reflects more than it receives.
 """
 from __future__ import annotations
 
-import functools
 import warnings
 
 import drjit as dr
@@ -104,21 +103,18 @@ import numpy as np
 
 from corona.model import tabulated
 from corona._validation import CoronaError, CoronaWarning
-from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_curves, channel_response,
-                             fold_spectrum, gather as _gather, gather4, guided_cdfs, guided_search,
-                             invert_radial_bin, lambda_um, layer_first, pane_delta_weights,
-                             pane_reflectance, pane_smooth_factors, pick_wavelength, positive as _positive,
-                             read_props as _read_props, selection, texture_range, uniform as _uniform, variant_class,
-                             wavelength_mixture)
-from corona.mitsuba.common import centre_rows, pane_sample
-from corona.mitsuba.common import cos as _cos, sincos as _sincos
+from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
+                                   guided_cdfs, positive as _positive,
+                                   read_props as _read_props, selection, texture_range, uniform as _uniform,
+                                   variant_class)
+from corona.mitsuba.common import centre_rows
+from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, CentredRow,
+                                  ChannelTables, KernelLobe, OneRow, PackedRowGrid, PairedTable, RadialRow,
+                                  RadialRowPairs, RadialRows, RowGrid, SampledTable, Wavelengths)
+from corona.mitsuba.substrate import substrate_component
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
 from corona.model.rows import row_slopes
-from corona.model.substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
-
-#: Wavelengths [nm] of the plugin's table of a silvering spectrum (1 nm apart).
-SILVER_GRID = np.arange(360.0, 831.0, 1.0)
 
 __doc__ = __doc__.replace("{table}", rst_table())
 
@@ -128,12 +124,6 @@ FA_WINDOW = 0.1
 #: at the shortest response wavelength (:func:`_channel_tables`).
 CHANNEL_OVERSAMPLE = 2
 __all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
-
-
-@functools.lru_cache(maxsize=2)
-def _channel_envelopes(mono: bool):
-    """The double pass's fringe tables of the active variant's channels (built once per kind)."""
-    return channel_envelopes(*channel_curves(), N_RESPONSE)
 
 
 def _pack_rows(rows, slopes=None):
@@ -222,37 +212,26 @@ class CoronaBSDFMixin:
             raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask', process='points' "
                               "or a process instance (their sizes and positions are absolute); give a float")
         ranges = self._ranges()
+        # the wavelengths a lane evaluates (RGB / mono: the channels' response wavelengths)
+        self.wavelengths = Wavelengths()
+        self.channel_lambdas = self.wavelengths.lambdas        # (channels, N) nm; None when spectral
+        self.channel_weights = self.wavelengths.weights
         # absolute lengths (edge_width, exclusion_diameter, jitter) belong to the largest radius at
         # load; `radius` scales the whole layer with them (σ/R fixed), so the table in u is unchanged
         self.radius_ref = ranges[1][1]
         self._setup(*ranges)
 
-        # --- the pane under the layer (docs/physics.md#the-layer-on-glass-substrateglass) ----------------------
-        pane = self.material.substrate
-        self.has_pane = pane is not None
-        if self.has_pane:
-            self.eta = float(pane.ior)
-            self.layer_on_front = pane.side == "front"
-            self._setup_double_pass(pane)
-
-        # --- wavelengths of RGB / mono channels -------------------------------
-        if not mi.is_spectral:
-            lam, w = channel_response()
-            self.channel_lambdas = lam           # (channels, N) nm
-            self.channel_weights = w
+        # --- what lies under the layer (docs/physics.md#the-layer-on-glass-substrateglass): chosen once
+        self.substrate = substrate_component(self.material.substrate, self.channel_lambdas, self.channel_weights)
 
         # --- components and flags ----------------------------------------------
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         comps = [mi.BSDFFlags.DeltaTransmission | sides,
                  mi.BSDFFlags.GlossyTransmission | sides,
                  mi.BSDFFlags.DiffuseReflection | sides]   # weight 0 where albedo = 0
-        if self.has_pane:
-            comps.append(mi.BSDFFlags.DeltaReflection | sides)   # 3: the pane's mirror image
-            comps.append(mi.BSDFFlags.GlossyReflection | sides)  # 4: the lobe seen in reflection
         if not self.isotropic:
             comps[1] = comps[1] | mi.BSDFFlags.Anisotropic
-            if self.has_pane:
-                comps[4] = comps[4] | mi.BSDFFlags.Anisotropic
+        comps += self.substrate.components(sides, not self.isotropic)   # the pane: 3 and 4
         if self._textured:
             comps = [c | mi.BSDFFlags.SpatiallyVarying for c in comps]
         self.m_components = comps
@@ -329,6 +308,59 @@ class CoronaBSDFMixin:
                              else float(params.get("radius", SPEC["radius"].default)))
         self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
         self.mode_aperture = material.mode == "aperture"
+        fas, tabs, s_rows, totals = self._area_fraction_rows(material, fa_lo, fa_hi)
+        # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
+        # re-centred by parameters_changed), plus its slope in F_a (module docstring)
+        self.centred = (process.varying_area_fraction and len(fas) > 1
+                        and not self.fa_tex.is_spatially_varying())
+        # RGB / mono, one radial row, no fringes of a coherent pane: a table per channel in s = L |d|
+        # (_channel_tables) instead of the row at each of the channels' wavelengths
+        pane = material.substrate
+        self.channel_tables_on = (not mi.is_spectral and material.isotropic and (self.centred or len(fas) == 1)
+                                  and not (pane is not None and pane.coherent))
+        if self.centred:
+            if material.isotropic:
+                self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
+            else:
+                from corona.mitsuba.kernels import LobeKernel
+                self.kernel = LobeKernel(material)
+                self._window = (fas, s_rows, np.asarray(totals, dtype=np.float64))
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
+            self.fa_rows_np = fas
+            self.n_rows = 1
+            self._centre(float(np.float32(material.area_fraction)))     # (chooses the lobe's representation)
+            self.tail = float(material._plane_integral - material.table.total)
+            return
+        self.fa_rows_np = fas
+        self.n_rows = len(fas)
+        self.fa_rows = _array(mi.Float, fas)
+        self._set_row_grid(fas, totals)
+        if self.isotropic:
+            self._set_radial_rows(fas, tabs)
+        else:
+            # the lobe as exact as the model (analytic form factors or cubic form-factor
+            # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
+            # table: corona.mitsuba.kernels
+            from corona.mitsuba.kernels import LobeKernel
+            self.kernel = LobeKernel(material)
+            if s_rows is not None and self.n_rows > 1:
+                self.kernel.set_structure_rows(s_rows, row_slopes(fas, s_rows))
+                if self.fa_tex.is_spatially_varying() and fas[0] < material.area_fraction:
+                    # sampled from the table at the lowest F_a (its S closest to 1), so that
+                    # eval / pdf ~ S(F_a) / S(lowest) stays bounded over the texture
+                    self._sample_table_at(at(cover), fas[0])
+        if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
+            self.fa_cover = (float(fas[0]), float(fas[-1]))
+        # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
+        self.tail = float(material._plane_integral - material.table.total)
+        self._choose_lobe()
+
+    def _area_fraction_rows(self, material, fa_lo, fa_hi):
+        """The material's rows over the area fractions ``[fa_lo, fa_hi]`` (a uniform value: ± FA_WINDOW):
+        ``(fas, tabs, s_rows, totals)``, the rows' F_a, their radial tables, the anisotropic lobe's
+        rows of ``S - 1`` (else None) and the rows' energies; sets ``row_error`` (and ``fa_cover``
+        where one row serves the whole range)."""
+        process = material.process
         include = ()
         if process.varying_area_fraction and not self.fa_tex.is_spatially_varying():
             # a uniform value gets rows ± FA_WINDOW around it (exact at the value itself), so that an
@@ -356,31 +388,11 @@ class CoronaBSDFMixin:
         else:
             fas, tabs, self.row_error = np.array([material.area_fraction]), [material.table], 0.0
             totals = np.array([material.table.total])
-        # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
-        # re-centred by parameters_changed), plus its slope in F_a (module docstring)
-        self.centred = (process.varying_area_fraction and len(fas) > 1
-                        and not self.fa_tex.is_spatially_varying())
-        # RGB / mono, one radial row, no fringes of a coherent pane: a table per channel in s = L |d|
-        # (_channel_tables) instead of the row at each of the channels' wavelengths
-        pane = material.substrate
-        self.channel_tables_on = (not mi.is_spectral and material.isotropic and (self.centred or len(fas) == 1)
-                                  and not (pane is not None and pane.coherent))
-        if self.centred:
-            if material.isotropic:
-                self._window = (fas, np.stack([t.values for t in tabs]).astype(np.float64), float(tabs[0].du))
-            else:
-                from corona.mitsuba.kernels import LobeKernel
-                self.kernel = LobeKernel(material)
-                self._window = (fas, s_rows, np.asarray(totals, dtype=np.float64))
-            self.fa_cover = (float(fas[0]), float(fas[-1]))
-            self.fa_rows_np = fas
-            self.n_rows = 1
-            self._centre(float(np.float32(material.area_fraction)))
-            self.tail = float(material._plane_integral - material.table.total)
-            return
-        self.fa_rows_np = fas
-        self.n_rows = len(fas)
-        self.fa_rows = _array(mi.Float, fas)
+        return fas, tabs, s_rows, totals
+
+    def _set_row_grid(self, fas, totals):
+        """The rows' energies and their slopes in F_a as Dr.Jit arrays, and with two rows or more
+        the guide grid that finds F_a's row (and its 16-float packets: vectorised variants)."""
         if self.n_rows > 1:
             # a uniform grid over the rows, its cells (at most 4096) narrower than the closest two
             # rows where possible: a cell's first row and `row_steps` (usually 1) comparisons find
@@ -406,34 +418,58 @@ class CoronaBSDFMixin:
             for c, x in enumerate((fas, np.asarray(totals, dtype=np.float64), row_slopes(fas, totals))):
                 block[:, 3 * c:3 * c + 3] = np.asarray(x, dtype=np.float64)[jj]
             self.row_scalars = _array(mi.Float, block.ravel())
-        if self.isotropic:
-            self.du = float(tabs[0].du)
-            self.n = int(tabs[0].values.size)
-            rows = np.stack([t.values for t in tabs])
-            # ∂v/∂F_a of each row (Hermite in F_a between rows); vectorised variants with rows to
-            # interpolate keep row pairs side by side (one wide packet gather a lookup)
-            self.row_pairs = self.n_rows > 1 and dr.is_array_v(mi.Float)
-            self.packed = (_pack_row_pairs(rows, row_slopes(fas, rows)) if self.row_pairs else
-                           _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None))
-            self._set_cdf([t.cdf for t in tabs])
-            if self.channel_tables_on:
-                self._set_channel_tables(rows[0], np.zeros_like(rows[0]), self.du)
+
+    def _set_radial_rows(self, fas, tabs):
+        """The radial rows (and their slopes in F_a) in packets, their CDFs, and the channel
+        tables where they are on."""
+        self.du = float(tabs[0].du)
+        self.n = int(tabs[0].values.size)
+        rows = np.stack([t.values for t in tabs])
+        # ∂v/∂F_a of each row (Hermite in F_a between rows); vectorised variants with rows to
+        # interpolate keep row pairs side by side (one wide packet gather a lookup)
+        self.row_pairs = self.n_rows > 1 and dr.is_array_v(mi.Float)
+        self.packed = (_pack_row_pairs(rows, row_slopes(fas, rows)) if self.row_pairs else
+                       _pack_rows(rows, row_slopes(fas, rows) if self.n_rows > 1 else None))
+        self._set_cdf([t.cdf for t in tabs])
+        if self.channel_tables_on:
+            self._set_channel_tables(rows[0], np.zeros_like(rows[0]), self.du)
+
+    def _choose_lobe(self):
+        """The lobe's representation (:mod:`corona.mitsuba.lobes`) over the tables just built:
+        chosen here, once per build (and re-centring), never in eval / pdf / sample."""
+        def table(du, n, packed, totals, cls=SampledTable, *first):
+            return cls(*first, du, n, packed, totals, self.cdf, self.guide, self.guide_size, self.n_bins,
+                       self.search_steps)
+        # where F_a falls among the rows
+        if self.centred:
+            self.rows = CentredRow(self.totals, self.total_slopes, self.fa_centre)
+        elif self.n_rows == 1:
+            self.rows = OneRow(self.totals)
         else:
-            # the lobe as exact as the model (analytic form factors or cubic form-factor
-            # grids × radial S; bilinear for lattices), sampled exactly from its bilinear
-            # table: corona.mitsuba.kernels
-            from corona.mitsuba.kernels import LobeKernel
-            self.kernel = LobeKernel(material)
-            if s_rows is not None and self.n_rows > 1:
-                self.kernel.set_structure_rows(s_rows, row_slopes(fas, s_rows))
-                if self.fa_tex.is_spatially_varying() and fas[0] < material.area_fraction:
-                    # sampled from the table at the lowest F_a (its S closest to 1), so that
-                    # eval / pdf ~ S(F_a) / S(lowest) stays bounded over the texture
-                    self._sample_table_at(at(cover), fas[0])
-        if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
-            self.fa_cover = (float(fas[0]), float(fas[-1]))
-        # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
-        self.tail = float(material._plane_integral - material.table.total)
+            grid = (self.fa_rows, self.n_rows, self.row_guide, self.row_cells, self.row_cell_scale, self.row_steps,
+                    self.fa_cover[0], self.totals, self.total_slopes)
+            self.rows = RowGrid(*grid) if self.row_scalars is None else PackedRowGrid(self.row_scalars, *grid)
+        # the lobe
+        spectrum = self.wavelengths
+        if self.channel_tables_on:
+            sums = table(self.channel_ds, self.channel_n, self.channel_sample_packed, self.channel_totals)
+            if self.centred:
+                self.lobe = CentredChannelTables(spectrum, sums, self.channel_packed, self.channel_count,
+                                                 self.fa_centre)
+            else:
+                self.lobe = ChannelTables(spectrum, sums, self.channel_packed, self.channel_count)
+        elif not self.isotropic:
+            self.lobe = (CentredKernelLobe(spectrum, self.kernel, self.fa_centre) if self.centred
+                         else KernelLobe(spectrum, self.kernel))
+        elif self.centred:
+            self.lobe = CentredRadialRow(spectrum, table(self.du, self.n, self.packed, self.totals), self.fa_centre)
+        elif self.n_rows == 1:
+            self.lobe = RadialRow(spectrum, table(self.du, self.n, self.packed, self.totals))
+        elif self.row_pairs:
+            self.lobe = RadialRowPairs(spectrum, table(self.du, self.n, self.packed, self.totals, PairedTable,
+                                                       self.n_rows))
+        else:
+            self.lobe = RadialRows(spectrum, table(self.du, self.n, self.packed, self.totals))
 
     def _centre(self, fa):
         """Put the uniform layer's one row at area fraction ``fa``: the cubic Hermite of the rows
@@ -445,6 +481,7 @@ class CoronaBSDFMixin:
             self.kernel.set_structure_centre(s1, ds1)
             self.totals = _array(mi.Float, tot)
             self.total_slopes = _array(mi.Float, dtot)
+            self._choose_lobe()
             return
         fas, rows, du = self._window
         self.fa_centre, ((v, dv),) = centre_rows(fas, fa, rows)
@@ -463,6 +500,7 @@ class CoronaBSDFMixin:
             self._set_channel_tables(v, dv, du)
         else:
             self._set_cdf([row.cdf])
+        self._choose_lobe()
 
     def _set_channel_tables(self, v, dv, du):
         """The RGB / mono channel tables of the one radial row ``v`` (slope ``dv`` in F_a):
@@ -519,52 +557,8 @@ class CoronaBSDFMixin:
         """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
         and the energies of the coherent beam, the lobe and the reflection."""
         fa = dr.clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
-        if self.n_rows == 1:
-            j, t = mi.UInt32(0), mi.Float(0.0)
-            total = _gather(mi.Float, self.totals, j, active)
-            total_next = total
-            hermite = None
-            energy = total
-            if self.centred:     # = total in value; its derivative in F_a is the row's slope's energy
-                energy = dr.fma(fa - self.fa_centre, _gather(mi.Float, self.total_slopes, j, active), total)
-        else:
-            # the row j with fa_rows[j] <= fa < fa_rows[j + 1] (j <= n_rows - 2): the guide cell's
-            # first row, or the next one where that lies inside the cell below fa (float32
-            # rounding at a cell's edge may leave fa an ulp below fa_rows[j]: t ~ -1e-6, harmless)
-            cell = dr.clip(dr.floor((fa - self.fa_cover[0]) * self.row_cell_scale), 0, self.row_cells - 1)
-            j = _gather(mi.UInt32, self.row_guide, mi.UInt32(cell), active)
-            for _ in range(self.row_steps - 1):
-                up = (_gather(mi.Float, self.fa_rows, j + 1, active) <= fa) & (j < self.n_rows - 2)
-                j = dr.select(up, j + 1, j)
-            # the last step reads the three rows at once (no gather waits for another)
-            if self.row_scalars is not None:      # one wide packet: F_a, energies, slopes of j .. j + 2
-                r = dr.gather(mi.ArrayXf, self.row_scalars, j, active, shape=(16, dr.width(j)))
-                f0, f1, f2 = r[0], r[1], r[2]
-                up = (f1 <= fa) & (j < self.n_rows - 2)
-                total, total_next = dr.select(up, r[4], r[3]), dr.select(up, r[5], r[4])
-                slope, slope_next = dr.select(up, r[7], r[6]), dr.select(up, r[8], r[7])
-            else:
-                f0 = _gather(mi.Float, self.fa_rows, j, active)
-                f1 = _gather(mi.Float, self.fa_rows, j + 1, active)
-                f2 = _gather(mi.Float, self.fa_rows, dr.minimum(j + 2, self.n_rows - 1), active)
-                up = (f1 <= fa) & (j < self.n_rows - 2)
-            j = dr.select(up, j + 1, j)
-            f0, f1 = dr.select(up, f1, f0), dr.select(up, f2, f1)
-            if self.row_scalars is None:
-                total = _gather(mi.Float, self.totals, j, active)
-                total_next = _gather(mi.Float, self.totals, j + 1, active)
-                slope = _gather(mi.Float, self.total_slopes, j, active)
-                slope_next = _gather(mi.Float, self.total_slopes, j + 1, active)
-            # linear in F_a between rows; no clip (fa is clamped to the rows already), so that
-            # the derivative at a row is the next interval's slope, not zero
-            h = dr.maximum(f1 - f0, 1e-12)
-            t = (fa - f0) / h
-            # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
-            t2 = dr.square(t)
-            t3 = t2 * t
-            hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
-            energy = (hermite[0] * total + hermite[2] * total_next
-                      + hermite[1] * slope + hermite[3] * slope_next)
+        rows = self.rows.locate(fa, active)      # the row j, its weight t, the energies, the Hermite weights
+        energy = rows["energy"]
         held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
         plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
         coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
@@ -580,364 +574,20 @@ class CoronaBSDFMixin:
             L = mi.Float(self.L_per_radius * self.radius_cover)
         else:
             L = self.radius_tex.eval_1(si, active) * self.L_per_radius
-        return dict(fa=fa, j=j, t=t, total=total, total_next=total_next, weight=weight, L=L,
-                    coherent=coherent, lobe=lobe, reflect=reflect, hermite=hermite, energy=energy,
-                    plane=plane)
-
-    def _radial_rows(self, ux, uy, row, active, t_fa=None, hermite=None):
-        """v(u) of radial row ``row`` (linear in |u|): (v_row, None, None).  With ``t_fa`` (the
-        layer's position between rows) and ``hermite`` (its Hermite weights) also row ``row + 1`` and
-        the cubic Hermite between them: (v_row, v_row+1, v(F_a)); a centred layer's one row takes
-        ``t_fa = F_a - its F_a`` and adds that times the row's slope: (v(F_a), None, None)."""
-        x = dr.sqrt(dr.fma(ux, ux, dr.fma(uy, uy, 1e-20))) / self.du   # (no NaN gradient at u = 0)
-        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.n - 2)
-        t = x - mi.Float(i)
-        inside = active & (x <= self.n - 1)
-        k = row * (self.n - 1) + i       # the packet of bin i: v(i), v(i + 1), ∂v(i), ∂v(i + 1)
-        if self.row_pairs and t_fa is not None:     # rows j and j + 1 in one 8-float packet
-            r8 = dr.gather(mi.ArrayXf, self.packed, k, inside, shape=(8, dr.width(k)))
-            q, q1 = mi.Vector4f(r8[0], r8[1], r8[2], r8[3]), mi.Vector4f(r8[4], r8[5], r8[6], r8[7])
-        else:
-            q = gather4(self.packed, k, inside)
-        v0 = dr.lerp(q.x, q.y, t)
-        if t_fa is None:
-            return dr.select(inside, dr.maximum(v0, 0.0), 0.0), None, None
-        if self.centred:         # t_fa = F_a - the row's F_a: 0 in value, the slope for derivatives
-            return dr.select(inside, dr.maximum(dr.fma(t_fa, dr.lerp(q.z, q.w, t), v0), 0.0), 0.0), None, None
-        if not self.row_pairs:
-            q1 = gather4(self.packed, k + (self.n - 1), inside)
-        v1 = dr.lerp(q1.x, q1.y, t)
-        h00, h10, h01, h11 = hermite
-        v = h00 * v0 + h01 * v1 + h10 * dr.lerp(q.z, q.w, t) + h11 * dr.lerp(q1.z, q1.w, t)
-        return (dr.select(inside, dr.maximum(v0, 0.0), 0.0), dr.select(inside, dr.maximum(v1, 0.0), 0.0),
-                dr.select(inside, dr.maximum(v, 0.0), 0.0))
-
-    def _sample_u(self, s, row, fa, active):
-        """Invert the CDF of table row ``row``: s (Vector2f) -> u (Vector2f).
-
-        (2D tables: Mitsuba's distribution samples the F_a-interpolated mixture itself.)"""
-        if not self.isotropic:
-            return self.kernel.sample(s, active)
-        target = s.x
-        idx, c0, c1 = guided_search(self.cdf, self.guide, self.guide_size, self.n_bins,
-                                    self.search_steps, row, target, active)
-        # radial: density 2π u v_lin(u) in the bin; its CDF a cubic, solved by safeguarded Newton
-        # (channel tables: s and G(s) in place of u and v)
-        if self.channel_tables_on:
-            du, n, packed, totals = self.channel_ds, self.channel_n, self.channel_sample_packed, self.channel_totals
-        else:
-            du, n, packed, totals = self.du, self.n, self.packed, self.totals
-        u0 = mi.Float(idx) * du
-        if self.row_pairs and not self.channel_tables_on:   # row `row`'s half of its pair's packet
-            pair = dr.minimum(row, self.n_rows - 2)
-            q = gather4(packed, 2 * (pair * (n - 1) + idx) + (row - pair), active)
-        else:
-            q = gather4(packed, row * (n - 1) + idx, active)    # (bins of the CDF = of the rows)
-        a = q.x
-        b = q.y - a
-        t = invert_radial_bin(target - c0, c0, c1, u0, du, a, b, _gather(mi.Float, totals, row, active))
-        r = u0 + t * du
-        sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * s.y)
-        return mi.Vector2f(r * cos_phi, r * sin_phi)
+        return dict(fa=fa, **rows, weight=weight, L=L, coherent=coherent, lobe=lobe, reflect=reflect, plane=plane)
 
     def _lobe_and_pdf(self, layer, wi, wo, wavelengths, active, modulation=None):
         """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths;
-        with ``modulation(q, λ)`` also the lobe with each wavelength's value times that factor."""
-        dx = wo.x + wi.x
-        dy = wo.y + wi.y
-        if self.channel_tables_on:
-            return self._channel_lobe_and_pdf(layer, dx, dy, active)
-        lams, mix = self._wavelength_mixture(wavelengths)
-        # a loop where the wavelengths are many (RGB / mono) or each costs many operations (the
-        # anisotropic kernels): compile time; the spectral radial rows stay unrolled (a few operations)
-        if (dr.is_array_v(mi.Float) and (not mi.is_spectral or not self.isotropic)
-                and not self._differentiated(layer, dx, dy)):
-            return self._looped_lobe_and_pdf(layer, dx, dy, active, modulation, lams)
-        values = []
-        pdf = mi.Float(0.0)
-        for lam_nm, m in zip(lams, mix):
-            value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
-            values.append(value)
-            pdf += m * p_d
-        if modulation is None:
-            return self._fold(values), pdf
-        return self._fold(values), pdf, self._fold([v * modulation(q, lam_nm)
-                                                     for q, (v, lam_nm) in enumerate(zip(values, lams))])
-
-    def _lobe_at(self, layer, dx, dy, lam_nm, active):
-        """One wavelength's lobe ``F_a (L/λ)² v(u)`` at ``d = (dx, dy)`` and its d-space pdf ``p_u k²``."""
-        j, t, L = layer["j"], layer["t"], layer["L"]
-        interpolate = self.n_rows > 1
-        L_lam = L * dr.rcp(lambda_um(lam_nm))      # L/λ (one division a wavelength)
-        k = 2.0 * dr.pi * L_lam                    # u = 2π L d / λ
-        ux, uy = dx * k, dy * k
-        if self.isotropic:                         # each row is sampled exactly ∝ v
-            if self.centred:           # one row, exactly at the layer's F_a; pdf ∝ eval
-                v, _, _ = self._radial_rows(ux, uy, j, active, layer["fa"] - self.fa_centre)
-                p_u = v / dr.maximum(layer["energy"], 1e-30)
-            else:
-                v, v_next, v_mid = self._radial_rows(ux, uy, j, active, t if interpolate else None,
-                                                     layer["hermite"])
-                p_u = v / dr.maximum(layer["total"], 1e-30)
-            if interpolate:    # sampled: row j or j + 1 (weights 1 - t, t); evaluated: Hermite in F_a
-                p_u = dr.lerp(p_u, v_next / dr.maximum(layer["total_next"], 1e-30), t)
-                v = v_mid
-        else:                                      # the exact density of the kernel's sampling table
-            srow = None if layer["hermite"] is None else (j, *layer["hermite"])
-            dfa = layer["fa"] - self.fa_centre if self.centred else None
-            v = self.kernel.value(dx, dy, active, srow, dfa, scale=k)      # (d and k: see value)
-            p_u = self.kernel.pdf(ux, uy, active)
-        # F_a (L/λ)² v; p_d = p_u k² (radial rows: p_u = v / ∫v d²u, mixed by t)
-        return layer["weight"] * dr.square(L_lam) * v, p_u * dr.square(k)
-
-    @staticmethod
-    def _differentiated(layer, dx, dy):
-        """True where a derivative flows through the lobe (Dr.Jit's reverse mode of a symbolic loop
-        needs a bound on its iterations: the wavelengths are unrolled then)."""
-        return any(dr.grad_enabled(x) for x in (dx, dy, *(v for v in layer.values() if v is not None
-                                                           and not isinstance(v, tuple))))
-
-    def _looped_lobe_and_pdf(self, layer, dx, dy, active, modulation=None, lams=None):
-        """:meth:`_lobe_and_pdf` as one symbolic Dr.Jit loop over the wavelengths (``lams``, the
-        lane's in spectral variants; the channels' response wavelengths in RGB / mono): a traced
-        body instead of one unrolled copy per wavelength, so the kernel compiles in a fraction of
-        the time; the same sums."""
-        if mi.is_spectral:
-            nc, per = len(lams), 1
-
-            def wavelength(q):
-                lam = lams[-1]
-                for k in range(nc - 2, -1, -1):
-                    lam = dr.select(q == k, lams[k], lam)
-                return lam, 1.0
-        else:
-            lam_all = np.asarray(self.channel_lambdas, dtype=np.float64)
-            nc, per = lam_all.shape
-            if getattr(self, "_loop_arrays", None) is None:
-                self._loop_arrays = (_array(mi.Float, lam_all.ravel()),
-                                     _array(mi.Float, np.asarray(self.channel_weights, dtype=np.float64).ravel()))
-            lam_arr, w_arr = self._loop_arrays
-
-            def wavelength(q):
-                return _gather(mi.Float, lam_arr, q), _gather(mi.Float, w_arr, q)
-        n = nc * per
-        zero = dr.zeros(mi.Float, dr.width(dx))
-        with_mod = modulation is not None
-
-        def body(q, chans, mods, pdf):
-            lam_nm, w = wavelength(q)
-            value, p_d = self._lobe_at(layer, dx, dy, lam_nm, active)
-            pdf = dr.fma(1.0 / n, p_d, pdf)
-            c = q // per
-            factor = modulation(q, lam_nm) if with_mod else None
-            chans = [dr.select(c == i, dr.fma(w, value, a), a) for i, a in enumerate(chans)]
-            if with_mod:
-                mods = [dr.select(c == i, dr.fma(w, value * factor, a), a) for i, a in enumerate(mods)]
-            return q + 1, chans, mods, pdf
-
-        q0 = dr.zeros(mi.UInt32, dr.width(dx))
-        state = (q0, [mi.Float(zero) for _ in range(nc)], [mi.Float(zero) for _ in range(nc if with_mod else 0)],
-                 mi.Float(zero))
-        _, chans, mods, pdf = dr.while_loop(state, lambda q, *_: q < n, body, label="corona wavelengths")
-        spec = (lambda xs: mi.Spectrum(xs[0]) if nc == 1 else mi.Spectrum(xs))
-        if not with_mod:
-            return spec(chans), pdf
-        return spec(chans), pdf, spec(mods)
-
-    def _channel_lobe_and_pdf(self, layer, dx, dy, active):
-        """:meth:`_lobe_and_pdf` from the channel tables (:meth:`_set_channel_tables`): channel ``c``'s
-        lobe ``F_a L² g_c(s)`` at ``s = L |d|`` (plus ``ΔF_a ∂g_c`` for a centred layer: 0 in value), and
-        the d-space pdf of sampling ``s`` from ``G = Σ_c g_c``: ``L² G(s) / ∫G d²s``."""
-        L = layer["L"]
-        # (the 1e-24 keeps the gradient of |d| finite at d = 0)
-        x = dr.sqrt(dr.fma(dx, dx, dr.fma(dy, dy, 1e-24))) * L * (1.0 / self.channel_ds)
-        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.channel_n - 2)
-        t = x - mi.Float(i)
-        inside = active & (x <= self.channel_n - 1)
-        dfa = layer["fa"] - self.fa_centre if self.centred else None
-        nc = self.channel_count
-        scale = layer["weight"] * dr.square(L)
-        chans, g_sum = [], mi.Float(0.0)
-        for c in range(nc):
-            q = gather4(self.channel_packed, i * nc + c, inside)
-            g = dr.lerp(q.x, q.y, t)
-            if dfa is not None:
-                g = dr.fma(dfa, dr.lerp(q.z, q.w, t), g)
-            g = dr.select(inside, dr.maximum(g, 0.0), 0.0)
-            g_sum += g
-            chans.append(scale * g)
-        energy = _gather(mi.Float, self.channel_totals, mi.UInt32(0), active)
-        if dfa is not None:
-            energy = dr.fma(dfa, _gather(mi.Float, self.channel_totals, mi.UInt32(1), active), energy)
-        pdf = dr.square(L) * g_sum / dr.maximum(energy, 1e-30)
-        return (mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)), pdf
-
-    def _fold(self, values):
-        """The Spectrum of per-wavelength values: spectral as is, RGB/mono each channel's mean."""
-        return fold_spectrum(values, getattr(self, "channel_lambdas", None), getattr(self, "channel_weights", None))
-
-    def _wavelength_mixture(self, wavelengths):
-        """The wavelengths [nm] evaluated per lane and their pdf mixture weights (equal)."""
-        return wavelength_mixture(wavelengths, getattr(self, "channel_lambdas", None))
-
-    def _pane_reflectance(self, cos_theta, lam_nm=None):
-        """``R'``: the thin pane's reflectance at ``|cos θ|`` (:func:`corona.mitsuba.common.pane_reflectance`);
-        a mirror's ``R + T² R_m / (1 - R R_m)``, ``R_m`` at ``lam_nm`` when given (else at 550 nm)."""
-        if self.is_mirror:
-            r = mi.fresnel(dr.abs(cos_theta), self.eta)[0]
-            rm = self.silver if lam_nm is None or not self.silver_varies else self._silver_at(lam_nm)
-            return r + dr.square(1.0 - r) * rm / (1.0 - r * rm)
-        return pane_reflectance(cos_theta, self.eta)
-
-    def _silver_at(self, lam_nm):
-        """``R_m(λ)`` of a silvering spectrum, linear between its 1 nm table entries (clamped)."""
-        x = dr.clip(mi.Float(lam_nm) - SILVER_GRID[0], 0.0, float(SILVER_GRID.size - 1))
-        i = mi.UInt32(dr.minimum(dr.floor(x), float(SILVER_GRID.size - 2)))
-        t = x - mi.Float(i)
-        return dr.lerp(_gather(mi.Float, self.silver_table, i), _gather(mi.Float, self.silver_table, i + 1), t)
-
-    def _face_reflectance(self, cos_theta):
-        """``R``: the Fresnel reflectance of the face the layer lies on, at ``|cos θ|``."""
-        return mi.fresnel(dr.abs(cos_theta), self.eta)[0]
-
-    def _pane_transmittance(self, cos_theta):
-        """``T' = 1 - R'`` of the pane at ``|cos θ|``; 0 for a mirror."""
-        if self.is_mirror:
-            return 0.0 * cos_theta
-        return 1.0 - self._pane_reflectance(cos_theta)
-
-    # --- the coherent double pass (docs/physics.md#the-coherent-double-pass-quetelet-rings) -----
-    def _setup_double_pass(self, pane):
-        """Constants of the pane's thickness, silvering and (RGB) the wavenumber bins."""
-        self.is_mirror = isinstance(pane, Mirror)
-        self.silver = float(pane.silver(550.0)) if self.is_mirror else 0.0
-        self.silver_varies = self.is_mirror and pane.spectral
-        if self.silver_varies:   # R_m(λ) per evaluated wavelength
-            self.silver_table = _array(mi.Float, pane.silver(SILVER_GRID))
-        self.coherent_pane = pane.coherent
-        if not self.coherent_pane:
-            return
-        self.thickness = float(pane.thickness)
-        if not mi.is_spectral:   # each response wavelength stands for its quantile bin: its fringe table
-            sigma, env = _channel_envelopes(bool(mi.is_monochromatic))
-            self.bin_sigma = sigma.ravel()
-            self.bin_sigma_table = _array(mi.Float, self.bin_sigma)
-            env = env.reshape(-1, env.shape[-1])
-            self.env_n = env.shape[-1]
-            self.env_re = _array(mi.Float, env.real.ravel())
-            self.env_im = _array(mi.Float, env.imag.ravel())
-
-    def _envelope_index(self, delta, active):
-        """Where ``Δ`` falls in the fringe tables (shared by every bin): (entry, weight, inside)."""
-        x = delta * (1.0 / DELTA_STEP)
-        inside = active & (x < self.env_n - 1)
-        i = mi.UInt32(dr.clip(dr.floor(x), 0, self.env_n - 2))
-        return i, x - mi.Float(i), inside
-
-    def _bin_average_cos(self, q, index, sin_cos):
-        """``G_q(Δ) = Re[e^{2πiΔσ_q} E_q(Δ)]``, the envelope linear between table entries, 0 beyond;
-        ``index`` from :meth:`_envelope_index`, ``sin_cos`` = sincos(2π σ_q Δ)."""
-        i, t, inside = index
-        k = i + q * self.env_n
-        re = dr.lerp(_gather(mi.Float, self.env_re, k, inside), _gather(mi.Float, self.env_re, k + 1, inside), t)
-        im = dr.lerp(_gather(mi.Float, self.env_im, k, inside), _gather(mi.Float, self.env_im, k + 1, inside), t)
-        s, c = sin_cos
-        return dr.select(inside, c * re - s * im, 0.0)
-
-    def _double_pass_modulation(self, layer, wi, wo, cos_i, cos_o, active=True):
-        """Per evaluated wavelength, the factor ``min(R_i, R_o) + C (P_i + P_o + 2 V Q)`` on ``f`` (a callable
-        ``(q, λ [nm]) -> Float`` for :meth:`_lobe_and_pdf`), ``Q`` the interference of the round
-        trips: exact per wavelength (spectral), averaged over each response bin (RGB/mono)."""
-        n = self.eta
-        ri = self._face_reflectance(cos_i)
-        ro = self._face_reflectance(cos_o)
-        c2 = layer["coherent"]
-        base = dr.minimum(ri, ro) + c2 * (self._pane_reflectance(cos_i) - ri + self._pane_reflectance(cos_o) - ro)
-        s2i = dr.fma(wi.x, wi.x, wi.y * wi.y)
-        s2o = dr.fma(wo.x, wo.x, wo.y * wo.y)
-        cri = dr.safe_sqrt(1.0 - s2i / (n * n))
-        cro = dr.safe_sqrt(1.0 - s2o / (n * n))
-        delta = (2.0 * self.thickness / n) * (s2o - s2i) / (cri + cro)        # 2 n t (cos r_s - cos r_o), µm
-        rb = self.silver if self.is_mirror else dr.sqrt(ri * ro)
-        a = (1.0 - ri) * (1.0 - ro) * rb
-        x = rb * dr.sqrt(ri * ro)
-        front = dr.minimum(ri, ro)
-        lobe = layer["plane"] * layer["weight"] / dr.maximum(layer["fa"], 1e-30)
-        cd = c2 * lobe                         # the visibility cap (substrate.double_pass_visibility)
-        slack = 1.0 - layer["reflect"]
-        inv = 1.0 / dr.maximum(cd, 1e-30)
-        e = (slack - c2 * c2 - lobe - cd) * inv
-        vis = dr.minimum(dr.minimum((slack - c2 * c2 - 2.0 * cd) * 0.5 * inv, (slack - c2 - cd) * inv), e)
-        vis = dr.maximum(vis, dr.safe_sqrt(e * (1.0 - c2) / dr.maximum(c2, 1e-30)))
-        vis = dr.select(cd > 0, dr.clip(vis, 0.0, 1.0), 1.0)
-        if not mi.is_spectral:   # the table position of each order's k |Δ|, the same for every bin
-            index = [self._envelope_index(k * dr.abs(delta), active) for k in range(1, RGB_ORDERS + 1)]
-
-        def factor(q, lam_nm):
-            b, aq, xq = base, a, x
-            if self.silver_varies:   # the silvering's R_m at this wavelength
-                rm = self._silver_at(lam_nm)
-                b = front + c2 * (self._pane_reflectance(cos_i, lam_nm) - ri + self._pane_reflectance(cos_o, lam_nm) - ro)
-                aq, xq = (1.0 - ri) * (1.0 - ro) * rm, rm * dr.sqrt(ri * ro)
-            if mi.is_spectral:
-                c = _cos(2.0 * dr.pi * delta / lambda_um(lam_nm))    # (not dr.cos: CUDA's cos.approx)
-                qv = aq * (c - xq) / (1.0 - 2.0 * xq * c + xq * xq)
-            else:   # Σ_k x^(k-1) G_q(k Δ): the bin-averaged cosine (substrate.channel_envelopes), truncated
-                qv = mi.Float(0.0)
-                xk = mi.Float(1.0)
-                sigma = (float(self.bin_sigma[q]) if isinstance(q, int)       # (q traced: a symbolic loop's)
-                         else _gather(mi.Float, self.bin_sigma_table, q))
-                s1, c1 = _sincos(2.0 * dr.pi * sigma * dr.abs(delta))
-                sk, ck = s1, c1
-                for k in range(1, RGB_ORDERS + 1):   # e^{ikφ} by recurrence: one sincos a bin
-                    qv += xk * self._bin_average_cos(q, index[k - 1], (sk, ck))
-                    sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
-                    xk = xk * xq
-                qv = aq * qv
-            return b + 2.0 * c2 * vis * qv
-        return factor
-
-    def _layer_first(self, cos_i):
-        """True where light from ``wi`` meets the layer before the pane."""
-        return layer_first(cos_i, self.layer_on_front)
-
-    def _delta_weights(self, layer, cos_i, wavelengths=None):
-        """Weights of the coherent transmission and of the specular reflection (pane only); with
-        ``wavelengths`` and a silvering spectrum, the specular weight per wavelength (a Spectrum)."""
-        def weights(lam_nm=None):
-            r_i = self._pane_reflectance(cos_i, lam_nm)
-            return pane_delta_weights(layer["coherent"], r_i, self._layer_first(cos_i),
-                                      t_i=self._pane_transmittance(cos_i),
-                                      behind=0.0 if self.is_mirror else r_i,     # a mirror's back is black
-                                      front=self._face_reflectance(cos_i))
-        w_coh, w_spec = weights()
-        if wavelengths is not None and self.silver_varies:
-            lams, _ = self._wavelength_mixture(wavelengths)
-            w_spec = self._fold([weights(lam)[1] for lam in lams])
-        return w_coh, w_spec
-
-    def _reflected_lobe_energy(self, coherent, cos_i):
-        """The reflected lobe's energy over ``D`` at ``θi``, the two angles taken equal:
-        ``R + 2 C P`` (its selection weight)."""
-        r = self._face_reflectance(cos_i)
-        return r + 2.0 * coherent * (self._pane_reflectance(cos_i) - r)
+        with ``modulation(q, λ)`` also the lobe with each wavelength's value times that factor
+        (the representation's: :mod:`corona.mitsuba.lobes`)."""
+        return self.lobe.lobe_and_pdf(layer, wo.x + wi.x, wo.y + wi.y, wavelengths, active, modulation)
 
     def _selection(self, ctx, layer, cos_i=None):
         """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
         honouring the context: each component's energy, roughly for the lobes."""
         flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
-                 mi.BSDFFlags.DiffuseReflection)
-        if not self.has_pane:
-            energies = (layer["coherent"], layer["lobe"], layer["reflect"])
-        else:
-            flags += (mi.BSDFFlags.DeltaReflection, mi.BSDFFlags.GlossyReflection)
-            first = self._layer_first(cos_i)
-            t_i = self._pane_transmittance(cos_i)
-            w_coh, w_spec = self._delta_weights(layer, cos_i)
-            energies = (w_coh, layer["lobe"] * t_i,
-                        dr.select(first, layer["reflect"], layer["reflect"] * t_i), w_spec,
-                        dr.select(first, layer["lobe"] * self._reflected_lobe_energy(layer["coherent"], cos_i),
-                                  0.0))
+                 mi.BSDFFlags.DiffuseReflection) + self.substrate.flags()
+        energies = self.substrate.energies(layer, cos_i)
         return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
 
     # ------------------------------------------------------------------
@@ -957,41 +607,27 @@ class CoronaBSDFMixin:
         reflect = active & (cos_i * cos_o > 0) & off_delta
         if layer is None:
             layer = self._layer(si, active)
-        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
+        probs = self._selection(ctx, layer, cos_i)
+        p_lobe, p_refl = probs[1], probs[2]
         lobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         refl_on = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 2)
 
-        lobe_sides = (transmit | reflect) if self.has_pane else transmit   # the pane: the lobe in reflection
-        coherent = self.has_pane and self.coherent_pane
-        modulation = self._double_pass_modulation(layer, wi, wo, cos_i, cos_o, reflect) if coherent else None
+        substrate = self.substrate
+        lobe_sides = substrate.lobe_sides(transmit, reflect)              # a pane: the lobe in reflection
+        modulation = substrate.modulation(layer, wi, wo, cos_i, cos_o, reflect)   # a thick pane's double pass
         f, pdf_d, *f_mod = self._lobe_and_pdf(layer, wi, wo, si.wavelengths, lobe_sides, modulation)
         abs_cos_o = dr.abs(cos_o)
         lobe = f * abs_cos_o                                              # eval = f |cos θo|
         diffuse = layer["reflect"] * dr.inv_pi * abs_cos_o
-        if self.has_pane:   # Fresnel factors of the pane (module docstring's table)
-            first = self._layer_first(cos_i)
-            r_i, r_o = self._pane_reflectance(cos_i), self._pane_reflectance(cos_o)
-            t_i, t_o = self._pane_transmittance(cos_i), self._pane_transmittance(cos_o)
-            f_through, f_reflected, f_diffuse = pane_smooth_factors(
-                layer["coherent"], r_i, r_o, first, t_i=t_i, t_o=t_o,
-                front_i=self._face_reflectance(cos_i), front_o=self._face_reflectance(cos_o))
-            if coherent:   # the double pass: f [R_min + C (P_i + P_o + 2 V Q)] (f_reflected modulated)
-                lobe_reflected = dr.select(first, f_mod[0] * abs_cos_o, 0.0)
-            else:
-                lobe_reflected = lobe * f_reflected
-            lobe = lobe * f_through
-            diffuse = diffuse * f_diffuse
+        # Fresnel factors of a pane (module docstring's table), its lobe in reflection
+        lobe, diffuse, lobe_reflected = substrate.smooth(layer, cos_i, cos_o, lobe, diffuse, f_mod, abs_cos_o)
         value = dr.select(transmit & lobe_on, lobe, 0.0)
         if self.sampling == "cosine":
             pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
         pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
         value += dr.select(reflect & refl_on, diffuse, 0.0)
         pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
-        if self.has_pane:
-            rlobe_on = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
-            value += dr.select(reflect & rlobe_on, lobe_reflected, 0.0)
-            pdf += dr.select(reflect, p_pane[1] * pdf_d * abs_cos_o, 0.0)
-        return value, pdf
+        return substrate.add_reflected(ctx, value, pdf, reflect, lobe_reflected, probs, pdf_d, abs_cos_o)
 
     def eval(self, ctx, si, wo, active=True):
         return self._eval_pdf(ctx, si, wo, active)[0]
@@ -1007,19 +643,12 @@ class CoronaBSDFMixin:
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
         layer = self._layer(si, active)
-        p_coh, p_lobe, p_refl, *p_pane = self._selection(ctx, layer, cos_i)
+        substrate = self.substrate
+        probs = self._selection(ctx, layer, cos_i)
+        p_coh, p_lobe = probs[0], probs[1]
         pick_coh = active & (sample1 < p_coh)
         pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
-        if self.has_pane:   # after the reflection: 3 specular, 4 the lobe in reflection
-            p_spec, p_rlobe = p_pane
-            c3 = p_coh + p_lobe + p_refl
-            c4 = c3 + p_spec
-            pick_rlobe = active & (sample1 >= c4) & (p_rlobe > 0)
-            pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_rlobe <= 0)) & (p_spec > 0)
-            pick_refl = (active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
-                         & ((sample1 < c3) | ((p_spec <= 0) & (p_rlobe <= 0))))
-        else:
-            pick_refl = active & (sample1 >= p_coh + p_lobe) & (p_refl > 0)
+        pick_refl, picks = substrate.pick(active, sample1, probs)   # (a pane: 3 specular, 4 the lobe reflected)
 
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
@@ -1030,39 +659,23 @@ class CoronaBSDFMixin:
 
         if self.sampling == "cosine":   # lobe: the same warp, mirrored to the far side
             wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
-            lobe_valid = pick_lobe & (wo_cos.z > 0)
-            if self.has_pane:           # the lobe in reflection: the warp itself
-                wo_rlobe = wo_refl
-                rlobe_valid = pick_rlobe & (wo_cos.z > 0)
+            wo_rlobe = wo_refl          # the lobe in reflection (a pane): the warp itself
+            lobe_ok = wo_cos.z > 0
         else:
             # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
             # sample1's position inside the lobe's share picks the wavelength (equal weights)
             # and what is left of it the row (j with probability 1 - t, j + 1 with t)
-            lams, _ = self._wavelength_mixture(si.wavelengths)
             s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
-            pick_any_lobe = pick_lobe
-            if self.has_pane:   # the lobe in reflection has the same d, on the side of wi
-                s = dr.select(pick_rlobe, (sample1 - c4) / dr.maximum(p_rlobe, 1e-30), s)
-                pick_any_lobe = pick_lobe | pick_rlobe
-            row = layer["j"]
-            if self.channel_tables_on:   # s = L |d| from the channels' sum (one row)
-                d = self._sample_u(sample2, row, layer["fa"], pick_any_lobe) / layer["L"]
-            else:
-                pick, hero, rest = pick_wavelength(s, lams)
-                lam = lambda_um(hero)
-                if self.n_rows > 1 and self.isotropic:
-                    row = dr.select(rest >= 1.0 - layer["t"], row + 1, row)
-                u = self._sample_u(sample2, row, layer["fa"], pick_any_lobe)
-                d = u * (lam / (2.0 * dr.pi * layer["L"]))
+            s, pick_any_lobe = substrate.lobe_share(picks, probs, sample1, s, pick_lobe)
+            d = self.lobe.sample_d(sample2, layer, s, si.wavelengths, pick_any_lobe)
             ox = d.x - wi.x
             oy = d.y - wi.y
             r2 = dr.fma(ox, ox, oy * oy)
             oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
             wo_lobe = mi.Vector3f(ox, oy, oz)
-            lobe_valid = pick_lobe & (r2 < 1.0) & (oz != 0)
-            if self.has_pane:
-                wo_rlobe = mi.Vector3f(ox, oy, -oz)
-                rlobe_valid = pick_rlobe & (r2 < 1.0) & (oz != 0)
+            wo_rlobe = mi.Vector3f(ox, oy, -oz)   # the lobe in reflection (a pane): the same d
+            lobe_ok = (r2 < 1.0) & (oz != 0)
+        lobe_valid = pick_lobe & lobe_ok
 
         bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0),
@@ -1072,22 +685,12 @@ class CoronaBSDFMixin:
             dr.select(pick_lobe, mi.UInt32(+mi.BSDFFlags.GlossyTransmission),
                       mi.UInt32(+mi.BSDFFlags.DiffuseReflection)))
 
-        smooth = lobe_valid | pick_refl
-        pick_delta = pick_coh
-        if self.has_pane:
-            pane_sample(bs, wi, pick_spec, pick_rlobe, wo_rlobe)
-            smooth = smooth | rlobe_valid
-            pick_delta = pick_coh | pick_spec
+        smooth, pick_delta = substrate.sampled(bs, wi, picks, wo_rlobe, lobe_ok, lobe_valid | pick_refl, pick_coh)
 
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, layer)
-        bs.pdf = dr.select(pick_coh, p_coh, pdf)
         weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)          # no 0/0 (scalar variants too)
-        if self.has_pane:
-            w_coh, w_spec = self._delta_weights(layer, cos_i, si.wavelengths)
-            bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
-            weight = dr.select(pick_spec, w_spec / dr.maximum(p_spec, 1e-30), weight)
-        else:
-            w_coh = layer["coherent"]
+        w_coh, bs.pdf, weight = substrate.delta_sample(layer, cos_i, si.wavelengths, picks, probs,
+                                                       dr.select(pick_coh, p_coh, pdf), weight)
         weight = dr.select(pick_coh, w_coh / dr.maximum(p_coh, 1e-30), weight)
         ok = pick_delta | (smooth & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
