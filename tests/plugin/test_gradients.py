@@ -506,3 +506,32 @@ def test_fit_window_recovers_radius_area_fraction_and_bitmap(mi_variant):
     assert b["max_texel_error"] < 0.10, {k: v for k, v in b.items() if k not in ("truth", "fit")}
     # and it did fit: the start was 10 % / 20 % off, the bitmap's start 0.3 everywhere
     assert u["loss_last"] < 0.5 * u["loss_first"] and b["loss_last"] < 0.5 * b["loss_first"]
+
+
+@pytest.mark.slow     # forward-mode AD, a kernel compiled per case
+@pytest.mark.parametrize("key", ["area_fraction", "albedo"])
+def test_derivative_at_a_texture_least_value(mi_variant, key):
+    # the texel under the shading point holds the texture's least value: the start of the F_a rows'
+    # cover (area_fraction) or 0 (albedo). The lane's value is clipped to the range; on the bound
+    # itself the derivative is the texel's (Dr.Jit's clip passes the bound's, 0: such a texel had
+    # none, AD 0 against a finite difference). Against the one-sided difference of second order
+    # (x + h and x + 2h stay in the texture's range: the other texels hold the larger value).
+    import mitsuba as mi
+    x, hi, h, what = {"area_fraction": (0.2, 0.35, 2e-4, "eval"), "albedo": (0.0, 0.6, 1e-2, "eval")}[key]
+    base = {"type": "corona", "process": "hard-disk", "area_fraction": 0.3, "albedo": 0.4, "radius": 2.0,
+            key: bitmap_texture([[x, hi], [hi, hi]])}
+    bsdf = mi.load_dict(base)
+    params = mi.traverse(bsdf)
+    put = _setter(params, key, True, hi)
+    q = []
+    for k in (0, 1, 2):
+        put(mi.Float(x + k * h))
+        q.append(float(_quantity(bsdf, what, key, 30.0)[0]))
+    fd = (4.0 * q[1] - 3.0 * q[0] - q[2]) / (2.0 * h)
+    xf = mi.Float(x)
+    dr.enable_grad(xf)
+    put(xf)
+    y = _quantity(bsdf, what, key, 30.0)
+    dr.forward(xf)
+    ad = float(np.asarray(dr.grad(y)).ravel()[0])
+    assert abs(fd) > 1e-3 * abs(q[0]) and abs(ad - fd) < 0.01 * abs(fd), (ad, fd)

@@ -107,7 +107,7 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                                    guided_cdfs, positive as _positive,
                                    read_props as _read_props, selection, texture_range, uniform as _uniform,
                                    variant_class)
-from corona.mitsuba.common import centre_rows
+from corona.mitsuba.common import centre_rows, clip as _clip
 from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, CentredRow,
                                   ChannelTables, KernelLobe, OneRow, PackedRowGrid, PairedTable, RadialRow,
                                   RadialRowPairs, RadialRows, RowGrid, SampledTable, Wavelengths)
@@ -556,7 +556,7 @@ class CoronaBSDFMixin:
     def _layer(self, si, active):
         """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
         and the energies of the coherent beam, the lobe and the reflection."""
-        fa = dr.clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
+        fa = _clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
         rows = self.rows.locate(fa, active)      # the row j, its weight t, the energies, the Hermite weights
         energy = rows["energy"]
         held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
@@ -568,7 +568,7 @@ class CoronaBSDFMixin:
         weight = fa * scale
         lobe = held * scale                  # the energy the tables hold: chooses the component
         opaque = (1.0 - fa) if self.mode_aperture else fa
-        albedo = dr.clip(self.albedo_tex.eval_1(si, active), 0.0, 1.0)
+        albedo = _clip(self.albedo_tex.eval_1(si, active), 0.0, 1.0)
         reflect = dr.minimum(albedo * opaque, dr.maximum(1.0 - coherent - plane * scale, 0.0))
         if self.fixed_radius:
             L = mi.Float(self.L_per_radius * self.radius_cover)

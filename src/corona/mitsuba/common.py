@@ -392,6 +392,13 @@ def positive(x):
     return dr.select(x > 0, x, 1.0)
 
 
+def clip(x, lo, hi):
+    """``x`` clipped to ``[lo, hi]``, with the derivative of ``x`` where it lies on a bound: Dr.Jit's
+    ``clip`` (and ``maximum``) pass the bound's derivative, 0, where ``x`` equals it, so a texel
+    holding its texture's least value (the end of the rows' cover) had no derivative."""
+    return dr.select((x < lo) | (x > hi), dr.clip(x, lo, hi), x)
+
+
 def logical_not(x):
     """Logical not of a mask (a Dr.Jit Bool, or a Python bool in scalar variants, where ``~`` is wrong)."""
     return ~x if dr.is_array_v(x) else (not x)

@@ -85,7 +85,7 @@ from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin,
 from corona.mitsuba.common import pane_reflectance, pane_sample, pane_smooth_factors, positive as _positive, selection
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
-from corona.mitsuba.common import centre_rows, host_buffer, read_props as _read_props
+from corona.mitsuba.common import centre_rows, clip, host_buffer, read_props as _read_props
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from corona.model.rows import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
@@ -484,7 +484,7 @@ class SphereBSDFMixin:
         if self.fa_centred:   # ("centre", F_a - F_a,centre where F_a has a gradient, else None)
             return _CENTRE, (fa - self.fa_centre if dr.grad_enabled(fa) else None)
         g = (fa - self.fa0) / self.dfa                # itself on the end rows (as _lane_radius)
-        g = dr.select((g < 0.0) | (g > self.n_fa - 1.0), dr.clip(g, 0.0, self.n_fa - 1.0), g)
+        g = clip(g, 0.0, self.n_fa - 1.0)
         k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
         t = g - mi.Float(k)
         t2 = t * t
@@ -518,7 +518,7 @@ class SphereBSDFMixin:
         """The lane's radius [µm]: the texture's (or the uniform value's), clipped to the rows' radii."""
         r, (lo, hi) = self.radius_tex.eval_1(si, active), self.radius_cover
         # r itself on the ends (a texel at the texture's least radius: dr.clip there has lo's derivative, 0)
-        return dr.select((r < lo) | (r > hi), dr.clip(r, lo, hi), r)
+        return clip(r, lo, hi)
 
     def _row(self, lam_nm, radius, active=True):
         """Row j of the lane's x (the row at or below it), the weight t of row j+1, λ [µm], x, x_j,
@@ -584,7 +584,7 @@ class SphereBSDFMixin:
         fa = self.fa_tex.eval_1(si, active)
         if self.fa_textured:
             lo, hi = self.fa_range          # fa itself on the ends (as _lane_radius)
-            fa = dr.select((fa < lo) | (fa > hi), dr.clip(fa, lo, hi), fa)
+            fa = clip(fa, lo, hi)
         return lams, m, mu_i, fa, self._fa_weights(fa), self._lane_radius(si, active)
 
     def _states(self, si, active, lane=None):
