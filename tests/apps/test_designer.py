@@ -754,6 +754,76 @@ def test_profiles_are_mie(sphere_client):
     np.testing.assert_allclose(p["rings"]["550"][:3], expected, rtol=2e-3)
 
 
+# spheres on a fixed lattice (a colloidal crystal): not isotropic, so the designer's cuts along x
+# and y; the sphere has no planar form factor (Mie theory instead)
+SPHERE_LATTICES = [
+    {"shape": "sphere", "radius": 2.0, "area_fraction": 0.2, "process": "lattice-square", "jitter": 0.1},
+    {"shape": "sphere", "radius": 2.0, "area_fraction": 0.2, "process": "lattice-hex"},
+]
+
+
+@pytest.mark.slow     # the lattice's picture and kernel_info
+@pytest.mark.parametrize("params", SPHERE_LATTICES, ids=["square", "hex"])
+def test_every_endpoint_answers_for_sphere_lattices(sphere_client, params):
+    _exact(params)
+    res = sphere_client.get("/api/corona.png", params={**params, "size": 48})
+    assert res.status_code == 200, res.text
+    img = np.asarray(Image.open(io.BytesIO(res.content)))
+    assert img.shape == (48, 48, 3) and img.std() > 1
+    for fmt in ("png", "exr"):
+        res = sphere_client.get(f"/api/kernel.{fmt}", params={**params, "kernel_size": 33, "pixel_scale": 0.2})
+        assert res.status_code == 200, res.text
+    for ep in ("/api/profiles", "/api/material", "/api/kernel_info"):
+        res = sphere_client.get(ep, params=params)
+        assert res.status_code == 200, res.text
+
+
+def _first_bragg_angle(lattice_vectors, axis, lam):
+    """The angle [degree] of the shortest reciprocal vector G = 2π A^-T n along ``axis`` (0: x,
+    1: y): sin θ = λ |G| / 2π (the lattice's geometry, not its S)."""
+    B = 2 * np.pi * np.linalg.inv(np.asarray(lattice_vectors)).T
+    best = math.inf
+    for n1 in range(-4, 5):
+        for n2 in range(-4, 5):
+            g = n1 * B[0] + n2 * B[1]
+            if g[axis] > 1e-9 and abs(g[1 - axis]) < 1e-9 * abs(g[axis]):
+                best = min(best, g[axis])
+    return math.degrees(math.asin(lam * best / (2 * np.pi)))
+
+
+@pytest.mark.parametrize("params", SPHERE_LATTICES, ids=["square", "hex"])
+def test_sphere_lattice_profiles_are_mie_times_bragg(sphere_client, params):
+    """GET /api/profiles of a sphere on a fixed lattice (it answered 400: a Mie sphere has no
+    planar form factor): T_a along both cuts is Mie's dσ/dΩ / (π r²), T_s peaks at the lattice's
+    first Bragg orders, and the lobe per unit d²d is F_a w T_a T_s / cos θ (w <= 1, the cap)."""
+    _exact(params)
+    p = sphere_client.get("/api/profiles", params=params)
+    assert p.status_code == 200, p.text
+    p = p.json()
+    assert p["preview"] is False and p["isotropic"] is False
+    theta = np.radians(p["angle"])
+    r = params["radius"]
+    ref = mie.differential_cross_section(complex(mie.water_ior(550.0)), r, 0.55, np.cos(theta)) / (math.pi * r * r)
+    for suffix in ("", "_y"):
+        np.testing.assert_allclose(p["T_a" + suffix], ref, rtol=1e-6)
+    m = _sphere_material(params)
+    step = p["angle"][1] - p["angle"][0]
+    for axis, suffix in ((0, ""), (1, "_y")):
+        T_s = np.asarray(p["T_s" + suffix])
+        expected = _first_bragg_angle(m.lattice.lattice_vectors, axis, 0.55)
+        near = np.abs(np.asarray(p["angle"]) - expected) < 1.0
+        assert T_s[near].max() > 50 * np.median(T_s)               # a Bragg peak, not the background
+        assert p["angle"][int(np.argmax(np.where(near, T_s, 0)))] == pytest.approx(expected, abs=step)
+        lobe = np.asarray(p["lobe" + suffix])
+        prod = params["area_fraction"] * ref * T_s
+        sel = prod > 1e-3 * prod.max()
+        w = lobe[sel] * np.cos(theta[sel]) / prod[sel]
+        assert sel.sum() >= 10
+        # the lobe reads the Mie tables, T_a is exact: 3e-3 for their interpolation
+        assert w.max() <= 1.0 + 3e-3 and w.min() > 0.9 and w.max() - w.min() < 1e-2, (w.min(), w.max())
+    assert p["rings"]["550"][0] == pytest.approx(_first_bragg_angle(m.lattice.lattice_vectors, 0, 0.55), abs=0.05)
+
+
 @pytest.mark.slow
 def test_a_new_sphere_radius_shows_a_preview_then_the_exact_picture(monkeypatch):
     """Issue 43 item 6: a sphere radius without its exact Mie table is answered at once from the

@@ -802,7 +802,11 @@ def profiles(params: dict, view: dict, n: int = 400, preview: bool = False) -> d
     ``P(q) / λ²`` (the single-scatterer lobe; P the form factor, T_a(0) = |A|/λ²),
     ``T_s`` the structure factor, ``lobe`` = ``F_a T_a T_s`` [1/sr] as the BSDF
     (decoupling rule for random shapes).  Anisotropic materials: cuts along
-    x and along y (``*_y``).  ``rings`` [degree]: the first maxima of the
+    x and along y (``*_y``).  Spheres: ``T_a`` = ``dσ/dΩ / (π r²)`` from Mie theory (on a fixed
+    lattice the same along both cuts: the pattern at normal incidence is isotropic), ``T_s`` the
+    lattice's ``S`` at the cut's ``q``, and ``lobe`` the layer's own per-direction lobe
+    (:meth:`~corona.model.mie.layer.SphereMaterial.lobe_dimensionless` at 550 nm: per unit ``d²d``,
+    ``F_a w T_a T_s / cos θ`` with the lattice's energy cap ``w``).  ``rings`` [degree]: the first maxima of the
     lobe after the centre at 450, 550, 650 nm.  ``preview``: a new sphere radius may be answered
     from its preview (:func:`shown_material`), and the result's ``preview`` says whether it was.
     """
@@ -820,24 +824,34 @@ def profiles(params: dict, view: dict, n: int = 400, preview: bool = False) -> d
     if m.isotropic:
         # the lobe from the picture's radial profile (same material, same range: computed once)
         u, v = _radial_v(m, _u_top(m, rho_top))
-        if _is_sphere(m):     # one sphere's n dσ/dΩ / F_a = dσ/dΩ / (π r²), from Mie theory
-            wi = np.array([0.0, 0.0, 1.0])
-            wo = np.stack([rho, 0 * rho, -np.sqrt(np.maximum(1 - rho * rho, 0.0))], -1)
-            P_f = m._exact(np.linalg.norm(wo + wi, axis=-1), np.linalg.norm(wo - wi, axis=-1),
-                           np.full(rho.shape, PROFILE_WAVELENGTH))[0]
-            out["T_a"] = _finite(P_f)
+        if _is_sphere(m):
+            out["T_a"] = _sphere_T_a(m, rho)
         else:
             out["T_a"] = _finite(m.shape.form_factor_radial(q) / lam**2)
         out["T_s"] = _finite(m.process.structure_factor_radial(q, m.shape))
         out["lobe"] = _finite(w * (R / lam) ** 2 * np.interp(q * R, u, v))
     else:
+        sphere = _is_sphere(m)
         for suffix, qq in (("", np.stack([q, 0 * q], -1)), ("_y", np.stack([0 * q, q], -1))):
-            out["T_a" + suffix] = _finite(m.shape.form_factor(qq) / lam**2)
+            # a sphere's pattern at normal incidence is isotropic: both cuts share Mie's T_a
+            out["T_a" + suffix] = _sphere_T_a(m, rho) if sphere else _finite(m.shape.form_factor(qq) / lam**2)
             out["T_s" + suffix] = _finite(m.process.structure_factor_at(qq, m.shape))
-            out["lobe" + suffix] = _finite(w * (R / lam) ** 2 * m.lobe_dimensionless(qq * R))
+            v = m.lobe_dimensionless(qq * R, PROFILE_WAVELENGTH) if sphere else m.lobe_dimensionless(qq * R)
+            out["lobe" + suffix] = _finite(w * (R / lam) ** 2 * v)
     out["rings"] = ring_radii(m)
     out["preview"] = preview
     return out
+
+
+def _sphere_T_a(m, rho) -> list:
+    """One sphere's ``n dσ/dΩ / F_a = dσ/dΩ / (π r²)`` [1/sr] at normal incidence towards
+    ``wo = (ρ, 0, -√(1 - ρ²))`` at :data:`PROFILE_WAVELENGTH`, from Mie theory (the layer's
+    :meth:`~corona.model.mie.layer.SphereMaterial._exact`, a size distribution's average included)."""
+    wi = np.array([0.0, 0.0, 1.0])
+    wo = np.stack([rho, 0 * rho, -np.sqrt(np.maximum(1 - rho * rho, 0.0))], -1)
+    P_f = m._exact(np.linalg.norm(wo + wi, axis=-1), np.linalg.norm(wo - wi, axis=-1),
+                   np.full(rho.shape, PROFILE_WAVELENGTH))[0]
+    return _finite(P_f)
 
 
 def _finite(a) -> list:
@@ -861,7 +875,9 @@ def ring_radii(m, n_rings: int = 4) -> dict:
         shift = np.where(curv < 0, 0.5 * (v[peaks - 1] - v[peaks + 1]) / np.where(curv < 0, curv, -1.0), 0.0)
         return u[peaks] + du * np.clip(shift, -0.5, 0.5)
     if _is_sphere(m):     # Mie rings move with x and m(λ) as well: found at each wavelength
-        per_lam = {lam: peaks_of(m.lobe_dimensionless_radial(u, lam)) for lam in RING_WAVELENGTHS}
+        ux = np.stack([u, 0 * u], -1)       # a fixed lattice: along x, as the opaque shapes'
+        per_lam = {lam: peaks_of(m.lobe_dimensionless_radial(u, lam) if m.isotropic
+                                 else m.lobe_dimensionless(ux, lam)) for lam in RING_WAVELENGTHS}
     else:
         v = m.lobe_dimensionless_radial(u) if m.isotropic else m.lobe_dimensionless(np.stack([u, 0 * u], -1))
         per_lam = dict.fromkeys(RING_WAVELENGTHS, peaks_of(v))
