@@ -355,3 +355,24 @@ def test_row_of_each_area_fraction(mi_variant, process, lo, hi):
     assert np.mean(exact) > 0.999
     assert np.all((t > -1e-5) & (t <= 1.0))
     np.testing.assert_allclose(rows[j] + t * (rows[j + 1] - rows[j]), fa, atol=1e-6)
+
+
+def test_anisotropic_sampling_table_is_the_layer_scaled_once(mi_variant, monkeypatch):
+    # a textured F_a on an anisotropic lobe samples from the table at the lowest F_a: the same layer
+    # (its absolute lengths scaled once to the rows' radius cover), not scaled a second time
+    import mitsuba as mi
+    import corona.mitsuba.bsdf as plugin
+    from bsdf_checks import bitmap_texture
+    seen = []
+    real = plugin.material_from_parameters
+
+    def spy(**kw):
+        seen.append(kw)
+        return real(**kw)
+    monkeypatch.setattr(plugin, "material_from_parameters", spy)
+    mi.load_dict({"type": "corona", "shape": "square", "radius": 2.0, "process": "hard-disk",
+                  "edge_width": 0.1, "area_fraction": bitmap_texture([[0.1, 0.3], [0.3, 0.3]])})
+    layer, low = seen[-2], seen[-1]                # the layer at its cover, then its lowest-F_a table
+    assert low["area_fraction"] == pytest.approx(0.1, rel=1e-6)
+    assert low["radius"] == layer["radius"]
+    assert low["edge_width"] == pytest.approx(layer["edge_width"], rel=1e-12)

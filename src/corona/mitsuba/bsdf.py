@@ -348,7 +348,7 @@ class CoronaBSDFMixin:
                 if self.fa_tex.is_spatially_varying() and fas[0] < material.area_fraction:
                     # sampled from the table at the lowest F_a (its S closest to 1), so that
                     # eval / pdf ~ S(F_a) / S(lowest) stays bounded over the texture
-                    self._sample_table_at(at(cover), fas[0])
+                    self._sample_table_at(params, fas[0])         # (params: the layer at `cover`)
         if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
             self.fa_cover = (float(fas[0]), float(fas[-1]))
         # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
