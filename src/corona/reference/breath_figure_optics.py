@@ -59,6 +59,24 @@ def _interp(table, step, x):
     return table[i] * (1.0 - f) + table[i + 1] * f
 
 
+@nb.njit(cache=True)
+def _row_phases(x, y, m0, dq, qy):
+    """``e^{-i q·r_j}`` at ``q = (m0 dq, qy)`` and its step ``e^{-i dq x_j}`` along the row (real and
+    imaginary parts): then each point of the row costs one complex product per droplet."""
+    N = x.shape[0]
+    wr = np.empty(N)
+    wi = np.empty(N)
+    sr = np.empty(N)
+    si = np.empty(N)
+    for j in range(N):
+        ph = -(m0 * dq * x[j] + qy * y[j])
+        wr[j] = math.cos(ph)
+        wi[j] = math.sin(ph)
+        sr[j] = math.cos(-dq * x[j])
+        si[j] = math.sin(-dq * x[j])
+    return wr, wi, sr, si
+
+
 @nb.njit(cache=True, parallel=True)
 def _rings(x, y, a, cls, K, L, q_max, dq_ring, n_ring, g, g_step, shd, shd_step):
     """Ring sums over the half lattice ``q = 2π (m, n)/L``, ``0 < |q| <= q_max``: columns
@@ -73,17 +91,7 @@ def _rings(x, y, a, cls, K, L, q_max, dq_ring, n_ring, g, g_step, shd, shd_step)
         qy = n * dq
         mmax = int(math.sqrt(max(q_max * q_max - qy * qy, 0.0)) / dq)
         m0 = 1 if n == 0 else -mmax
-        # phases at m = m0 and their steps along the row
-        wr = np.empty(N)
-        wi = np.empty(N)
-        sr = np.empty(N)
-        si = np.empty(N)
-        for j in range(N):
-            ph = -(m0 * dq * x[j] + qy * y[j])
-            wr[j] = math.cos(ph)
-            wi[j] = math.sin(ph)
-            sr[j] = math.cos(-dq * x[j])
-            si[j] = math.sin(-dq * x[j])
+        wr, wi, sr, si = _row_phases(x, y, m0, dq, qy)    # phases at m = m0, their steps along the row
         rho_r = np.zeros(K)
         rho_i = np.zeros(K)
         f_sum = np.zeros(K)
@@ -245,16 +253,7 @@ def _structure_rings(x, y, L, q_max, dq_ring, n_ring):
         qy = n * dq
         mmax = int(math.sqrt(max(q_max * q_max - qy * qy, 0.0)) / dq)
         m0 = 1 if n == 0 else -mmax
-        wr = np.empty(N)
-        wi = np.empty(N)
-        sr = np.empty(N)
-        si = np.empty(N)
-        for j in range(N):
-            ph = -(m0 * dq * x[j] + qy * y[j])
-            wr[j] = math.cos(ph)
-            wi[j] = math.sin(ph)
-            sr[j] = math.cos(-dq * x[j])
-            si[j] = math.sin(-dq * x[j])
+        wr, wi, sr, si = _row_phases(x, y, m0, dq, qy)
         for m in range(m0, mmax + 1):
             q = math.sqrt((m * dq) ** 2 + qy * qy)
             ring = int(q / dq_ring)
@@ -286,16 +285,7 @@ def _partial_rings(x, y, cls, K, L, q_max, dq_ring, n_ring):
         qy = n * dq
         mmax = int(math.sqrt(max(q_max * q_max - qy * qy, 0.0)) / dq)
         m0 = 1 if n == 0 else -mmax
-        wr = np.empty(N)
-        wi = np.empty(N)
-        sr = np.empty(N)
-        si = np.empty(N)
-        for j in range(N):
-            ph = -(m0 * dq * x[j] + qy * y[j])
-            wr[j] = math.cos(ph)
-            wi[j] = math.sin(ph)
-            sr[j] = math.cos(-dq * x[j])
-            si[j] = math.sin(-dq * x[j])
+        wr, wi, sr, si = _row_phases(x, y, m0, dq, qy)
         rr = np.zeros(K)
         ri = np.zeros(K)
         for m in range(m0, mmax + 1):
