@@ -57,8 +57,8 @@ def pair_distances_ok(pos, L):
 @pytest.mark.slow
 @pytest.mark.reference
 def test_table_file_and_metadata():
-    from corona.model.processes.hard_disk import _table_path
-    path = _table_path()
+    from corona.model.processes.base import DATA
+    path = os.path.join(DATA, "hard_disk_structure_factor.npz")
     assert os.path.getsize(path) < 2e6
     t = hd.load_table()
     m = t["metadata"]

@@ -1,10 +1,32 @@
 """The base class of a point process of scatterer centres."""
 from __future__ import annotations
 
+import json
+import os
 
 import numpy as np
 
 from corona._validation import CoronaError
+
+
+#: The folder of the tables corona ships (corona/data).
+DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "data")
+
+
+def shipped_table(filename: str, format_version: int, what: str, script: str) -> dict:
+    """A table shipped in :data:`DATA`: an ``.npz`` whose ``metadata`` is JSON, its arrays and that
+    metadata (a dict) checked against ``format_version``; one ``CoronaError`` naming ``what`` when the
+    file is missing (made by ``script``) or of another format."""
+    path = os.path.join(DATA, filename)
+    if not os.path.exists(path):
+        raise CoronaError(f"{what} table {path} is missing; reinstall corona or run {script}")
+    with np.load(path, allow_pickle=False) as z:
+        t = {k: z[k] for k in z.files}
+    t["metadata"] = json.loads(str(t["metadata"]))
+    if t["metadata"].get("format_version") != format_version:
+        raise CoronaError(f"{path}: format version {t['metadata'].get('format_version')} != "
+                          f"{format_version}; reinstall corona")
+    return t
 
 
 class Process:

@@ -12,15 +12,13 @@ docs/physics.md#breath-figures-processbreath-figure).  The table
 from __future__ import annotations
 
 import functools
-import json
 import math
-import os
 
 import numpy as np
 
 from corona._validation import CoronaError, check_range
 from corona.model import registry
-from corona.model.processes.base import Process
+from corona.model.processes.base import Process, shipped_table
 
 TABLE_FORMAT_VERSION = 1
 #: Contact angles [degree] the table's time mapping covers (a cap of θ > 90° overhangs its
@@ -28,27 +26,12 @@ TABLE_FORMAT_VERSION = 1
 CONTACT_ANGLE_MIN, CONTACT_ANGLE_MAX = 10.0, 90.0
 
 
-def _table_path():
-    return os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "data",
-                        "breath_figure.npz")
-
-
 @functools.cache
 def load_table() -> dict:
     """The shipped table: ``times`` [s], ``R`` (⟨a³⟩/⟨a²⟩ [µm]), ``mean_radius`` [µm], ``coverage``,
     ``density`` [µm⁻²], ``fraction`` and ``x`` (size classes: number fractions and mean a/R),
     ``S`` over ``u = q R``, ``metadata``."""
-    path = _table_path()
-    if not os.path.exists(path):
-        raise CoronaError(f"breath-figure table {path} is missing; reinstall corona or run "
-                          "scripts/make_breath_figure_table.py")
-    with np.load(path, allow_pickle=False) as z:
-        t = {k: z[k] for k in z.files}
-    t["metadata"] = json.loads(str(t["metadata"]))
-    if t["metadata"].get("format_version") != TABLE_FORMAT_VERSION:
-        raise CoronaError(f"{path}: format version {t['metadata'].get('format_version')} != "
-                          f"{TABLE_FORMAT_VERSION}; reinstall corona")
-    return t
+    return shipped_table("breath_figure.npz", TABLE_FORMAT_VERSION, "breath-figure", "scripts/make_breath_figure_table.py")
 
 
 def _cap_factor(theta_deg: float) -> float:

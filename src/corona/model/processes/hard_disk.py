@@ -8,15 +8,13 @@ interpolates ``data/hard_disk_structure_factor.npz`` (made by
 from __future__ import annotations
 
 import functools
-import json
 import math
-import os
 
 import numpy as np
 
 from corona._validation import CoronaError, check_positive, check_range
 from corona.model import registry
-from corona.model.processes.base import Process, _check_exclusion
+from corona.model.processes.base import Process, _check_exclusion, shipped_table
 
 TABLE_FORMAT_VERSION = 1
 #: Largest packing fraction of the table (above the fluid–hexatic transition).
@@ -33,27 +31,12 @@ def tail_basis(q):
 
 
 
-def _table_path():
-    return os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "data",
-                        "hard_disk_structure_factor.npz")
-
-
 @functools.cache
 def load_table() -> dict:
     """The shipped table (loaded once, the one route every reader takes):
     arrays ``eta``, ``q_sigma``, ``S`` (n_eta × n_q), ``tail``, per-row
     diagnostics, and ``metadata`` (dict)."""
-    path = _table_path()
-    if not os.path.exists(path):
-        raise CoronaError(f"hard-disk table {path} is missing; reinstall corona or run "
-                          "scripts/make_hard_disk_table.py")
-    with np.load(path, allow_pickle=False) as z:
-        t = {k: z[k] for k in z.files}
-    t["metadata"] = json.loads(str(t["metadata"]))
-    if t["metadata"].get("format_version") != TABLE_FORMAT_VERSION:
-        raise CoronaError(f"{path}: format version {t['metadata'].get('format_version')} "
-                          f"!= {TABLE_FORMAT_VERSION}; reinstall corona")
-    return t
+    return shipped_table("hard_disk_structure_factor.npz", TABLE_FORMAT_VERSION, "hard-disk", "scripts/make_hard_disk_table.py")
 
 
 def _pchip_slopes(x, y):
