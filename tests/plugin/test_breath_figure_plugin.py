@@ -177,3 +177,16 @@ def test_time_texel_derivative_matches_central_differences(mi_variant):
     ad = float(np.asarray(dr.grad(x)).ravel()[0])
     assert abs(fd) > 1e-3 * abs(float(dr.detach(y)[0])) / 15.0      # the lobe does change with time here
     assert abs(ad - fd) <= 0.02 * abs(fd), (ad, fd)
+
+
+@pytest.mark.slow
+@pytest.mark.chi2
+def test_chi2_with_a_time_texture(mi_variant):
+    """sample against pdf at a lane between the time rows (15.5 s: two rows' mixture, uv = (0, 0))."""
+    import mitsuba as mi
+
+    from bsdf_checks import bitmap_texture
+    bsdf = mi.load_dict({"type": "corona", "process": "breath-figure",
+                         "breath_time": bitmap_texture([[15.5, 10.0]])})
+    ok, test = _chi2_turned(bsdf, 30.0)
+    assert ok, test.messages

@@ -111,7 +111,7 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                                    guided_cdfs, positive as _positive,
                                    read_props as _read_props, selection, texture_range, uniform as _uniform,
                                    variant_class)
-from corona.mitsuba.common import centre_rows, clip as _clip
+from corona.mitsuba.common import centre_rows, clip as _clip, gather as _gather
 from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, CentredRow,
                                   ChannelTables, KernelLobe, OneRow, PackedRowGrid, PairedTable, RadialRow,
                                   RadialRowPairs, RadialRows, RowGrid, SampledTable, Wavelengths)
@@ -348,8 +348,8 @@ class CoronaBSDFMixin:
         x = (dr.log(t) - self.time_log0) * self.time_scale
         j = mi.UInt32(dr.clip(dr.floor(x), 0, TIME_GRID - 2))
         w = x - mi.Float(j)
-        f0, f1 = dr.gather(mi.Float, self.time_fa, j), dr.gather(mi.Float, self.time_fa, j + 1)
-        r0, r1 = dr.gather(mi.Float, self.time_logR, j), dr.gather(mi.Float, self.time_logR, j + 1)
+        f0, f1 = _gather(mi.Float, self.time_fa, j), _gather(mi.Float, self.time_fa, j + 1)
+        r0, r1 = _gather(mi.Float, self.time_logR, j), _gather(mi.Float, self.time_logR, j + 1)
         return f0 + w * (f1 - f0), dr.exp(r0 + w * (r1 - r0)) * self.L_per_R
 
     def _setup(self, fa_range, radius_range, albedo_range):
