@@ -323,7 +323,7 @@ class CoronaBSDFMixin:
             raise CoronaError("corona BSDF: the breath figure's coverage does not grow over the breath_time "
                               f"texture's range [{t_lo:g}, {t_hi:g}] s; use a uniform breath_time")
         last = mats[-1]
-        c = float(last.length_scale) / R[-1]
+        c = float(last.length_scale) / float(R[-1])
         du, n = float(last.table.du), int(last.table.values.size)
         u = np.arange(n) * du
         tabs = []
