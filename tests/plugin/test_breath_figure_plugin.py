@@ -194,6 +194,26 @@ def test_chi2_with_a_time_texture(mi_variant):
     assert ok, test.messages
 
 
+
+def test_time_texture_update_beyond_its_rows_rebuilds_them(mi_variant):
+    """params.update() with a texel past the rows' range (12 -> 30 s) rebuilds the rows: that lane is
+    then the model's layer at 30 s; a texel outside the table is one clear error."""
+    import mitsuba as mi
+
+    from bsdf_checks import assert_eval_matches, bitmap_texture, transmitted_lobe
+    bsdf = mi.load_dict({"type": "corona", "process": "breath-figure",
+                         "breath_time": bitmap_texture([[10.0, 12.0], [10.0, 10.0]])})
+    params = mi.traverse(bsdf)
+    params["breath_time.data"] = mi.TensorXf(np.array([10.0, 30.0, 10.0, 10.0], np.float32), shape=(2, 2, 1))
+    params.update()
+    assert bsdf.time_cover[1] == pytest.approx(30.0)
+    wi, wo = _cut(30.0)
+    m = material_from_parameters(process="breath-figure", breath_time=30.0)
+    assert_eval_matches(bsdf, transmitted_lobe(m), wi, wo, LAMS, rtol=0.02, atol=0.005, uv=(0.75, 0.25))
+    params["breath_time.data"] = mi.TensorXf(np.array([10.0, 90.0, 10.0, 10.0], np.float32), shape=(2, 2, 1))
+    with pytest.raises(Exception, match="breath_time"):
+        params.update()
+
 @pytest.mark.slow
 def test_furnace_with_a_time_texture_matches_the_model(mi_variant):
     """A lane between the time rows (15.5 s): the mean sample weight within 0.5 % of the numpy
