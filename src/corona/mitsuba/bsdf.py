@@ -203,7 +203,7 @@ class CoronaBSDFMixin:
         self.fa_tex = textures["area_fraction"]
         self.radius_tex = textures["radius"]
         self.albedo_tex = textures["albedo"]
-        # breath_time as a texture: rows over the coverage, L ∝ R(t) per lane (_setup_time_rows)
+        # breath_time as a texture: rows over the coverage, L ∝ R(t) per lane (_time_rows)
         self.time_tex = textures.get("breath_time")
         if self.time_tex is not None and params.get("process", SPEC["process"].default) != "breath-figure":
             raise CoronaError("corona BSDF: breath_time can be a texture only with process='breath-figure'")
@@ -405,7 +405,8 @@ class CoronaBSDFMixin:
         if self.time_tex is None:
             fas, tabs, s_rows, totals = self._area_fraction_rows(material, fa_lo, fa_hi)
         else:
-            s_rows, totals, self.row_error = None, np.array([t.total for t in tabs]), 0.0
+            # (their error against the model: benchmarks/breath_time_texture.py, not a row midpoint figure)
+            s_rows, totals, self.row_error = None, np.array([t.total for t in tabs]), None
         # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
         # re-centred by parameters_changed), plus its slope in F_a (module docstring)
         self.centred = (process.varying_area_fraction and len(fas) > 1
