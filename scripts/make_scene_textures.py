@@ -10,6 +10,10 @@
   [µm] of ``scenes/condensation_gradient.xml``, growing from 3 µm at the
   left of the pane to 12 µm at the right (the droplets grow where the glass
   is coldest), linear in x.
+* ``breath_spot_age.exr`` (64×64, one float channel): the breath figure's age ``breath_time`` [s]
+  of ``scenes/breath_spot.xml``: a breath spot drying from its edge, 40 s (the droplets grown
+  largest) in its middle falling to 5 s at its rim (r = 0.9 of the half-width) and beyond,
+  smooth and uniform in log t.
 """
 from __future__ import annotations
 
@@ -43,6 +47,13 @@ def condensation_radius(width: int = 64, height: int = 4) -> np.ndarray:
     return np.tile(3.0 + 9.0 * x, (height, 1))
 
 
+def breath_spot_age(n: int = 64) -> np.ndarray:
+    """breath_time [s] on an n×n grid: 40 s in the middle, 5 s from r = 0.9 of the half-width on."""
+    y, x = (np.mgrid[:n, :n] + 0.5) / n
+    r = np.hypot(x - 0.5, y - 0.5) * 2
+    return np.exp(np.log(5.0) + np.log(8.0) * (1.0 - smoothstep(0.15, 0.9, r)))
+
+
 def main() -> None:
     import imageio.v3 as iio
     import mitsuba as mi
@@ -53,7 +64,8 @@ def main() -> None:
     iio.imwrite(os.path.join(HERE, "wiped_fog.png"), np.round(wiped_fog() * 255).astype(np.uint8))
     mi.Bitmap(condensation_radius().astype(np.float32)[..., None]).write(
         os.path.join(HERE, "condensation_radius.exr"))
-    print(f"wrote {os.path.normpath(HERE)}/wiped_fog.png, condensation_radius.exr")
+    mi.Bitmap(breath_spot_age().astype(np.float32)[..., None]).write(os.path.join(HERE, "breath_spot_age.exr"))
+    print(f"wrote {os.path.normpath(HERE)}/wiped_fog.png, condensation_radius.exr, breath_spot_age.exr")
 
 
 if __name__ == "__main__":

@@ -76,6 +76,10 @@ Hermite interpolation and its slope in ``F_a``, re-centred by each
 row's cost, and derivatives in ``F_a`` through the slope.
 ``lattice-*`` and ``points`` (whose geometry F_a sets) take no F_a texture;
 ``mask`` and ``points`` (absolute sizes) no radius texture.
+``breath_time`` (``process=breath-figure``) takes a texture too (a breath spot, a pane drying
+from its edges): rows over the coverage (which grows with time), each the material at one time
+with its table resampled to a length ``L ∝ R(t)``, Hermite in F_a between rows; each lane's F_a
+and ``R`` linear in log t as the table's own (docs/physics.md#breath-figures-processbreath-figure).
 
 Spectral variants evaluate each of the lane's wavelengths.  Sampling picks
 one of the lane's wavelengths at random (each with probability 1/n, reusing
@@ -107,7 +111,7 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                                    guided_cdfs, positive as _positive,
                                    read_props as _read_props, selection, texture_range, uniform as _uniform,
                                    variant_class)
-from corona.mitsuba.common import centre_rows, clip as _clip
+from corona.mitsuba.common import centre_rows, clip as _clip, gather as _gather
 from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, CentredRow,
                                   ChannelTables, KernelLobe, OneRow, PackedRowGrid, PairedTable, RadialRow,
                                   RadialRowPairs, RadialRows, RowGrid, SampledTable, Wavelengths)
@@ -120,6 +124,11 @@ __doc__ = __doc__.replace("{table}", rst_table())
 
 #: Area-fraction rows around a uniform value: ± this much (a texture gets its own range).
 FA_WINDOW = 0.1
+#: Rows of a ``breath_time`` texture per interval of the breath-figure table's times (uniform in log t;
+#: the error this leaves, over the table's whole span: benchmarks/results/breath_time_texture.json).
+TIME_SUBDIVIDE = 4
+#: Nodes of a ``breath_time`` texture's lane table (F_a and log R, uniform in log t).
+TIME_GRID = 257
 #: Nodes of an RGB / mono channel table (in ``s = L |d|``) per node of the lobe's table in ``u``
 #: at the shortest response wavelength (:func:`_channel_tables`).
 CHANNEL_OVERSAMPLE = 2
@@ -194,6 +203,10 @@ class CoronaBSDFMixin:
         self.fa_tex = textures["area_fraction"]
         self.radius_tex = textures["radius"]
         self.albedo_tex = textures["albedo"]
+        # breath_time as a texture: rows over the coverage, L ∝ R(t) per lane (_time_rows)
+        self.time_tex = textures.get("breath_time")
+        if self.time_tex is not None and params.get("process", SPEC["process"].default) != "breath-figure":
+            raise CoronaError("corona BSDF: breath_time can be a texture only with process='breath-figure'")
         self._textured = {k for k in textures if textures[k].is_spatially_varying()}
         # a mixture's radius texture is the radius of its largest component: every size scales with it
         self.mixture_scaled = params.get("shape") == "mixture" and "radius" in self._textured
@@ -263,10 +276,89 @@ class CoronaBSDFMixin:
             out.append((0.0 if lo is None else lo, hi))
         return out
 
+    def _time_range(self):
+        """Checked (lo, hi) of the ``breath_time`` texture [s]: inside the table's times at the
+        contact angle (the rows' error over that whole span: benchmarks/results/breath_time_texture.json)."""
+        from corona.model.processes.breath_figure import time_range
+        lo, hi = texture_range(self.time_tex)
+        theta = float(self.params.get("contact_angle", SPEC["contact_angle"].default))
+        t0, t1 = time_range(theta)
+        if (lo is None or not np.isfinite(lo) or not np.isfinite(hi) or lo < t0 * (1 - 1e-6)
+                or hi > t1 * (1 + 1e-6)):
+            raise CoronaError(f"corona BSDF: breath_time texture spans [{lo if lo is not None else '?'}, {hi:g}] s; "
+                              f"allowed within [{t0:g}, {t1:g}] s (the breath-figure table's times at "
+                              f"contact_angle={theta:g})")
+        return max(lo, t0), min(hi, t1)
+
+    def _time_rows(self, params, t_lo, t_hi):
+        """The breath figure's rows over its coverage for the times ``[t_lo, t_hi]`` [s].
+
+        Rows at the table's times inside the range, its ends and :data:`TIME_SUBDIVIDE` - 1 times
+        between each two (uniform in log t), each the material at that time with its radial table
+        resampled to the common length ``L = c R(t)`` (``R`` the area-weighted mean radius, ``c`` that
+        of the latest row): ``v'(u') = v(u' L_i / L'_i) (L_i / L'_i)²`` keeps the lobe
+        ``F_a v(u) (L/λ)²``.  The coverage grows with time, so the rows are the F_a rows of an
+        F_a texture (Hermite in F_a between them); each lane's F_a and ``log R`` are linear in
+        ``log t`` (the table's own interpolation) from a table uniform in log t."""
+        from corona.model.processes.breath_figure import BreathFigure, load_table, time_range
+        from corona.model.tabulated import RadialTable
+        theta = float(params.get("contact_angle", SPEC["contact_angle"].default))
+        t0, t1 = time_range(theta)
+        if t_hi < t_lo * (1 + 2e-3):      # a uniform time: two rows around it
+            t_lo, t_hi = max(t_lo * (1 - 1e-3), t0), min(t_hi * (1 + 1e-3), t1)
+        nodes = load_table()["times"] * (t0 / load_table()["times"][0])
+        knots = np.unique(np.concatenate([[t_lo, t_hi], nodes[(nodes > t_lo) & (nodes < t_hi)]]))
+        lk = np.log(knots)
+        times = np.exp(np.unique(np.concatenate(
+            [lk[:-1, None] + (lk[1:] - lk[:-1])[:, None] * np.arange(TIME_SUBDIVIDE)[None] / TIME_SUBDIVIDE,
+             lk[-1:, None]], axis=None)))
+        mats = []
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CoronaWarning)
+            for t in times:
+                mats.append(material_from_parameters(**{**params, "breath_time": float(t)}))
+        R = np.array([m.process.mean_radius for m in mats])
+        fas = np.array([m.area_fraction for m in mats])
+        if np.any(np.diff(fas) <= 0):
+            raise CoronaError("corona BSDF: the breath figure's coverage does not grow over the breath_time "
+                              f"texture's range [{t_lo:g}, {t_hi:g}] s; use a uniform breath_time")
+        last = mats[-1]
+        c = float(last.length_scale) / float(R[-1])
+        du, n = float(last.table.du), int(last.table.values.size)
+        u = np.arange(n) * du
+        tabs = []
+        for m, r in zip(mats, R):
+            k = float(m.length_scale) / (c * r)                  # L_i / L'_i
+            own = np.arange(m.table.values.size) * m.table.du
+            tabs.append(RadialTable(du, np.interp(u * k, own, m.table.values, right=0.0) * k * k))
+        # lanes: F_a and log R over a grid uniform in log t (exact at the rows, linear in log t)
+        grid = np.linspace(np.log(t_lo), np.log(t_hi), TIME_GRID)
+        procs = [BreathFigure(float(np.exp(x)), theta) for x in grid]
+        fa_grid = np.array([p.area_fraction(None) for p in procs])
+        self.time_cover = (float(t_lo), float(t_hi))
+        self.time_log0, self.time_scale = float(grid[0]), (TIME_GRID - 1) / float(grid[-1] - grid[0])
+        self.time_fa = _array(mi.Float, np.clip(fa_grid, fas[0], fas[-1]))
+        self.time_logR = _array(mi.Float, np.log([p.mean_radius for p in procs]))
+        self.L_per_R = c
+        self.time_rows = times
+        return mats[int(np.argmin(np.abs(times - np.sqrt(t_lo * t_hi))))], fas, tabs
+
+    def _time_lookup(self, t):
+        """(F_a, L) of a lane at breath time ``t`` [s]: gathers from the uniform table in log t."""
+        x = (dr.log(t) - self.time_log0) * self.time_scale
+        j = mi.UInt32(dr.clip(dr.floor(x), 0, TIME_GRID - 2))
+        w = x - mi.Float(j)
+        f0, f1 = _gather(mi.Float, self.time_fa, j), _gather(mi.Float, self.time_fa, j + 1)
+        r0, r1 = _gather(mi.Float, self.time_logR, j), _gather(mi.Float, self.time_logR, j + 1)
+        return f0 + w * (f1 - f0), dr.exp(r0 + w * (r1 - r0)) * self.L_per_R
+
     def _setup(self, fa_range, radius_range, albedo_range):
         """Build the material at the largest radius and its area-fraction rows, as Dr.Jit arrays."""
         fa_lo, fa_hi = fa_range
         params = dict(self.params)
+        if self.time_tex is not None:
+            t_lo, t_hi = self._time_range()
+            params["breath_time"] = t_hi
         # tables in u = 2π L |d| / λ cover the largest radius (uniform: 25 % headroom, so that
         # an optimiser can grow it without a rebuild); a smaller one scales L down
         cover = radius_range[1] * (1.0 if "radius" in self._textured else 1.25)
@@ -302,13 +394,19 @@ class CoronaBSDFMixin:
             raise CoronaError(f"corona BSDF: area_fraction cannot be a texture with process="
                               f"{self.params.get('process', SPEC['process'].default)!r} (the area fraction "
                               "sets its geometry); use poisson, hard-disk or rsa")
+        if self.time_tex is not None:
+            material, fas, tabs = self._time_rows(params, t_lo, t_hi)
         self.material = material
         self.isotropic = material.isotropic
         self.radius_cover = (cover if self.mixture_scaled
                              else float(params.get("radius", SPEC["radius"].default)))
         self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
         self.mode_aperture = material.mode == "aperture"
-        fas, tabs, s_rows, totals = self._area_fraction_rows(material, fa_lo, fa_hi)
+        if self.time_tex is None:
+            fas, tabs, s_rows, totals = self._area_fraction_rows(material, fa_lo, fa_hi)
+        else:
+            # (their error against the model: benchmarks/breath_time_texture.py, not a row midpoint figure)
+            s_rows, totals, self.row_error = None, np.array([t.total for t in tabs]), None
         # a uniform F_a: one row at the value itself, Hermite-interpolated from the rows (and
         # re-centred by parameters_changed), plus its slope in F_a (module docstring)
         self.centred = (process.varying_area_fraction and len(fas) > 1
@@ -556,7 +654,11 @@ class CoronaBSDFMixin:
     def _layer(self, si, active):
         """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
         and the energies of the coherent beam, the lobe and the reflection."""
-        fa = _clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
+        if self.time_tex is not None:     # the breath figure's age: its coverage and its length
+            fa, L = self._time_lookup(_clip(self.time_tex.eval_1(si, active), *self.time_cover))
+            fa = _clip(fa, self.fa_cover[0], self.fa_cover[1])
+        else:
+            fa = _clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
         rows = self.rows.locate(fa, active)      # the row j, its weight t, the energies, the Hermite weights
         energy = rows["energy"]
         held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
@@ -570,7 +672,9 @@ class CoronaBSDFMixin:
         opaque = (1.0 - fa) if self.mode_aperture else fa
         albedo = _clip(self.albedo_tex.eval_1(si, active), 0.0, 1.0)
         reflect = dr.minimum(albedo * opaque, dr.maximum(1.0 - coherent - plane * scale, 0.0))
-        if self.fixed_radius:
+        if self.time_tex is not None:
+            pass                                  # L from the time (above)
+        elif self.fixed_radius:
             L = mi.Float(self.L_per_radius * self.radius_cover)
         else:
             L = self.radius_tex.eval_1(si, active) * self.L_per_radius
@@ -704,12 +808,17 @@ class CoronaBSDFMixin:
         if not self.fixed_radius:
             callback.put("radius", self.radius_tex, flag)
         callback.put("albedo", self.albedo_tex, flag)
+        if self.time_tex is not None:
+            callback.put("breath_time", self.time_tex, flag)
 
     def parameters_changed(self, keys):
         # new values: check them; rebuild the tables only when they leave what the tables cover
         (fa_lo, fa_hi), radius, albedo = ranges = self._ranges()
         outside = (fa_lo < self.fa_cover[0] - 1e-7 or fa_hi > self.fa_cover[1] + 1e-7
                    or (not self.fixed_radius and radius[1] > self.radius_cover * (1 + 1e-6)))
+        if self.time_tex is not None:
+            t_lo, t_hi = self._time_range()
+            outside = outside or t_lo < self.time_cover[0] * (1 - 1e-6) or t_hi > self.time_cover[1] * (1 + 1e-6)
         if outside:
             self._setup(*ranges)
         elif self.centred:

@@ -33,6 +33,8 @@ RADIAL_NEWTON_STEPS = 1
 #: Parameters that take a Mitsuba texture as well as a float (a float becomes a
 #: ``uniform`` texture, so ``mi.traverse`` shows ``area_fraction.value`` etc.).
 TEXTURED = ("area_fraction", "radius", "albedo")
+#: Parameters a process reads that may also be a texture (the plugin's own rows over them).
+PROCESS_TEXTURED = ("breath_time",)
 
 
 # --------------------------------------------------------------------------
@@ -57,7 +59,7 @@ def read_props(props) -> tuple[dict, dict]:
         if name in ("shape", "process") and not isinstance(value, str):
             out[name] = instance_of(name, value)          # corona.scatterer(...)
             continue
-        if name in TEXTURED and isinstance(value, mi.Texture):
+        if (name in TEXTURED or name in PROCESS_TEXTURED) and isinstance(value, mi.Texture):
             textures[name] = value
             continue
         if name == "mirror_reflectance" and all(hasattr(value, a) for a in ("wavelengths", "values", "is_uniform")):
