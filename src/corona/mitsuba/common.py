@@ -5,8 +5,9 @@ header that Mitsuba's plugins include: the constants, reading and checking
 the parameters, texture ranges, arrays and gathers that also work in scalar
 variants, the guide-table CDFs of piecewise-linear radial densities and their
 Newton inversion, the lane's wavelengths (one-sample mixture over them), the
-RGB / mono folding of per-wavelength values, and the thin glass pane's
-Fresnel weights (docs/physics.md#the-layer-on-glass-substrateglass).
+RGB / mono folding of per-wavelength values, and the components' selection.
+The thin glass pane's Fresnel weights live with the substrates,
+:mod:`corona.mitsuba.substrate` (docs/physics.md#the-layer-on-glass-substrateglass).
 
 This module imports no plugin module (:mod:`corona.mitsuba.bsdf`,
 :mod:`corona.mitsuba.sphere`): they import it.
@@ -621,71 +622,6 @@ def fold_spectrum(values, channel_lambdas=None, channel_weights=None):
             acc += float(channel_weights[c, q]) * values[c * per + q]
         chans.append(acc)
     return mi.Spectrum(chans[0]) if nc == 1 else mi.Spectrum(chans)
-
-
-# --------------------------------------------------------------------------
-# the thin glass pane (docs/physics.md#the-layer-on-glass-substrateglass)
-# --------------------------------------------------------------------------
-def pane_reflectance(cos_theta, eta):
-    """``R' = 2R / (1 + R)``: a thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``),
-    ``R`` the polarisation-averaged Fresnel reflectance of one face at index ``eta``."""
-    r = mi.fresnel(dr.abs(cos_theta), eta)[0]
-    return r * 2.0 / (1.0 + r)
-
-
-def layer_first(cos_i, layer_on_front):
-    """True where light from ``wi`` meets the layer before the pane (layer on the front face or not)."""
-    return (cos_i > 0) if layer_on_front else (cos_i < 0)
-
-
-def _face_from_pane(r):
-    """The one face's Fresnel ``R`` of a thin non-absorbing pane of reflectance ``R' = 2R / (1 + R)``."""
-    return r / (2.0 - r)
-
-
-def pane_delta_weights(coherent, r_i, first, t_i=None, behind=None, front=None):
-    """Weights of the coherent transmission ``C T'`` and of the specular reflection
-    (``C R + C² (R' - R)`` when light meets the layer first, else ``behind``, by default ``R'``);
-    ``r_i = R'(θi)``, ``t_i = T'(θi)`` (default ``1 - R'``: a pane that does not absorb), ``front``
-    the Fresnel ``R(θi)`` of the face the layer lies on (default: that of a thin glass pane of
-    reflectance ``r_i``).  The front face returns the light through the same place of the layer,
-    which it crosses once (docs/physics.md#the-front-face)."""
-    t_i = 1.0 - r_i if t_i is None else t_i
-    behind = r_i if behind is None else behind
-    front = _face_from_pane(r_i) if front is None else front
-    return coherent * t_i, dr.select(first, coherent * (front + coherent * (r_i - front)), behind)
-
-
-def pane_smooth_factors(coherent, r_i, r_o, first, t_i=None, t_o=None, front_i=None, front_o=None):
-    """Factors of the smooth components on the pane: (lobe in transmission, lobe in reflection, diffuse).
-
-    Light meeting the layer first: ``T'(θo)``, ``min(R_i, R_o) + C [P_i + P_o]``, 1 (``R`` the
-    front face's Fresnel reflectance, ``front_i``/``front_o``, by default that of a thin glass
-    pane; ``P = R' - R`` the round trips); the glass first: ``T'(θi)``, 0, ``T'(θi) T'(θo)``
-    (the module docstring of :mod:`corona.mitsuba.bsdf` tabulates them).
-    """
-    t_i = 1.0 - r_i if t_i is None else t_i
-    t_o = 1.0 - r_o if t_o is None else t_o
-    front_i = _face_from_pane(r_i) if front_i is None else front_i
-    front_o = _face_from_pane(r_o) if front_o is None else front_o
-    transmitted = dr.select(first, t_o, t_i)
-    reflected = dr.select(first, dr.minimum(front_i, front_o) + coherent * (r_i - front_i + r_o - front_o), 0.0)
-    diffuse = dr.select(first, 1.0, t_i * t_o)
-    return transmitted, reflected, diffuse
-
-
-def pane_sample(bs, wi, pick_spec, pick_rlobe, wo_rlobe):
-    """The pane's two components over what ``bs`` (a ``mi.BSDFSample3f``) holds: 3, the specular
-    reflection (``wo`` the mirror image of ``wi``, ``DeltaReflection``) where ``pick_spec``, and 4,
-    the lobe in reflection (``wo_rlobe``, ``GlossyReflection``) where ``pick_rlobe``; ``bs.wo``,
-    ``bs.sampled_component`` and ``bs.sampled_type`` are set in place (and ``bs`` returned)."""
-    bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z), dr.select(pick_rlobe, wo_rlobe, bs.wo))
-    bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
-                                     dr.select(pick_rlobe, mi.UInt32(4), bs.sampled_component))
-    bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
-                                dr.select(pick_rlobe, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
-                                          bs.sampled_type))
-    return bs
 
 
 def selection(energies, enabled):

@@ -6,7 +6,9 @@ and samples the tables of :class:`corona.model.mie.layer.SphereMaterial`
 exactly as that numpy reference does, in Dr.Jit, with the parts every
 ``corona`` BSDF shares (:mod:`corona.mitsuba.common`: the guide-table CDFs and
 their search, the radial Newton inversion, the wavelength mixture and pick,
-the spectrum folding, the pane's weights, the component selection):
+the spectrum folding, the component selection), and a substrate component chosen at
+load (:func:`sphere_substrate`: none, or a glass pane built on
+:class:`corona.mitsuba.substrate.PaneSubstrate`, the flat layer's):
 
 * component 0, coherent transmission (``DeltaTransmission``): ``|1 - F_s s₀(λ)|²``
   along ``-wi``, a spectrum (the optical theorem's mean field depends on λ);
@@ -81,8 +83,7 @@ import numpy as np
 from corona.model import tabulated
 from corona._validation import CoronaError
 from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, picked, texture_range
-from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, layer_first, pane_delta_weights
-from corona.mitsuba.common import pane_reflectance, pane_sample, pane_smooth_factors, positive as _positive, selection
+from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, positive as _positive, selection
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
 from corona.mitsuba.common import centre_rows, clip, host_buffer, read_props as _read_props
@@ -90,8 +91,10 @@ from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unu
 from corona.model.rows import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
 from corona.model.mie.layer import share_forward_energies
+from corona.mitsuba.substrate import BareLayer, PaneSubstrate
 
-__all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "sphere_bsdf_class"]
+__all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "SpheresAlone", "SpheresOnPane", "sphere_bsdf_class",
+           "sphere_substrate"]
 
 #: A uniform radius's rows serve radii this factor below and above it (an optimiser's steps need no
 #: rebuild); a radius texture's rows serve its range.
@@ -229,9 +232,11 @@ class SphereBSDFMixin:
             self.channel_lambdas, self.channel_weights = _channel_response()
         sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
         glossy = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection | sides
+        #: the substrate component, chosen once here: none (:class:`SpheresAlone`) or a glass pane
+        #: (:class:`SpheresOnPane`: 3, the pane's mirror image, 4, the lobes in reflection)
+        self.substrate = sphere_substrate(self.material.substrate)
         self.m_components = [mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
-        if self.has_pane:   # 3: the pane's mirror image, 4: the lobe in reflection
-            self.m_components += [mi.BSDFFlags.DeltaReflection | sides, mi.BSDFFlags.GlossyReflection | sides]
+        self.m_components += self.substrate.components(sides, False)
         flags = self.m_components[0]
         for c in self.m_components[1:]:
             flags = flags | c
@@ -384,12 +389,6 @@ class SphereBSDFMixin:
             self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
         self.cdf, self.guide = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
         self.G, self.n_bins, self.steps = g["G"], g["n_bins"], g["steps"]
-        # the pane (docs/physics.md#the-layer-on-glass-substrateglass): incoherent glass only
-        pane = material.substrate
-        self.has_pane = pane is not None
-        if self.has_pane:
-            self.eta = float(pane.ior)
-            self.layer_on_front = pane.side == "front"
 
     @staticmethod
     def _lobe_packing(rows):
@@ -592,44 +591,14 @@ class SphereBSDFMixin:
         states = [self._state(lam, mu_i, active, fa, hw, radius) for lam in lams]
         return states, m
 
-    # ------------------------------------------------------------------
-    # the pane's weights (corona.mitsuba.common, as the flat layer's)
-    # ------------------------------------------------------------------
-    def _pane(self, cos_i, cos_o=None):
-        """(first, R'(θi), R'(θo)) of the pane: where light meets the layer first, and its reflectances."""
-        first = layer_first(cos_i, self.layer_on_front)
-        r_i = pane_reflectance(cos_i, self.eta)
-        return first, r_i, (None if cos_o is None else pane_reflectance(cos_o, self.eta))
-
-    def _delta_weights(self, st, cos_i):
-        """Per wavelength: (coherent transmission, specular reflection) on the pane, or (C, 0) without."""
-        if not self.has_pane:
-            return st["coherent"], mi.Float(0.0)
-        first, r_i, _ = self._pane(cos_i)
-        return pane_delta_weights(st["coherent"], r_i, first)
-
     def _selection(self, ctx, states, cos_i):
-        """Per-lane probabilities of (coherent, forward, backward[, specular, lobe in reflection]) ∝ their
-        energies summed over the lane's wavelengths (roughly, on the pane), honouring the context."""
+        """Per-lane probabilities of (coherent, forward, backward, then the substrate's components) ∝
+        their energies summed over the lane's wavelengths (:meth:`SpheresAlone.energies_of`),
+        honouring the context."""
         flags = [(mi.BSDFFlags.DeltaTransmission, 0), (mi.BSDFFlags.GlossyTransmission, 1),
                  (mi.BSDFFlags.GlossyReflection, 2)]
-        en = [mi.Float(0.0) for _ in range(5 if self.has_pane else 3)]
-        if self.has_pane:
-            flags += [(mi.BSDFFlags.DeltaReflection, 3), (mi.BSDFFlags.GlossyReflection, 4)]
-            first, r_i, _ = self._pane(cos_i)
-            t_i = 1.0 - r_i
-        for st in states:
-            w_coh, w_spec = self._delta_weights(st, cos_i)
-            en[0] = en[0] + w_coh
-            if self.has_pane:
-                through = dr.select(first, 1.0, t_i)
-                en[1] = en[1] + st["e_f"] * through
-                en[2] = en[2] + st["e_b"] * through
-                en[3] = en[3] + w_spec
-                en[4] = en[4] + dr.select(first, 2.0 * st["coherent"] * r_i * (st["e_f"] + st["e_b"]), 0.0)
-            else:
-                en[1] = en[1] + st["e_f"]
-                en[2] = en[2] + st["e_b"]
+        flags += [(fl, 3 + i) for i, fl in enumerate(self.substrate.flags())]
+        en = self.substrate.energies_of(states, cos_i)
         return selection(en, [ctx.is_enabled(fl, i) for fl, i in flags])
 
     def _spectrum(self, values):
@@ -825,9 +794,8 @@ class SphereBSDFMixin:
         """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_sample`'s states)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
-        cos_o = mi.Frame3f.cos_theta(wo)
         lane = None
-        if cached is None and not self.has_pane:
+        if cached is None and self.substrate.wavelength_loop:
             lane = self._lane(si, active)
             # literal wavelengths (RGB's channels, fixed ones) fold into each unrolled copy with
             # roundings a traced loop variable does not get: unrolled there, the values bit for bit
@@ -835,33 +803,13 @@ class SphereBSDFMixin:
             if not folded and self._loopable(len(lane[0]), wi, wo, lane[3], lane[5]):
                 return self._looped_eval_pdf(ctx, si, wo, active, lane)
         states, m = cached if cached is not None else self._states(si, active, lane)
-        p_coh, p_f, p_b, *p_pane = self._selection(ctx, states, cos_i)
+        p_coh, p_f, p_b, *p_sub = self._selection(ctx, states, cos_i)
         on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
         Z, pdf = self._lobes(states, wi, wo, active, on_f, on_b, (m, p_f, p_b))
-        if self.has_pane:
-            same_side = cos_i * cos_o > 0
-            first, r_i, r_o = self._pane(cos_i, cos_o)
-            wo_m = mi.Vector3f(wo.x, wo.y, -wo.z)          # the mirror image: the far side's lobe
-            mirrored = active & same_side & first
-            on_r = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
-            # component 4's sampler mirrors the lobes' samples wherever they fall: those in the
-            # lobes' own reflection (the backward lobe, the forward lobe at grazing incidence) land
-            # on the far side, where component 4 has no value but its density counts all the same
-            Z_m, pdf_m = self._lobes(states, wi, wo_m, active & first, True, True, (m, p_f, p_b))
-            values = []
-            for st, z, zm in zip(states, Z, Z_m):
-                through, reflected, own_side = pane_smooth_factors(st["coherent"], r_i, r_o, first)
-                v = z * dr.select(same_side, own_side, through)
-                if on_r:
-                    v += dr.select(mirrored, zm * reflected, 0.0)
-                values.append(v * (st["fs"] * st["w"]))
-            if self.sampling != "cosine":   # component 4: the lobes' sampler, mirrored
-                pdf += dr.select(active & first, p_pane[1] * pdf_m / _positive(p_f + p_b), 0.0)
-        else:
-            values = [z * (st["fs"] * st["w"]) for st, z in zip(states, Z)]
+        values, pdf = self.substrate.lobe_values(self, ctx, states, wi, wo, active, Z, pdf, (m, p_f, p_b), p_sub)
         if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes
-            smooth = p_f + p_b + (p_pane[1] if self.has_pane else 0.0)
+            smooth = p_f + p_b + self.substrate.smooth_share(p_sub)
             pdf = dr.select(active, smooth * (0.25 * dr.inv_pi), 0.0)
         return self._spectrum(values), dr.select(active, pdf, 0.0)
 
@@ -920,32 +868,17 @@ class SphereBSDFMixin:
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
         states, m = self._states(si, active)
-        p_coh, p_f, p_b, *p_pane = self._selection(ctx, states, cos_i)
+        probs = self._selection(ctx, states, cos_i)
+        p_coh, p_f, p_b = probs[:3]
         pick_coh = active & (sample1 < p_coh)
         pick_f = active & _not(pick_coh) & (sample1 < p_coh + p_f) & (p_f > 0)
         pick_b = active & _not(pick_coh) & _not(pick_f) & (sample1 < p_coh + p_f + p_b) & (p_b > 0)
         # what is left of sample1 inside the picked lobe's share
         s = dr.select(pick_f, (sample1 - p_coh) / dr.maximum(p_f, 1e-30),
                       (sample1 - p_coh - p_f) / dr.maximum(p_b, 1e-30))
-        if self.has_pane:   # after the lobes: 3 the pane's mirror image, 4 the lobes mirrored
-            p_spec, p_r = p_pane
-            c3 = p_coh + p_f + p_b
-            c4 = c3 + p_spec
-            pick_r = active & (sample1 >= c4) & (p_r > 0)
-            pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_r <= 0)) & (p_spec > 0)
-            pick_b = pick_b | (active & _not(pick_coh | pick_f | pick_spec | pick_r) & (p_b > 0))
-            # component 4: forward or backward in the ratio p_f : p_b, then as the lobe
-            q_f = p_f / _positive(p_f + p_b)
-            s_r = (sample1 - c4) / dr.maximum(p_r, 1e-30)
-            r_f = pick_r & (s_r < q_f)
-            s = dr.select(pick_r, dr.select(r_f, s_r / dr.maximum(q_f, 1e-30),
-                                            (s_r - q_f) / dr.maximum(1.0 - q_f, 1e-30)), s)
-            lobe_f = pick_f | r_f
-            lobe_any = pick_f | pick_b | pick_r
-        else:
-            pick_b = pick_b | (active & _not(pick_coh | pick_f) & (p_b > 0))
-            lobe_f = pick_f
-            lobe_any = pick_f | pick_b
+        # the backward lobe takes what is left; the substrate's own picks after the lobes
+        pick_b, lobe_f, lobe_any, s, picks = self.substrate.lobe_picks(active, sample1, probs, pick_coh, pick_f,
+                                                                      pick_b, s)
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
         if self.sampling == "cosine":
@@ -975,23 +908,17 @@ class SphereBSDFMixin:
         bs.sampled_type = dr.select(pick_coh, mi.UInt32(+mi.BSDFFlags.DeltaTransmission),
                                     dr.select(same_side, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
                                               mi.UInt32(+mi.BSDFFlags.GlossyTransmission)))
-        smooth = pick_f | pick_b
-        pick_delta = pick_coh
-        if self.has_pane:
-            wo_r = mi.Vector3f(wo_lobe.x, wo_lobe.y, -wo_lobe.z)
-            pane_sample(bs, wi, pick_spec, pick_r, wo_r)
-            smooth = smooth | pick_r
-            pick_delta = pick_coh | pick_spec
+        # the substrate's sampled components (the lobes mirrored: wo_lobe's mirror image)
+        smooth, pick_delta = self.substrate.sampled(bs, wi, picks, mi.Vector3f(wo_lobe.x, wo_lobe.y, -wo_lobe.z),
+                                                    True, pick_f | pick_b, pick_coh)
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, (states, m))
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
         weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)
-        deltas = [self._delta_weights(st, cos_i) for st in states]
+        deltas = [self.substrate.delta_weights(st, cos_i) for st in states]
         coh = self._spectrum([d[0] for d in deltas])
         weight = dr.select(pick_coh, coh / dr.maximum(p_coh, 1e-30), weight)
-        if self.has_pane:
-            spec = self._spectrum([d[1] for d in deltas])
-            bs.pdf = dr.select(pick_spec, p_spec, bs.pdf)
-            weight = dr.select(pick_spec, spec / dr.maximum(p_spec, 1e-30), weight)
+        bs.pdf, weight = self.substrate.specular_sample(picks, probs, [d[1] for d in deltas], self._spectrum,
+                                                        bs.pdf, weight)
         ok = pick_delta | (smooth & (bs.pdf > 0))
         return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
@@ -1091,6 +1018,136 @@ class MieRowsLobe:
     def spectrum(self, values):
         """Per-wavelength values of :meth:`states`' order as a Spectrum."""
         return self._bsdf._spectrum(values)
+
+
+def sphere_substrate(pane):
+    """The substrate component of a sphere layer whose numpy substrate is ``pane``
+    (``SphereMaterial.substrate``: None or an incoherent :class:`corona.model.substrate.GlassPane`)."""
+    return SpheresAlone() if pane is None else SpheresOnPane(pane)
+
+
+class SpheresAlone(BareLayer):
+    """No substrate under the spheres: components 0, 1, 2 (the flat layer's :class:`BareLayer`,
+    with the sphere plugin's per-wavelength parts: :meth:`energies_of`, :meth:`lobe_values`,
+    :meth:`lobe_picks`, :meth:`specular_sample`)."""
+
+    #: the lane's wavelengths may run as one symbolic loop (:meth:`SphereBSDFMixin._looped_eval_pdf`)
+    wavelength_loop = True
+
+    def energies_of(self, states, cos_i):
+        """Energies of (coherent, forward, backward) summed over the lane's wavelengths (``states``)."""
+        en = [mi.Float(0.0) for _ in range(3)]
+        for st in states:
+            en[0] = en[0] + self.delta_weights(st, cos_i)[0]
+            en[1] = en[1] + st["e_f"]
+            en[2] = en[2] + st["e_b"]
+        return en
+
+    def lobe_values(self, bsdf, ctx, states, wi, wo, active, Z, pdf, mix, probs):
+        """Per wavelength ``f |cos θo|`` of the lobes (``Z`` from :meth:`SphereBSDFMixin._lobes`) and the
+        density ``pdf`` plus the substrate's (``mix = (m, p_f, p_b)``, ``probs`` its selection probabilities)."""
+        return [z * (st["fs"] * st["w"]) for st, z in zip(states, Z)], pdf
+
+    def smooth_share(self, probs):
+        """The substrate's glossy share of the selection (cosine sampling): none."""
+        return 0.0
+
+    def lobe_picks(self, active, sample1, probs, pick_coh, pick_f, pick_b, s):
+        """``(pick_b, lobe_f, lobe_any, s, picks)``: the backward lobe takes what is left of ``sample1``;
+        the lobe drawn (forward: ``lobe_f``), the lanes drawing one, the lobe's share of ``sample1``,
+        and the substrate's picks (None: none)."""
+        p_coh, p_f, p_b = probs
+        pick_b = pick_b | (active & _not(pick_coh | pick_f) & (p_b > 0))
+        return pick_b, pick_f, pick_f | pick_b, s, None
+
+    def specular_sample(self, picks, probs, spec, spectrum, pdf, weight):
+        """``(pdf, weight)`` of the sample with the specular reflection (``spec`` per wavelength): none."""
+        return pdf, weight
+
+
+class SpheresOnPane(PaneSubstrate):
+    """Spheres on a thin glass pane (docs/physics.md#the-layer-on-glass-substrateglass, incoherent only):
+    the flat layer's :class:`PaneSubstrate` (its Fresnel factors, components 3 and 4, their picks and
+    samples) with the spheres' own lobe in reflection, component 4: the forward and backward lobes at
+    ``wo``'s mirror image, ``C [R'(θi) + R'(θo)] f(wi, wo')``, sampled as the lobes (forward or backward
+    in their selection ratio), mirrored."""
+
+    wavelength_loop = False
+
+    def face_reflectance(self, cos_theta):
+        """``R``: one face's Fresnel reflectance from the thin pane's ``R' = 2R / (1 + R)``, ``R'/(2 - R')``
+        (equal to the Fresnel ``R`` up to rounding; the sphere layer's weights have always used it)."""
+        r = self.reflectance(cos_theta)
+        return r / (2.0 - r)
+
+    def energies_of(self, states, cos_i):
+        """Energies of (coherent, forward, backward, specular, lobe in reflection) summed over the lane's
+        wavelengths: the lobes through the pane where the glass comes first (``T'(θi)``), the lobe in
+        reflection ``2 C R'(θi) (e_f + e_b)`` where the layer does (roughly: its selection weight)."""
+        en = [mi.Float(0.0) for _ in range(5)]
+        first, r_i = self.layer_first(cos_i), self.reflectance(cos_i)
+        t_i = 1.0 - r_i
+        for st in states:
+            w_coh, w_spec = self.delta_weights(st, cos_i)
+            en[0] = en[0] + w_coh
+            through = dr.select(first, 1.0, t_i)
+            en[1] = en[1] + st["e_f"] * through
+            en[2] = en[2] + st["e_b"] * through
+            en[3] = en[3] + w_spec
+            en[4] = en[4] + dr.select(first, 2.0 * st["coherent"] * r_i * (st["e_f"] + st["e_b"]), 0.0)
+        return en
+
+    def lobe_values(self, bsdf, ctx, states, wi, wo, active, Z, pdf, mix, probs):
+        """The lobes on the pane: ``T'(θo)`` on the far side (the layer first) or ``T'(θi)`` (the glass
+        first), their own side as the table of :mod:`corona.mitsuba.bsdf`, plus component 4 and its density."""
+        cos_i, cos_o = mi.Frame3f.cos_theta(wi), mi.Frame3f.cos_theta(wo)
+        same_side = cos_i * cos_o > 0
+        first = self.layer_first(cos_i)
+        wo_m = mi.Vector3f(wo.x, wo.y, -wo.z)          # the mirror image: the far side's lobe
+        mirrored = active & same_side & first
+        on_r = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
+        # component 4's sampler mirrors the lobes' samples wherever they fall: those in the
+        # lobes' own reflection (the backward lobe, the forward lobe at grazing incidence) land
+        # on the far side, where component 4 has no value but its density counts all the same
+        Z_m, pdf_m = bsdf._lobes(states, wi, wo_m, active & first, True, True, mix)
+        values = []
+        for st, z, zm in zip(states, Z, Z_m):
+            _, (through, reflected, own_side) = self.factors(st["coherent"], cos_i, cos_o)
+            v = z * dr.select(same_side, own_side, through)
+            if on_r:
+                v += dr.select(mirrored, zm * reflected, 0.0)
+            values.append(v * (st["fs"] * st["w"]))
+        if pdf is not None:   # component 4: the lobes' sampler, mirrored (none with cosine sampling)
+            _, p_f, p_b = mix
+            pdf += dr.select(active & first, probs[1] * pdf_m / _positive(p_f + p_b), 0.0)
+        return values, pdf
+
+    def smooth_share(self, probs):
+        """The lobe in reflection's share of the selection (cosine sampling)."""
+        return probs[1]
+
+    def lobe_picks(self, active, sample1, probs, pick_coh, pick_f, pick_b, s):
+        """After the lobes: 3 the pane's mirror image, 4 the lobes mirrored (forward or backward in the
+        ratio ``p_f : p_b``, then as the lobe)."""
+        p_coh, p_f, p_b, p_spec, p_r = probs
+        c3 = p_coh + p_f + p_b
+        c4 = c3 + p_spec
+        pick_r = active & (sample1 >= c4) & (p_r > 0)
+        pick_spec = active & (sample1 >= c3) & ((sample1 < c4) | (p_r <= 0)) & (p_spec > 0)
+        pick_b = pick_b | (active & _not(pick_coh | pick_f | pick_spec | pick_r) & (p_b > 0))
+        q_f = p_f / _positive(p_f + p_b)
+        s_r = (sample1 - c4) / dr.maximum(p_r, 1e-30)
+        r_f = pick_r & (s_r < q_f)
+        s = dr.select(pick_r, dr.select(r_f, s_r / dr.maximum(q_f, 1e-30),
+                                        (s_r - q_f) / dr.maximum(1.0 - q_f, 1e-30)), s)
+        return pick_b, pick_f | r_f, pick_f | pick_b | pick_r, s, (pick_spec, pick_r, c4)
+
+    def specular_sample(self, picks, probs, spec, spectrum, pdf, weight):
+        """The pane's mirror image (component 3): its pdf and weight, ``spec`` folded by ``spectrum``."""
+        pick_spec, p_spec = picks[0], probs[3]
+        spec = spectrum(spec)
+        pdf = dr.select(pick_spec, p_spec, pdf)
+        return pdf, dr.select(pick_spec, spec / dr.maximum(p_spec, 1e-30), weight)
 
 
 def sphere_bsdf_class() -> type:

@@ -26,15 +26,80 @@ import mitsuba as mi
 import numpy as np
 
 from corona.mitsuba.common import (N_RESPONSE, array, channel_curves, cos, fold_spectrum, gather, lambda_um,
-                                   layer_first, pane_delta_weights, pane_reflectance, pane_sample,
-                                   pane_smooth_factors, sincos, wavelength_mixture)
+                                   sincos, wavelength_mixture)
 from corona.model.substrate import DELTA_STEP, RGB_ORDERS, Mirror, channel_envelopes
 
 #: Wavelengths [nm] of the plugin's table of a silvering spectrum (1 nm apart).
 SILVER_GRID = np.arange(360.0, 831.0, 1.0)
 
-__all__ = ["SILVER_GRID", "BareLayer", "PaneSubstrate", "MirrorSubstrate", "SpectralMirrorSubstrate",
+__all__ = ["SILVER_GRID", "BareLayer", "layer_first", "pane_delta_weights", "pane_reflectance", "pane_sample",
+           "pane_smooth_factors", "PaneSubstrate", "MirrorSubstrate", "SpectralMirrorSubstrate",
            "IncoherentPasses", "DoublePass", "substrate_component"]
+
+
+# --------------------------------------------------------------------------
+# the thin glass pane (docs/physics.md#the-layer-on-glass-substrateglass)
+# --------------------------------------------------------------------------
+def pane_reflectance(cos_theta, eta):
+    """``R' = 2R / (1 + R)``: a thin pane's reflectance at ``|cos θ|`` (as ``thindielectric``),
+    ``R`` the polarisation-averaged Fresnel reflectance of one face at index ``eta``."""
+    r = mi.fresnel(dr.abs(cos_theta), eta)[0]
+    return r * 2.0 / (1.0 + r)
+
+
+def layer_first(cos_i, layer_on_front):
+    """True where light from ``wi`` meets the layer before the pane (layer on the front face or not)."""
+    return (cos_i > 0) if layer_on_front else (cos_i < 0)
+
+
+def _face_from_pane(r):
+    """The one face's Fresnel ``R`` of a thin non-absorbing pane of reflectance ``R' = 2R / (1 + R)``."""
+    return r / (2.0 - r)
+
+
+def pane_delta_weights(coherent, r_i, first, t_i=None, behind=None, front=None):
+    """Weights of the coherent transmission ``C T'`` and of the specular reflection
+    (``C R + C² (R' - R)`` when light meets the layer first, else ``behind``, by default ``R'``);
+    ``r_i = R'(θi)``, ``t_i = T'(θi)`` (default ``1 - R'``: a pane that does not absorb), ``front``
+    the Fresnel ``R(θi)`` of the face the layer lies on (default: that of a thin glass pane of
+    reflectance ``r_i``).  The front face returns the light through the same place of the layer,
+    which it crosses once (docs/physics.md#the-front-face)."""
+    t_i = 1.0 - r_i if t_i is None else t_i
+    behind = r_i if behind is None else behind
+    front = _face_from_pane(r_i) if front is None else front
+    return coherent * t_i, dr.select(first, coherent * (front + coherent * (r_i - front)), behind)
+
+
+def pane_smooth_factors(coherent, r_i, r_o, first, t_i=None, t_o=None, front_i=None, front_o=None):
+    """Factors of the smooth components on the pane: (lobe in transmission, lobe in reflection, diffuse).
+
+    Light meeting the layer first: ``T'(θo)``, ``min(R_i, R_o) + C [P_i + P_o]``, 1 (``R`` the
+    front face's Fresnel reflectance, ``front_i``/``front_o``, by default that of a thin glass
+    pane; ``P = R' - R`` the round trips); the glass first: ``T'(θi)``, 0, ``T'(θi) T'(θo)``
+    (the module docstring of :mod:`corona.mitsuba.bsdf` tabulates them).
+    """
+    t_i = 1.0 - r_i if t_i is None else t_i
+    t_o = 1.0 - r_o if t_o is None else t_o
+    front_i = _face_from_pane(r_i) if front_i is None else front_i
+    front_o = _face_from_pane(r_o) if front_o is None else front_o
+    transmitted = dr.select(first, t_o, t_i)
+    reflected = dr.select(first, dr.minimum(front_i, front_o) + coherent * (r_i - front_i + r_o - front_o), 0.0)
+    diffuse = dr.select(first, 1.0, t_i * t_o)
+    return transmitted, reflected, diffuse
+
+
+def pane_sample(bs, wi, pick_spec, pick_rlobe, wo_rlobe):
+    """The pane's two components over what ``bs`` (a ``mi.BSDFSample3f``) holds: 3, the specular
+    reflection (``wo`` the mirror image of ``wi``, ``DeltaReflection``) where ``pick_spec``, and 4,
+    the lobe in reflection (``wo_rlobe``, ``GlossyReflection``) where ``pick_rlobe``; ``bs.wo``,
+    ``bs.sampled_component`` and ``bs.sampled_type`` are set in place (and ``bs`` returned)."""
+    bs.wo = dr.select(pick_spec, mi.Vector3f(-wi.x, -wi.y, wi.z), dr.select(pick_rlobe, wo_rlobe, bs.wo))
+    bs.sampled_component = dr.select(pick_spec, mi.UInt32(3),
+                                     dr.select(pick_rlobe, mi.UInt32(4), bs.sampled_component))
+    bs.sampled_type = dr.select(pick_spec, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
+                                dr.select(pick_rlobe, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                          bs.sampled_type))
+    return bs
 
 
 @functools.lru_cache(maxsize=2)
@@ -124,7 +189,7 @@ class IncoherentPasses:
 
 class PaneSubstrate(BareLayer):
     """A thin non-absorbing glass pane under the layer (``substrate=glass``): components 3 and 4,
-    Fresnel factors ``R' = 2R/(1 + R)``, ``T' = 1 - R'`` (:func:`corona.mitsuba.common.pane_reflectance`)."""
+    Fresnel factors ``R' = 2R/(1 + R)``, ``T' = 1 - R'`` (:func:`pane_reflectance`)."""
 
     def __init__(self, pane, channel_lambdas=None, channel_weights=None):
         self.eta = float(pane.ior)
@@ -204,14 +269,20 @@ class PaneSubstrate(BareLayer):
     def modulation(self, layer, wi, wo, cos_i, cos_o, active):
         return self.passes.modulation(layer, wi, wo, cos_i, cos_o, active)
 
-    def smooth(self, layer, cos_i, cos_o, lobe, diffuse, modulated, abs_cos_o):
-        """Fresnel factors of the pane (:mod:`corona.mitsuba.bsdf`'s docstring table)."""
+    def factors(self, coherent, cos_i, cos_o):
+        """``(first, (through, reflected, diffuse))``: where light meets the layer first and the
+        Fresnel factors of the smooth components on the pane (:mod:`corona.mitsuba.bsdf`'s docstring
+        table, :func:`pane_smooth_factors`) at the coherent weight ``coherent``."""
         first = self.layer_first(cos_i)
         r_i, r_o = self.reflectance(cos_i), self.reflectance(cos_o)
         t_i, t_o = self.transmittance(cos_i), self.transmittance(cos_o)
-        f_through, f_reflected, f_diffuse = pane_smooth_factors(
-            layer["coherent"], r_i, r_o, first, t_i=t_i, t_o=t_o,
-            front_i=self.face_reflectance(cos_i), front_o=self.face_reflectance(cos_o))
+        return first, pane_smooth_factors(coherent, r_i, r_o, first, t_i=t_i, t_o=t_o,
+                                          front_i=self.face_reflectance(cos_i),
+                                          front_o=self.face_reflectance(cos_o))
+
+    def smooth(self, layer, cos_i, cos_o, lobe, diffuse, modulated, abs_cos_o):
+        """Fresnel factors of the pane (:mod:`corona.mitsuba.bsdf`'s docstring table)."""
+        first, (f_through, f_reflected, f_diffuse) = self.factors(layer["coherent"], cos_i, cos_o)
         lobe_reflected = self.passes.reflected_lobe(first, lobe, f_reflected, modulated, abs_cos_o)
         return lobe * f_through, diffuse * f_diffuse, lobe_reflected
 
