@@ -91,7 +91,7 @@ from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unu
 from corona.model.rows import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
 from corona.model.mie.layer import share_forward_energies
-from corona.mitsuba.substrate import BareLayer, PaneSubstrate
+from corona.mitsuba.substrate import BareLayer, PaneSubstrate, pane_delta_weights, pane_smooth_factors
 
 __all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "SpheresAlone", "SpheresOnPane", "sphere_bsdf_class",
            "sphere_substrate"]
@@ -794,6 +794,7 @@ class SphereBSDFMixin:
         """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_sample`'s states)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
+        cos_o = mi.Frame3f.cos_theta(wo)
         lane = None
         if cached is None and self.substrate.wavelength_loop:
             lane = self._lane(si, active)
@@ -807,7 +808,8 @@ class SphereBSDFMixin:
         on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
         Z, pdf = self._lobes(states, wi, wo, active, on_f, on_b, (m, p_f, p_b))
-        values, pdf = self.substrate.lobe_values(self, ctx, states, wi, wo, active, Z, pdf, (m, p_f, p_b), p_sub)
+        values, pdf = self.substrate.lobe_values(self, ctx, states, wi, wo, cos_i, cos_o, active, Z, pdf,
+                                                 (m, p_f, p_b), p_sub)
         if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes
             smooth = p_f + p_b + self.substrate.smooth_share(p_sub)
             pdf = dr.select(active, smooth * (0.25 * dr.inv_pi), 0.0)
@@ -1043,7 +1045,7 @@ class SpheresAlone(BareLayer):
             en[2] = en[2] + st["e_b"]
         return en
 
-    def lobe_values(self, bsdf, ctx, states, wi, wo, active, Z, pdf, mix, probs):
+    def lobe_values(self, bsdf, ctx, states, wi, wo, cos_i, cos_o, active, Z, pdf, mix, probs):
         """Per wavelength ``f |cos θo|`` of the lobes (``Z`` from :meth:`SphereBSDFMixin._lobes`) and the
         density ``pdf`` plus the substrate's (``mix = (m, p_f, p_b)``, ``probs`` its selection probabilities)."""
         return [z * (st["fs"] * st["w"]) for st, z in zip(states, Z)], pdf
@@ -1074,11 +1076,10 @@ class SpheresOnPane(PaneSubstrate):
 
     wavelength_loop = False
 
-    def face_reflectance(self, cos_theta):
-        """``R``: one face's Fresnel reflectance from the thin pane's ``R' = 2R / (1 + R)``, ``R'/(2 - R')``
-        (equal to the Fresnel ``R`` up to rounding; the sphere layer's weights have always used it)."""
-        r = self.reflectance(cos_theta)
-        return r / (2.0 - r)
+    def delta_weights(self, layer, cos_i, wavelengths=None):
+        """Per wavelength (``layer``: a state) the weights of the coherent transmission and of the
+        specular reflection (:func:`pane_delta_weights`, the face's ``R`` from the pane's ``R'``)."""
+        return pane_delta_weights(layer["coherent"], self.reflectance(cos_i), self.layer_first(cos_i))
 
     def energies_of(self, states, cos_i):
         """Energies of (coherent, forward, backward, specular, lobe in reflection) summed over the lane's
@@ -1097,12 +1098,11 @@ class SpheresOnPane(PaneSubstrate):
             en[4] = en[4] + dr.select(first, 2.0 * st["coherent"] * r_i * (st["e_f"] + st["e_b"]), 0.0)
         return en
 
-    def lobe_values(self, bsdf, ctx, states, wi, wo, active, Z, pdf, mix, probs):
+    def lobe_values(self, bsdf, ctx, states, wi, wo, cos_i, cos_o, active, Z, pdf, mix, probs):
         """The lobes on the pane: ``T'(θo)`` on the far side (the layer first) or ``T'(θi)`` (the glass
         first), their own side as the table of :mod:`corona.mitsuba.bsdf`, plus component 4 and its density."""
-        cos_i, cos_o = mi.Frame3f.cos_theta(wi), mi.Frame3f.cos_theta(wo)
         same_side = cos_i * cos_o > 0
-        first = self.layer_first(cos_i)
+        first, r_i, r_o = self.layer_first(cos_i), self.reflectance(cos_i), self.reflectance(cos_o)
         wo_m = mi.Vector3f(wo.x, wo.y, -wo.z)          # the mirror image: the far side's lobe
         mirrored = active & same_side & first
         on_r = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 4)
@@ -1112,7 +1112,7 @@ class SpheresOnPane(PaneSubstrate):
         Z_m, pdf_m = bsdf._lobes(states, wi, wo_m, active & first, True, True, mix)
         values = []
         for st, z, zm in zip(states, Z, Z_m):
-            _, (through, reflected, own_side) = self.factors(st["coherent"], cos_i, cos_o)
+            through, reflected, own_side = pane_smooth_factors(st["coherent"], r_i, r_o, first)
             v = z * dr.select(same_side, own_side, through)
             if on_r:
                 v += dr.select(mirrored, zm * reflected, 0.0)

@@ -269,20 +269,14 @@ class PaneSubstrate(BareLayer):
     def modulation(self, layer, wi, wo, cos_i, cos_o, active):
         return self.passes.modulation(layer, wi, wo, cos_i, cos_o, active)
 
-    def factors(self, coherent, cos_i, cos_o):
-        """``(first, (through, reflected, diffuse))``: where light meets the layer first and the
-        Fresnel factors of the smooth components on the pane (:mod:`corona.mitsuba.bsdf`'s docstring
-        table, :func:`pane_smooth_factors`) at the coherent weight ``coherent``."""
+    def smooth(self, layer, cos_i, cos_o, lobe, diffuse, modulated, abs_cos_o):
+        """Fresnel factors of the pane (:mod:`corona.mitsuba.bsdf`'s docstring table)."""
         first = self.layer_first(cos_i)
         r_i, r_o = self.reflectance(cos_i), self.reflectance(cos_o)
         t_i, t_o = self.transmittance(cos_i), self.transmittance(cos_o)
-        return first, pane_smooth_factors(coherent, r_i, r_o, first, t_i=t_i, t_o=t_o,
-                                          front_i=self.face_reflectance(cos_i),
-                                          front_o=self.face_reflectance(cos_o))
-
-    def smooth(self, layer, cos_i, cos_o, lobe, diffuse, modulated, abs_cos_o):
-        """Fresnel factors of the pane (:mod:`corona.mitsuba.bsdf`'s docstring table)."""
-        first, (f_through, f_reflected, f_diffuse) = self.factors(layer["coherent"], cos_i, cos_o)
+        f_through, f_reflected, f_diffuse = pane_smooth_factors(
+            layer["coherent"], r_i, r_o, first, t_i=t_i, t_o=t_o,
+            front_i=self.face_reflectance(cos_i), front_o=self.face_reflectance(cos_o))
         lobe_reflected = self.passes.reflected_lobe(first, lobe, f_reflected, modulated, abs_cos_o)
         return lobe * f_through, diffuse * f_diffuse, lobe_reflected
 
