@@ -84,19 +84,27 @@ def _wrap(d, L):
 
 
 @nb.njit(cache=True)
+def _cell_box(x, y, a, c, m):
+    """The cells (unwrapped, ``x0..x1`` × ``y0..y1``) that a disc's bounding box meets; all of an axis
+    when the box spans the periodic box."""
+    x0 = int(math.floor((x - a) / c))
+    x1 = int(math.floor((x + a) / c))
+    y0 = int(math.floor((y - a) / c))
+    y1 = int(math.floor((y + a) / c))
+    if x1 - x0 + 1 >= m:
+        x0, x1 = 0, m - 1
+    if y1 - y0 + 1 >= m:
+        y0, y1 = 0, m - 1
+    return x0, x1, y0, y1
+
+
+@nb.njit(cache=True)
 def _cells(x, y, a, n, L, m):
     """CSR cell list: drop ``i`` in every cell its disc's bounding box meets."""
     c = L / m
     count = np.zeros(m * m + 1, np.int64)
     for i in range(n):
-        x0 = int(math.floor((x[i] - a[i]) / c))
-        x1 = int(math.floor((x[i] + a[i]) / c))
-        y0 = int(math.floor((y[i] - a[i]) / c))
-        y1 = int(math.floor((y[i] + a[i]) / c))
-        if x1 - x0 + 1 >= m:
-            x0, x1 = 0, m - 1
-        if y1 - y0 + 1 >= m:
-            y0, y1 = 0, m - 1
+        x0, x1, y0, y1 = _cell_box(x[i], y[i], a[i], c, m)
         for cy in range(y0, y1 + 1):
             for cx in range(x0, x1 + 1):
                 count[(cy % m) * m + (cx % m) + 1] += 1
@@ -105,14 +113,7 @@ def _cells(x, y, a, n, L, m):
     idx = np.empty(count[m * m], np.int64)
     fill = count[:m * m].copy()
     for i in range(n):
-        x0 = int(math.floor((x[i] - a[i]) / c))
-        x1 = int(math.floor((x[i] + a[i]) / c))
-        y0 = int(math.floor((y[i] - a[i]) / c))
-        y1 = int(math.floor((y[i] + a[i]) / c))
-        if x1 - x0 + 1 >= m:
-            x0, x1 = 0, m - 1
-        if y1 - y0 + 1 >= m:
-            y0, y1 = 0, m - 1
+        x0, x1, y0, y1 = _cell_box(x[i], y[i], a[i], c, m)
         for cy in range(y0, y1 + 1):
             for cx in range(x0, x1 + 1):
                 k = (cy % m) * m + (cx % m)
