@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import corona
 from corona import CoronaError
 from corona.model.processes.breath_figure import BreathFigure, dry_time_range, water
 from corona.parameters import material_from_parameters
