@@ -27,7 +27,9 @@ The fading phase (``fading``): configurations of the held-out seeds grown for
 :data:`FADE_BREATH` s (between the table's evaporation starts) and evaporated at 0.1 µm/s until the
 fractions :data:`FADE_FRACTIONS` of their water are gone (none of them a table row), against the
 model ``BreathFigure(breath_time, dry_time=...)`` by each rule and against each approximation with
-the configuration's own ingredients; ``fading_summary`` per dry time.
+the configuration's own ingredients; ``fading_summary`` per dry time (with f = 0, the growing
+layer, for reference), and ``ring``: the lobe's peak and energy-weighted mean scattering angle at
+550 nm, exact and the model's.
 
 Usage: PYTHONPATH=src .venv/bin/python benchmarks/breath_figure_lobe.py [--seeds 2] [--fading-only]
 (``--fading-only`` recomputes the fading rows and keeps the rest of the JSON as it is.)
@@ -74,8 +76,8 @@ def fading_rows() -> tuple[list, dict]:
         taus = np.array(FADE_FRACTIONS) * h0 / FADE_RATE
         bf = simulate_breath_figure(np.concatenate([[FADE_BREATH], FADE_BREATH + taus]), box=BOX, seed=seed,
                                     dry_from=FADE_BREATH, evaporation_rate=FADE_RATE)
-        for i, (f, tau) in enumerate(zip(FADE_FRACTIONS, taus)):
-            a, c = bf.radii[i + 1], bf.centres[i + 1]
+        for i, (f, tau) in enumerate(zip((0.0,) + FADE_FRACTIONS, np.concatenate([[0.0], taus]))):
+            a, c = bf.radii[i], bf.centres[i]
             R = float(np.sum(a ** 3) / np.sum(a ** 2))
             t1 = time.perf_counter()
             r = far_field_rings(c, a, BOX, length=R, u_max=U_MAX, classes=CLASSES)
@@ -84,8 +86,16 @@ def fading_rows() -> tuple[list, dict]:
             m = {"u": r["u"], "exact": r["exact"]}
             for key, rule in RULES.items():
                 m[key] = proc.number_density * proc.intensity(r["u"] / R, rule) / n
+            # the ring: the lobe's peak as a scattering angle at 550 nm, and its energy-weighted mean
+            # angle (up to u = 14), of the exact far field and of the model's rule
+            ring = {}
+            for key in ("exact", BreathFigure.RULE):
+                th = np.degrees(np.arcsin(np.clip(r["u"] / R * 0.55 / (2 * np.pi), 0, 1)))
+                w = m[key] * r["u"]
+                ring[key] = {"peak_deg_550nm": float(th[int(np.argmax(m[key]))]),
+                             "mean_deg_550nm": float(np.sum(w * th) / np.sum(w))}
             rows.append(dict(seed=seed, breath_time_s=FADE_BREATH, evaporated=f, dry_time_s=float(tau),
-                             drops=int(a.size), coverage=float(bf.coverage[i + 1]),
+                             drops=int(a.size), coverage=float(bf.coverage[i]), ring=ring,
                              table_coverage=proc.area_fraction(None), area_weighted_radius_um=R,
                              table_radius_um=proc.mean_radius, density=n, table_density=proc.number_density,
                              far_field_s=time.perf_counter() - t1,
@@ -93,9 +103,11 @@ def fading_rows() -> tuple[list, dict]:
             print("fading", seed, f, round(tau, 2), {k: round(v["rms"], 4) for k, v in rows[-1]["rings"].items()},
                   flush=True)
     summary = {}
-    for f in FADE_FRACTIONS:
+    for f in (0.0,) + FADE_FRACTIONS:
         at = [r for r in rows if r["evaporated"] == f]
         summary[f"{f:g}"] = {
+            "ring": {key: {k: float(np.mean([r["ring"][key][k] for r in at]))
+                           for k in ("peak_deg_550nm", "mean_deg_550nm")} for key in at[0]["ring"]},
             "dry_time_s": float(np.mean([r["dry_time_s"] for r in at])),
             "coverage": float(np.mean([r["coverage"] for r in at])),
             "table_coverage": float(at[0]["table_coverage"]),

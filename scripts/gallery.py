@@ -130,8 +130,10 @@ STRIPS = [
           "The pane of the strip above, breathed on for 20 s, then drying (dry_time since the vapour "
           "stopped; water leaves at 0.1 µm/s, the small droplets vanish first; "
           "docs/physics.md#breath-figures-processbreath-figure): 0, 4, 8, 12 and 16 s after the breath "
-          "(90 % of the water is gone at 18 s). The droplets shrink and cover less of the glass: the ring "
-          "widens (R from 4.9 to 3.7 µm) and fades (coverage 0.62 to 0.17). Same exposure (the first panel's). "
+          "(90 % of the water is gone at 18 s). The droplets shrink (R from 4.9 to 3.7 µm) and cover less of "
+          "the glass (0.62 to 0.17), but stay where they are: the ring, set by their spacing, stays (it moves "
+          "in a little as the small droplets vanish, as in the exact far field), the small droplets' wide "
+          "glow goes first, and the ring brightens a little, then fades. Same exposure (the first panel's). "
           "Below, as an animation in 2 s steps (`python scripts/breath_strip.py --drying-gif`).\n\n"
           "![The breath figure drying, animated](gallery/breath_figure_drying.gif)",
           [Panel(f"dry {t:g} s", {"breath_time": 20.0, "dry_time": t, "res": 160, "spp": 32})

@@ -51,10 +51,10 @@ def test_zero_dry_time_is_the_growth_layer_and_the_start_is_continuous():
 
 
 @pytest.mark.parametrize("t", [5.0, 14.0, 20.0, 80.0])
-def test_coverage_falls_and_the_rings_expand(t):
+def test_coverage_falls_and_the_droplets_shrink(t):
     """The coverage falls monotonically with the dry time; R = ⟨a³⟩/⟨a²⟩ first rises a little (the
-    small droplets vanish first: ≤ 16 % measured at 80 s) and then falls, to below 0.85 of its start
-    at 90 % of the water gone (the rings' radius ∝ 1/R grows); the number of droplets falls."""
+    small droplets vanish first: ≤ 12 % in the table, from 80 s) and then falls, to below 0.85 of its
+    start at 90 % of the water gone; the number of droplets falls."""
     hi = dry_time_range(t)[1]
     taus = np.linspace(0.0, hi, 40)
     ps = [BreathFigure(t, dry_time=float(x)) for x in taus]

@@ -103,7 +103,11 @@ class BreathFigure(Process):
     leaves it.  Why a 2-D table and not one run rescaled: the runs are not self-similar enough
     (``R`` at ``f = 0.3`` is 0.96 of its start's from 10 s, 1.14 from 80 s, where many small
     renucleated droplets vanish first).  Coverage falls monotonically; ``R`` first rises a little
-    (the small droplets go first), then falls: the rings expand and fade.
+    (the small droplets go first), then falls.  The ring does not follow ``R`` here, as it does in
+    growth: the droplets stay where they are, so the peak of the lobe, set by their spacing, stays
+    (and moves in a little as small droplets vanish), while the small droplets' wide glow goes first
+    and the ring fades with the coverage (the exact far field agrees: ``ring`` in
+    benchmarks/results/breath_figure_lobe.json).
 
     Seen from above each droplet is an opaque disk of its contact radius (the footprint of a cap of
     θ <= 90°).  The lobe is :meth:`intensity` by :attr:`RULE`: the partial structure factors of the
