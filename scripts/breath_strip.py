@@ -1,6 +1,6 @@
 """The breath figure over time: a gallery strip of ``scenes/breath_figure.xml`` and its statistics.
 
-    python scripts/breath_strip.py [--stats-only] [--variant V]
+    python scripts/breath_strip.py [--stats-only] [--drying-gif] [--variant V]
 
 writes
 
@@ -12,6 +12,11 @@ writes
   layer uses (``corona.model.processes.breath_figure``): the droplets' size distribution, the
   structure factor S(q) of their centres, and the diffuse intensity of the layer per area
   against the scattering angle at 550 nm (the lobe the renders sample).
+
+With ``--drying-gif`` instead: ``docs/gallery/breath_figure_drying.gif``, the same pane breathed on for
+20 s and then drying (``dry_time`` 0 to 16 s in 2 s steps: the fading phase), 128², 16 spp a frame,
+one exposure for all (the first frame's), as an animated GIF (Pillow), each frame labelled with its
+dry time (about 10 s of CPU).
 
 Cost: about 15 s of CPU for the five renders at 160², a second for the plot.
 """
@@ -67,13 +72,45 @@ def stats_figure(path: str, times=TIMES, wavelength_nm: float = 550.0) -> None:
     plt.close(fig)
 
 
+DRY_TIMES = tuple(float(t) for t in range(0, 17, 2))
+
+
+def drying_gif(path: str, breath_time: float = 20.0, dry_times=DRY_TIMES, res: int = 128, spp: int = 16,
+               variant: str | None = None) -> None:
+    """``scenes/breath_figure.xml`` at ``dry_times`` [s] after ``breath_time`` [s] of growth, one exposure
+    (the first frame's), as an animated GIF at ``path``."""
+    from PIL import Image, ImageDraw
+
+    import corona  # noqa: F401  (libLLVM before drjit)
+    from corona.apps.pictures import display_exposure, display_srgb
+    from corona.apps.render import load_scene, render_linear, setup_variant
+    setup_variant(variant)
+    scene_path = os.path.join(ROOT, "scenes", "breath_figure.xml")
+    frames, exposure = [], None
+    for t in dry_times:
+        scene = load_scene(scene_path, {"breath_time": breath_time, "dry_time": t, "res": res, "spp": spp})
+        rgb, _ = render_linear(scene, spp, progress=False, desc=f"dry {t:g} s")
+        if exposure is None:
+            exposure = display_exposure(rgb)
+        im = Image.fromarray(display_srgb(rgb, exposure))
+        ImageDraw.Draw(im).text((4, res - 14), f"dry {t:g} s", fill=(255, 255, 255))
+        frames.append(im.convert("P", palette=Image.ADAPTIVE))
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=400, loop=0, optimize=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python scripts/breath_strip.py", description=__doc__.splitlines()[0])
     ap.add_argument("--stats-only", action="store_true", help="only the statistics figure (no renders)")
+    ap.add_argument("--drying-gif", action="store_true", help="only the GIF of the fading phase")
     ap.add_argument("--variant", default=None)
     a = ap.parse_args(argv)
     out = os.path.join(ROOT, "docs", "gallery")
     os.makedirs(out, exist_ok=True)
+    if a.drying_gif:
+        gif = os.path.join(out, "breath_figure_drying.gif")
+        drying_gif(gif, variant=a.variant)
+        print(f"breath_strip: {os.path.relpath(gif, ROOT)}")
+        return 0
     stats = os.path.join(out, "breath_figure_stats.png")
     stats_figure(stats)
     print(f"breath_strip: {os.path.relpath(stats, ROOT)}")

@@ -125,6 +125,34 @@ STRIPS = [
           "![Breath figure statistics](gallery/breath_figure_stats.png)",
           [Panel(f"{t:g} s", {"breath_time": t, "res": 160, "spp": 32}) for t in (5.0, 10.0, 20.0, 40.0, 80.0)],
           shared_exposure=1),
+    Strip("breath_figure_drying", "The breath evaporates: the breath figure's corona fading",
+          "breath_figure.xml",
+          "The pane of the strip above, breathed on for 20 s, then drying (dry_time since the vapour "
+          "stopped; water leaves at 0.1 µm/s, the small droplets vanish first; "
+          "docs/physics.md#breath-figures-processbreath-figure): 0, 4, 8, 12 and 16 s after the breath "
+          "(90 % of the water is gone at 18 s). The droplets shrink (R from 4.9 to 3.7 µm) and cover less of "
+          "the glass (0.62 to 0.17), but stay where they are: the ring, set by their spacing, stays (it moves "
+          "in a little as the small droplets vanish, as in the exact far field), the small droplets' wide "
+          "glow goes first, and the ring brightens a little, then fades. Same exposure (the first panel's). "
+          "Below, as an animation in 2 s steps (`python scripts/breath_strip.py --drying-gif`).\n\n"
+          "![The breath figure drying, animated](gallery/breath_figure_drying.gif)",
+          [Panel(f"dry {t:g} s", {"breath_time": 20.0, "dry_time": t, "res": 160, "spp": 32})
+           for t in (0.0, 4.0, 8.0, 12.0, 16.0)],
+          shared_exposure=0),
+    Strip("fogged_pane_drying", "A fogged pane clearing from its edges: dry time from a bitmap",
+          "fogged_pane_drying.xml",
+          "A street light (2100 K) behind a pane fogged for 20 s and drying from its frame inwards: the time "
+          "since the vapour stopped is a texture (scenes/textures/fogged_pane_dry.exr), 0 s in the middle "
+          "rising to 16 s at the frame. The halo's outer parts are seen through the drying glass, where the "
+          "droplets are smaller and sparser: the corona fades outwards.",
+          [Panel("dry 0–16 s (bitmap)", {"res": 192, "spp": 32})]),
+    Strip("wiped_window_refog", "A wiped window fogging up again: breath time from a bitmap",
+          "wiped_window_refog.xml",
+          "The street lights of the wiped window behind a breath figure whose age is a texture "
+          "(scenes/textures/wiped_refog_age.exr): 40 s old over the pane (R = 8.9 µm), 5 s old in the "
+          "streak wiped across it (R = 1.8 µm), which is fogging up again. The lamps behind the old fog wear "
+          "a small, tight ring; the two in the streak a broad, faint glow five times wider.",
+          [Panel("5 s streak, 40 s fog", {"res": 192, "spp": 32})]),
     Strip("teaser_spheres", "Teaser with transparent droplets (Mie spheres)", "teaser.xml",
           "The teaser's condensation (radius 5 µm, 40 % cover, hard disks) modelled two ways: left, opaque "
           "disks (Fraunhofer diffraction); right, transparent water spheres (Mie theory, water's "

@@ -14,6 +14,13 @@
   of ``scenes/breath_spot.xml``: a breath spot drying from its edge, 40 s (the droplets grown
   largest) in its middle falling to 5 s at its rim (r = 0.9 of the half-width) and beyond,
   smooth and uniform in log t.
+* ``fogged_pane_dry.exr`` (64×64, one float channel): the time since the vapour stopped ``dry_time``
+  [s] of ``scenes/fogged_pane_drying.xml`` (a pane fogged for 20 s, clearing from its edges, where
+  the air reaches it first): 0 s in the middle rising to 16 s at the frame (of 18 s the table
+  covers after 20 s of growth), smooth in the distance to the frame.
+* ``wiped_refog_age.exr`` (96×96, one float channel): ``breath_time`` [s] of
+  ``scenes/wiped_window_refog.xml``: fog 40 s old over the pane and 5 s old in the streak of
+  ``wiped_fog.png`` (wiped, fogging up again), soft edges uniform in log t.
 """
 from __future__ import annotations
 
@@ -54,6 +61,21 @@ def breath_spot_age(n: int = 64) -> np.ndarray:
     return np.exp(np.log(5.0) + np.log(8.0) * (1.0 - smoothstep(0.15, 0.9, r)))
 
 
+def fogged_pane_dry(n: int = 64) -> np.ndarray:
+    """dry_time [s] on an n×n grid: 0 s in the middle, 16 s at the frame (the pane clears from its edges)."""
+    y, x = (np.mgrid[:n, :n] + 0.5) / n
+    frame = np.maximum(np.abs(x - 0.5), np.abs(y - 0.5)) * 2   # 0 in the middle, 1 at the frame
+    return 16.0 * smoothstep(0.2, 1.0, frame)
+
+
+def wiped_refog_age(n: int = 96) -> np.ndarray:
+    """breath_time [s] on an n×n grid (row 0 at the top): 40 s, 5 s in the wiped streak of :func:`wiped_fog`."""
+    y, x = (np.mgrid[:n, :n] + 0.5) / n
+    centre = 0.8 - 0.55 * x + 0.12 * np.sin(np.pi * x)   # the wipe's path (as wiped_fog)
+    wiped = 1.0 - smoothstep(0.08, 0.12, np.abs(y - centre))
+    return np.exp(np.log(40.0) + (np.log(5.0) - np.log(40.0)) * wiped)
+
+
 def main() -> None:
     import imageio.v3 as iio
     import mitsuba as mi
@@ -65,7 +87,10 @@ def main() -> None:
     mi.Bitmap(condensation_radius().astype(np.float32)[..., None]).write(
         os.path.join(HERE, "condensation_radius.exr"))
     mi.Bitmap(breath_spot_age().astype(np.float32)[..., None]).write(os.path.join(HERE, "breath_spot_age.exr"))
-    print(f"wrote {os.path.normpath(HERE)}/wiped_fog.png, condensation_radius.exr, breath_spot_age.exr")
+    mi.Bitmap(fogged_pane_dry().astype(np.float32)[..., None]).write(os.path.join(HERE, "fogged_pane_dry.exr"))
+    mi.Bitmap(wiped_refog_age().astype(np.float32)[..., None]).write(os.path.join(HERE, "wiped_refog_age.exr"))
+    print(f"wrote {os.path.normpath(HERE)}/wiped_fog.png, condensation_radius.exr, breath_spot_age.exr, "
+          "fogged_pane_dry.exr, wiped_refog_age.exr")
 
 
 if __name__ == "__main__":

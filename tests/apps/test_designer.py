@@ -1180,3 +1180,32 @@ def test_breath_figure_in_the_designer(client):
     assert peaks[40.0] / peaks[10.0] == pytest.approx(R[10.0] / R[40.0], rel=0.2)   # 0.29 against 0.31
     one_line_400(client.get("/api/corona.png", params={"process": "breath-figure", "breath_time": 200}),
                  "breath_time=200", "[5, 80] s")
+
+
+def test_breath_figure_fading_in_the_designer(client):
+    """The fading phase (issue 46): a dry-time slider beside the breath time; the profile at 12 s of
+    drying after 20 s is the model's lobe; R falls but the ring, set by the droplets' spacing, does not
+    move out (it moves in a little, as in the exact far field: benchmarks/results/breath_figure_lobe.json,
+    fading_summary/ring); a dry time past the table's 90 % of the water gone is one line naming the range."""
+    spec = client.get("/api/parameters").json()
+    ps = {p["name"]: p for p in spec["parameters"]}
+    dt = ps["dry_time"]
+    assert dt["applies"] == ["process=breath-figure"] and dt["unit"] == "s"
+    assert dt["slider"]["low"] == 0.0
+    assert ps["evaporation_rate"]["unit"] == "µm/s"
+    peaks, R = {}, {}
+    for tau in (0.0, 12.0):
+        q = {"process": "breath-figure", "breath_time": 20.0, "dry_time": tau}
+        res = client.get("/api/profiles", params=q)
+        assert res.status_code == 200, res.text
+        p = res.json()
+        m = material_from_parameters(**q)
+        theta = np.radians(p["angle"])
+        d = np.stack([np.sin(theta), 0 * theta], -1)
+        np.testing.assert_allclose(p["lobe"], m.lobe(d, 550.0), rtol=0, atol=1e-2 * max(p["lobe"]))
+        peaks[tau], R[tau] = p["angle"][int(np.argmax(p["lobe"]))], m.process.mean_radius
+    assert R[12.0] < 0.9 * R[0.0]
+    assert peaks[12.0] < peaks[0.0] < 1.1 * peaks[12.0]      # 2.28° against 2.37°: not 1/R (2.8°)
+    one_line_400(client.get("/api/corona.png", params={"process": "breath-figure", "breath_time": 20,
+                                                       "dry_time": 30}),
+                 "dry_time=30", "[0, 18.")

@@ -44,7 +44,8 @@ def test_there_are_scenes():
                      "sweep_area_fraction.xml", "sweep_incidence.xml", "circle_vs_square.xml",
                      "babinet.xml", "monochromatic.xml", "mixed.xml", "sampling.xml",
                      "window_at_night.xml", "wiped_window.xml", "condensation_gradient.xml",
-                     "dusty_mirror.xml", "fogged_window.xml", "breath_figure.xml", "breath_spot.xml"]:
+                     "dusty_mirror.xml", "fogged_window.xml", "breath_figure.xml", "breath_spot.xml",
+                     "fogged_pane_drying.xml", "wiped_window_refog.xml"]:
         assert required in names
 
 

@@ -60,3 +60,30 @@ def test_size_classes_hold_equal_area():
     area = np.bincount(cls, a ** 2) / np.sum(a ** 2)
     np.testing.assert_allclose(area, 0.2, atol=0.01)
     assert np.all(np.diff([a[cls == k].mean() for k in range(5)]) > 0)
+
+
+@pytest.mark.slow
+@pytest.mark.reference
+def test_fading_rows_hold_the_water_budget():
+    """evaporation_rows (the table's fading phase) on a small box: the water left is exactly 1 - f of
+    the start's (the simulator removes it at the prescribed rate), R = <a³>/<a²> is π W / (k F_a)
+    (caps of one angle), the coverage and the number of droplets fall with f, and the partials add up
+    to S.  The shipped table's rows obey the same budget."""
+    from corona.model.processes.breath_figure import load_table
+    from corona.reference.breath_figure import cap_volume_factor
+    from corona.reference.breath_figure_optics import evaporation_rows
+    t = load_table()
+    k = cap_volume_factor(90.0)
+    rows = evaporation_rows(t["x_edges"], t["class_edges"], starts=(5.0,), fractions=(0.3, 0.8), seeds=(3,),
+                            box=100.0, progress=False)
+    np.testing.assert_allclose(rows["dry_water_ratio"], [[0.7, 0.2]], rtol=1e-9)
+    np.testing.assert_allclose(rows["dry_R"], np.pi * rows["dry_water"] / (k * rows["dry_coverage"]), rtol=1e-9)
+    assert np.all(np.diff(rows["dry_coverage"][0]) < 0) and np.all(rows["dry_coverage_ratio"] < 1)
+    assert np.all(np.diff(rows["dry_density"][0]) < 0) and np.all(rows["dry_density_ratio"] < 1)
+    np.testing.assert_allclose(np.nansum(rows["dry_partial"], axis=(-1, -2)), np.nan_to_num(rows["dry_S"]),
+                               rtol=1e-9, atol=1e-12)
+    # the shipped fading rows
+    np.testing.assert_allclose(t["dry_water_ratio"], np.broadcast_to(1 - t["dry_fractions"], t["dry_R"].shape),
+                               rtol=1e-9)
+    # (R, water and coverage are each averaged over the two seeds: the identity holds to their spread)
+    np.testing.assert_allclose(t["dry_R"], np.pi * t["dry_water"] / (k * t["dry_coverage"]), rtol=0.01)

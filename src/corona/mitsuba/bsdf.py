@@ -76,10 +76,12 @@ Hermite interpolation and its slope in ``F_a``, re-centred by each
 row's cost, and derivatives in ``F_a`` through the slope.
 ``lattice-*`` and ``points`` (whose geometry F_a sets) take no F_a texture;
 ``mask`` and ``points`` (absolute sizes) no radius texture.
-``breath_time`` (``process=breath-figure``) takes a texture too (a breath spot, a pane drying
-from its edges): rows over the coverage (which grows with time), each the material at one time
+``breath_time`` or ``dry_time`` (``process=breath-figure``, one of them) takes a texture too (a
+breath spot, a wiped streak fogging up again, a pane drying from its edges): rows over the coverage
+(which grows with the breath time and falls with the dry time), each the material at one time
 with its table resampled to a length ``L ∝ R(t)``, Hermite in F_a between rows; each lane's F_a
-and ``R`` linear in log t as the table's own (docs/physics.md#breath-figures-processbreath-figure).
+and ``R`` linear in log t (breath) or t (dry) as the table's own
+(docs/physics.md#breath-figures-processbreath-figure).
 
 Spectral variants evaluate each of the lane's wavelengths.  Sampling picks
 one of the lane's wavelengths at random (each with probability 1/n, reusing
@@ -111,7 +113,7 @@ from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as 
                                    guided_cdfs, positive as _positive,
                                    read_props as _read_props, selection, texture_range, uniform as _uniform,
                                    variant_class)
-from corona.mitsuba.common import centre_rows, clip as _clip, gather as _gather
+from corona.mitsuba.common import PROCESS_TEXTURED, centre_rows, clip as _clip, gather as _gather
 from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, CentredRow,
                                   ChannelTables, KernelLobe, OneRow, PackedRowGrid, PairedTable, RadialRow,
                                   RadialRowPairs, RadialRows, RowGrid, SampledTable, Wavelengths)
@@ -203,10 +205,15 @@ class CoronaBSDFMixin:
         self.fa_tex = textures["area_fraction"]
         self.radius_tex = textures["radius"]
         self.albedo_tex = textures["albedo"]
-        # breath_time as a texture: rows over the coverage, L ∝ R(t) per lane (_time_rows)
-        self.time_tex = textures.get("breath_time")
+        # breath_time or dry_time as a texture: rows over the coverage, L ∝ R(t) per lane (_time_rows)
+        timed = [k for k in PROCESS_TEXTURED if k in textures]
+        self.time_name = timed[0] if timed else None
+        self.time_tex = textures.get(self.time_name)
         if self.time_tex is not None and params.get("process", SPEC["process"].default) != "breath-figure":
-            raise CoronaError("corona BSDF: breath_time can be a texture only with process='breath-figure'")
+            raise CoronaError(f"corona BSDF: {self.time_name} can be a texture only with process='breath-figure'")
+        if len(timed) > 1 or (self.time_name == "breath_time" and params.get("dry_time", 0.0) != 0.0):
+            raise CoronaError("corona BSDF: breath_time and dry_time cannot both vary: a breath_time texture "
+                              "needs dry_time=0, a dry_time texture a float breath_time")
         self._textured = {k for k in textures if textures[k].is_spatially_varying()}
         # a mixture's radius texture is the radius of its largest component: every size scales with it
         self.mixture_scaled = params.get("shape") == "mixture" and "radius" in self._textured
@@ -276,19 +283,32 @@ class CoronaBSDFMixin:
             out.append((0.0 if lo is None else lo, hi))
         return out
 
+    def _time_span(self, params=None):
+        """(lo, hi) [s] the table covers for the textured time (:attr:`time_name`) and why."""
+        from corona.model.processes.breath_figure import dry_time_range, time_range
+        params = self.params if params is None else params
+        theta = float(params.get("contact_angle", SPEC["contact_angle"].default))
+        if self.time_name == "breath_time":
+            return time_range(theta), f"the breath-figure table's times at contact_angle={theta:g}"
+        t = float(params.get("breath_time", SPEC["breath_time"].default))
+        rate = float(params.get("evaporation_rate", SPEC["evaporation_rate"].default))
+        return (dry_time_range(t, theta, rate),
+                f"90 % of the water gone after breath_time={t:g} s at evaporation_rate={rate:g} µm/s")
+
     def _time_range(self):
-        """Checked (lo, hi) of the ``breath_time`` texture [s]: inside the table's times at the
-        contact angle (the rows' error over that whole span: benchmarks/results/breath_time_texture.json)."""
-        from corona.model.processes.breath_figure import time_range
+        """Checked (lo, hi) of the ``breath_time`` or ``dry_time`` texture [s]: inside the table's times
+        (the rows' error over that whole span: benchmarks/results/breath_time_texture.json)."""
         lo, hi = texture_range(self.time_tex)
-        theta = float(self.params.get("contact_angle", SPEC["contact_angle"].default))
-        t0, t1 = time_range(theta)
-        if (lo is None or not np.isfinite(lo) or not np.isfinite(hi) or lo < t0 * (1 - 1e-6)
-                or hi > t1 * (1 + 1e-6)):
-            raise CoronaError(f"corona BSDF: breath_time texture spans [{lo if lo is not None else '?'}, {hi:g}] s; "
-                              f"allowed within [{t0:g}, {t1:g}] s (the breath-figure table's times at "
-                              f"contact_angle={theta:g})")
+        (t0, t1), why = self._time_span()
+        low_ok = lo is not None and np.isfinite(lo) and (lo >= -1e-7 if t0 == 0 else lo >= t0 * (1 - 1e-6))
+        if not low_ok or not np.isfinite(hi) or hi > t1 * (1 + 1e-6):
+            raise CoronaError(f"corona BSDF: {self.time_name} texture spans [{'?' if lo is None else format(lo, 'g')}, "
+                              f"{hi:g}] s; allowed within [{t0:g}, {t1:g}] s ({why})")
         return max(lo, t0), min(hi, t1)
+
+    def _time_axis(self, t):
+        """The lane table's axis: log t for ``breath_time`` (the table's own), t for ``dry_time``."""
+        return np.log(t) if self.time_name == "breath_time" else np.asarray(t, dtype=np.float64)
 
     def _time_rows(self, params, t_lo, t_hi):
         """The breath figure's rows over its coverage for the times ``[t_lo, t_hi]`` [s].
@@ -297,31 +317,41 @@ class CoronaBSDFMixin:
         between each two (uniform in log t), each the material at that time with its radial table
         resampled to the common length ``L = c R(t)`` (``R`` the area-weighted mean radius, ``c`` that
         of the latest row): ``v'(u') = v(u' L_i / L'_i) (L_i / L'_i)²`` keeps the lobe
-        ``F_a v(u) (L/λ)²``.  The coverage grows with time, so the rows are the F_a rows of an
-        F_a texture (Hermite in F_a between them); each lane's F_a and ``log R`` are linear in
-        ``log t`` (the table's own interpolation) from a table uniform in log t."""
-        from corona.model.processes.breath_figure import BreathFigure, load_table, time_range
+        ``F_a v(u) (L/λ)²``.  The coverage grows with the breath time and falls with the dry
+        time, so the rows (ordered by coverage) are the F_a rows of an F_a texture (Hermite in F_a
+        between them); each lane's F_a and ``log R`` are linear in ``log t`` for ``breath_time``,
+        in ``t`` for ``dry_time`` (the table's own interpolations) from a table uniform in that axis."""
+        from corona.model.processes.breath_figure import load_table
         from corona.model.tabulated import RadialTable
-        theta = float(params.get("contact_angle", SPEC["contact_angle"].default))
-        t0, t1 = time_range(theta)
-        if t_hi < t_lo * (1 + 2e-3):      # a uniform time: two rows around it
-            t_lo, t_hi = max(t_lo * (1 - 1e-3), t0), min(t_hi * (1 + 1e-3), t1)
-        nodes = load_table()["times"] * (t0 / load_table()["times"][0])
+        name = self.time_name
+        (t0, t1), _ = self._time_span(params)
+        table = load_table()
+        if name == "breath_time":
+            if t_hi < t_lo * (1 + 2e-3):      # a uniform time: two rows around it
+                t_lo, t_hi = max(t_lo * (1 - 1e-3), t0), min(t_hi * (1 + 1e-3), t1)
+            nodes = table["times"] * (t0 / table["times"][0])
+        else:
+            if t_hi - t_lo < 2e-3 * t1:       # a uniform dry time: two rows around it
+                t_lo, t_hi = max(t_lo - 1e-3 * t1, t0), min(t_hi + 1e-3 * t1, t1)
+            nodes = np.concatenate([[0.0], table["dry_fractions"]]) * (t1 / table["dry_fractions"][-1])
         knots = np.unique(np.concatenate([[t_lo, t_hi], nodes[(nodes > t_lo) & (nodes < t_hi)]]))
-        lk = np.log(knots)
-        times = np.exp(np.unique(np.concatenate(
+        lk = self._time_axis(knots)
+        grid_rows = np.unique(np.concatenate(
             [lk[:-1, None] + (lk[1:] - lk[:-1])[:, None] * np.arange(TIME_SUBDIVIDE)[None] / TIME_SUBDIVIDE,
-             lk[-1:, None]], axis=None)))
+             lk[-1:, None]], axis=None))
+        times = np.exp(grid_rows) if name == "breath_time" else grid_rows
         mats = []
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", CoronaWarning)
             for t in times:
-                mats.append(material_from_parameters(**{**params, "breath_time": float(t)}))
-        R = np.array([m.process.mean_radius for m in mats])
+                mats.append(material_from_parameters(**{**params, name: float(t)}))
         fas = np.array([m.area_fraction for m in mats])
+        if name == "dry_time":                # the coverage falls: rows in order of coverage
+            mats, fas, times = mats[::-1], fas[::-1], times[::-1]
+        R = np.array([m.process.mean_radius for m in mats])
         if np.any(np.diff(fas) <= 0):
-            raise CoronaError("corona BSDF: the breath figure's coverage does not grow over the breath_time "
-                              f"texture's range [{t_lo:g}, {t_hi:g}] s; use a uniform breath_time")
+            raise CoronaError(f"corona BSDF: the breath figure's coverage does not change monotonically over "
+                              f"the {name} texture's range [{t_lo:g}, {t_hi:g}] s; use a uniform {name}")
         last = mats[-1]
         c = float(last.length_scale) / float(R[-1])
         du, n = float(last.table.du), int(last.table.values.size)
@@ -331,9 +361,12 @@ class CoronaBSDFMixin:
             k = float(m.length_scale) / (c * r)                  # L_i / L'_i
             own = np.arange(m.table.values.size) * m.table.du
             tabs.append(RadialTable(du, np.interp(u * k, own, m.table.values, right=0.0) * k * k))
-        # lanes: F_a and log R over a grid uniform in log t (exact at the rows, linear in log t)
-        grid = np.linspace(np.log(t_lo), np.log(t_hi), TIME_GRID)
-        procs = [BreathFigure(float(np.exp(x)), theta) for x in grid]
+        # lanes: F_a and log R over a grid uniform in the axis (exact at the rows, linear in between)
+        grid = np.linspace(*self._time_axis([t_lo, t_hi]), TIME_GRID)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CoronaWarning)
+            procs = [material_from_parameters(**{**params, name: float(np.exp(x) if name == "breath_time" else x)}
+                                              ).process for x in grid]
         fa_grid = np.array([p.area_fraction(None) for p in procs])
         self.time_cover = (float(t_lo), float(t_hi))
         self.time_log0, self.time_scale = float(grid[0]), (TIME_GRID - 1) / float(grid[-1] - grid[0])
@@ -344,8 +377,8 @@ class CoronaBSDFMixin:
         return mats[int(np.argmin(np.abs(times - np.sqrt(t_lo * t_hi))))], fas, tabs
 
     def _time_lookup(self, t):
-        """(F_a, L) of a lane at breath time ``t`` [s]: gathers from the uniform table in log t."""
-        x = (dr.log(t) - self.time_log0) * self.time_scale
+        """(F_a, L) of a lane at time ``t`` [s]: gathers from the table uniform in :meth:`_time_axis`."""
+        x = ((dr.log(t) if self.time_name == "breath_time" else t) - self.time_log0) * self.time_scale
         j = mi.UInt32(dr.clip(dr.floor(x), 0, TIME_GRID - 2))
         w = x - mi.Float(j)
         f0, f1 = _gather(mi.Float, self.time_fa, j), _gather(mi.Float, self.time_fa, j + 1)
@@ -358,7 +391,7 @@ class CoronaBSDFMixin:
         params = dict(self.params)
         if self.time_tex is not None:
             t_lo, t_hi = self._time_range()
-            params["breath_time"] = t_hi
+            params[self.time_name] = t_hi if self.time_name == "breath_time" else t_lo   # the densest
         # tables in u = 2π L |d| / λ cover the largest radius (uniform: 25 % headroom, so that
         # an optimiser can grow it without a rebuild); a smaller one scales L down
         cover = radius_range[1] * (1.0 if "radius" in self._textured else 1.25)
@@ -809,7 +842,7 @@ class CoronaBSDFMixin:
             callback.put("radius", self.radius_tex, flag)
         callback.put("albedo", self.albedo_tex, flag)
         if self.time_tex is not None:
-            callback.put("breath_time", self.time_tex, flag)
+            callback.put(self.time_name, self.time_tex, flag)
 
     def parameters_changed(self, keys):
         # new values: check them; rebuild the tables only when they leave what the tables cover

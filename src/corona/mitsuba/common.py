@@ -35,7 +35,7 @@ RADIAL_NEWTON_STEPS = 1
 #: ``uniform`` texture, so ``mi.traverse`` shows ``area_fraction.value`` etc.).
 TEXTURED = ("area_fraction", "radius", "albedo")
 #: Parameters a process reads that may also be a texture (the plugin's own rows over them).
-PROCESS_TEXTURED = ("breath_time",)
+PROCESS_TEXTURED = ("breath_time", "dry_time")
 
 
 # --------------------------------------------------------------------------

@@ -344,11 +344,31 @@ TABLE_CLASSES = 12
 TABLE_U_MAX, TABLE_DU = 12.0, 0.25
 
 
+def _measure(a, centres, box, volume, i, acc, counts, xsum, S, partial, x_edges, class_edges):
+    """Add one frame's ingredients (radii ``a``, centres, total water ``volume`` [µm³]) to row ``i``."""
+    nx, K = x_edges.size - 1, class_edges.size - 1
+    R = float(np.sum(a ** 3) / np.sum(a ** 2))
+    acc["R"][i] += R
+    acc["mean_radius"][i] += a.mean()
+    acc["coverage"][i] += float(np.pi * np.sum(a ** 2) / box ** 2)
+    acc["density"][i] += a.size / box ** 2
+    acc["water"][i] += float(volume) / box ** 2
+    x = a / R
+    k = np.clip(np.searchsorted(x_edges, x, side="right") - 1, 0, nx - 1)
+    counts[i] += np.bincount(k, minlength=nx)
+    xsum[i] += np.bincount(k, weights=x, minlength=nx)
+    cls = np.clip(np.searchsorted(class_edges, x, side="right") - 1, 0, K - 1)
+    p = partial_structure_rings(centres, cls, K, box, length=R, u_max=TABLE_U_MAX, du=TABLE_DU)
+    partial[i] += p
+    S[i] += np.einsum("rik->r", p)           # Σ_ik S_ik: the S of all the centres
+
+
 def breath_figure_table(times=TABLE_TIMES, seeds=TABLE_SEEDS, box: float = TABLE_BOX,
                         progress: bool = True) -> dict:
     """What the lobe of a breath figure needs at each time, averaged over seeds (hemispherical caps,
     the simulator's defaults otherwise): the area-weighted mean contact radius ``R = ⟨a³⟩/⟨a²⟩``
-    [µm], the number-mean radius, the coverage, the droplets per area [µm⁻²], the number fractions
+    [µm], the number-mean radius, the coverage, the droplets per area [µm⁻²], the water per area
+    ``water`` [µm] (the film it would make), the number fractions
     and mean ``a/R`` of the size bins (``x_edges``: :data:`TABLE_X_EDGES` split at the class edges), and ``S`` of the centres over rings of
     ``u = q R`` (:data:`TABLE_DU` wide up to :data:`TABLE_U_MAX`), and the partial structure factors
     ``partial`` (n_t, rings, K, K) of :data:`TABLE_CLASSES` classes of equal covered area in
@@ -358,7 +378,7 @@ def breath_figure_table(times=TABLE_TIMES, seeds=TABLE_SEEDS, box: float = TABLE
     times = np.asarray(times, dtype=np.float64)
     nt, nx = times.size, TABLE_X_EDGES.size - 1
     n_ring = int(math.ceil(TABLE_U_MAX / TABLE_DU))
-    acc = {k: np.zeros(nt) for k in ("R", "mean_radius", "coverage", "density")}
+    acc = {k: np.zeros(nt) for k in ("R", "mean_radius", "coverage", "density", "water")}
     S = np.zeros((nt, n_ring))
     t0 = __import__("time").perf_counter()
     runs = [simulate_breath_figure(times, box=box, seed=int(seed)) for seed in seeds]
@@ -380,21 +400,8 @@ def breath_figure_table(times=TABLE_TIMES, seeds=TABLE_SEEDS, box: float = TABLE
               disable=not progress, leave=False) as bar:
         for bf in runs:
             for i in range(nt):
-                a = bf.radii[i]
-                R = float(np.sum(a ** 3) / np.sum(a ** 2))
-                acc["R"][i] += R
-                acc["mean_radius"][i] += a.mean()
-                acc["coverage"][i] += bf.coverage[i]
-                acc["density"][i] += a.size / box ** 2
-                x = a / R
-                k = np.clip(np.searchsorted(x_edges, x, side="right") - 1, 0, nx - 1)
-                counts[i] += np.bincount(k, minlength=nx)
-                xsum[i] += np.bincount(k, weights=x, minlength=nx)
-                cls = np.clip(np.searchsorted(class_edges, x, side="right") - 1, 0, TABLE_CLASSES - 1)
-                p = partial_structure_rings(bf.centres[i], cls, TABLE_CLASSES, box, length=R,
-                                            u_max=TABLE_U_MAX, du=TABLE_DU)
-                partial[i] += p
-                S[i] += np.einsum("rik->r", p)           # Σ_ik S_ik: the S of all the centres
+                _measure(bf.radii[i], bf.centres[i], box, bf.total_volume[i], i, acc, counts, xsum, S, partial,
+                         x_edges, class_edges)
                 bar.update(1)
     ns = len(seeds)
     out = {k: v / ns for k, v in acc.items()}
@@ -407,4 +414,67 @@ def breath_figure_table(times=TABLE_TIMES, seeds=TABLE_SEEDS, box: float = TABLE
     out["class_edges"] = class_edges
     out["u"] = (np.arange(n_ring) + 0.5) * TABLE_DU
     out["seconds"] = __import__("time").perf_counter() - t0
+    return out
+
+
+#: The fading phase of the table: evaporation runs started at these growth times [s] (the first,
+#: a middle and the last of :data:`TABLE_TIMES`) ...
+EVAPORATION_STARTS = (5.0, 20.0, 80.0)
+#: ... measured when these fractions of the water have evaporated (0: the growth rows themselves).
+EVAPORATION_FRACTIONS = (0.1, 0.25, 0.5, 0.75, 0.9)
+#: Evaporation rate of the table's runs [µm/s]; the rows depend on the evaporated fraction only
+#: (the water leaves at a fixed rate, shared as in growth), so any rate gives the same rows.
+TABLE_EVAPORATION_RATE = 0.1
+
+
+def evaporation_rows(x_edges, class_edges, starts=EVAPORATION_STARTS, fractions=EVAPORATION_FRACTIONS,
+                     seeds=TABLE_SEEDS, box: float = TABLE_BOX, progress: bool = True) -> dict:
+    """The fading phase: the same ingredients as :func:`breath_figure_table` (in its size bins
+    ``x_edges`` and classes ``class_edges``) for runs that grow until ``start`` [s] and then evaporate
+    at :data:`TABLE_EVAPORATION_RATE` (no nucleation), measured when the fraction ``fractions`` of the
+    water present at ``start`` has left (``τ = f · water(start) / E``, exact: the simulator removes
+    water at exactly the rate ``E`` while drops remain).  Arrays over (start, fraction, ...)."""
+    from tqdm import tqdm
+    from corona.reference.breath_figure import simulate_breath_figure
+    starts, fractions = np.asarray(starts, np.float64), np.asarray(fractions, np.float64)
+    ns, nf = starts.size, fractions.size
+    nx, K = x_edges.size - 1, class_edges.size - 1
+    n_ring = int(math.ceil(TABLE_U_MAX / TABLE_DU))
+    rows = ns * nf
+    acc = {k: np.zeros(rows) for k in ("R", "mean_radius", "coverage", "density", "water")}
+    start = {k: np.zeros(rows) for k in ("R", "coverage", "density", "water")}
+    counts, xsum = np.zeros((rows, nx)), np.zeros((rows, nx))
+    S, partial = np.zeros((rows, n_ring)), np.zeros((rows, n_ring, K, K))
+    E = TABLE_EVAPORATION_RATE
+    with tqdm(total=len(seeds) * rows, desc="corona: breath-figure fading rows", unit="frame",
+              disable=not progress, leave=False) as bar:
+        for s, t0 in enumerate(starts):
+            for seed in seeds:
+                grown = simulate_breath_figure([t0], box=box, seed=int(seed))
+                h0 = float(grown.total_volume[0]) / box ** 2
+                taus = fractions * h0 / E
+                bf = simulate_breath_figure(np.concatenate([[t0], t0 + taus]), box=box, seed=int(seed),
+                                            dry_from=t0, evaporation_rate=E)
+                a0 = bf.radii[0]
+                for f in range(nf):
+                    i = s * nf + f
+                    start["R"][i] += float(np.sum(a0 ** 3) / np.sum(a0 ** 2))
+                    start["coverage"][i] += bf.coverage[0]
+                    start["density"][i] += a0.size / box ** 2
+                    start["water"][i] += float(bf.total_volume[0]) / box ** 2
+                    _measure(bf.radii[f + 1], bf.centres[f + 1], box, bf.total_volume[f + 1], i, acc, counts,
+                             xsum, S, partial, x_edges, class_edges)
+                    bar.update(1)
+    n = len(seeds)
+    out = {"dry_" + k: (v / n).reshape(ns, nf) for k, v in acc.items()}
+    # the ratios to the start of each run (the model scales the growth rows at any time by them)
+    for k in ("R", "coverage", "density", "water"):
+        out["dry_" + k + "_ratio"] = (acc[k] / start[k]).reshape(ns, nf)
+    out["dry_starts"] = starts
+    out["dry_fractions"] = fractions
+    out["dry_fraction"] = (counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)).reshape(ns, nf, nx)
+    out["dry_x"] = np.where(counts > 0, xsum / np.maximum(counts, 1),
+                            np.sqrt(x_edges[:-1] * x_edges[1:])).reshape(ns, nf, nx)
+    out["dry_S"] = (S / n).reshape(ns, nf, n_ring)
+    out["dry_partial"] = (partial / n).reshape(ns, nf, n_ring, K, K)
     return out

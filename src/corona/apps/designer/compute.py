@@ -90,7 +90,8 @@ SLIDERS = {
     "temperature": (1500.0, 12000.0, False), "light_size": (0.01, 5.0, True),
     "exposure": (-5.0, 25.0, False), "field": (0.1, 45.0, True), "size": (64, 512, False),
     "pixel_scale": (0.001, 0.2, True), "kernel_size": (33, 1023, False),
-    "breath_time": (5.0, 80.0, True), "contact_angle": (10.0, 90.0, False),
+    "breath_time": (5.0, 80.0, True), "contact_angle": (10.0, 90.0, False), "dry_time": (0.0, 60.0, False),
+    "evaporation_rate": (0.01, 10.0, True),
 }
 
 #: Looks to start from (the scenes of scenes/ they come from).
