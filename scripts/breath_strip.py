@@ -11,7 +11,10 @@ writes
 * ``docs/gallery/breath_figure_stats.png``: at the same times, from the shipped table that the
   layer uses (``corona.model.processes.breath_figure``): the droplets' size distribution, the
   structure factor S(q) of their centres, and the diffuse intensity of the layer per area
-  against the scattering angle at 550 nm (the lobe the renders sample).
+  against the scattering angle at 550 nm (the lobe the renders sample);
+* ``docs/gallery/breath_figure_drying_stats.png``: the same panels for the fading phase, a pane
+  breathed on for 20 s and then drying for 0 to 16 s (the size distribution as the number per area of droplets at least a in
+  contact radius, from the process's size classes).
 
 With ``--drying-gif`` instead: ``docs/gallery/breath_figure_drying.gif``, the same pane breathed on for
 20 s and then drying (``dry_time`` 0 to 16 s in 2 s steps: the fading phase), 128², 16 spp a frame,
@@ -55,13 +58,23 @@ def stats_figure(path: str, times=TIMES, wavelength_nm: float = 550.0) -> None:
         mid = 0.5 * (edges[1:] + edges[:-1]) * R
         ok = dens > 0
         axes[0].step(mid[ok], dens[ok], where="mid", color=c, label=f"{t:g} s (R = {R:.1f} µm)")
-        q = np.geomspace(0.02, 60.0, 600) / R
-        axes[1].plot(q, p.structure_factor_radial(q), color=c, label=f"{t:g} s")
-        theta = np.linspace(0.02, 15.0, 600)
-        qa = 2 * np.pi * np.sin(np.radians(theta)) / lam
-        axes[2].plot(theta, p.intensity(qa) * p.number_density, color=c, label=f"{t:g} s")
+        _structure_and_lobe(axes, p, c, f"{t:g} s", lam)
+    _finish(fig, axes, path, wavelength_nm, "droplets per µm² per µm")
+
+
+def _structure_and_lobe(axes, p, colour, label: str, lam: float) -> None:
+    """S(q) of ``p``'s centres into ``axes[1]``, its diffuse intensity per area into ``axes[2]``."""
+    q = np.geomspace(0.02, 60.0, 600) / p.mean_radius
+    axes[1].plot(q, p.structure_factor_radial(q), color=colour, label=label)
+    theta = np.linspace(0.02, 15.0, 600)
+    qa = 2 * np.pi * np.sin(np.radians(theta)) / lam
+    axes[2].plot(theta, p.intensity(qa) * p.number_density, color=colour, label=label)
+
+
+def _finish(fig, axes, path: str, wavelength_nm: float, size_label: str) -> None:
+    import matplotlib.pyplot as plt
     axes[0].set(xscale="log", yscale="log", xlabel="contact radius a [µm]",
-                ylabel="droplets per µm² per µm", title="size distribution")
+                ylabel=size_label, title="size distribution")
     axes[1].set(xscale="log", yscale="log", xlabel="q [rad/µm]", ylabel="S(q)", title="structure factor of the centres")
     axes[1].axhline(1.0, color="0.6", lw=0.6)
     axes[2].set(yscale="log", xlabel=f"scattering angle at {wavelength_nm:g} nm [degree]",
@@ -70,6 +83,31 @@ def stats_figure(path: str, times=TIMES, wavelength_nm: float = 550.0) -> None:
         ax.legend(fontsize=8)
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def drying_stats_figure(path: str, breath_time: float = 20.0, dry_times=(0.0, 4.0, 8.0, 12.0, 16.0),
+                        wavelength_nm: float = 550.0) -> None:
+    """The fading phase's statistics: after ``breath_time`` [s] of growth, at ``dry_times`` [s] of
+    drying, the droplets per area in each of the process's size classes, S(q) and the diffuse
+    intensity per area (the same panels as :func:`stats_figure`)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from corona.model.processes.breath_figure import BreathFigure
+    fig, axes = plt.subplots(1, 3, figsize=(13.5, 3.9), constrained_layout=True)
+    colours = plt.cm.magma(np.linspace(0.0, 0.8, len(dry_times)))
+    for t, c in zip(dry_times, colours):
+        p = BreathFigure(breath_time=breath_time, dry_time=t)
+        radii, fraction = p.size_classes
+        order = np.argsort(radii)[::-1]
+        label = f"dry {t:g} s (R = {p.mean_radius:.1f} µm, F_a = {p.area_fraction(None):.2f})"
+        # the process's size classes as a cumulative count: droplets per µm² at least a in radius
+        axes[0].step(radii[order], np.cumsum(fraction[order]) * p.number_density, where="post", color=c,
+                     label=label)
+        _structure_and_lobe(axes, p, c, f"dry {t:g} s", wavelength_nm * 1e-3)
+    fig.suptitle(f"a pane breathed on for {breath_time:g} s, then drying", fontsize=10)
+    _finish(fig, axes, path, wavelength_nm, "droplets per µm² of radius ≥ a")
 
 
 DRY_TIMES = tuple(float(t) for t in range(0, 17, 2))
@@ -113,7 +151,9 @@ def main(argv=None) -> int:
         return 0
     stats = os.path.join(out, "breath_figure_stats.png")
     stats_figure(stats)
-    print(f"breath_strip: {os.path.relpath(stats, ROOT)}")
+    drying_stats = os.path.join(out, "breath_figure_drying_stats.png")
+    drying_stats_figure(drying_stats)
+    print(f"breath_strip: {os.path.relpath(stats, ROOT)}, {os.path.relpath(drying_stats, ROOT)}")
     if a.stats_only:
         return 0
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))

@@ -134,8 +134,12 @@ STRIPS = [
           "the glass (0.62 to 0.17), but stay where they are: the ring, set by their spacing, stays (it moves "
           "in a little as the small droplets vanish, as in the exact far field), the small droplets' wide "
           "glow goes first, and the ring brightens a little, then fades. Same exposure (the first panel's). "
-          "Below, as an animation in 2 s steps (`python scripts/breath_strip.py --drying-gif`).\n\n"
-          "![The breath figure drying, animated](gallery/breath_figure_drying.gif)",
+          "Below, as an animation in 2 s steps (`python scripts/breath_strip.py --drying-gif`), and the "
+          "size distribution, structure factor and diffuse intensity at the same dry times (`python "
+          "scripts/breath_strip.py --stats-only`): the small droplets go first, so the centres left are "
+          "more ordered (S(q) at small q falls from 0.9 to 0.2).\n\n"
+          "![The breath figure drying, animated](gallery/breath_figure_drying.gif)\n\n"
+          "![Breath figure statistics while drying](gallery/breath_figure_drying_stats.png)",
           [Panel(f"dry {t:g} s", {"breath_time": 20.0, "dry_time": t, "res": 160, "spp": 32})
            for t in (0.0, 4.0, 8.0, 12.0, 16.0)],
           shared_exposure=0),
