@@ -4,7 +4,6 @@ This is the readable, exact model that the Mitsuba plugin is tested against.
 """
 from __future__ import annotations
 
-import copy
 import functools
 import math
 import warnings
@@ -18,7 +17,7 @@ from corona.model import tabulated
 from corona.model.processes import Poisson, Process
 from corona.model.shapes import Shape
 from corona.model.mie.sphere import sphere_parts     # after the shapes (they import the sphere)
-from corona.model.substrate import GlassPane, double_pass_visibility, interference_integral
+from corona.model.substrate import BareLayer, GlassPane, double_pass_visibility, layer_substrate
 
 MODES = ("aperture", "particle")
 
@@ -156,6 +155,8 @@ class Material:
             raise CoronaError(f"substrate={substrate!r} is not a corona substrate "
                               "(None or corona.GlassPane(ior=1.52, side='front'))")
         self.substrate = substrate
+        #: the substrate's part (corona.model.substrate.layer_substrate), chosen once
+        self.substrate_part = layer_substrate(substrate, self)
         self.area_fraction = process.layer_area_fraction(shape)
         _warn_if_small(shape)
 
@@ -705,33 +706,17 @@ class Material:
     # ------------------------------------------------------------------
     # the whole BSDF: the layer, alone or on its pane (docs/physics.md#the-layer-on-glass-substrateglass)
     # ------------------------------------------------------------------
-    def _pane(self, cos_theta, wavelength=550.0):
-        """(R', T') of the substrate at |cos θ|: (0, 1) without one (a mirror: T' = 0, black behind)."""
-        c = np.asarray(cos_theta, dtype=np.float64)
-        if self.substrate is None:
-            return np.zeros_like(c), np.ones_like(c)
-        return self.substrate.reflectance(c, wavelength), self.substrate.transmittance(c)
-
     @functools.cached_property
     def double_pass_visibility(self) -> float:
         """Visibility cap of the coherent double pass (:func:`corona.model.substrate.double_pass_visibility`)."""
         lobe = self.lobe_weight * self._plane_integral / (4 * np.pi**2)
         return double_pass_visibility(self.coherent_transmittance, lobe, self.reflectance)
 
-    def _reflected_lobe_factor(self, cos_i, cos_o, wavelength):
-        """The pane's factor on ``f`` in the reflected lobe: ``min(R_i, R_o) + C (P_i + P_o)``, plus
-        the coherent double pass's interference on a pane with a thickness
-        (:meth:`corona.GlassPane.reflected_lobe_factor`)."""
-        if self.substrate is None:
-            return np.zeros(np.broadcast(cos_i, cos_o).shape)
-        vis = self.double_pass_visibility if self.substrate.coherent else 1.0
-        return self.substrate.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength,
-                                                    self.coherent_transmittance, vis)
-
-    def _layer_first(self, cos_theta_i):
-        """True where light from ``wi`` meets the layer before the pane (always without one)."""
-        c = np.asarray(cos_theta_i, dtype=np.float64)
-        return np.ones(c.shape, bool) if self.substrate is None else self.substrate.layer_first(c)
+    def coherent_weight(self, cos_theta_i, wavelength=550.0) -> float | np.ndarray:
+        """The layer's own coherent weight ``C`` (:attr:`coherent_transmittance`) for light from
+        ``cos_theta_i`` at ``wavelength`` [nm], without the pane: the same for every incidence and
+        wavelength here (a Mie layer's depends on both)."""
+        return self.coherent_transmittance
 
     def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
         """Weight of the delta transmission along ``-wi``: ``C T'(θi)``.
@@ -744,7 +729,7 @@ class Material:
         (+: light from the +z side).  The pane does not deflect the beam, and
         the layer has no specular reflection, so this path is exact.
         """
-        _, t = self._pane(cos_theta_i)
+        _, t = self.substrate_part.fresnel(cos_theta_i)
         return self.coherent_transmittance * t
 
     def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
@@ -759,11 +744,7 @@ class Material:
         (:meth:`corona.GlassPane.reflectance`; a :class:`corona.model.substrate.Mirror`'s at
         ``wavelength`` [nm]).
         """
-        r, _ = self._pane(cos_theta_i, wavelength)
-        if self.substrate is None:
-            return r
-        through = self.substrate.specular_through_layer(cos_theta_i, wavelength, self.coherent_transmittance)
-        return np.where(self._layer_first(cos_theta_i), through, r)
+        return self.substrate_part.specular_reflection(self, cos_theta_i, wavelength)
 
     def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
         """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``.
@@ -815,13 +796,14 @@ class Material:
         ci, co = wi[..., 2], wo[..., 2]
         transmit = ci * co < 0
         reflect = ci * co > 0
-        first = self._layer_first(ci)
+        pane = self.substrate_part
+        first = pane.layer_first(ci)
         lam = self._wavelength(wavelength) * 1e3                 # checked, nm
-        _, ti = self._pane(ci, lam)
-        _, to = self._pane(co, lam)
+        _, ti = pane.fresnel(ci, lam)
+        _, to = pane.fresnel(co, lam)
         f = self.lobe(wi[..., :2] + wo[..., :2], wavelength)
         lobe_t = f * np.where(first, to, ti)
-        lobe_r = f * np.where(first, self._reflected_lobe_factor(ci, co, lam), 0.0)
+        lobe_r = f * np.where(first, pane.reflected_lobe_factor(ci, co, lam, self.coherent_transmittance), 0.0)
         diffuse = self.reflectance / np.pi * np.where(first, 1.0, ti * to)
         value = np.where(transmit, lobe_t, 0.0) + np.where(reflect, lobe_r + diffuse, 0.0)
         return value * np.abs(co)
@@ -898,10 +880,7 @@ class Material:
         screen, whose Fraunhofer lobe is transmitted only), not in ``total``.
         The keys are the same for every material.
         """
-        if not pane and self.substrate is not None:
-            alone = copy.copy(self)
-            alone.substrate = None
-            return alone.directional_albedo(cos_theta_i, wavelength, phi_i, n_phi)
+        part = self.substrate_part if pane else BareLayer()
         n_phi = 512 if n_phi is None else int(check_range("n_phi", n_phi, 1, 1e6))
         ci = check_range("cos_theta_i", cos_theta_i, -1.0, 1.0)
         if ci == 0.0:
@@ -909,29 +888,23 @@ class Material:
                               "carries no energy)")
         s = np.sqrt(max(0.0, 1.0 - ci * ci))
         wi_xy = (s * np.cos(phi_i), s * np.sin(phi_i))
-        first = bool(self._layer_first(ci))
-        ri, ti = (float(x) for x in self._pane(ci, wavelength))
+        first = bool(part.layer_first(ci))
+        ri, ti = (float(x) for x in part.fresnel(ci, wavelength))
         c = self.coherent_transmittance
 
         def pane_t(co):
-            return self._pane(co, wavelength)[1]
+            return part.fresnel(co, wavelength)[1]
 
         def pane_r(co):   # min(R_i, R_o) + C (P_i + P_o) (a thick pane's interference: below)
-            if self.substrate is None:
-                return np.zeros_like(co)
-            pane = self.substrate
-            front = np.minimum(pane.face_reflectance(ci), pane.face_reflectance(co))
-            return front + c * (pane.inner_reflectance(ci, wavelength) + pane.inner_reflectance(co, wavelength))
+            return part.front_and_round_trips(ci, co, wavelength, c)
 
         plain, transmitted, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_t, pane_r],
                                                              n_phi)
-        out = {"coherent": c * ti, "specular": float(self.specular_reflection(ci, wavelength))}
+        out = {"coherent": c * ti, "specular": float(part.specular_reflection(self, ci, wavelength))}
         if first:
             out["lobe_transmission"] = transmitted                  # ∫ f T'(θo)
-            out["lobe_reflection"] = reflected                      # ∫ f [R_min + C (P_i + P_o)]
-            if self.substrate is not None and self.substrate.coherent:
-                out["lobe_reflection"] += 2.0 * self.double_pass_visibility * c * interference_integral(
-                    self, ci, wavelength, phi_i)                    # + 2 V C ∫ f Q
+            # ∫ f [R_min + C (P_i + P_o)], + 2 V C ∫ f Q on a pane with a thickness
+            out["lobe_reflection"] = part.reflected_lobe_energy(self, reflected, ci, wavelength, phi_i)
             out["diffuse"] = self.reflectance
         else:
             out["lobe_transmission"] = ti * plain
@@ -939,7 +912,7 @@ class Material:
             # ∫ T'(θi) ρ/π T'(θo) cos θo dω = T'(θi) ρ 2∫₀¹ T'(μ) μ dμ
             mu, w = np.polynomial.legendre.leggauss(64)
             mu, w = 0.5 * (mu + 1.0), 0.5 * w
-            out["diffuse"] = ti * self.reflectance * float(2.0 * np.sum(w * mu * self._pane(mu)[1]))
+            out["diffuse"] = ti * self.reflectance * float(2.0 * np.sum(w * mu * part.fresnel(mu)[1]))
         out = {k: float(v) for k, v in out.items()}
         out["total"] = sum(out.values())
         out["forward"], out["backward"] = float(plain), 0.0

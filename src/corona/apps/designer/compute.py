@@ -1002,7 +1002,7 @@ def _substrate_terms(m, lams: np.ndarray):
         t0 = float(sub.transmittance(1.0))
         centre = through
         cos_grid = np.linspace(0.0, 1.0, 1025)
-        first = bool(np.all(m._layer_first(1.0)))
+        first = bool(np.all(m.substrate_part.layer_first(1.0)))
         t = sub.transmittance(cos_grid) if first else np.full(cos_grid.shape, t0)
         table = np.repeat(t[:, None], 3, axis=1)
 

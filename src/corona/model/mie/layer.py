@@ -82,7 +82,7 @@ from corona.model.material import Material, MieMembers
 from corona.model.processes import Lattice, Poisson, Process
 from corona.model.shapes.modifiers import SizeDistribution
 from corona.model.mie.sphere import Sphere, sphere_parts
-from corona.model.substrate import GlassPane, Mirror
+from corona.model.substrate import BareLayer, GlassPane, Mirror, layer_substrate
 
 #: Format of the sphere tables in the cache.
 SPHERE_FORMAT = 3
@@ -1015,6 +1015,8 @@ class SphereMaterial(MieMembers, Material):
                               "an incoherent glass pane (corona.GlassPane without a thickness: the double "
                               "pass's fringes are built for the flat layer)")
         self.substrate = substrate
+        #: the substrate's part (corona.model.substrate.layer_substrate), chosen once
+        self.substrate_part = layer_substrate(substrate, self)
         self.shape = shape
         self.process = process
         self.use_cache = bool(use_cache)
@@ -1482,33 +1484,22 @@ class SphereMaterial(MieMembers, Material):
     # ------------------------------------------------------------------
     # the pane (docs/physics.md#the-layer-on-glass-substrateglass), as corona.Material's
     # ------------------------------------------------------------------
-    def _pane(self, cos_theta):
-        """(R', T') of the pane at |cos θ|: (0, 1) without one."""
-        c = np.asarray(cos_theta, dtype=np.float64)
-        if self.substrate is None:
-            return np.zeros_like(c), np.ones_like(c)
-        return self.substrate.reflectance(c), self.substrate.transmittance(c)
-
-    def _layer_first(self, cos_theta_i):
-        c = np.asarray(cos_theta_i, dtype=np.float64)
-        return np.ones(c.shape, bool) if self.substrate is None else self.substrate.layer_first(c)
+    def coherent_weight(self, cos_theta_i, wavelength=550.0) -> float | np.ndarray:
+        """The layer's own coherent weight ``C = |1 - F_s s₀(λ)|²`` for light from ``cos_theta_i`` at
+        ``wavelength`` [nm] (the mean field depends on both), without the pane."""
+        return self.energies(cos_theta_i, wavelength)["coherent"]
 
     def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
-        """Weight of the delta transmission along ``-wi``: ``C T'(θi)``, ``C = |1 - F_s s₀(λ)|²``
+        """Weight of the delta transmission along ``-wi``: ``C T'(θi)``, ``C`` the :meth:`coherent_weight`
         (a spectrum: the mean field depends on λ), ``T'`` the pane's (1 without one)."""
-        return self.energies(cos_theta_i, wavelength)["coherent"] * self._pane(cos_theta_i)[1]
+        return self.energies(cos_theta_i, wavelength)["coherent"] * self.substrate_part.fresnel(cos_theta_i)[1]
 
     def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
         """Weight of the delta reflection (the mirror direction of ``wi``): 0 without a pane;
         ``C R + C² (R' - R)`` when light meets the layer first (the front face's ``R`` crosses the
         layer once: :meth:`corona.GlassPane.specular_through_layer`), ``R'(θi)`` when it meets the
         glass first."""
-        r = self._pane(cos_theta_i)[0]
-        if self.substrate is None:
-            return r
-        c = self.energies(cos_theta_i, wavelength)["coherent"]
-        through = self.substrate.specular_through_layer(cos_theta_i, wavelength, c)
-        return np.where(self._layer_first(cos_theta_i), through, r)
+        return self.substrate_part.specular_reflection(self, cos_theta_i, wavelength)
 
     @property
     def coherent_transmittance(self) -> float:
@@ -1587,20 +1578,6 @@ class SphereMaterial(MieMembers, Material):
         weight = e["weight"] if self.lattice is None else self._lattice_weight(wi, wavelength, Z_f.shape)
         return e["slant"] * weight * np.where(forward, Z_f, Z_b), e["coherent"]
 
-    def _pane_factors(self, ci, co, coherent):
-        """(far side, own side, mirrored) factors of the lobes on the pane (1, 1, 0 without one)."""
-        first = self._layer_first(ci)
-        ri, ti = self._pane(ci)
-        ro, to = self._pane(co)
-        through = np.where(first, to, ti)
-        own = np.where(first, 1.0, ti * to)
-        if self.substrate is None:
-            return through, own, np.zeros_like(through)
-        # the front face reflects the lobe once, the round trips cross the layer again
-        # (corona.GlassPane.reflected_lobe_factor; an incoherent pane: no wavelength dependence)
-        mirrored = np.where(first, self.substrate.reflected_lobe_factor(ci, co, 550.0, coherent), 0.0)
-        return through, own, mirrored
-
     def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
         """The smooth BSDF times the cosine, ``f |cos θo|``: ``F_s w Z`` (forward or backward lobe).
 
@@ -1622,16 +1599,8 @@ class SphereMaterial(MieMembers, Material):
         reflectance and ``P = R' - R`` the round trips (:meth:`corona.GlassPane.reflected_lobe_factor`).
         """
         val, coherent = self._layer_eval(wi, wo, wavelength, exact)
-        if self.substrate is None:
-            return val
-        wi = np.asarray(wi, dtype=np.float64)
-        wo = np.asarray(wo, dtype=np.float64)
-        ci, co = np.broadcast_arrays(wi[..., 2], wo[..., 2])
-        through, own, mirrored = self._pane_factors(ci, co, coherent)
-        same = ci * co > 0
-        wo_m = wo * np.array([1.0, 1.0, -1.0])
-        val_m = self._layer_eval(wi, wo_m, wavelength, exact)[0]
-        return np.where(same, val * own + mirrored * val_m, val * through)
+        return self.substrate_part.lobes_on_pane(val, lambda wo_m: self._layer_eval(wi, wo_m, wavelength, exact)[0],
+                                                 wi, wo, coherent)
 
     def lobe(self, d, wavelength) -> np.ndarray:
         """The transmitted lobe at normal incidence per unit ``d²d`` (docs/physics.md's ``lobe(d)``).
@@ -1731,13 +1700,11 @@ class SphereMaterial(MieMembers, Material):
         ws = np.full(s.size, s[1] - s[0])
         ws[0] = ws[-1] = 0.5 * ws[0]
         phi = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
-        on_pane = pane and self.substrate is not None
+        part = self.substrate_part if pane else BareLayer()
         coherent = float(self.energies(ci, wavelength)["coherent"])
-        r_i, t_i = (float(v) for v in self._pane(ci)) if on_pane else (0.0, 1.0)
-        first = bool(self._layer_first(ci)) if on_pane else True
+        t_i = float(part.fresnel(ci)[1])
         out = {"coherent": coherent * t_i,
-               "specular": (float(self.substrate.specular_through_layer(ci, wavelength, coherent)) if first else r_i)
-                        if on_pane else 0.0,
+               "specular": float(part.specular_reflection(self, ci, wavelength)),
                "lobe_transmission": 0.0, "lobe_reflection": 0.0, "diffuse": 0.0,
                "forward": 0.0, "backward": 0.0}
         if self.lattice is not None:
@@ -1768,13 +1735,10 @@ class SphereMaterial(MieMembers, Material):
             lobes.append((wo, e))
         for wo, e in lobes:
             same = np.sign(wo[..., 2]) == np.sign(ci)
-            if on_pane:   # each direction's energy as eval splits it (the mirrored part: wo' on the far side)
-                through, own, mirrored = self._pane_factors(np.full(wo.shape[:-1], ci), wo[..., 2], coherent)
-                out["lobe_reflection"] += float(np.sum(np.where(same, e * own, e * mirrored)))
-                out["lobe_transmission"] += float(np.sum(np.where(same, 0.0, e * through)))
-            else:
-                out["lobe_reflection"] += float(np.sum(np.where(same, e, 0.0)))
-                out["lobe_transmission"] += float(np.sum(np.where(same, 0.0, e)))
+            # each direction's energy as eval splits it (the mirrored part: wo' on the far side)
+            through, own, mirrored = part.lobe_factors(np.full(wo.shape[:-1], ci), wo[..., 2], coherent)
+            out["lobe_reflection"] += float(np.sum(np.where(same, e * own, e * mirrored)))
+            out["lobe_transmission"] += float(np.sum(np.where(same, 0.0, e * through)))
         out["total"] = sum(out[k] for k in ("coherent", "specular", "lobe_transmission", "lobe_reflection",
                                              "diffuse"))
         return out
