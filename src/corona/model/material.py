@@ -4,6 +4,7 @@ This is the readable, exact model that the Mitsuba plugin is tested against.
 """
 from __future__ import annotations
 
+import abc
 import functools
 import math
 import warnings
@@ -15,8 +16,8 @@ from corona.model.layer import decoupled_lobe
 from corona.model import render_lobe as rlobe
 from corona.model import tabulated
 from corona.model.processes import Poisson, Process
+from corona.model import registry
 from corona.model.shapes import Shape
-from corona.model.mie.sphere import sphere_parts     # after the shapes (they import the sphere)
 from corona.model.substrate import BareLayer, GlassPane, double_pass_visibility, layer_substrate
 
 MODES = ("aperture", "particle")
@@ -32,7 +33,112 @@ PROGRESS_DELAY = tabulated.PROGRESS_DELAY
 _small_radius_warned = False
 
 
-class Material:
+class Layer(abc.ABC):
+    """One protocol for every layer of scatterers: what the plugin, the apps and the tests call.
+
+    The flat (Fraunhofer) :class:`Material` and the Mie spheres'
+    :class:`corona.model.mie.material.SphereMaterial` implement it with the same signatures and
+    result keys (``tests/model/test_material_protocol.py``); each has its own members beyond it
+    (a flat layer's one table of ``v(u)``, a Mie layer's rows), none it does not mean.
+    ``corona.Material(shape, ...)`` builds the layer class the shape's family registers
+    (:func:`corona.model.registry.layer_class`), a flat :class:`Material` otherwise.
+
+    The substrate is one component, chosen when the layer is built: ``substrate_part``
+    (:func:`corona.model.substrate.layer_substrate`: none, a pane, a pane with its double pass or
+    a mirror), asked for every pane term; ``substrate`` is the pane given (None, a
+    :class:`corona.GlassPane`, a :class:`corona.Mirror`).
+    """
+
+    @property
+    @abc.abstractmethod
+    def length_scale(self) -> float:
+        """``R`` [µm] of the dimensionless ``u = 2π R |d| / λ``."""
+
+    @property
+    @abc.abstractmethod
+    def coherent_transmittance(self) -> float:
+        """The coherent weight ``C`` at normal incidence (and 550 nm)."""
+
+    @property
+    @abc.abstractmethod
+    def opaque_fraction(self) -> float:
+        """Fraction of the layer that is opaque."""
+
+    @property
+    @abc.abstractmethod
+    def reflectance(self) -> float:
+        """The layer's reflected energy at normal incidence (without the pane)."""
+
+    @property
+    @abc.abstractmethod
+    def lobe_weight(self) -> float:
+        """The lobe's prefactor (``F_a``, capped where the flat layer needs it)."""
+
+    @property
+    @abc.abstractmethod
+    def render_kind(self) -> str:
+        """How the renderer evaluates the lobe ("radial", "analytic", "grid", "table", "mie")."""
+
+    @abc.abstractmethod
+    def coherent_weight(self, cos_theta_i, wavelength=550.0) -> float | np.ndarray:
+        """The layer's own coherent weight ``C`` for light from ``cos_theta_i`` at ``wavelength``
+        [nm], without the pane."""
+
+    @abc.abstractmethod
+    def lobe(self, d, wavelength) -> np.ndarray:
+        """The transmitted lobe at normal incidence per unit ``d²d`` (no cosine factors)."""
+
+    @abc.abstractmethod
+    def lobe_dimensionless(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """``v(u)`` at ``u`` (..., 2), ``lobe = F_a (R/λ)² v``."""
+
+    @abc.abstractmethod
+    def lobe_dimensionless_radial(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """``v(|u|)`` of an isotropic layer."""
+
+    @abc.abstractmethod
+    def lobe_tabulated(self, d, wavelength) -> np.ndarray:
+        """The lobe as the renderer evaluates it."""
+
+    @abc.abstractmethod
+    def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
+        """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``."""
+
+    @abc.abstractmethod
+    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=None, phi_i=0.0) -> float | np.ndarray:
+        """The lobe's energy through the layer."""
+
+    @abc.abstractmethod
+    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0,
+                           n_phi: int | None = None, pane: bool = True) -> dict:
+        """Energy of each component for light from ``cos_theta_i`` (the white furnace)."""
+
+    def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
+        """Weight of the delta transmission along ``-wi``: ``C T'(θi)``.
+
+        ``C`` is :meth:`coherent_weight` (a flat layer's :attr:`coherent_transmittance` at every
+        incidence and wavelength, a Mie layer's ``|1 - F_s s₀(λ)|²``), ``T'`` the pane's
+        transmittance (1 without a substrate); ``cos_theta_i`` is signed (+: light from the +z
+        side).  The pane does not deflect the beam, and the layer has no specular reflection, so
+        this path is exact.
+        """
+        return self.coherent_weight(cos_theta_i, wavelength) * self.substrate_part.fresnel(cos_theta_i)[1]
+
+    def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
+        """Weight of the delta reflection (the mirror direction of ``wi``).
+
+        0 without a substrate; ``C R(θi) + C² (R'(θi) - R(θi))`` when the light meets the
+        layer first (the front face's ``R`` reflects it back through the same place of the
+        layer, which it crosses once; the round trips cross it coherently twice:
+        :meth:`corona.GlassPane.specular_through_layer`); ``R'(θi)`` when it meets the glass
+        first.  ``R' = 2R/(1 + R)`` is the thin pane's reflectance
+        (:meth:`corona.GlassPane.reflectance`; a :class:`corona.Mirror`'s at ``wavelength`` [nm]);
+        ``C`` the layer's :meth:`coherent_weight`.
+        """
+        return self.substrate_part.specular_reflection(self, cos_theta_i, wavelength)
+
+
+class Material(Layer):
     """A layer of scatterers: shape × point process, as apertures or particles.
 
     Parameters
@@ -127,15 +233,15 @@ class Material:
     """
 
     def __new__(cls, shape=None, *args, **kwargs):
-        # a transparent sphere is a Mie scatterer, not a planar profile: its own material
+        # a family with a layer of its own registers its class (corona.model.registry): a
+        # transparent sphere is a Mie scatterer, not a planar profile
         # (docs/physics.md#transparent-droplets-mie-spheres); everything else is this class
-        if cls is Material and isinstance(shape, Shape) and sphere_parts(shape) is not None:
-            # the Mie layer's class registers itself here (MieMembers), so this module never
-            # imports the one that subclasses it; the package root imports it
-            if MieMembers._layer_class is None:
-                raise CoronaError("corona.model.mie.layer is not imported; import corona first")
-            return super().__new__(MieMembers._layer_class)     # a Material: Python runs its __init__ next
-        return super().__new__(cls)
+        layer = registry.layer_class(shape) if cls is Material else None
+        if layer is None:
+            return super().__new__(cls)
+        built = layer.__new__(layer)
+        built.__init__(shape, *args, **kwargs)   # not a Material: Python does not run __init__ again
+        return built
 
     def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
                  albedo: float = 0.0, use_cache: bool = True, substrate: GlassPane | None = None):
@@ -156,7 +262,7 @@ class Material:
                               "(None or corona.GlassPane(ior=1.52, side='front'))")
         self.substrate = substrate
         #: the substrate's part (corona.model.substrate.layer_substrate), chosen once
-        self.substrate_part = layer_substrate(substrate, self)
+        self.substrate_part = layer_substrate(substrate)
         self.area_fraction = process.layer_area_fraction(shape)
         _warn_if_small(shape)
 
@@ -718,34 +824,6 @@ class Material:
         wavelength here (a Mie layer's depends on both)."""
         return self.coherent_transmittance
 
-    def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
-        """Weight of the delta transmission along ``-wi``: ``C T'(θi)``.
-
-        ``wavelength`` [nm] is part of the one protocol: a flat layer's coherent beam does not
-        depend on it (a Mie layer's extinction does).
-
-        ``C`` is :attr:`coherent_transmittance`, ``T'`` the pane's
-        transmittance (1 without a substrate); ``cos_theta_i`` is signed
-        (+: light from the +z side).  The pane does not deflect the beam, and
-        the layer has no specular reflection, so this path is exact.
-        """
-        _, t = self.substrate_part.fresnel(cos_theta_i)
-        return self.coherent_transmittance * t
-
-    def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
-        """Weight of the delta reflection (the mirror direction of ``wi``).
-
-        0 without a substrate; ``C R(θi) + C² (R'(θi) - R(θi))`` when the light meets the
-        layer first (the front face's ``R`` reflects it back through the same place of the
-        layer, which it crosses once; the round trips cross it coherently twice:
-        :meth:`corona.GlassPane.specular_through_layer`); ``R'(θi)`` when it meets the glass
-        first.
-        ``R' = 2R/(1 + R)`` is the thin pane's reflectance
-        (:meth:`corona.GlassPane.reflectance`; a :class:`corona.model.substrate.Mirror`'s at
-        ``wavelength`` [nm]).
-        """
-        return self.substrate_part.specular_reflection(self, cos_theta_i, wavelength)
-
     def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
         """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``.
 
@@ -803,7 +881,7 @@ class Material:
         _, to = pane.fresnel(co, lam)
         f = self.lobe(wi[..., :2] + wo[..., :2], wavelength)
         lobe_t = f * np.where(first, to, ti)
-        lobe_r = f * np.where(first, pane.reflected_lobe_factor(ci, co, lam, self.coherent_transmittance), 0.0)
+        lobe_r = f * np.where(first, pane.reflected_lobe_factor(self, ci, co, lam), 0.0)
         diffuse = self.reflectance / np.pi * np.where(first, 1.0, ti * to)
         value = np.where(transmit, lobe_t, 0.0) + np.where(reflect, lobe_r + diffuse, 0.0)
         return value * np.abs(co)
@@ -917,80 +995,6 @@ class Material:
         out["total"] = sum(out.values())
         out["forward"], out["backward"] = float(plain), 0.0
         return out
-
-
-class MieMembers:
-    """What :class:`Material`'s members are for a layer of Mie spheres.
-
-    :class:`corona.model.mie.layer.SphereMaterial` is a :class:`Material` with the same
-    methods, signatures and result keys (:meth:`Material.eval`, :meth:`Material.lobe`,
-    :meth:`Material.directional_albedo`, ...).  The members below are built on the flat
-    layer's one table of ``v(u)``; a Mie layer's lobes are rows over the size parameter
-    (forward and backward, :attr:`SphereMaterial.rows`), so each raises one
-    :class:`corona.CoronaError` naming the member, why, and what to use instead.  This
-    class comes first in ``SphereMaterial``'s bases, so its members replace the flat ones.
-    """
-
-    #: How the renderer evaluates the lobe: the Mie rows (:mod:`corona.mitsuba.sphere`).
-    render_kind = "mie"
-    #: The Mie layer's class, set when it is defined: ``Material(corona.Sphere(r), ...)`` returns one.
-    _layer_class = None
-
-    def __init_subclass__(cls, **kwargs):
-        super().__init_subclass__(**kwargs)
-        if MieMembers._layer_class is None:
-            MieMembers._layer_class = cls
-
-    @property
-    def opaque_fraction(self) -> float:
-        """0: the spheres are transparent (what they absorb is their ``ior``'s imaginary part)."""
-        return 0.0
-
-    def _refuse(self, member: str, why: str):
-        raise CoronaError(f"{type(self).__name__}.{member} is not available for shape='sphere': {why}")
-
-    @property
-    def table(self):
-        self._refuse("table", "a Mie layer has no single table of v(u); its lobes are rows over the "
-                     "size parameter (rows)")
-
-    @property
-    def render_lobe(self):
-        self._refuse("render_lobe", "the renderer reads the Mie rows (rows), not a lobe of v(u)")
-
-    @property
-    def analytic_terms(self):
-        self._refuse("analytic_terms", "a sphere's amplitudes are Mie theory's, not a closed-form outline")
-
-    @property
-    def double_pass_visibility(self):
-        self._refuse("double_pass_visibility", "spheres sit on incoherent panes only (no double pass)")
-
-    @property
-    def tabulated_transmittance(self):
-        self._refuse("tabulated_transmittance", "use diffuse_transmittance(wavelength, cos_theta_i): "
-                     "the Mie lobes' energy depends on the wavelength and the incidence")
-
-    def lobe_terms(self, u, radial: bool = False, cell: float | None = None,
-                   structure_factor: bool = True) -> dict:
-        self._refuse("lobe_terms", "the Mie lobe is not P + C (S - 1) of u alone (it depends on the "
-                     "scattering angle and the wavelength); use lobe_dimensionless(u, wavelength)")
-
-    def radial_s_minus_one(self) -> tuple[float, np.ndarray]:
-        self._refuse("radial_s_minus_one", "a Mie layer's S is tabulated in u = q R by structure_table; "
-                     "use structure_factor(u)")
-
-    def area_fraction_rows(self, lo: float = 0.0, hi: float | None = None,
-                           tolerance: float = ROW_TOLERANCE, max_rows: int = 160, include=()):
-        self._refuse("area_fraction_rows", "the plugin builds a Mie layer's rows over F_a itself "
-                     "(corona.mitsuba.sphere)")
-
-    def sample(self, xi, wavelength) -> np.ndarray:
-        self._refuse("sample", "a Mie layer's lobes are sampled about wi (forward) and its mirror "
-                     "(backward); use sample_lobe(which, wi, xi, wavelength)")
-
-    def pdf(self, d, wavelength) -> np.ndarray:
-        self._refuse("pdf", "use pdf_lobe(which, wi, wo, wavelength), the density of sample_lobe")
 
 
 def _warn_if_small(shape) -> None:

@@ -504,8 +504,8 @@ class BareLayer:
         """The delta reflection's weight: 0 (``layer``'s coherent weight is not read)."""
         return np.zeros_like(np.asarray(cos_theta_i, dtype=np.float64))
 
-    def reflected_lobe_factor(self, cos_i, cos_o, wavelength, coherent) -> np.ndarray:
-        """The factor on the lobe seen in reflection: 0."""
+    def reflected_lobe_factor(self, layer, cos_i, cos_o, wavelength) -> np.ndarray:
+        """The factor on ``layer``'s lobe seen in reflection: 0."""
         return np.zeros(np.broadcast(cos_i, cos_o).shape)
 
     def lobe_factors(self, cos_i, cos_o, coherent, wavelength=550.0):
@@ -551,9 +551,11 @@ class OnPane(BareLayer):
                                                                                                    wavelength))
         return np.where(self.layer_first(cos_theta_i), through, r)
 
-    def reflected_lobe_factor(self, cos_i, cos_o, wavelength, coherent) -> np.ndarray:
-        """:meth:`GlassPane.reflected_lobe_factor` at ``|cos θ|`` (the paths add incoherently)."""
-        return self.pane.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength, coherent, 1.0)
+    def reflected_lobe_factor(self, layer, cos_i, cos_o, wavelength) -> np.ndarray:
+        """:meth:`GlassPane.reflected_lobe_factor` at ``|cos θ|`` with ``layer``'s coherent weight
+        ``C`` (:attr:`corona.Material.coherent_transmittance`; the paths add incoherently)."""
+        return self.pane.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength,
+                                               layer.coherent_transmittance, 1.0)
 
     def lobe_factors(self, cos_i, cos_o, coherent, wavelength=550.0):
         """(far side ``T'``, own side ``1`` or ``T'(θi) T'(θo)``, mirrored
@@ -589,33 +591,25 @@ class DoublePass(OnPane):
     """The layer on a pane with a thickness: a :class:`GlassPane` given one, or a :class:`Mirror`
     (always; its silvering's reflectance, constant or a spectrum, is the pane's own).  The two
     passes through the layer interfere (Quetelet rings), with the visibility ``V`` of the energy
-    cap (:func:`double_pass_visibility`), which ``layer`` (the material) holds."""
+    cap (:func:`double_pass_visibility`: the layer's ``double_pass_visibility``)."""
 
-    def __init__(self, pane: GlassPane, layer):
-        super().__init__(pane)
-        self.layer = layer
-
-    @property
-    def visibility(self) -> float:
-        return self.layer.double_pass_visibility
-
-    def reflected_lobe_factor(self, cos_i, cos_o, wavelength, coherent) -> np.ndarray:
+    def reflected_lobe_factor(self, layer, cos_i, cos_o, wavelength) -> np.ndarray:
         """``min(R_i, R_o) + C [P_i + P_o + 2 V Q]`` (:meth:`GlassPane.reflected_lobe_factor`)."""
-        return self.pane.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength, coherent,
-                                               self.visibility)
+        return self.pane.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength,
+                                               layer.coherent_transmittance, layer.double_pass_visibility)
 
     def reflected_lobe_energy(self, layer, incoherent, cos_theta_i, wavelength, phi_i) -> float:
         """``incoherent + 2 V C ∫ f Q`` (:func:`interference_integral`)."""
-        return incoherent + 2.0 * self.visibility * layer.coherent_transmittance * interference_integral(
-            layer, cos_theta_i, wavelength, phi_i)
+        return incoherent + 2.0 * layer.double_pass_visibility * layer.coherent_transmittance * \
+            interference_integral(layer, cos_theta_i, wavelength, phi_i)
 
 
-def layer_substrate(pane: GlassPane | None, layer=None) -> BareLayer:
+def layer_substrate(pane: GlassPane | None) -> BareLayer:
     """The substrate component of a layer on ``pane`` (None: :class:`BareLayer`; a pane with a
-    thickness, a mirror included: :class:`DoublePass`, whose visibility ``layer`` holds)."""
+    thickness, a mirror included: :class:`DoublePass`; else :class:`OnPane`)."""
     if pane is None:
         return BareLayer()
-    return DoublePass(pane, layer) if pane.coherent else OnPane(pane)
+    return DoublePass(pane) if pane.coherent else OnPane(pane)
 
 
 def make_substrate(kind: str, ior=None, side: str = "front", thickness=None,
