@@ -98,7 +98,7 @@ def one_scene(path: str) -> dict:
     from corona.mitsuba import sphere as mitsuba_sphere
     from corona.model import processes
     from corona.model import rows
-    from corona.model.mie import layer as sphere_material
+    from corona.model.mie import material as sphere_material
     from corona.model.mie import volume as droplets
     sphere_material.build_mie_rows = timed("mie", sphere_material.build_mie_rows)
     droplets.MieVolume._build = timed("mie", droplets.MieVolume._build)

@@ -20,7 +20,7 @@ from corona import _environment  # noqa: F401
 from corona._environment import default_variant, set_default_variant
 from corona._validation import CoronaError, CoronaWarning
 from corona.model.material import Material
-from corona.model.mie import layer as _mie_layer  # noqa: F401  (Material(corona.Sphere(r)) returns its class)
+from corona.model.mie import material as _mie_material  # noqa: F401  (the sphere family: Material(corona.Sphere(r)) builds its layer)
 from corona.model.registry import register_process, register_shape
 from corona.model.processes import BreathFigure, HardDisk, Lattice, PointSet, Poisson, Process, SequentialAdsorption
 from corona.model.shapes import (Circle, Ellipse, Mask, Mixture, Polygon, RandomOrientation, Rectangle,

@@ -16,7 +16,7 @@ import math
 import warnings
 from dataclasses import dataclass, replace
 
-import corona.model.mie.layer  # noqa: F401  (the built-in families register themselves at import)
+import corona.model.mie.material  # noqa: F401  (the built-in families register themselves at import)
 import corona.model.processes  # noqa: F401
 import corona.model.shapes  # noqa: F401
 from corona._validation import CoronaError, check_choice, check_range

@@ -881,7 +881,7 @@ def test_a_sphere_table_in_the_disk_cache_is_read_not_rebuilt(tmp_path, monkeypa
     is read from there when the designer needs it, not rebuilt, and gives the same answers; the
     designer writes no table itself.  Negative control: without the file it builds."""
     from corona.model import tabulated
-    from corona.model.mie import layer
+    from corona.model.mie import material as sphere_material
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
     params = {"shape": "sphere", "radius": 1.13, "area_fraction": 0.2, "process": "poisson"}
     parsed = compute.parse({k: str(v) for k, v in params.items()})[0]
@@ -890,8 +890,8 @@ def test_a_sphere_table_in_the_disk_cache_is_read_not_rebuilt(tmp_path, monkeypa
     tabulated.wait_for_writes()
     files = sorted(os.listdir(tmp_path))
     built = []
-    real = layer.build_mie_rows
-    monkeypatch.setattr(layer, "build_mie_rows", lambda *a, **k: built.append(a) or real(*a, **k))
+    real = sphere_material.build_mie_rows
+    monkeypatch.setattr(sphere_material, "build_mie_rows", lambda *a, **k: built.append(a) or real(*a, **k))
     m = compute.material(parsed)
     assert not compute.exact_ready(m)
     compute.exact_material(parsed)

@@ -116,7 +116,7 @@ def test_order_energy_closed_form_matches_the_quadrature_through_an_anomaly():
     ``F(u)``: ``P`` not followed across the peak) it misses by more than 1 %."""
     import corona
     from corona.model.mie import lattice_cap
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     lat = corona.Lattice("hexagonal", 4.0)
     mat = SphereMaterial(corona.Sphere(1.0), lat)
     rules = lattice_cap.rim_rules()

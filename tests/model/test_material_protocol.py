@@ -1,5 +1,6 @@
-"""One material protocol: a layer of Mie spheres is a Material with the same methods,
-signatures and result keys; what means nothing for spheres says so in one line."""
+"""One layer protocol: a flat layer and a layer of Mie spheres are both a
+:class:`corona.model.material.Layer`, with the same methods, signatures and result keys; the
+members built on a flat layer's one table of v(u) a Mie layer does not have at all."""
 import inspect
 import warnings
 
@@ -7,11 +8,15 @@ import numpy as np
 import pytest
 
 import corona
-from corona.model.material import Material, MieMembers
-from corona.model.mie.layer import SphereMaterial
+from corona.model import registry
+from corona.model.material import Layer, Material
+from corona.model.mie.material import SphereMaterial
 
 COMPONENTS = ("coherent", "specular", "lobe_transmission", "lobe_reflection", "diffuse")
 KEYS = set(COMPONENTS) | {"total", "forward", "backward"}
+#: the members of a flat layer's one table of v(u): meaningless for a Mie layer, which has none
+FLAT_ONLY = ("table", "render_lobe", "analytic_terms", "double_pass_visibility", "tabulated_transmittance",
+             "lobe_terms", "radial_s_minus_one", "area_fraction_rows", "sample", "pdf")
 
 
 @pytest.fixture(scope="module")
@@ -27,37 +32,46 @@ def layers():
         }
 
 
-def _public_methods(cls):
+def _public(cls):
     return {name for name, member in inspect.getmembers(cls)
             if not name.startswith("_") and inspect.isfunction(member)}
 
 
-@pytest.mark.slow
-def test_a_sphere_layer_is_a_material(layers):
-    assert issubclass(SphereMaterial, Material)
-    for name in ("sphere", "sphere on glass"):
-        assert type(layers[name]) is SphereMaterial and isinstance(layers[name], corona.Material)
-    assert type(layers["circle"]) is Material
+def test_both_layers_are_layers_and_the_constructor_builds_the_registered_one():
+    assert issubclass(Material, Layer) and issubclass(SphereMaterial, Layer)
+    assert not issubclass(SphereMaterial, Material)        # a sibling, not a flat layer that refuses
+    pane = corona.GlassPane()
+    for kwargs in ({}, {"substrate": pane}):
+        assert type(corona.Material(corona.Sphere(2.0), corona.Poisson(0.1), **kwargs)) is SphereMaterial
+        assert type(corona.Material(shape=corona.Sphere(2.0), process=corona.Poisson(0.1), **kwargs)) is SphereMaterial
+        assert type(corona.Material(corona.Circle(2.0), corona.Poisson(0.1), **kwargs)) is Material
+    assert registry.layer_class(corona.Sphere(2.0)) is SphereMaterial
+    assert registry.layer_class(corona.SizeDistribution(corona.Sphere(2.0), 0.1)) is SphereMaterial
+    assert registry.layer_class(corona.Circle(2.0)) is None
+    with pytest.raises(TypeError):
+        Layer()                                            # the protocol alone is not a layer
 
 
-def test_every_method_has_the_same_signature():
-    """Every public method of Material exists on SphereMaterial with the identical signature
-    (names, kinds, defaults, annotations), the refusals included."""
-    shared = _public_methods(Material)
-    assert shared <= _public_methods(SphereMaterial)
+def test_every_protocol_method_has_the_same_signature():
+    """Every method of the protocol exists on both layers under the identical signature
+    (names, kinds, defaults, annotations)."""
+    shared = _public(Layer)
     assert {"eval", "lobe", "directional_albedo", "coherent_transmission", "specular_reflection",
-            "diffuse_transmittance", "lobe_dimensionless", "lobe_tabulated"} <= shared
-    differ = {name: (str(inspect.signature(getattr(Material, name))),
-                     str(inspect.signature(getattr(SphereMaterial, name))))
-              for name in sorted(shared)
-              if inspect.signature(getattr(Material, name)) != inspect.signature(getattr(SphereMaterial, name))}
-    assert not differ, differ
+            "diffuse_transmittance", "lobe_dimensionless", "lobe_tabulated", "coherent_weight"} <= shared
+    for cls in (Material, SphereMaterial):
+        assert shared <= _public(cls), cls
+        differ = {name: (str(inspect.signature(getattr(Layer, name))), str(inspect.signature(getattr(cls, name))))
+                  for name in sorted(shared)
+                  if inspect.signature(getattr(Layer, name)) != inspect.signature(getattr(cls, name))}
+        assert not differ, (cls, differ)
 
 
 def test_every_property_is_there_for_both():
-    props = {name for name, m in inspect.getmembers(Material) if isinstance(m, (property,))}
+    props = {name for name, m in inspect.getmembers(Layer) if isinstance(m, property)}
+    assert {"length_scale", "coherent_transmittance", "reflectance", "lobe_weight", "opaque_fraction",
+            "render_kind"} <= props
     for name in props:
-        assert hasattr(SphereMaterial, name), name
+        assert hasattr(Material, name) and hasattr(SphereMaterial, name), name
 
 
 @pytest.mark.slow
@@ -106,27 +120,15 @@ def test_the_shared_parameters_a_flat_layer_does_not_need_change_nothing(layers)
     assert m.directional_albedo(0.6, n_phi=8)["lobe_transmission"] != m.directional_albedo(0.6)["lobe_transmission"]
 
 
-REFUSED = [("table", None), ("render_lobe", None), ("analytic_terms", None), ("double_pass_visibility", None),
-           ("tabulated_transmittance", None), ("lobe_terms", ([1.0, 2.0],)), ("radial_s_minus_one", ()),
-           ("area_fraction_rows", ()), ("sample", ([[0.5, 0.5]], 550.0)), ("pdf", ([[0.01, 0.0]], 550.0))]
+@pytest.mark.parametrize("member", FLAT_ONLY)
+def test_what_means_nothing_for_spheres_is_not_there(member):
+    """A Mie layer has no member built on a flat layer's one table of v(u) (its lobes are rows
+    over the size parameter); the flat layer keeps each one (the negative control)."""
+    assert hasattr(Material, member)
+    assert not hasattr(SphereMaterial, member)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("member, args", REFUSED)
-def test_what_means_nothing_for_spheres_is_refused_in_one_line(layers, member, args):
-    m = layers["sphere"]
-    with pytest.raises(corona.CoronaError) as err:
-        value = getattr(m, member)
-        if args is not None:
-            value(*args)
-    text = str(err.value)
-    assert f"SphereMaterial.{member} is not available for shape='sphere'" in text and "\n" not in text
-
-
-def test_every_refusal_is_listed():
-    """Each member MieMembers replaces is tested above, and the flat layer keeps them all."""
-    own = {name for name in vars(MieMembers) if not name.startswith("_")} - {"render_kind", "opaque_fraction"}
-    assert own == {name for name, _ in REFUSED}
+def test_the_flat_layer_keeps_its_table():
     flat = corona.Material(corona.Circle(2.0), corona.Poisson(0.2))
     assert flat.render_kind == "radial" and flat.table.total > 0 and flat.opaque_fraction == pytest.approx(0.8)
 
@@ -135,7 +137,15 @@ def test_every_refusal_is_listed():
 def test_a_sphere_layer_says_what_it_is(layers):
     m = layers["sphere"]
     assert m.render_kind == "mie" and m.opaque_fraction == 0.0
-    assert MieMembers._layer_class is SphereMaterial
+    with pytest.raises(AttributeError):
+        m.table
+
+
+def test_a_sphere_in_a_mixture_is_refused_in_one_line():
+    mix = corona.Mixture([(corona.Sphere(2.0), 0.5), (corona.Circle(2.0), 0.5)])
+    with pytest.raises(corona.CoronaError) as err:
+        corona.Material(mix, corona.Poisson(0.1))
+    assert "size distribution" in str(err.value) and "\n" not in str(err.value)
 
 
 def test_material_of_a_sphere_runs_the_constructor_once(monkeypatch):

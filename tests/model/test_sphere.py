@@ -30,7 +30,7 @@ def _dirs(rng, n, hemisphere=None):
 
 
 def test_material_dispatch_and_inputs(poisson):
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     assert isinstance(poisson, SphereMaterial)
     assert poisson.mode == "particle"
     with pytest.raises(CoronaError, match="mode='aperture'"):
@@ -81,13 +81,13 @@ def test_tables_match_mie(poisson):
     # (a) at a row's wavelength the tabulated lobe (linear in the chord) is Mie at each direction
     # to 1 % (median where the lobe exceeds 1e-3 of its peak), forward (Θ < 10°) and backward
     # (Θ > 160°, the glory), at oblique incidence
-    from corona.model.mie.layer import _frame
+    from corona.model.mie.layer import frame
     rng = np.random.default_rng(1)
     wi = np.array([0.3, 0.1, np.sqrt(1 - 0.1)])
     lam = float(poisson.rows["wavelength"][40])
     th = np.concatenate([np.radians(rng.uniform(0, 10, 300)), np.radians(rng.uniform(160, 180, 300))])
     ph = rng.uniform(0, 2 * np.pi, th.size)
-    e1, e2 = _frame(-wi)
+    e1, e2 = frame(-wi)
     wo = np.cos(th)[:, None] * -wi + np.sin(th)[:, None] * (np.cos(ph)[:, None] * e1 + np.sin(ph)[:, None] * e2)
     tab, ex = poisson.eval(wi, wo, lam), poisson.eval(wi, wo, lam, exact=True)
     for sel in (slice(0, 300), slice(300, 600)):
@@ -196,12 +196,12 @@ def test_sampling_matches_pdf(hard_disk):
     wi = np.array([np.sin(0.5), 0.0, np.cos(0.5)])
     r = hard_disk.rows
     lam = 0.3 * r["wavelength"][10] + 0.7 * r["wavelength"][11]
-    from corona.model.mie.layer import _frame
+    from corona.model.mie.layer import frame
     for which, axis in (("f", -wi), ("b", wi)):
         wo = hard_disk.sample_lobe(which, wi, rng.random((4000, 3)), lam)
         assert np.allclose(np.linalg.norm(wo, axis=1), 1.0)
         s = np.linalg.norm(wo - axis, axis=1)
-        e1, e2 = _frame(axis)
+        e1, e2 = frame(axis)
         grid = np.linspace(0, np.sqrt(2), 4001)
         dirs = (1 - 0.5 * grid**2)[:, None] * axis + (grid * np.sqrt(1 - 0.25 * grid**2))[:, None] * e1
         pdf = hard_disk.pdf_lobe(which, wi, dirs, lam) * 2 * np.pi * grid      # density of the chord
@@ -264,7 +264,7 @@ def test_forward_energy_with_structure_factor_by_quadrature(hard_disk):
     # e_f(x_j, μ) = T_f + ∫ C (S(q) - 1) dΩ over the forward lobe, against a direct quadrature on a
     # fine (chord, azimuth) grid with S at each direction's own in-plane q (no coarse grids of
     # ⟨S⟩_φ); the cap's margin (ENERGY_MARGIN, 0.4 %) bounds what the table may be off
-    from corona.model.mie.layer import CHORD_MAX, INCIDENCE_MU, _frame
+    from corona.model.mie.layer import CHORD_MAX, INCIDENCE_MU, frame
     m = hard_disk
     r, d = m.rows, m._derived
     C = r["C_f"] if r["C_f"].size else r["P_f"]
@@ -280,7 +280,7 @@ def test_forward_energy_with_structure_factor_by_quadrature(hard_disk):
         mu = INCIDENCE_MU[k]
         wi = np.array([np.sqrt(1 - mu * mu), 0.0, mu])
         wt = -wi
-        e1, e2 = _frame(wt)
+        e1, e2 = frame(wt)
         wo = cos_t[:, None, None] * wt + sin_t[:, None, None] * (np.cos(phi)[None, :, None] * e1
                                                                   + np.sin(phi)[None, :, None] * e2)
         q_xy = np.linalg.norm((wo - wt)[..., :2], axis=-1)          # |(wo + wi)_xy|, (s, φ)

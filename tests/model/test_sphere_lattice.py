@@ -1,4 +1,4 @@
-"""Spheres on a fixed lattice (corona.model.mie.layer.SphereMaterial with corona.Lattice): the
+"""Spheres on a fixed lattice (corona.model.mie.material.SphereMaterial with corona.Lattice): the
 numpy model against independent references.
 
 * the Bragg orders: where each order goes (the grating equation, from reciprocal vectors written
@@ -18,7 +18,7 @@ import pytest
 
 import corona
 from corona import CoronaError
-from corona.model.mie.layer import SphereMaterial
+from corona.model.mie.material import SphereMaterial
 
 miepython = pytest.importorskip("miepython")   # the test extra installs it
 

@@ -1,5 +1,5 @@
 """A new Mie radius: a progress bar with a total while the exact rows build, and a coarse
-preview (:meth:`corona.model.mie.layer.SphereMaterial.preview`) to show meanwhile.
+preview (:meth:`corona.model.mie.material.SphereMaterial.preview`) to show meanwhile.
 
 The preview is held against the exact table of the same layer: the lobes' shape
 (energy-weighted L1 over the first rings, the first minimum's angle) and the forward

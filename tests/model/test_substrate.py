@@ -260,3 +260,27 @@ def test_bad_substrate_parameters(mi_variant, params, word):
         material_from_parameters(**params)
     with pytest.raises(Exception, match=word):
         mi.load_dict({"type": "corona", **params})
+
+
+def test_each_substrate_is_one_component_chosen_when_the_layer_is_built():
+    """The layer holds one substrate object (none, a pane, a pane with its double pass, a
+    mirror), picked once; pane=False in directional_albedo is the bare one (same numbers as
+    the layer built without a pane; negative control: with its pane they differ)."""
+    import warnings
+    from corona.model.substrate import BareLayer, DoublePass, Mirror, OnPane
+    layer = (corona.Circle(2.0), corona.HardDisk(0.3))
+    cases = [(None, BareLayer), (GlassPane(), OnPane), (GlassPane(side="back"), OnPane),
+             (GlassPane(thickness=1000.0), DoublePass), (Mirror(), DoublePass)]
+    for pane, kind in cases:
+        m = corona.Material(*layer, substrate=pane)
+        assert type(m.substrate_part) is kind and m.substrate_part.pane is pane
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", corona.CoronaWarning)
+        drops = corona.Material(corona.Sphere(2.0), corona.HardDisk(0.3), substrate=GlassPane())
+    assert type(drops.substrate_part) is OnPane
+    on_glass = corona.Material(*layer, substrate=GlassPane(side="back"))
+    alone = corona.Material(*layer)
+    for ci in (0.7, -0.7):
+        assert on_glass.directional_albedo(ci, 550.0, pane=False) == alone.directional_albedo(ci, 550.0)
+        assert on_glass.directional_albedo(ci, 550.0) != alone.directional_albedo(ci, 550.0)
+    assert not np.any(alone.specular_reflection(np.array([0.5, -0.5]), 550.0))

@@ -27,14 +27,14 @@ def layers(mi_variant):
 
 def _directions(wi, rng, n=3000):
     """Random directions plus many near the forward (-wi) and backward (wi) peaks."""
-    from corona.model.mie.layer import _frame
+    from corona.model.mie.layer import frame
     v = rng.normal(size=(n, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     out = [v]
     for axis, spread in ((-wi, 0.15), (wi, 0.3)):
         th = rng.uniform(0, spread, n)
         ph = rng.uniform(0, 2 * np.pi, n)
-        e1, e2 = _frame(axis)
+        e1, e2 = frame(axis)
         out.append(np.cos(th)[:, None] * axis + np.sin(th)[:, None] * (np.cos(ph)[:, None] * e1
                                                                       + np.sin(ph)[:, None] * e2))
     return np.concatenate(out)

@@ -132,7 +132,7 @@ def test_lattice_lobe_matches_numpy_between_and_at_orders(mi_variant, kind, a, j
 
     import mitsuba as mi
     from bsdf_checks import interaction
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     from corona.mitsuba.sphere_lattice import LatticeLobe
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -220,7 +220,7 @@ def test_sample_weights_integrate_the_numpy_lobe(mi_variant, theta):
     import drjit as dr
     import mitsuba as mi
     from bsdf_checks import interaction
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     bsdf, _, _ = _mixture("square", 0.15)
     lat = corona.Lattice("square", 3.0, jitter=0.15)
     from corona.mitsuba.sphere_lattice import LatticeSampler
@@ -256,7 +256,7 @@ def test_furnace_from_sample_weights_through_a_rayleigh_anomaly(mi_variant):
     import drjit as dr
     import mitsuba as mi
     from bsdf_checks import interaction
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     from corona.mitsuba.sphere_lattice import LatticeSampler
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -314,7 +314,7 @@ def test_lattice_cap_energy_matches_the_model_quadrature(mi_variant, kind, a, ji
     import warnings
 
     import mitsuba as mi
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     from corona.mitsuba.sphere_lattice import LatticeCap
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -339,7 +339,7 @@ def test_lattice_cap_energy_through_rayleigh_anomalies(mi_variant):
     import warnings
 
     import mitsuba as mi
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     from corona.mitsuba.sphere_lattice import LatticeCap
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -397,7 +397,7 @@ def test_eval_matches_the_numpy_model_at_and_between_orders(mi_variant, params, 
     0.35 %.  Negative control: where the model's cap binds (w < 0.99), the
     uncapped lobe misses the model."""
     from bsdf_checks import assert_eval_matches, plugin_eval
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     bsdf = _layer(params)
     lat = bsdf.lobe.lattice
     ref = SphereMaterial(corona.Sphere(1.0), lat, radius_cover=bsdf.radius_cover)

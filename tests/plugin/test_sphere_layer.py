@@ -27,14 +27,14 @@ def panes(mi_variant):
 
 def _directions(wi, rng, n=2000):
     """Random directions plus many near the forward, backward and mirrored-forward peaks."""
-    from corona.model.mie.layer import _frame
+    from corona.model.mie.layer import frame
     v = rng.normal(size=(n, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     out = [v]
     for axis, spread in ((-wi, 0.15), (wi, 0.3), (wi * np.array([-1.0, -1.0, 1.0]), 0.15)):
         th = rng.uniform(0, spread, n)
         ph = rng.uniform(0, 2 * np.pi, n)
-        e1, e2 = _frame(axis)
+        e1, e2 = frame(axis)
         out.append(np.cos(th)[:, None] * axis + np.sin(th)[:, None] * (np.cos(ph)[:, None] * e1
                                                                       + np.sin(ph)[:, None] * e2))
     return np.concatenate(out)
@@ -237,7 +237,7 @@ def test_area_fraction_texture_with_a_hard_core(mi_variant, process):
 
 def _same_rows(layer, m):
     """The numpy layer ``m`` on rows in x over the plugin layer's radii (``radius_cover``)."""
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     return SphereMaterial(m.shape, m.process, substrate=m.substrate, radius_cover=layer.radius_cover)
 
 

@@ -1,7 +1,7 @@
 """Radius textures of sphere layers: each texel is the Mie layer of its radius.
 
 A sphere's lobe depends on ``x = 2π r/λ`` and the index ``m(λ)``.  The layer's
-rows (corona.model.mie.layer.SphereMaterial with ``radius_cover``) run in x
+rows (corona.model.mie.material.SphereMaterial with ``radius_cover``) run in x
 from ``2π r_lo/830 nm`` to ``2π r_hi/360 nm`` of the texture's range and each
 lane reads them at ``x = 2π r(uv)/λ``; ``S(q r)`` (hard core) and the forward
 energies are tabulated in ``u = q r`` and x, so they follow.  A row holds the

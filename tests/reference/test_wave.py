@@ -263,10 +263,11 @@ def test_cli_validate(tmp_path):
 
 
 def test_brute_force_refuses_a_mie_layer_in_one_line():
-    """A Mie layer is a Material too, but the brute force sums planar screens' far fields."""
+    """A Mie layer is a layer too, but the brute force sums planar screens' far fields."""
+    from corona.model.material import Layer
     from corona.reference.wave import brute_force
     sphere = Material(shapes.Sphere(2.0), Poisson(0.1))
-    assert isinstance(sphere, Material)
+    assert isinstance(sphere, Layer)
     with pytest.raises(CoronaError, match=r"out of range for the brute force.*planar screens") as err:
         brute_force(sphere, realisations=1, n_scatterers=16)
     assert "\n" not in str(err.value)

@@ -324,7 +324,7 @@ def lobe(out_path, as_json, wavelength, **params):
     try:
         from corona.parameters import material_from_parameters
         m = material_from_parameters(**params)
-        from corona.model.mie.layer import SphereMaterial
+        from corona.model.mie.material import SphereMaterial
         sphere = isinstance(m, SphereMaterial)
         if as_json:
             from corona._validation import check_range

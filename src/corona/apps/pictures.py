@@ -213,8 +213,8 @@ def lobe_figure(material, path: str, wavelength: float = 550.0, half_angle_deg: 
 
 def sphere_corona(material, half_angle_deg: float, size: int = 192, temperature: float = 3000.0,
                   n_wavelengths: int = 32) -> np.ndarray:
-    """:func:`far_field_corona` of a layer of Mie spheres (:class:`corona.model.mie.layer.SphereMaterial`):
-    its transmitted lobe (:meth:`~corona.model.mie.layer.SphereMaterial.lobe`, which depends on λ beyond
+    """:func:`far_field_corona` of a layer of Mie spheres (:class:`corona.model.mie.material.SphereMaterial`):
+    its transmitted lobe (:meth:`~corona.model.mie.material.SphereMaterial.lobe`, which depends on λ beyond
     ``u``) at each pixel and wavelength; radial layers on one profile of 1024 points in ``|d|`` per
     wavelength, interpolated per pixel; a fixed lattice at each pixel (fewer pixels and wavelengths)."""
     if not material.isotropic:

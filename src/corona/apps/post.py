@@ -167,7 +167,7 @@ def layer(material=None, **params):
         material = material_from_parameters(**params)
     elif params:
         raise CoronaError(f"give either a material or parameters, not both (got {', '.join(sorted(params))})")
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     if isinstance(material, SphereMaterial):
         from corona.model import registry
         flat = ", ".join(f.name for f in registry.SHAPE_FAMILIES.values() if f.material is None)

@@ -89,7 +89,8 @@ from corona.mitsuba.common import array as _array, channel_response as _channel_
 from corona.mitsuba.common import centre_rows, clip, host_buffer, read_props as _read_props
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
 from corona.model.rows import row_slopes
-from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
+from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, radius_span
+from corona.model.mie.material import SphereMaterial
 from corona.model.mie.layer import share_forward_energies
 from corona.mitsuba.substrate import BareLayer, PaneSubstrate, pane_delta_weights, pane_smooth_factors
 

@@ -4,7 +4,7 @@ This is the readable, exact model that the Mitsuba plugin is tested against.
 """
 from __future__ import annotations
 
-import copy
+import abc
 import functools
 import math
 import warnings
@@ -16,9 +16,9 @@ from corona.model.layer import decoupled_lobe
 from corona.model import render_lobe as rlobe
 from corona.model import tabulated
 from corona.model.processes import Poisson, Process
+from corona.model import registry
 from corona.model.shapes import Shape
-from corona.model.mie.sphere import sphere_parts     # after the shapes (they import the sphere)
-from corona.model.substrate import GlassPane, double_pass_visibility, interference_integral
+from corona.model.substrate import BareLayer, GlassPane, double_pass_visibility, layer_substrate
 
 MODES = ("aperture", "particle")
 
@@ -33,7 +33,112 @@ PROGRESS_DELAY = tabulated.PROGRESS_DELAY
 _small_radius_warned = False
 
 
-class Material:
+class Layer(abc.ABC):
+    """One protocol for every layer of scatterers: what the plugin, the apps and the tests call.
+
+    The flat (Fraunhofer) :class:`Material` and the Mie spheres'
+    :class:`corona.model.mie.material.SphereMaterial` implement it with the same signatures and
+    result keys (``tests/model/test_material_protocol.py``); each has its own members beyond it
+    (a flat layer's one table of ``v(u)``, a Mie layer's rows), none it does not mean.
+    ``corona.Material(shape, ...)`` builds the layer class the shape's family registers
+    (:func:`corona.model.registry.layer_class`), a flat :class:`Material` otherwise.
+
+    The substrate is one component, chosen when the layer is built: ``substrate_part``
+    (:func:`corona.model.substrate.layer_substrate`: none, a pane, a pane with its double pass or
+    a mirror), asked for every pane term; ``substrate`` is the pane given (None, a
+    :class:`corona.GlassPane`, a :class:`corona.Mirror`).
+    """
+
+    @property
+    @abc.abstractmethod
+    def length_scale(self) -> float:
+        """``R`` [µm] of the dimensionless ``u = 2π R |d| / λ``."""
+
+    @property
+    @abc.abstractmethod
+    def coherent_transmittance(self) -> float:
+        """The coherent weight ``C`` at normal incidence (and 550 nm)."""
+
+    @property
+    @abc.abstractmethod
+    def opaque_fraction(self) -> float:
+        """Fraction of the layer that is opaque."""
+
+    @property
+    @abc.abstractmethod
+    def reflectance(self) -> float:
+        """The layer's reflected energy at normal incidence (without the pane)."""
+
+    @property
+    @abc.abstractmethod
+    def lobe_weight(self) -> float:
+        """The lobe's prefactor (``F_a``, capped where the flat layer needs it)."""
+
+    @property
+    @abc.abstractmethod
+    def render_kind(self) -> str:
+        """How the renderer evaluates the lobe ("radial", "analytic", "grid", "table", "mie")."""
+
+    @abc.abstractmethod
+    def coherent_weight(self, cos_theta_i, wavelength=550.0) -> float | np.ndarray:
+        """The layer's own coherent weight ``C`` for light from ``cos_theta_i`` at ``wavelength``
+        [nm], without the pane."""
+
+    @abc.abstractmethod
+    def lobe(self, d, wavelength) -> np.ndarray:
+        """The transmitted lobe at normal incidence per unit ``d²d`` (no cosine factors)."""
+
+    @abc.abstractmethod
+    def lobe_dimensionless(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """``v(u)`` at ``u`` (..., 2), ``lobe = F_a (R/λ)² v``."""
+
+    @abc.abstractmethod
+    def lobe_dimensionless_radial(self, u, wavelength: float = 550.0) -> np.ndarray:
+        """``v(|u|)`` of an isotropic layer."""
+
+    @abc.abstractmethod
+    def lobe_tabulated(self, d, wavelength) -> np.ndarray:
+        """The lobe as the renderer evaluates it."""
+
+    @abc.abstractmethod
+    def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
+        """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``."""
+
+    @abc.abstractmethod
+    def diffuse_transmittance(self, wavelength=550.0, cos_theta_i=None, phi_i=0.0) -> float | np.ndarray:
+        """The lobe's energy through the layer."""
+
+    @abc.abstractmethod
+    def directional_albedo(self, cos_theta_i: float, wavelength: float = 550.0, phi_i: float = 0.0,
+                           n_phi: int | None = None, pane: bool = True) -> dict:
+        """Energy of each component for light from ``cos_theta_i`` (the white furnace)."""
+
+    def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
+        """Weight of the delta transmission along ``-wi``: ``C T'(θi)``.
+
+        ``C`` is :meth:`coherent_weight` (a flat layer's :attr:`coherent_transmittance` at every
+        incidence and wavelength, a Mie layer's ``|1 - F_s s₀(λ)|²``), ``T'`` the pane's
+        transmittance (1 without a substrate); ``cos_theta_i`` is signed (+: light from the +z
+        side).  The pane does not deflect the beam, and the layer has no specular reflection, so
+        this path is exact.
+        """
+        return self.coherent_weight(cos_theta_i, wavelength) * self.substrate_part.fresnel(cos_theta_i)[1]
+
+    def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
+        """Weight of the delta reflection (the mirror direction of ``wi``).
+
+        0 without a substrate; ``C R(θi) + C² (R'(θi) - R(θi))`` when the light meets the
+        layer first (the front face's ``R`` reflects it back through the same place of the
+        layer, which it crosses once; the round trips cross it coherently twice:
+        :meth:`corona.GlassPane.specular_through_layer`); ``R'(θi)`` when it meets the glass
+        first.  ``R' = 2R/(1 + R)`` is the thin pane's reflectance
+        (:meth:`corona.GlassPane.reflectance`; a :class:`corona.Mirror`'s at ``wavelength`` [nm]);
+        ``C`` the layer's :meth:`coherent_weight`.
+        """
+        return self.substrate_part.specular_reflection(self, cos_theta_i, wavelength)
+
+
+class Material(Layer):
     """A layer of scatterers: shape × point process, as apertures or particles.
 
     Parameters
@@ -128,15 +233,15 @@ class Material:
     """
 
     def __new__(cls, shape=None, *args, **kwargs):
-        # a transparent sphere is a Mie scatterer, not a planar profile: its own material
+        # a family with a layer of its own registers its class (corona.model.registry): a
+        # transparent sphere is a Mie scatterer, not a planar profile
         # (docs/physics.md#transparent-droplets-mie-spheres); everything else is this class
-        if cls is Material and isinstance(shape, Shape) and sphere_parts(shape) is not None:
-            # the Mie layer's class registers itself here (MieMembers), so this module never
-            # imports the one that subclasses it; the package root imports it
-            if MieMembers._layer_class is None:
-                raise CoronaError("corona.model.mie.layer is not imported; import corona first")
-            return super().__new__(MieMembers._layer_class)     # a Material: Python runs its __init__ next
-        return super().__new__(cls)
+        layer = registry.layer_class(shape) if cls is Material else None
+        if layer is None:
+            return super().__new__(cls)
+        built = layer.__new__(layer)
+        built.__init__(shape, *args, **kwargs)   # not a Material: Python does not run __init__ again
+        return built
 
     def __init__(self, shape: Shape, process: Process | None = None, mode: str = "aperture",
                  albedo: float = 0.0, use_cache: bool = True, substrate: GlassPane | None = None):
@@ -156,6 +261,8 @@ class Material:
             raise CoronaError(f"substrate={substrate!r} is not a corona substrate "
                               "(None or corona.GlassPane(ior=1.52, side='front'))")
         self.substrate = substrate
+        #: the substrate's part (corona.model.substrate.layer_substrate), chosen once
+        self.substrate_part = layer_substrate(substrate)
         self.area_fraction = process.layer_area_fraction(shape)
         _warn_if_small(shape)
 
@@ -705,65 +812,17 @@ class Material:
     # ------------------------------------------------------------------
     # the whole BSDF: the layer, alone or on its pane (docs/physics.md#the-layer-on-glass-substrateglass)
     # ------------------------------------------------------------------
-    def _pane(self, cos_theta, wavelength=550.0):
-        """(R', T') of the substrate at |cos θ|: (0, 1) without one (a mirror: T' = 0, black behind)."""
-        c = np.asarray(cos_theta, dtype=np.float64)
-        if self.substrate is None:
-            return np.zeros_like(c), np.ones_like(c)
-        return self.substrate.reflectance(c, wavelength), self.substrate.transmittance(c)
-
     @functools.cached_property
     def double_pass_visibility(self) -> float:
         """Visibility cap of the coherent double pass (:func:`corona.model.substrate.double_pass_visibility`)."""
         lobe = self.lobe_weight * self._plane_integral / (4 * np.pi**2)
         return double_pass_visibility(self.coherent_transmittance, lobe, self.reflectance)
 
-    def _reflected_lobe_factor(self, cos_i, cos_o, wavelength):
-        """The pane's factor on ``f`` in the reflected lobe: ``min(R_i, R_o) + C (P_i + P_o)``, plus
-        the coherent double pass's interference on a pane with a thickness
-        (:meth:`corona.GlassPane.reflected_lobe_factor`)."""
-        if self.substrate is None:
-            return np.zeros(np.broadcast(cos_i, cos_o).shape)
-        vis = self.double_pass_visibility if self.substrate.coherent else 1.0
-        return self.substrate.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength,
-                                                    self.coherent_transmittance, vis)
-
-    def _layer_first(self, cos_theta_i):
-        """True where light from ``wi`` meets the layer before the pane (always without one)."""
-        c = np.asarray(cos_theta_i, dtype=np.float64)
-        return np.ones(c.shape, bool) if self.substrate is None else self.substrate.layer_first(c)
-
-    def coherent_transmission(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
-        """Weight of the delta transmission along ``-wi``: ``C T'(θi)``.
-
-        ``wavelength`` [nm] is part of the one protocol: a flat layer's coherent beam does not
-        depend on it (a Mie layer's extinction does).
-
-        ``C`` is :attr:`coherent_transmittance`, ``T'`` the pane's
-        transmittance (1 without a substrate); ``cos_theta_i`` is signed
-        (+: light from the +z side).  The pane does not deflect the beam, and
-        the layer has no specular reflection, so this path is exact.
-        """
-        _, t = self._pane(cos_theta_i)
-        return self.coherent_transmittance * t
-
-    def specular_reflection(self, cos_theta_i, wavelength=550.0) -> np.ndarray:
-        """Weight of the delta reflection (the mirror direction of ``wi``).
-
-        0 without a substrate; ``C R(θi) + C² (R'(θi) - R(θi))`` when the light meets the
-        layer first (the front face's ``R`` reflects it back through the same place of the
-        layer, which it crosses once; the round trips cross it coherently twice:
-        :meth:`corona.GlassPane.specular_through_layer`); ``R'(θi)`` when it meets the glass
-        first.
-        ``R' = 2R/(1 + R)`` is the thin pane's reflectance
-        (:meth:`corona.GlassPane.reflectance`; a :class:`corona.model.substrate.Mirror`'s at
-        ``wavelength`` [nm]).
-        """
-        r, _ = self._pane(cos_theta_i, wavelength)
-        if self.substrate is None:
-            return r
-        through = self.substrate.specular_through_layer(cos_theta_i, wavelength, self.coherent_transmittance)
-        return np.where(self._layer_first(cos_theta_i), through, r)
+    def coherent_weight(self, cos_theta_i, wavelength=550.0) -> float | np.ndarray:
+        """The layer's own coherent weight ``C`` (:attr:`coherent_transmittance`) for light from
+        ``cos_theta_i`` at ``wavelength`` [nm], without the pane: the same for every incidence and
+        wavelength here (a Mie layer's depends on both)."""
+        return self.coherent_transmittance
 
     def eval(self, wi, wo, wavelength, exact: bool = False) -> np.ndarray:
         """The smooth part of the BSDF times the cosine, ``f_s(wi, wo) |cos θo|``.
@@ -815,13 +874,14 @@ class Material:
         ci, co = wi[..., 2], wo[..., 2]
         transmit = ci * co < 0
         reflect = ci * co > 0
-        first = self._layer_first(ci)
+        pane = self.substrate_part
+        first = pane.layer_first(ci)
         lam = self._wavelength(wavelength) * 1e3                 # checked, nm
-        _, ti = self._pane(ci, lam)
-        _, to = self._pane(co, lam)
+        _, ti = pane.fresnel(ci, lam)
+        _, to = pane.fresnel(co, lam)
         f = self.lobe(wi[..., :2] + wo[..., :2], wavelength)
         lobe_t = f * np.where(first, to, ti)
-        lobe_r = f * np.where(first, self._reflected_lobe_factor(ci, co, lam), 0.0)
+        lobe_r = f * np.where(first, pane.reflected_lobe_factor(self, ci, co, lam), 0.0)
         diffuse = self.reflectance / np.pi * np.where(first, 1.0, ti * to)
         value = np.where(transmit, lobe_t, 0.0) + np.where(reflect, lobe_r + diffuse, 0.0)
         return value * np.abs(co)
@@ -898,10 +958,7 @@ class Material:
         screen, whose Fraunhofer lobe is transmitted only), not in ``total``.
         The keys are the same for every material.
         """
-        if not pane and self.substrate is not None:
-            alone = copy.copy(self)
-            alone.substrate = None
-            return alone.directional_albedo(cos_theta_i, wavelength, phi_i, n_phi)
+        part = self.substrate_part if pane else BareLayer()
         n_phi = 512 if n_phi is None else int(check_range("n_phi", n_phi, 1, 1e6))
         ci = check_range("cos_theta_i", cos_theta_i, -1.0, 1.0)
         if ci == 0.0:
@@ -909,29 +966,23 @@ class Material:
                               "carries no energy)")
         s = np.sqrt(max(0.0, 1.0 - ci * ci))
         wi_xy = (s * np.cos(phi_i), s * np.sin(phi_i))
-        first = bool(self._layer_first(ci))
-        ri, ti = (float(x) for x in self._pane(ci, wavelength))
+        first = bool(part.layer_first(ci))
+        ri, ti = (float(x) for x in part.fresnel(ci, wavelength))
         c = self.coherent_transmittance
 
         def pane_t(co):
-            return self._pane(co, wavelength)[1]
+            return part.fresnel(co, wavelength)[1]
 
         def pane_r(co):   # min(R_i, R_o) + C (P_i + P_o) (a thick pane's interference: below)
-            if self.substrate is None:
-                return np.zeros_like(co)
-            pane = self.substrate
-            front = np.minimum(pane.face_reflectance(ci), pane.face_reflectance(co))
-            return front + c * (pane.inner_reflectance(ci, wavelength) + pane.inner_reflectance(co, wavelength))
+            return part.front_and_round_trips(ci, co, wavelength, c)
 
         plain, transmitted, reflected = self._lobe_integrals(wavelength, wi_xy, [np.ones_like, pane_t, pane_r],
                                                              n_phi)
-        out = {"coherent": c * ti, "specular": float(self.specular_reflection(ci, wavelength))}
+        out = {"coherent": c * ti, "specular": float(part.specular_reflection(self, ci, wavelength))}
         if first:
             out["lobe_transmission"] = transmitted                  # ∫ f T'(θo)
-            out["lobe_reflection"] = reflected                      # ∫ f [R_min + C (P_i + P_o)]
-            if self.substrate is not None and self.substrate.coherent:
-                out["lobe_reflection"] += 2.0 * self.double_pass_visibility * c * interference_integral(
-                    self, ci, wavelength, phi_i)                    # + 2 V C ∫ f Q
+            # ∫ f [R_min + C (P_i + P_o)], + 2 V C ∫ f Q on a pane with a thickness
+            out["lobe_reflection"] = part.reflected_lobe_energy(self, reflected, ci, wavelength, phi_i)
             out["diffuse"] = self.reflectance
         else:
             out["lobe_transmission"] = ti * plain
@@ -939,85 +990,11 @@ class Material:
             # ∫ T'(θi) ρ/π T'(θo) cos θo dω = T'(θi) ρ 2∫₀¹ T'(μ) μ dμ
             mu, w = np.polynomial.legendre.leggauss(64)
             mu, w = 0.5 * (mu + 1.0), 0.5 * w
-            out["diffuse"] = ti * self.reflectance * float(2.0 * np.sum(w * mu * self._pane(mu)[1]))
+            out["diffuse"] = ti * self.reflectance * float(2.0 * np.sum(w * mu * part.fresnel(mu)[1]))
         out = {k: float(v) for k, v in out.items()}
         out["total"] = sum(out.values())
         out["forward"], out["backward"] = float(plain), 0.0
         return out
-
-
-class MieMembers:
-    """What :class:`Material`'s members are for a layer of Mie spheres.
-
-    :class:`corona.model.mie.layer.SphereMaterial` is a :class:`Material` with the same
-    methods, signatures and result keys (:meth:`Material.eval`, :meth:`Material.lobe`,
-    :meth:`Material.directional_albedo`, ...).  The members below are built on the flat
-    layer's one table of ``v(u)``; a Mie layer's lobes are rows over the size parameter
-    (forward and backward, :attr:`SphereMaterial.rows`), so each raises one
-    :class:`corona.CoronaError` naming the member, why, and what to use instead.  This
-    class comes first in ``SphereMaterial``'s bases, so its members replace the flat ones.
-    """
-
-    #: How the renderer evaluates the lobe: the Mie rows (:mod:`corona.mitsuba.sphere`).
-    render_kind = "mie"
-    #: The Mie layer's class, set when it is defined: ``Material(corona.Sphere(r), ...)`` returns one.
-    _layer_class = None
-
-    def __init_subclass__(cls, **kwargs):
-        super().__init_subclass__(**kwargs)
-        if MieMembers._layer_class is None:
-            MieMembers._layer_class = cls
-
-    @property
-    def opaque_fraction(self) -> float:
-        """0: the spheres are transparent (what they absorb is their ``ior``'s imaginary part)."""
-        return 0.0
-
-    def _refuse(self, member: str, why: str):
-        raise CoronaError(f"{type(self).__name__}.{member} is not available for shape='sphere': {why}")
-
-    @property
-    def table(self):
-        self._refuse("table", "a Mie layer has no single table of v(u); its lobes are rows over the "
-                     "size parameter (rows)")
-
-    @property
-    def render_lobe(self):
-        self._refuse("render_lobe", "the renderer reads the Mie rows (rows), not a lobe of v(u)")
-
-    @property
-    def analytic_terms(self):
-        self._refuse("analytic_terms", "a sphere's amplitudes are Mie theory's, not a closed-form outline")
-
-    @property
-    def double_pass_visibility(self):
-        self._refuse("double_pass_visibility", "spheres sit on incoherent panes only (no double pass)")
-
-    @property
-    def tabulated_transmittance(self):
-        self._refuse("tabulated_transmittance", "use diffuse_transmittance(wavelength, cos_theta_i): "
-                     "the Mie lobes' energy depends on the wavelength and the incidence")
-
-    def lobe_terms(self, u, radial: bool = False, cell: float | None = None,
-                   structure_factor: bool = True) -> dict:
-        self._refuse("lobe_terms", "the Mie lobe is not P + C (S - 1) of u alone (it depends on the "
-                     "scattering angle and the wavelength); use lobe_dimensionless(u, wavelength)")
-
-    def radial_s_minus_one(self) -> tuple[float, np.ndarray]:
-        self._refuse("radial_s_minus_one", "a Mie layer's S is tabulated in u = q R by structure_table; "
-                     "use structure_factor(u)")
-
-    def area_fraction_rows(self, lo: float = 0.0, hi: float | None = None,
-                           tolerance: float = ROW_TOLERANCE, max_rows: int = 160, include=()):
-        self._refuse("area_fraction_rows", "the plugin builds a Mie layer's rows over F_a itself "
-                     "(corona.mitsuba.sphere)")
-
-    def sample(self, xi, wavelength) -> np.ndarray:
-        self._refuse("sample", "a Mie layer's lobes are sampled about wi (forward) and its mirror "
-                     "(backward); use sample_lobe(which, wi, xi, wavelength)")
-
-    def pdf(self, d, wavelength) -> np.ndarray:
-        self._refuse("pdf", "use pdf_lobe(which, wi, wo, wavelength), the density of sample_lobe")
 
 
 def _warn_if_small(shape) -> None:

@@ -61,6 +61,10 @@ class ShapeFamily:
     material : callable or None
         ``material(shape, process, p, given, substrate) -> Material`` when the layer is not a
         plain :class:`~corona.Material` (the Mie sphere), else None.
+    layer : type or None
+        The layer class ``corona.Material(shape, ...)`` builds for a shape of this family (or a
+        shape holding one) when it is not the flat :class:`~corona.Material`: the Mie sphere's
+        :class:`~corona.model.mie.material.SphereMaterial`, a :class:`~corona.model.material.Layer`.
     of_components : bool
         It holds mixable shapes (``mixture``) and reads their parameters too (but ``radius``).
     """
@@ -74,6 +78,7 @@ class ShapeFamily:
     bsdf: str = ""
     material: Callable | None = None
     of_components: bool = False
+    layer: type | None = None
 
 
 @dataclass(frozen=True)
@@ -296,4 +301,23 @@ def family_of_shape(shape) -> ShapeFamily | None:
     for fam in SHAPE_FAMILIES.values():
         if fam.cls is not None and type(shape) is fam.cls:
             return fam
+    return None
+
+
+def layer_class(shape) -> type | None:
+    """The layer class a family registers (:attr:`ShapeFamily.layer`) for ``shape``: its own
+    family's, or that of a shape it holds (wrapped by a modifier, a component of a mixture: that
+    class then says what it takes); None for a flat layer (:class:`corona.Material`)."""
+    from corona.model.shapes.base import Shape
+    if not isinstance(shape, Shape):
+        return None
+    fam = family_of_shape(shape)
+    if fam is not None and fam.layer is not None:
+        return fam.layer
+    inner = [getattr(shape, "shape", None)]
+    inner += [c[0] if isinstance(c, tuple) else c for c in getattr(shape, "components", ()) or ()]
+    for s in inner:
+        found = layer_class(s) if s is not shape else None
+        if found is not None:
+            return found
     return None

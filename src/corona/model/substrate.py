@@ -476,6 +476,142 @@ def interference_integral(material, cos_theta_i: float, wavelength: float, phi_i
     return float(np.trapezoid(g, fine))
 
 
+# --- what the numpy layer holds: one object per substrate, chosen once ----------------------------
+class BareLayer:
+    """No substrate: the layer alone.  Every pane factor is the identity (``R' = 0``, ``T' = 1``),
+    light always meets the layer first, nothing is reflected specularly.
+
+    :class:`corona.Material` and the Mie layer hold one of :class:`BareLayer`, :class:`OnPane` or
+    :class:`DoublePass` (:func:`layer_substrate`), chosen once when they are built, and ask it for
+    every pane term of ``eval``, ``specular_reflection`` and ``directional_albedo``.
+    """
+
+    pane = None
+
+    def __repr__(self):
+        return "BareLayer()"
+
+    def fresnel(self, cos_theta, wavelength=550.0):
+        """``(R', T')`` of the pane at ``cos θ``: (0, 1)."""
+        c = np.asarray(cos_theta, dtype=np.float64)
+        return np.zeros_like(c), np.ones_like(c)
+
+    def layer_first(self, cos_theta_i) -> np.ndarray:
+        """True where light from ``wi`` meets the layer before the pane: everywhere."""
+        return np.ones(np.shape(cos_theta_i), bool)
+
+    def specular_reflection(self, layer, cos_theta_i, wavelength) -> np.ndarray:
+        """The delta reflection's weight: 0 (``layer``'s coherent weight is not read)."""
+        return np.zeros_like(np.asarray(cos_theta_i, dtype=np.float64))
+
+    def reflected_lobe_factor(self, layer, cos_i, cos_o, wavelength) -> np.ndarray:
+        """The factor on ``layer``'s lobe seen in reflection: 0."""
+        return np.zeros(np.broadcast(cos_i, cos_o).shape)
+
+    def lobe_factors(self, cos_i, cos_o, coherent, wavelength=550.0):
+        """(far side, own side, mirrored) factors of a layer's own lobes: (1, 1, 0)."""
+        shape = np.broadcast(cos_i, cos_o).shape
+        return np.ones(shape), np.ones(shape), np.zeros(shape)
+
+    def front_and_round_trips(self, cos_i, cos_o, wavelength, coherent) -> np.ndarray:
+        """``min(R_i, R_o) + C (P_i + P_o)`` over the reflected directions: 0."""
+        return np.zeros_like(cos_o)
+
+    def reflected_lobe_energy(self, layer, incoherent, cos_theta_i, wavelength, phi_i) -> float:
+        """The reflected lobe's energy, the double pass's interference added: ``incoherent``."""
+        return incoherent
+
+    def lobes_on_pane(self, value, mirrored_value, wi, wo, coherent):
+        """A layer's lobes ``value`` at ``wo`` as the pane passes them on: unchanged."""
+        return value
+
+
+class OnPane(BareLayer):
+    """The layer on a thin pane without a thickness (:class:`GlassPane`): its Fresnel terms,
+    the front face's reflection of the lobe and the round trips, summed incoherently."""
+
+    def __init__(self, pane: GlassPane):
+        self.pane = pane
+
+    def __repr__(self):
+        return f"{type(self).__name__}({self.pane!r})"
+
+    def fresnel(self, cos_theta, wavelength=550.0):
+        c = np.asarray(cos_theta, dtype=np.float64)
+        return self.pane.reflectance(c, wavelength), self.pane.transmittance(c)
+
+    def layer_first(self, cos_theta_i) -> np.ndarray:
+        return self.pane.layer_first(np.asarray(cos_theta_i, dtype=np.float64))
+
+    def specular_reflection(self, layer, cos_theta_i, wavelength) -> np.ndarray:
+        """``C R + C² P`` where light meets the layer first (:meth:`GlassPane.specular_through_layer`;
+        ``C`` is ``layer.coherent_weight``), ``R'`` where it meets the glass first."""
+        r = self.pane.reflectance(np.asarray(cos_theta_i, dtype=np.float64), wavelength)
+        through = self.pane.specular_through_layer(cos_theta_i, wavelength, layer.coherent_weight(cos_theta_i,
+                                                                                                   wavelength))
+        return np.where(self.layer_first(cos_theta_i), through, r)
+
+    def reflected_lobe_factor(self, layer, cos_i, cos_o, wavelength) -> np.ndarray:
+        """:meth:`GlassPane.reflected_lobe_factor` at ``|cos θ|`` with ``layer``'s coherent weight
+        ``C`` (:attr:`corona.Material.coherent_transmittance`; the paths add incoherently)."""
+        return self.pane.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength,
+                                               layer.coherent_transmittance, 1.0)
+
+    def lobe_factors(self, cos_i, cos_o, coherent, wavelength=550.0):
+        """(far side ``T'``, own side ``1`` or ``T'(θi) T'(θo)``, mirrored
+        :meth:`GlassPane.reflected_lobe_factor`) where light meets the layer first / the glass."""
+        first = self.layer_first(cos_i)
+        ri, ti = self.fresnel(cos_i)
+        ro, to = self.fresnel(cos_o)
+        through = np.where(first, to, ti)
+        own = np.where(first, 1.0, ti * to)
+        # the front face reflects the lobe once, the round trips cross the layer again
+        mirrored = np.where(first, self.pane.reflected_lobe_factor(cos_i, cos_o, wavelength, coherent), 0.0)
+        return through, own, mirrored
+
+    def front_and_round_trips(self, cos_i, cos_o, wavelength, coherent) -> np.ndarray:
+        pane = self.pane
+        front = np.minimum(pane.face_reflectance(cos_i), pane.face_reflectance(cos_o))
+        return front + coherent * (pane.inner_reflectance(cos_i, wavelength) + pane.inner_reflectance(cos_o, wavelength))
+
+    def lobes_on_pane(self, value, mirrored_value, wi, wo, coherent):
+        """``f + F f(wo')`` on the side of ``wi``, ``f T'`` on the far side (light meets the layer
+        first; ``T'(θi) f (T'(θo))`` when it meets the glass first); ``mirrored_value(wo')`` is the
+        layer's lobe at ``wo``'s mirror image in the layer's plane."""
+        wi = np.asarray(wi, dtype=np.float64)
+        wo = np.asarray(wo, dtype=np.float64)
+        ci, co = np.broadcast_arrays(wi[..., 2], wo[..., 2])
+        through, own, mirrored = self.lobe_factors(ci, co, coherent)
+        same = ci * co > 0
+        val_m = mirrored_value(wo * np.array([1.0, 1.0, -1.0]))
+        return np.where(same, value * own + mirrored * val_m, value * through)
+
+
+class DoublePass(OnPane):
+    """The layer on a pane with a thickness: a :class:`GlassPane` given one, or a :class:`Mirror`
+    (always; its silvering's reflectance, constant or a spectrum, is the pane's own).  The two
+    passes through the layer interfere (Quetelet rings), with the visibility ``V`` of the energy
+    cap (:func:`double_pass_visibility`: the layer's ``double_pass_visibility``)."""
+
+    def reflected_lobe_factor(self, layer, cos_i, cos_o, wavelength) -> np.ndarray:
+        """``min(R_i, R_o) + C [P_i + P_o + 2 V Q]`` (:meth:`GlassPane.reflected_lobe_factor`)."""
+        return self.pane.reflected_lobe_factor(np.abs(cos_i), np.abs(cos_o), wavelength,
+                                               layer.coherent_transmittance, layer.double_pass_visibility)
+
+    def reflected_lobe_energy(self, layer, incoherent, cos_theta_i, wavelength, phi_i) -> float:
+        """``incoherent + 2 V C ∫ f Q`` (:func:`interference_integral`)."""
+        return incoherent + 2.0 * layer.double_pass_visibility * layer.coherent_transmittance * \
+            interference_integral(layer, cos_theta_i, wavelength, phi_i)
+
+
+def layer_substrate(pane: GlassPane | None) -> BareLayer:
+    """The substrate component of a layer on ``pane`` (None: :class:`BareLayer`; a pane with a
+    thickness, a mirror included: :class:`DoublePass`; else :class:`OnPane`)."""
+    if pane is None:
+        return BareLayer()
+    return DoublePass(pane) if pane.coherent else OnPane(pane)
+
+
 def make_substrate(kind: str, ior=None, side: str = "front", thickness=None,
                    mirror_reflectance=None) -> GlassPane | None:
     """The substrate of ``substrate=kind`` (None for ``none``), with one clear error."""

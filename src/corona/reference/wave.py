@@ -902,9 +902,9 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
     -------
     BruteForce
     """
-    from corona.model.material import Material
-    from corona.model.mie.layer import SphereMaterial
-    if not isinstance(material, Material):
+    from corona.model.material import Layer
+    from corona.model.mie.material import SphereMaterial
+    if not isinstance(material, Layer):
         raise CoronaError(f"material={material!r} is not a corona.Material")
     if isinstance(material, SphereMaterial):
         from corona.model import registry

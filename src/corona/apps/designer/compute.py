@@ -314,7 +314,7 @@ _exact_locks: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # mate
 
 def exact_ready(m) -> bool:
     """Whether ``m``'s tables are ready for an exact answer at once: always, except for a sphere
-    layer whose exact Mie rows (:meth:`corona.model.mie.layer.SphereMaterial.rows_cached`) and their
+    layer whose exact Mie rows (:meth:`corona.model.mie.material.SphereMaterial.rows_cached`) and their
     totals are not built yet (a new radius: seconds to a minute)."""
     return not _is_sphere(m) or (m.rows_cached() and "_derived" in m.__dict__)
 
@@ -415,7 +415,7 @@ def shown_material(params: dict, preview: bool = True) -> tuple:
 
     ``preview`` False: the material of ``params`` with its exact tables (built here or waited for).
     Else the material of ``params`` when its tables are ready (:func:`exact_ready`); otherwise (a new
-    sphere radius) its coarse preview (:meth:`corona.model.mie.layer.SphereMaterial.preview`, a
+    sphere radius) its coarse preview (:meth:`corona.model.mie.material.SphereMaterial.preview`, a
     fraction of a second) while the exact table is built in the background (:data:`builds`): the
     page shows the preview and asks again when GET /api/progress lists no build."""
     m = material(params)
@@ -447,7 +447,7 @@ def exact_material(params: dict):
 
 def _is_sphere(m) -> bool:
     """Whether ``m`` is a layer of Mie spheres (its lobe depends on λ beyond ``u``)."""
-    from corona.model.mie.layer import SphereMaterial
+    from corona.model.mie.material import SphereMaterial
     return isinstance(m, SphereMaterial)
 
 
@@ -806,7 +806,7 @@ def profiles(params: dict, view: dict, n: int = 400, preview: bool = False) -> d
     x and along y (``*_y``).  Spheres: ``T_a`` = ``dσ/dΩ / (π r²)`` from Mie theory (on a fixed
     lattice the same along both cuts: the pattern at normal incidence is isotropic), ``T_s`` the
     lattice's ``S`` at the cut's ``q``, and ``lobe`` the layer's own per-direction lobe
-    (:meth:`~corona.model.mie.layer.SphereMaterial.lobe_dimensionless` at 550 nm: per unit ``d²d``,
+    (:meth:`~corona.model.mie.material.SphereMaterial.lobe_dimensionless` at 550 nm: per unit ``d²d``,
     ``F_a w T_a T_s / cos θ`` with the lattice's energy cap ``w``).  ``rings`` [degree]: the first maxima of the
     lobe after the centre at 450, 550, 650 nm.  ``preview``: a new sphere radius may be answered
     from its preview (:func:`shown_material`), and the result's ``preview`` says whether it was.
@@ -847,7 +847,7 @@ def profiles(params: dict, view: dict, n: int = 400, preview: bool = False) -> d
 def _sphere_T_a(m, rho) -> list:
     """One sphere's ``n dσ/dΩ / F_a = dσ/dΩ / (π r²)`` [1/sr] at normal incidence towards
     ``wo = (ρ, 0, -√(1 - ρ²))`` at :data:`PROFILE_WAVELENGTH`, from Mie theory (the layer's
-    :meth:`~corona.model.mie.layer.SphereMaterial._exact`, a size distribution's average included)."""
+    :meth:`~corona.model.mie.material.SphereMaterial._exact`, a size distribution's average included)."""
     wi = np.array([0.0, 0.0, 1.0])
     wo = np.stack([rho, 0 * rho, -np.sqrt(np.maximum(1 - rho * rho, 0.0))], -1)
     P_f = m._exact(np.linalg.norm(wo + wi, axis=-1), np.linalg.norm(wo - wi, axis=-1),
@@ -1003,7 +1003,7 @@ def _substrate_terms(m, lams: np.ndarray):
         t0 = float(sub.transmittance(1.0))
         centre = through
         cos_grid = np.linspace(0.0, 1.0, 1025)
-        first = bool(np.all(m._layer_first(1.0)))
+        first = bool(np.all(m.substrate_part.layer_first(1.0)))
         t = sub.transmittance(cos_grid) if first else np.full(cos_grid.shape, t0)
         table = np.repeat(t[:, None], 3, axis=1)
 

@@ -42,7 +42,7 @@ wi_xy|`` (:data:`CAP_NEAR`):
 
 Cells overlap by :data:`CAP_OVERLAP` of their width, so that float32 rounding of a lane's cell
 index stays covered.  Neither the numpy model (which keeps its exact cap,
-:meth:`corona.model.mie.layer.SphereMaterial.lattice_energy` per lane) nor the renderer uses this
+:meth:`corona.model.mie.material.SphereMaterial.lattice_energy` per lane) nor the renderer uses this
 table: its bound is too loose to render with (docs/physics.md#spheres-on-a-lattice has the
 measured figures, from ``benchmarks/lattice_cap.py``).  The renderer sums the orders per lane in
 closed form instead (:func:`rim_rules`, :func:`order_energy`,
@@ -286,7 +286,7 @@ def cap_table(material, lam_range=(360.0, 830.0), n_lam: int = CAP_LAMBDA_CELLS,
 
     Parameters
     ----------
-    material : corona.model.mie.layer.SphereMaterial
+    material : corona.model.mie.material.SphereMaterial
         On a fixed lattice (its ``lattice``, ``rows`` and radius ``length_scale``).
     lam_range : (float, float)
         Wavelengths [nm] the table covers.
@@ -467,7 +467,7 @@ def diffuse_rows_mu(rows: dict, radius: float, jitter: float, n_mu: int = DIFFUS
     the integral does not depend on its azimuth), on the rows' own chord nodes (``dΩ = s ds dφ``,
     trapezoid in ``s``, ``n_phi`` azimuths about ``∓wi``), ``q = k (wo + wi)_xy``; 0 for a
     perfect crystal.  Read bilinearly in (row, μ) it is the lane's diffuse part (not a bound)."""
-    from corona.model.mie.layer import _frame
+    from corona.model.mie.layer import frame
     P_f, P_b, x, ds = rows["P_f"], rows["P_b"], rows["x"], float(rows["ds"])
     J, K = P_f.shape
     out = np.zeros((J, n_mu))
@@ -483,7 +483,7 @@ def diffuse_rows_mu(rows: dict, radius: float, jitter: float, n_mu: int = DIFFUS
     for m, mu in enumerate(np.linspace(0.0, 1.0, n_mu)):
         wi = np.array([math.sqrt(max(1.0 - mu * mu, 0.0)), 0.0, mu])
         for P, axis in ((P_f, -wi), (P_b, wi)):
-            e1, e2 = _frame(axis)
+            e1, e2 = frame(axis)
             wo = (cos_t[:, None, None] * axis + sin_t[:, None, None]
                   * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2))
             q2 = np.sum((wo + wi)[..., :2] ** 2, axis=-1)                  # (K, n_phi), per k²
