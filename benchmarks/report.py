@@ -328,7 +328,9 @@ def kernels_summary() -> list[str]:
 #: run's results file, how its renders ran.
 RENDER_HOUSE = {"render_house": "Dr.Jit on every core; wall and process CPU time",
                 "render_house_1thread": "Dr.Jit on one thread (`--threads 1`): the CPU time of a render is little "
-                                        "disturbed by other load on the machine"}
+                                        "disturbed by other load on the machine",
+                "render_house_mie": "the Mie spheres again, with the opaque layer and roughdielectric, on one "
+                                    "Dr.Jit thread and more rounds"}
 _HOUSE_COMMAND = ("python benchmarks/bench_render_ab.py --base cfd56fd --bsdfs corona corona-square corona-hexagon "
                   "corona-square-spread corona_textured corona-mie corona-glass corona-square-textured roughdielectric "
                   "--bsdf-lanes 0")
@@ -380,6 +382,9 @@ BENCHMARKS = [
      "render cost of each family against the revision before the rebuild"),
     ("render_house_1thread", _HOUSE_COMMAND + " --rounds 4 --repeats 2 --threads 1 --name render_house_1thread",
      "the same on one Dr.Jit thread"),
+    ("render_house_mie", "python benchmarks/bench_render_ab.py --base cfd56fd --bsdfs corona-mie corona roughdielectric "
+     "--res 256 --rounds 8 --repeats 2 --bsdf-lanes 0 --threads 1 --name render_house_mie",
+     "the Mie spheres' render against the revision before the rebuild"),
     ("gradient", "python benchmarks/bench_gradient.py", "prb gradient renders, reverse and forward mode"),
     ("kernels", "python benchmarks/bench_kernels.py", "the BSDF's Dr.Jit kernels per family (spectral)"),
     ("kernels_rgb", "python benchmarks/bench_kernels.py --variant llvm_ad_rgb --name kernels_rgb",
