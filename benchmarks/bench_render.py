@@ -119,13 +119,18 @@ def child(args) -> dict:
     from corona.apps.render import setup_variant
     from corona.apps.scenes import street_light_scene
     setup_variant(args.variant)
+    if args.threads:
+        dr.set_thread_count(args.threads)
     scene = mi.load_dict(street_light_scene(resolution=args.res, bsdf=BSDFS[args.child]))
 
+    cpu = []
+
     def timed(seed):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         img = mi.render(scene, spp=args.spp, seed=seed)
         dr.eval(img)
         dr.sync_thread()
+        cpu.append(time.process_time() - c0)
         return time.perf_counter() - t0
 
     dr.set_flag(dr.JitFlag.KernelHistory, True)
@@ -136,7 +141,8 @@ def child(args) -> dict:
     compile_ms = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0) for k in hist)
     times = [timed(i + 1) for i in range(args.repeats)]
     alone = bsdf_alone(dr, mi, BSDFS[args.child], args.bsdf_lanes) if args.bsdf_lanes > 0 else {}
-    return {"first_render_s": first, "jit_compile_s": compile_ms * 1e-3, "times_s": times, "bsdf_alone": alone}
+    return {"first_render_s": first, "jit_compile_s": compile_ms * 1e-3, "times_s": times, "cpu_s": cpu[1:],
+            "bsdf_alone": alone}
 
 
 def round_spread(rounds, ref_rounds) -> dict:
@@ -151,7 +157,7 @@ def run_child(args, name: str) -> dict:
         out = subprocess.run(
             [sys.executable, os.path.abspath(__file__), "--child", name, "--res", str(args.res),
              "--spp", str(args.spp), "--repeats", str(args.repeats), "--variant", args.variant,
-             "--bsdf-lanes", str(args.bsdf_lanes)],
+             "--bsdf-lanes", str(args.bsdf_lanes), "--threads", str(args.threads)],
             env={**os.environ, "HOME": home}, check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -168,6 +174,8 @@ def main():
                     help="which BSDFs to time (roughdielectric is always included)")
     ap.add_argument("--bsdf-lanes", type=int, default=18,
                     help="log2 of the lanes of the BSDF-alone timing (0: none)")
+    ap.add_argument("--threads", type=int, default=0, help="Dr.Jit threads of the renders (0: all); with 1, "
+                    "a render's CPU time is little disturbed by other load on a shared machine")
     ap.add_argument("--child", choices=list(BSDFS), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:

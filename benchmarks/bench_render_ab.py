@@ -2,19 +2,21 @@
 
 ``bench_render.py``'s children (one scene a process, an empty Dr.Jit kernel
 cache, the first render's JIT compile from the kernel history, then timed
-renders) run for the BSDFs named by ``--bsdfs`` from both source trees in
-turn: the revision ``--base`` (``git archive`` into a temporary folder) and this
-checkout; ``corona`` and ``roughdielectric`` from this checkout are the
-references.  Interleaving the two trees round by round lets load on a shared
-machine hit both alike, so the ratios (render medians and minima over
-``corona`` and over ``roughdielectric``, JIT compile over ``roughdielectric``)
-compare the revisions; each ratio's spread over the rounds (a round's median over
-the reference's in the same round: min, median, max) goes to the JSON file too,
-and this checkout's children also time their BSDF alone (``bench_render.py``'s
-``--bsdf-lanes``).  Renders are 256² unless only the Mie layer is timed (128²).
+renders; this checkout's script for both trees) run for the BSDFs named by
+``--bsdfs`` on both source trees: the revision ``--base`` (``git archive`` into
+a temporary folder, with its own table cache) and this checkout.  Each round
+runs each family's two trees back to back, which one first alternating from
+round to round, so load on a shared machine hits both alike; ``corona`` and
+``roughdielectric`` from this checkout are also the references.  Written per
+family: ``over_base``, this checkout's render over the base's (medians, minima,
+and each round's ratio of medians: min, median, max; the same for the renders'
+process CPU time), within ``--goal`` when the median over rounds is; per label
+the ratios over ``corona`` and ``roughdielectric`` and the JIT compile, and the
+BSDF alone for this checkout (``bench_render.py``'s ``--bsdf-lanes``).
+Renders are 256² unless only the Mie layer is timed (128²).
 
     python benchmarks/bench_render_ab.py --base REV [--bsdfs corona-mie] [--rounds 3] [--repeats 2]
-        [--res 256] [--spp 64] [--variant llvm_ad_spectral]
+        [--res 256] [--spp 64] [--variant llvm_ad_spectral] [--goal 1.03]
 
 writes benchmarks/results/<name>.json (default ``render_ab``).  No timing is asserted anywhere.
 """
@@ -33,15 +35,18 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 
 
-def child(root: str, name: str, args) -> dict:
-    """One ``bench_render.py --child`` process of the tree ``root`` (its own ``src`` first on the path;
-    this checkout's also times the BSDF alone)."""
+def child(root: str, name: str, args, cache: str | None = None) -> dict:
+    """One ``bench_render.py --child`` process (this checkout's script) on the tree ``root`` (its ``src`` first on the path;
+    this checkout's also times the BSDF alone); ``cache``: its own table cache folder (the base
+    revision's tables may be laid out otherwise)."""
     extra = ["--bsdf-lanes", str(args.bsdf_lanes)] if root == ROOT else []
     with tempfile.TemporaryDirectory() as home:
         env = {**os.environ, "HOME": home, "PYTHONPATH": os.path.join(root, "src")}
-        out = subprocess.run([sys.executable, os.path.join(root, "benchmarks", "bench_render.py"), "--child", name,
+        if cache:
+            env.update(CORONA_CACHE_DIR=cache, NUMBA_CACHE_DIR=os.path.join(cache, "numba"))
+        out = subprocess.run([sys.executable, os.path.join(HERE, "bench_render.py"), "--child", name,
                               "--res", str(args.res), "--spp", str(args.spp), "--repeats", str(args.repeats),
-                              "--variant", args.variant, *extra], env=env, check=True, capture_output=True,
+                              "--variant", args.variant, "--threads", str(args.threads), *extra], env=env, check=True, capture_output=True,
                              text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -58,6 +63,9 @@ def main():
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--variant", default="llvm_ad_spectral")
     ap.add_argument("--name", default="render_ab")
+    ap.add_argument("--threads", type=int, default=0, help="Dr.Jit threads of the renders (0: all)")
+    ap.add_argument("--goal", type=float, default=1.03, help="the most this checkout's render may take over the "
+                    "base's (the median over rounds of a round's ratio)")
     args = ap.parse_args()
     if args.res is None:
         args.res = 128 if set(args.bsdfs) <= {"corona-mie"} else 256
@@ -67,14 +75,17 @@ def main():
         archive = subprocess.run(["git", "-C", ROOT, "archive", args.base, "src", "benchmarks", "scenes"],
                                  check=True, capture_output=True).stdout
         subprocess.run(["tar", "-x", "-C", base], input=archive, check=True)
-        load_start = os.getloadavg()[0]
-        plan = [(f"{n} (base)", base, n) for n in args.bsdfs] + [(n, ROOT, n) for n in args.bsdfs]
-        plan += [(n, ROOT, n) for n in ("corona", "roughdielectric") if n not in args.bsdfs]
+        load_start, loads = os.getloadavg()[0], []
+        base_cache = os.path.join(base, ".tables")
+        refs = [(n, ROOT, n) for n in ("corona", "roughdielectric") if n not in args.bsdfs]
         runs: dict = {}
         for r in range(args.rounds):
-            for label, root, name in plan:
-                runs.setdefault(label, []).append(child(root, name, args))
-                print(f"round {r + 1}/{args.rounds} {label:24s} {runs[label][-1]['times_s']}", flush=True)
+            for name in args.bsdfs:   # each family's two trees back to back, in turn first (A B, B A, ...)
+                pair = [(f"{name} (base)", base, name), (name, ROOT, name)]
+                for label, root, n in (pair if r % 2 == 0 else pair[::-1]) + (refs if name == args.bsdfs[-1] else []):
+                    runs.setdefault(label, []).append(child(root, n, args, base_cache if root == base else None))
+                    print(f"round {r + 1}/{args.rounds} {label:24s} {runs[label][-1]['times_s']}", flush=True)
+            loads.append(os.getloadavg()[0])
     results = {}
     for label, rs in runs.items():
         results[label] = summarise(rs, "jit_compile_s")
@@ -94,7 +105,19 @@ def main():
               f"{res['render_over_roughdielectric']:.3f} (rounds {spread['min']:.3f}-{spread['max']:.3f})  "
               f"JIT {res['jit_compile_s']:6.3f} s "
               f"/ roughdielectric {res['jit_over_roughdielectric']:.3f}")
-    write(args.name, {"base": args.base, "scene": "street_light_scene", "resolution": args.res, "spp": args.spp,
+    over_base = {}
+    for name in args.bsdfs:   # this checkout over the base revision, family by family
+        new, old = results[name], results[f"{name} (base)"]
+        spread = round_spread(runs[name], runs[f"{name} (base)"])
+        cpu = [{"times_s": r["cpu_s"]} for r in runs[name]], [{"times_s": r["cpu_s"]} for r in runs[f"{name} (base)"]]
+        over_base[name] = {"ratio": new["median_s"] / old["median_s"], "ratio_of_minima": new["min_s"] / old["min_s"],
+                           "rounds": spread, "base_median_s": old["median_s"], "median_s": new["median_s"],
+                           "cpu_rounds": round_spread(*cpu), "within_goal": bool(spread["median"] <= args.goal)}
+        print(f"{name:24s} / base: medians {over_base[name]['ratio']:.3f}, minima "
+              f"{over_base[name]['ratio_of_minima']:.3f}, rounds {spread['min']:.3f} {spread['median']:.3f} "
+              f"{spread['max']:.3f} (min, median, max); CPU time rounds {over_base[name]['cpu_rounds']['median']:.3f}")
+    write(args.name, {"argv": sys.argv, "threads": args.threads, "base": args.base, "over_base": over_base, "goal_over_base": args.goal,
+                      "load_average_1min_rounds": loads, "scene": "street_light_scene", "resolution": args.res, "spp": args.spp,
                       "rounds": args.rounds, "repeats": args.repeats, "variant": args.variant, "results": results,
                       "load_average_1min": {"start": load_start, "end": os.getloadavg()[0]}})
 

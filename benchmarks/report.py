@@ -83,6 +83,16 @@ def headline() -> list[str]:
             worst = max((v["jit_compile_s"] / ref, n) for n, v in r["results"].items() if n.startswith("corona"))
             rows.append(("First-render JIT compile, every corona layer / roughdielectric (same run; worst)",
                          f"{worst[0]:.2f}× ({worst[1]})", "≤ 1.5×"))
+    for name in RENDER_HOUSE:
+        rh = _load(name)
+        if rh and "over_base" in rh:
+            (fw, w), (fc, c) = _house_worst(rh, "rounds"), _house_worst(rh, "cpu_rounds")
+            threads = f"{rh['threads']} thread" if rh.get("threads") == 1 else "all cores"
+            rows.append((f"Render cost now / before the rebuild ({rh['base']}), slowest of {len(rh['over_base'])} "
+                         f"families ({threads}; median over {rh['rounds']} interleaved rounds; {name})",
+                         f"wall {w['median']:.3f}× ({fw}; rounds {w['min']:.2f}–{w['max']:.2f}); CPU time "
+                         f"{c['median']:.3f}× ({fc}; rounds {c['min']:.2f}–{c['max']:.2f})",
+                         f"≤ {rh.get('goal_over_base', 1.03):g}× each"))
     gr = _load("gradient")
     if gr:
         load = gr.get("load_average_1min", {})
@@ -314,11 +324,67 @@ def kernels_summary() -> list[str]:
     return out + [""]
 
 
+#: Render cost against the revision before issue 44's rebuild (bench_render_ab.py's ``over_base``): for each
+#: run's results file, how its renders ran.
+RENDER_HOUSE = {"render_house": "Dr.Jit on every core; wall and process CPU time",
+                "render_house_1thread": "Dr.Jit on one thread (`--threads 1`): the CPU time of a render is little "
+                                        "disturbed by other load on the machine",
+                "render_house_mie": "the Mie spheres again, with the opaque layer and roughdielectric, on one "
+                                    "Dr.Jit thread and more rounds"}
+_HOUSE_COMMAND = ("python benchmarks/bench_render_ab.py --base cfd56fd --bsdfs corona corona-square corona-hexagon "
+                  "corona-square-spread corona_textured corona-mie corona-glass corona-square-textured roughdielectric "
+                  "--bsdf-lanes 0")
+
+
+def _house_worst(data: dict, key: str) -> tuple:
+    """(family, its rounds' min / median / max) with the largest median over rounds of ``key``."""
+    fam = max(data["over_base"], key=lambda f: data["over_base"][f][key]["median"])
+    return fam, data["over_base"][fam][key]
+
+
+def house_section(name: str, data: dict, command: str) -> list[str]:
+    """A :data:`RENDER_HOUSE` run's section: each family's render time now over the base revision's."""
+    goal = data.get("goal_over_base", 1.03)
+    loads = data.get("load_average_1min_rounds") or []
+    load = data.get("load_average_1min", {})
+    argv = data.get("argv")
+    if isinstance(argv, list) and argv:
+        command = " ".join(["python", "benchmarks/" + os.path.basename(str(argv[0])), *argv[1:]])
+    out = [f"## {name}", "",
+           f"Render time of each family in this checkout over the same family at {data['base']} (before the "
+           f"rebuild of issue 44), {RENDER_HOUSE[name]}: `bench_render.py`'s scene ({data['resolution']}², "
+           f"{data['spp']} spp, {data['variant']}), each family's two trees back to back in each of {data['rounds']} "
+           f"rounds, which runs first alternating, {data['repeats']} timed renders per process after its first "
+           "(JIT) render. A round's ratio is its median render now over the base's median in the same round; "
+           "quoted: the median over the rounds and their spread. `roughdielectric` is Mitsuba's own BSDF: its "
+           "ratio shows the measurement's noise.", "",
+           f"Command: `{command}`", "",
+           f"Machine: {_machine(data.get('machine', {}))}; 1-minute load {load.get('start', float('nan')):.1f} "
+           "at the start" + (f", {min(loads):.1f}–{max(loads):.1f} after each round" if loads else "")
+           + f" (on {data.get('machine', {}).get('cores', '?')} cores shared with other work)", "",
+           f"Goal: no family more than {100 * (goal - 1):.0f} % slower (median over rounds ≤ {goal:g}×).", "",
+           "| family | before s | now s | wall: rounds min – median – max | CPU time: rounds min – median – max |",
+           "|---|---|---|---|---|"]
+    for fam, v in data["over_base"].items():
+        r, c = v["rounds"], v["cpu_rounds"]
+        out.append(f"| {fam} | {v['base_median_s']:.3f} | {v['median_s']:.3f} | "
+                   f"{r['min']:.3f} – **{r['median']:.3f}** – {r['max']:.3f} | "
+                   f"{c['min']:.3f} – **{c['median']:.3f}** – {c['max']:.3f} |")
+    return out + [""]
+
+
 #: One current section per benchmark: (results file, the command that writes it, what it measures).
 #: The other files of benchmarks/results/ are earlier or A/B runs, listed at the end of the page
 #: (the dated notes about them live in git history and in the files' own ``note``).
 BENCHMARKS = [
     ("render", "python benchmarks/bench_render.py", "render cost of each layer against roughdielectric"),
+    ("render_house", _HOUSE_COMMAND + " --rounds 6 --repeats 3 --name render_house",
+     "render cost of each family against the revision before the rebuild"),
+    ("render_house_1thread", _HOUSE_COMMAND + " --rounds 4 --repeats 2 --threads 1 --name render_house_1thread",
+     "the same on one Dr.Jit thread"),
+    ("render_house_mie", "python benchmarks/bench_render_ab.py --base cfd56fd --bsdfs corona-mie corona roughdielectric "
+     "--res 256 --rounds 8 --repeats 2 --bsdf-lanes 0 --threads 1 --name render_house_mie",
+     "the Mie spheres' render against the revision before the rebuild"),
     ("gradient", "python benchmarks/bench_gradient.py", "prb gradient renders, reverse and forward mode"),
     ("kernels", "python benchmarks/bench_kernels.py", "the BSDF's Dr.Jit kernels per family (spectral)"),
     ("kernels_rgb", "python benchmarks/bench_kernels.py --variant llvm_ad_rgb --name kernels_rgb",
@@ -420,7 +486,7 @@ def page() -> str:
     for name, command, what in BENCHMARKS:
         data = _load(name)
         if data is not None:
-            lines += section(name, data, command, what)
+            lines += house_section(name, data, command) if name in RENDER_HOUSE else section(name, data, command, what)
             current.append(name)
     lines += earlier([n for n in names if n not in current])
     return "\n".join(lines).rstrip("\n") + "\n"

@@ -964,6 +964,214 @@ def _measured_red_ring(profile: Profile, predicted_deg: float | None) -> float |
     return float(np.interp(i + shift, np.arange(deg.size), deg))
 
 
+#: The refinement moves the radius at most this factor from its coarse start.
+RADIUS_WINDOW = 1.3
+
+
+@dataclasses.dataclass
+class _FitSpace:
+    """What a fit varies: the log radius always; the size spread, the area fraction and the
+    temperature (as 1000 / T) where they are not held fixed (``None`` here)."""
+    size_spread: float | None
+    temperature: float | None
+    fa0: float       # the area fraction's start, or its fixed value
+    fit_fa: bool
+    fa_max: float
+
+    @property
+    def names(self) -> list:
+        return ["ln_radius"] + (["size_spread"] if self.size_spread is None else []) \
+            + (["area_fraction"] if self.fit_fa else []) + (["kilo_inverse_T"] if self.temperature is None else [])
+
+    def start(self, R0: float, spread: float, temperature: float) -> list:
+        return [math.log(R0)] + ([spread] if self.size_spread is None else []) \
+            + ([self.fa0] if self.fit_fa else []) + ([1e3 / temperature] if self.temperature is None else [])
+
+    def unpack(self, x) -> tuple:
+        """(radius, spread, area fraction, temperature) of the fit vector ``x``."""
+        it = iter(x)
+        R = math.exp(next(it))
+        sp = next(it) if self.size_spread is None else self.size_spread
+        fa = next(it) if self.fit_fa else self.fa0
+        T = 1e3 / next(it) if self.temperature is None else self.temperature
+        return R, sp, fa, T
+
+    def bounds(self, R0: float) -> tuple:
+        lo, hi = [math.log(R0 / RADIUS_WINDOW)], [math.log(R0 * RADIUS_WINDOW)]
+        if self.size_spread is None:
+            lo.append(0.0)
+            hi.append(SIZE_SPREAD_MAX)
+        if self.fit_fa:
+            lo.append(0.02)
+            hi.append(self.fa_max)
+        if self.temperature is None:
+            lo.append(1e3 / TEMPERATURE_RANGE[1])
+            hi.append(1e3 / TEMPERATURE_RANGE[0])
+        return np.array(lo), np.array(hi)
+
+    def refine(self, problem: _Problem, x0, R0: float, max_nfev: int):
+        """Least squares from ``x0`` within :meth:`bounds` of ``R0``."""
+        from scipy.optimize import least_squares
+        lo, hi = self.bounds(R0)
+        x0 = np.clip(x0, lo + 1e-9, hi - 1e-9)
+        return least_squares(lambda x: problem.residuals(self.unpack(x)), x0, bounds=(lo, hi), method="trf",
+                             diff_step=1e-3, x_scale="jac", max_nfev=max_nfev)
+
+
+def _check_fit_inputs(process, mode, shape, source_diameter_deg, temperature, area_fraction, size_spread,
+                      bootstrap, radius_range) -> tuple:
+    """The checked arguments of :func:`fit_photograph`: (process, mode, layer model, source diameter
+    [degree], :class:`_FitSpace`, bootstrap refits, (lowest, highest radius) [µm])."""
+    process = check_choice("process", process, FIT_PROCESSES)
+    mode = check_choice("mode", mode, FIT_MODES)
+    layer = layer_model(shape, process)
+    src_diam = check_range("source_diameter", source_diameter_deg, 0.0, 30.0, unit="degree")
+    if temperature is not None:
+        temperature = check_range("temperature", temperature, *TEMPERATURE_RANGE, unit="K")
+    fa_max = AREA_FRACTION_MAX[process]
+    if area_fraction is not None:
+        area_fraction = check_range("area_fraction", area_fraction, 0.0, fa_max, lo_open=True)
+    if size_spread is not None:
+        size_spread = check_range("size_spread", size_spread, 0.0, SIZE_SPREAD_MAX)
+    nboot = int(check_range("bootstrap", bootstrap, 0, 10000))
+    if nboot == 1:
+        raise CoronaError("bootstrap=1 is out of range; allowed 0 (covariance) or >= 2 refits")
+    try:
+        r_lo, r_hi = (float(v) for v in radius_range)
+    except (TypeError, ValueError):
+        raise CoronaError(f"radius_range={radius_range!r} is not two numbers (µm)") from None
+    if not (0 < r_lo < r_hi):
+        raise CoronaError(f"radius_range={radius_range!r} is out of range; expected 0 < low < high µm")
+    space = _FitSpace(size_spread=size_spread, temperature=temperature,
+                      fa0=area_fraction if area_fraction is not None else 0.3,
+                      fit_fa=area_fraction is None and process != "poisson", fa_max=fa_max)
+    return process, mode, layer, src_diam, space, nboot, (r_lo, r_hi)
+
+
+def _coarse_starts(problem: _Problem, layer, space: _FitSpace, radius_range, r_lo: float, r_hi: float,
+                   rho_edge: float) -> tuple:
+    """The coarse search, radius (2.5 % steps) × spread × temperature: the radii, spreads and
+    temperatures tried and up to three starts (indices into them) at the best local minima in radius
+    (``rho_edge``: the profile's last rho plus the source's radius and two bins)."""
+    profile = problem.profile
+    R_min = max(r_lo, 4.5 * 0.7 / (2 * np.pi * float(profile.rho[-1])))   # the first red ring in view
+    R_max = min(r_hi, 0.45 / (2 * 3 * profile.bin_width))                  # rings >= 3 pixels apart
+    if R_max <= R_min * 1.05:
+        raise CoronaError(f"radius_range={radius_range!r}: no radius there gives rings this image "
+                          f"resolves (about {R_min:.3g}–{R_max:.3g} µm for this field of view)")
+    radii = np.exp(np.arange(math.log(R_min), math.log(R_max), math.log(1.025)))
+    spreads = [space.size_spread] if space.size_spread is not None else [0.0, 0.08, 0.16]
+    temps = [space.temperature] if space.temperature is not None else [2700.0, 4000.0, 6500.0]
+    problem.set_wavelengths(64)
+    layer.set_u_max(_u_needed(R_max, rho_edge))
+    weights = {T: problem.spectrum.weights(T) for T in temps}
+    costs = np.full((len(radii), len(spreads), len(temps)), np.inf)
+    for j, sp in enumerate(spreads):
+        for i, R in enumerate(radii):
+            V = layer.lobe(profile.rho, problem.spectrum.wavelengths, R, sp, space.fa0)
+            for k, T in enumerate(temps):
+                costs[i, j, k] = problem.cost(weights[T] @ V)
+    best_per_R = costs.reshape(len(radii), -1).min(1)
+    order = sorted(_local_minima(best_per_R), key=lambda i: best_per_R[i])
+    starts = []
+    for i in order:
+        if best_per_R[i] > 4.0 * best_per_R[order[0]]:
+            break
+        if all(abs(math.log(radii[i] / radii[s[0]])) > 0.08 for s in starts):
+            j, k = np.unravel_index(int(np.argmin(costs[i])), costs[i].shape)
+            starts.append((i, j, k))
+        if len(starts) == 3:
+            break
+    return radii, spreads, temps, starts
+
+
+def _refine_best(problem: _Problem, layer, space: _FitSpace, coarse: tuple, rho_edge: float, nu: int) -> tuple:
+    """Least squares from each coarse start (:func:`_coarse_starts`), best first, until one explains
+    the data within its noise: the best solution and its start radius (``problem`` keeps its
+    wavelengths)."""
+    radii, spreads, temps, starts = coarse
+    rho_hi = float(problem.profile.rho[-1])
+    problem.exact = False
+    layer.set_u_max(_u_needed(max(radii[i] for i, _, _ in starts) * RADIUS_WINDOW, rho_edge))
+    best = None
+    for i, j, k in starts:
+        R0 = radii[i]
+        problem.set_wavelengths(_n_wavelengths(R0 * RADIUS_WINDOW, rho_hi))
+        sol = space.refine(problem, space.start(R0, spreads[j], temps[k]), R0, 60)
+        if best is None or sol.cost < best[0].cost:
+            best = (sol, problem.spectrum, R0)
+        if 2.0 * best[0].cost / nu < GOOD_FIT_CHI2:
+            break   # explains the data within its noise: no other branch can do much better
+    sol, problem.spectrum, R0 = best
+    return sol, R0
+
+
+def _uncertainties(problem: _Problem, space: _FitSpace, sol, R0: float, nu: int, nboot: int, seed: int) -> tuple:
+    """(reduced chi², 1σ error per fitted name, how they were found): the fit covariance, or the
+    spread of ``nboot`` refits to profiles resampled over the azimuthal sectors."""
+    profile = problem.profile
+    chi2 = 2.0 * sol.cost / nu
+    J = sol.jac
+    cov = np.linalg.pinv(J.T @ J) * max(1.0, chi2)
+    err = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    how = "covariance"
+    if nboot > 1:
+        rng = np.random.default_rng(seed)
+        S = profile.sector_sum.shape[0]
+        samples = []
+        for _ in range(nboot):
+            problem.set_data(profile.resampled(rng.integers(0, S, S)))
+            samples.append(space.refine(problem, sol.x, R0, 20).x)
+        problem.set_data(profile.value)
+        err = np.std(np.asarray(samples), axis=0, ddof=1)
+        how = f"bootstrap over {S} azimuthal sectors ({nboot} refits)"
+    return chi2, dict(zip(space.names, err)), how
+
+
+def _fit_result(problem: _Problem, space: _FitSpace, x: tuple, R0: float, fit: dict, **fields) -> FitResult:
+    """The :class:`FitResult` of the fitted ``x`` = (radius, spread, area fraction, temperature) with
+    ``fit`` = {"chi2", "errors", "how"} (:func:`_uncertainties`): errors in the parameters' units,
+    warnings, residual, model profile and ring radii; ``fields``: the rest of its fields."""
+    R, sp, fa, T = x
+    profile, errs, warnings = problem.profile, fit["errors"], []
+    R_err = R * errs["ln_radius"]
+    sp_err = errs.get("size_spread")
+    fa_err = errs.get("area_fraction")
+    T_err = errs["kilo_inverse_T"] * T * T / 1e3 if "kilo_inverse_T" in errs else None
+    fa_ok = space.fit_fa and fa_err is not None and fa_err < AREA_FRACTION_CONSTRAINED_ERR
+    if space.fit_fa and not fa_ok:
+        warnings.append(f"area_fraction is not constrained by this image (± {fa_err:.2g}); "
+                        "the aureole and first dark ring are saturated, masked or too faint")
+    if T_err is not None and T_err > 0.25 * T:
+        warnings.append(f"temperature is not constrained by this image (± {T_err:.0f} K); "
+                        "give --temperature if the light is known")
+    if abs(math.log(R / R0)) > math.log(RADIUS_WINDOW) - 1e-3:
+        warnings.append("the radius ran to the edge of its search window; check the field of view")
+
+    m = problem.shape_model(R, sp, fa, T)
+    a, b = problem.linear_solve(m)
+    model = problem.predict(m, a, b)
+    use = profile.usable
+    resid = float(np.sqrt(np.mean((profile.value - model)[use] ** 2) / np.mean(profile.value[use] ** 2)))
+    aureole, rings = _ring_radii(problem, (R, sp, fa, T), float(profile.rho[-1]))
+    red_ring = _measured_red_ring(profile, rings[0] if rings else None)
+    red_dia = 2 * red_ring if red_ring else None
+    rule = RED_RING_RULE * MOON_DIAMETER_DEG / red_dia if red_dia else None
+    fixed = [n for n, v in (("size_spread", space.size_spread), ("temperature", space.temperature))
+             if v is not None] + ([] if space.fit_fa else ["area_fraction"])
+    return FitResult(
+        radius=R, radius_err=float(R_err), size_spread=sp,
+        size_spread_err=None if sp_err is None else float(sp_err),
+        area_fraction=fa, area_fraction_err=None if fa_err is None else float(fa_err),
+        area_fraction_constrained=bool(fa_ok), temperature=T,
+        temperature_err=None if T_err is None else float(T_err),
+        residual=resid, chi2_reduced=float(fit["chi2"]), exposure=a, background=b.tolist(),
+        source_mask_deg=math.degrees(math.asin(min(profile.rho_mask, 1.0))), shape=problem.layer.name,
+        uncertainty=fit["how"], fixed=fixed, aureole_edge_deg=aureole, red_rings_deg=rings[:5],
+        red_ring_diameter_deg=red_dia, rule_of_thumb_diameter=rule, n_bins=int(profile.rho.size), seconds=0.0,
+        warnings=warnings, profile=profile, model_profile=model, **fields)
+
+
 def fit_photograph(image, fov_deg: float | None = None, *, deg_per_pixel: float | None = None,
                    temperature: float | None = None, area_fraction: float | None = None,
                    size_spread: float | None = None, process: str = "hard-disk",
@@ -1016,29 +1224,9 @@ def fit_photograph(image, fov_deg: float | None = None, *, deg_per_pixel: float 
         Radius [µm], size spread, area fraction, temperature [K] with 1σ errors,
         the residual, ring radii, the XML snippet (:meth:`FitResult.xml`) ...
     """
-    from scipy.optimize import least_squares
     t0 = time.perf_counter()
-    process = check_choice("process", process, FIT_PROCESSES)
-    mode = check_choice("mode", mode, FIT_MODES)
-    layer = layer_model(shape, process)
-    src_diam = check_range("source_diameter", source_diameter_deg, 0.0, 30.0, unit="degree")
-    if temperature is not None:
-        temperature = check_range("temperature", temperature, *TEMPERATURE_RANGE, unit="K")
-    fa_max = AREA_FRACTION_MAX[process]
-    if area_fraction is not None:
-        area_fraction = check_range("area_fraction", area_fraction, 0.0, fa_max, lo_open=True)
-    if size_spread is not None:
-        size_spread = check_range("size_spread", size_spread, 0.0, SIZE_SPREAD_MAX)
-    nboot = int(check_range("bootstrap", bootstrap, 0, 10000))
-    if nboot == 1:
-        raise CoronaError("bootstrap=1 is out of range; allowed 0 (covariance) or >= 2 refits")
-    try:
-        r_lo, r_hi = (float(v) for v in radius_range)
-    except (TypeError, ValueError):
-        raise CoronaError(f"radius_range={radius_range!r} is not two numbers (µm)") from None
-    if not (0 < r_lo < r_hi):
-        raise CoronaError(f"radius_range={radius_range!r} is out of range; expected 0 < low < high µm")
-
+    process, mode, layer, src_diam, space, nboot, (r_lo, r_hi) = _check_fit_inputs(
+        process, mode, shape, source_diameter_deg, temperature, area_fraction, size_spread, bootstrap, radius_range)
     photo = read_photograph(image, saturation=saturation)
     h, w = photo.shape
     camera = PinholeCamera.from_field_of_view(w, h, fov_deg, deg_per_pixel)
@@ -1046,150 +1234,16 @@ def fit_photograph(image, fov_deg: float | None = None, *, deg_per_pixel: float 
     src_r = math.sin(math.radians(0.5 * src_diam))
     profile = azimuthal_profile(photo, camera, source, src_r)
     problem = _Problem(profile, layer, photo.linear.shape[2], photo.encoding, src_r, background)
-    rho_hi = float(profile.rho[-1])
-    warnings = []
+    rho_edge = float(profile.rho[-1]) + src_r + 2 * profile.bin_width
 
-    fit_fa = area_fraction is None and process != "poisson"
-    fa0 = area_fraction if area_fraction is not None else 0.3
-    fixed = [n for n, v in (("size_spread", size_spread), ("temperature", temperature)) if v is not None]
-    if not fit_fa:
-        fixed.append("area_fraction")
-
-    # --- coarse search: radius (2.5 % steps) × spread × temperature ------------
-    R_min = max(r_lo, 4.5 * 0.7 / (2 * np.pi * rho_hi))           # the first red ring in view
-    R_max = min(r_hi, 0.45 / (2 * 3 * profile.bin_width))          # rings >= 3 pixels apart
-    if R_max <= R_min * 1.05:
-        raise CoronaError(f"radius_range={radius_range!r}: no radius there gives rings this image "
-                          f"resolves (about {R_min:.3g}–{R_max:.3g} µm for this field of view)")
-    radii = np.exp(np.arange(math.log(R_min), math.log(R_max), math.log(1.025)))
-    spreads = [size_spread] if size_spread is not None else [0.0, 0.08, 0.16]
-    temps = [temperature] if temperature is not None else [2700.0, 4000.0, 6500.0]
-    problem.set_wavelengths(64)
-    layer.set_u_max(_u_needed(R_max, rho_hi + src_r + 2 * profile.bin_width))
-    weights = {T: problem.spectrum.weights(T) for T in temps}
-    costs = np.full((len(radii), len(spreads), len(temps)), np.inf)
-    for j, sp in enumerate(spreads):
-        for i, R in enumerate(radii):
-            V = layer.lobe(profile.rho, problem.spectrum.wavelengths, R, sp, fa0)
-            for k, T in enumerate(temps):
-                costs[i, j, k] = problem.cost(weights[T] @ V)
-    best_per_R = costs.reshape(len(radii), -1).min(1)
-    order = sorted(_local_minima(best_per_R), key=lambda i: best_per_R[i])
-    starts = []
-    for i in order:
-        if best_per_R[i] > 4.0 * best_per_R[order[0]]:
-            break
-        if all(abs(math.log(radii[i] / radii[s[0]])) > 0.08 for s in starts):
-            j, k = np.unravel_index(int(np.argmin(costs[i])), costs[i].shape)
-            starts.append((i, j, k))
-        if len(starts) == 3:
-            break
-
-    # --- refinement: least squares from the best starts ------------------------
-    names = ["ln_radius"] + (["size_spread"] if size_spread is None else []) \
-        + (["area_fraction"] if fit_fa else []) + (["kilo_inverse_T"] if temperature is None else [])
-    WINDOW = 1.3    # the radius moves at most this factor from its start
-
-    def unpack(x):
-        it = iter(x)
-        R = math.exp(next(it))
-        sp = next(it) if size_spread is None else size_spread
-        fa = next(it) if fit_fa else fa0
-        T = 1e3 / next(it) if temperature is None else temperature
-        return R, sp, fa, T
-
-    def bounds(R0):
-        lo, hi = [math.log(R0 / WINDOW)], [math.log(R0 * WINDOW)]
-        if size_spread is None:
-            lo.append(0.0)
-            hi.append(SIZE_SPREAD_MAX)
-        if fit_fa:
-            lo.append(0.02)
-            hi.append(fa_max)
-        if temperature is None:
-            lo.append(1e3 / TEMPERATURE_RANGE[1])
-            hi.append(1e3 / TEMPERATURE_RANGE[0])
-        return np.array(lo), np.array(hi)
-
-    def refine(x0, R0, max_nfev):
-        lo, hi = bounds(R0)
-        x0 = np.clip(x0, lo + 1e-9, hi - 1e-9)
-        return least_squares(lambda x: problem.residuals(unpack(x)), x0, bounds=(lo, hi), method="trf",
-                             diff_step=1e-3, x_scale="jac", max_nfev=max_nfev)
-
-    nu = max(1, int(problem.w.astype(bool).sum()) - len(names) - (1 + problem.channels * background))
-    problem.exact = False
-    layer.set_u_max(_u_needed(max(radii[i] for i, _, _ in starts) * WINDOW,
-                              rho_hi + src_r + 2 * profile.bin_width))
-    best = None
-    for i, j, k in starts:
-        R0 = radii[i]
-        problem.set_wavelengths(_n_wavelengths(R0 * WINDOW, rho_hi))
-        x0 = [math.log(R0)] + ([spreads[j]] if size_spread is None else []) + ([fa0] if fit_fa else []) \
-            + ([1e3 / temps[k]] if temperature is None else [])
-        sol = refine(x0, R0, 60)
-        if best is None or sol.cost < best[0].cost:
-            best = (sol, problem.spectrum, R0)
-        if 2.0 * best[0].cost / nu < GOOD_FIT_CHI2:
-            break   # explains the data within its noise: no other branch can do much better
-    sol, problem.spectrum, R0 = best
-    R, sp, fa, T = unpack(sol.x)
-
-    # --- uncertainties ------------------------------------------------------------
-    chi2 = 2.0 * sol.cost / nu
-    J = sol.jac
-    cov = np.linalg.pinv(J.T @ J) * max(1.0, chi2)
-    err = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    how = "covariance"
-    if nboot > 1:
-        rng = np.random.default_rng(seed)
-        S = profile.sector_sum.shape[0]
-        samples = []
-        for _ in range(nboot):
-            problem.set_data(profile.resampled(rng.integers(0, S, S)))
-            samples.append(refine(sol.x, R0, 20).x)
-        problem.set_data(profile.value)
-        err = np.std(np.asarray(samples), axis=0, ddof=1)
-        how = f"bootstrap over {S} azimuthal sectors ({nboot} refits)"
-    errs = dict(zip(names, err))
-    R_err = R * errs["ln_radius"]
-    sp_err = errs.get("size_spread")
-    fa_err = errs.get("area_fraction")
-    T_err = errs["kilo_inverse_T"] * T * T / 1e3 if "kilo_inverse_T" in errs else None
-    fa_ok = fit_fa and fa_err is not None and fa_err < AREA_FRACTION_CONSTRAINED_ERR
-    if fit_fa and not fa_ok:
-        warnings.append(f"area_fraction is not constrained by this image (± {fa_err:.2g}); "
-                        "the aureole and first dark ring are saturated, masked or too faint")
-    if T_err is not None and T_err > 0.25 * T:
-        warnings.append(f"temperature is not constrained by this image (± {T_err:.0f} K); "
-                        "give --temperature if the light is known")
-    if abs(math.log(R / R0)) > math.log(WINDOW) - 1e-3:
-        warnings.append("the radius ran to the edge of its search window; check the field of view")
-
-    m = problem.shape_model(R, sp, fa, T)
-    a, b = problem.linear_solve(m)
-    model = problem.predict(m, a, b)
-    use = profile.usable
-    resid = float(np.sqrt(np.mean((profile.value - model)[use] ** 2) / np.mean(profile.value[use] ** 2)))
-    aureole, rings = _ring_radii(problem, (R, sp, fa, T), rho_hi)
-    red_ring = _measured_red_ring(profile, rings[0] if rings else None)
-    red_dia = 2 * red_ring if red_ring else None
-    rule = RED_RING_RULE * MOON_DIAMETER_DEG / red_dia if red_dia else None
-
-    result = FitResult(
-        radius=R, radius_err=float(R_err), size_spread=sp,
-        size_spread_err=None if sp_err is None else float(sp_err),
-        area_fraction=fa, area_fraction_err=None if fa_err is None else float(fa_err),
-        area_fraction_constrained=bool(fa_ok), temperature=T,
-        temperature_err=None if T_err is None else float(T_err),
-        residual=resid, chi2_reduced=float(chi2), exposure=a, background=b.tolist(),
-        source_xy=(source.x, source.y),
-        source_mask_deg=math.degrees(math.asin(min(profile.rho_mask, 1.0))),
-        fov_deg=camera.fov_deg, deg_per_pixel=camera.deg_per_pixel, shape=layer.name,
-        process=process, mode=mode, source_diameter_deg=src_diam, uncertainty=how, fixed=fixed,
-        aureole_edge_deg=aureole, red_rings_deg=rings[:5], red_ring_diameter_deg=red_dia,
-        rule_of_thumb_diameter=rule, n_bins=int(profile.rho.size), seconds=0.0, warnings=warnings,
-        profile=profile, model_profile=model, photo=photo, camera=camera)
+    coarse = _coarse_starts(problem, layer, space, radius_range, r_lo, r_hi, rho_edge)
+    nu = max(1, int(problem.w.astype(bool).sum()) - len(space.names) - (1 + problem.channels * background))
+    sol, R0 = _refine_best(problem, layer, space, coarse, rho_edge, nu)
+    chi2, errors, how = _uncertainties(problem, space, sol, R0, nu, nboot, seed)
+    result = _fit_result(problem, space, space.unpack(sol.x), R0, {"chi2": chi2, "errors": errors, "how": how},
+                         source_xy=(source.x, source.y), fov_deg=camera.fov_deg,
+                         deg_per_pixel=camera.deg_per_pixel, process=process, mode=mode,
+                         source_diameter_deg=src_diam, photo=photo, camera=camera)
     if diagnostic:
         result.diagnostic, result.diagnostic_note = write_diagnostic(result, diagnostic)
     result.seconds = time.perf_counter() - t0

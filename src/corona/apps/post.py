@@ -566,6 +566,65 @@ def _anisotropic_kernel(m, response, ly, lx, ny, nx, step):
 # ----------------------------------------------------------------------
 # the pass
 # ----------------------------------------------------------------------
+def _checked_image(image) -> tuple:
+    """``image`` as a float (H, W, C) array with C in {1, 3}, and its peak |value|; a CoronaError
+    for any other shape or dtype, a non-finite value or a peak above IMAGE_MAX."""
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3 or img.shape[2] not in (1, 3) or img.shape[0] < 1 or img.shape[1] < 1:
+        raise CoronaError(f"image of shape {np.shape(image)} is out of range; allowed (H, W), (H, W, 1) "
+                          "or (H, W, 3)")
+    if not np.issubdtype(img.dtype, np.floating):
+        raise CoronaError(f"image of dtype {img.dtype} is not linear HDR; allowed float arrays of linear "
+                          "radiance (linearise 8-bit sRGB first)")
+    bad = int(np.count_nonzero(~np.isfinite(img)))
+    if bad:
+        raise CoronaError(f"image has {bad} non-finite value(s) (NaN or inf); allowed finite values")
+    peak = float(np.max(np.abs(img))) if img.size else 0.0
+    if peak > IMAGE_MAX:
+        raise CoronaError(f"image has values up to {peak:.3g}; allowed |values| <= {IMAGE_MAX:g} "
+                          "(the output is float32)")
+    return img, peak
+
+
+def _kernel_spectra(m, response, grid, shape: tuple, C: int, what: str, workers: int) -> list:
+    """The DFT of the lobe kernel of each of the ``C`` channels on the padded ``shape`` = (ly, lx)
+    grid: of the even radial quadrant (isotropic lobes) or of the whole kernel; a CoronaError if an
+    anisotropic kernel for ``what`` (the image) would take too many lobe evaluations."""
+    import scipy.fft
+    ly, lx = shape
+    if m.isotropic:
+        q = _radial_quadrant(m, response, ly // 2 + 1, lx // 2 + 1, grid.ny, grid.nx, grid.step)
+        spectra = []
+        for c in range(C):
+            k = scipy.fft.dctn(q[c], type=1, workers=workers)          # the even kernel's DFT
+            spectra.append(np.concatenate([k, k[-2:0:-1]], axis=0))    # rows 0..ly-1
+        return spectra
+    cost, _ = anisotropic_cost(m, response, grid.nx, grid.ny, grid.step)
+    if cost > ANISOTROPIC_EVALUATIONS_MAX:
+        raise CoronaError(f"an anisotropic lobe on {what} needs {cost:.3g} lobe "
+                          f"evaluations; allowed at most {ANISOTROPIC_EVALUATIONS_MAX:.3g} (about a minute): "
+                          "downsample the image or narrow the field of view")
+    full = _anisotropic_kernel(m, response, ly, lx, grid.ny, grid.nx, grid.step)
+    return [scipy.fft.rfft2(full[c], workers=workers) for c in range(C)]
+
+
+def _convolved(g, spectra: list, grid, shape: tuple, workers: int, bar) -> np.ndarray:
+    """Each channel of the splatted image ``g`` (ny, nx, C) convolved with its kernel (``spectra``,
+    zero-padded to ``shape``), one progress step a channel."""
+    import scipy.fft
+    ly, lx = shape
+    conv = np.empty((grid.ny, grid.nx, g.shape[2]), dtype=np.float32)
+    for c in range(g.shape[2]):
+        f = scipy.fft.rfft2(g[..., c], s=(ly, lx), workers=workers)
+        f *= spectra[c]
+        conv[..., c] = scipy.fft.irfft2(f, s=(ly, lx), workers=workers)[:grid.ny, :grid.nx]
+        del f
+        bar.update(1)
+    return conv
+
+
 def apply(image, fov: float, material=None, *, colorspace: str = "srgb", response=None,
           workers: int | None = None, progress: bool = True, **params) -> np.ndarray:
     """The image seen through a uniform layer at the camera (see the module docstring).
@@ -596,26 +655,10 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
     ndarray, float32, the shape of ``image``:
         ``T_c · image + (lobe ⊛ image)`` in the direction-cosine plane.
     """
-    import scipy.fft
     from corona._validation import check_range
     m = layer(material, **params)
     fov = check_range("fov", fov, 0.0, FOV_MAX, lo_open=True, unit="degree")
-    img = np.asarray(image)
-    if img.ndim == 2:
-        img = img[..., None]
-    if img.ndim != 3 or img.shape[2] not in (1, 3) or img.shape[0] < 1 or img.shape[1] < 1:
-        raise CoronaError(f"image of shape {np.shape(image)} is out of range; allowed (H, W), (H, W, 1) "
-                          "or (H, W, 3)")
-    if not np.issubdtype(img.dtype, np.floating):
-        raise CoronaError(f"image of dtype {img.dtype} is not linear HDR; allowed float arrays of linear "
-                          "radiance (linearise 8-bit sRGB first)")
-    bad = int(np.count_nonzero(~np.isfinite(img)))
-    if bad:
-        raise CoronaError(f"image has {bad} non-finite value(s) (NaN or inf); allowed finite values")
-    peak = float(np.max(np.abs(img))) if img.size else 0.0
-    if peak > IMAGE_MAX:
-        raise CoronaError(f"image has values up to {peak:.3g}; allowed |values| <= {IMAGE_MAX:g} "
-                          "(the output is float32)")
+    img, peak = _checked_image(image)
     if workers is None:
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     # the pass runs on the image scaled by a power of two to a peak in (1/2, 1] (exact: only
@@ -638,31 +681,12 @@ def apply(image, fov: float, material=None, *, colorspace: str = "srgb", respons
         if response is None:
             response = (WAVELENGTHS, channel_responses(colorspace, C))
         response = _check_response(response, C)
-        if m.isotropic:
-            q = _radial_quadrant(m, response, ly // 2 + 1, lx // 2 + 1, grid.ny, grid.nx, grid.step)
-            spectra = []
-            for c in range(C):
-                k = scipy.fft.dctn(q[c], type=1, workers=workers)          # the even kernel's DFT
-                spectra.append(np.concatenate([k, k[-2:0:-1]], axis=0))    # rows 0..ly-1
-        else:
-            cost, _ = anisotropic_cost(m, response, grid.nx, grid.ny, grid.step)
-            if cost > ANISOTROPIC_EVALUATIONS_MAX:
-                raise CoronaError(f"an anisotropic lobe on a {W}x{H} image at fov={fov:g} needs {cost:.3g} lobe "
-                                  f"evaluations; allowed at most {ANISOTROPIC_EVALUATIONS_MAX:.3g} (about a minute): "
-                                  "downsample the image or narrow the field of view")
-            full = _anisotropic_kernel(m, response, ly, lx, grid.ny, grid.nx, grid.step)
-            spectra = [scipy.fft.rfft2(full[c], workers=workers) for c in range(C)]
+        spectra = _kernel_spectra(m, response, grid, (ly, lx), C, f"a {W}x{H} image at fov={fov:g}", workers)
         bar.update(1)
         tc = np.float32(m.coherent_transmittance)
         g = grid.splat(src)                                                # (ny, nx, C)
         bar.update(1)
-        conv = np.empty((grid.ny, grid.nx, C), dtype=np.float32)
-        for c in range(C):
-            f = scipy.fft.rfft2(g[..., c], s=(ly, lx), workers=workers)
-            f *= spectra[c]
-            conv[..., c] = scipy.fft.irfft2(f, s=(ly, lx), workers=workers)[:grid.ny, :grid.nx]
-            del f
-            bar.update(1)
+        conv = _convolved(g, spectra, grid, (ly, lx), workers, bar)
         del g
         out = grid.gather(conv)
         if k_sub > 1:

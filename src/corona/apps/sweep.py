@@ -286,23 +286,10 @@ def _shared_exposure(entries, files, exposures, thumbs) -> float | None:
     return shared
 
 
-def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: int | None = None,
-              seed: int = 0, variant: str | None = None, exposure: float | None = None,
-              force: bool = False, progress: bool = True, log=None) -> dict:
-    """Render ``scene`` at every point of ``grid`` into ``out_dir``; returns the index.
-
-    For each point ``NAME.exr`` (linear sRGB) and ``NAME.png`` (8-bit sRGB by
-    :func:`corona.apps.pictures.display_srgb` at one exposure for every point: ``exposure``,
-    or the brightest point's automatic one, so that brighter points look brighter), ``NAME``
-    from :func:`point_name`; then ``STEM_sheet.png`` (every point, labelled)
-    and ``STEM_index.json`` (every point: parameters, files, status
-    ``rendered`` / ``existing`` / ``failed`` with the error, seconds, spp,
-    variant, host).  Points whose EXR and PNG exist are skipped unless
-    ``force``.  All input is checked before any render starts.
-    """
-    from corona.apps.pictures import display_exposure, display_srgb
-    from corona.apps.render import write_images
-    log = log or (lambda s: None)
+def _sweep_plan(scene: str, grid: dict, out_dir: str) -> tuple:
+    """The checked sweep: (its points, the scene's stem, each point's file name); a CoronaError for
+    a missing or empty scene, a parameter the scene does not take, two points sharing a name, or an
+    output folder that cannot be written."""
     if not os.path.isfile(scene):
         raise CoronaError(f"scene file {scene!r} does not exist")
     if os.path.getsize(scene) == 0:
@@ -320,6 +307,45 @@ def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: 
         raise CoronaError(f"two points would share the file name {clash[0]!r} (values that differ only "
                           "in characters other than letters, digits, '.', '+', '-')")
     check_out_dir(out_dir)
+    return points, stem, names
+
+
+def _sheet_images(entries: list, files: list, thumbs: dict) -> list:
+    """The contact sheet's cells: each point's thumbnail (rendered now, or read from its PNG), None
+    (a grey cell) for a failed point or an unreadable old file."""
+    import imageio.v3 as iio
+    images = []
+    for i, e in enumerate(entries):
+        if e["status"] == "failed":
+            images.append(None)
+        elif i in thumbs:
+            images.append(thumbs[i])
+        else:
+            try:
+                images.append(_thumbnail(np.asarray(iio.imread(files[i]["png"]))[..., :3]))
+            except Exception:  # noqa: BLE001  (an unreadable old file: a grey cell)
+                images.append(None)
+    return images
+
+
+def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: int | None = None,
+              seed: int = 0, variant: str | None = None, exposure: float | None = None,
+              force: bool = False, progress: bool = True, log=None) -> dict:
+    """Render ``scene`` at every point of ``grid`` into ``out_dir``; returns the index.
+
+    For each point ``NAME.exr`` (linear sRGB) and ``NAME.png`` (8-bit sRGB by
+    :func:`corona.apps.pictures.display_srgb` at one exposure for every point: ``exposure``,
+    or the brightest point's automatic one, so that brighter points look brighter), ``NAME``
+    from :func:`point_name`; then ``STEM_sheet.png`` (every point, labelled)
+    and ``STEM_index.json`` (every point: parameters, files, status
+    ``rendered`` / ``existing`` / ``failed`` with the error, seconds, spp,
+    variant, host).  Points whose EXR and PNG exist are skipped unless
+    ``force``.  All input is checked before any render starts.
+    """
+    from corona.apps.pictures import display_exposure, display_srgb
+    from corona.apps.render import write_images
+    log = log or (lambda s: None)
+    points, stem, names = _sweep_plan(scene, grid, out_dir)
     files = [{"exr": os.path.join(out_dir, n + ".exr"), "png": os.path.join(out_dir, n + ".png")}
              for n in names]
     entries = [{"name": n, "parameters": p, "exr": os.path.basename(f["exr"]),
@@ -358,18 +384,7 @@ def run_sweep(scene: str, grid: dict, out_dir: str, *, executor: Executor, spp: 
     if exposure is None:      # one exposure for the sweep: every PNG again from its EXR
         used = _shared_exposure(entries, files, exposures, thumbs)
     # contact sheet: every point whose PNG exists (rendered now or before)
-    import imageio.v3 as iio
-    images = []
-    for i, e in enumerate(entries):
-        if e["status"] == "failed":
-            images.append(None)
-        elif i in thumbs:
-            images.append(thumbs[i])
-        else:
-            try:
-                images.append(_thumbnail(np.asarray(iio.imread(files[i]["png"]))[..., :3]))
-            except Exception:  # noqa: BLE001  (an unreadable old file: a grey cell)
-                images.append(None)
+    images = _sheet_images(entries, files, thumbs)
     swept = [k for k, v in grid.items() if len(v) > 1] or list(grid)   # fixed ones: in the index
     labels = [point_label({k: p[k] for k in swept}) + (" (failed)" if e["status"] == "failed" else "")
               for p, e in zip(points, entries)]

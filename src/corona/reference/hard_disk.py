@@ -664,6 +664,68 @@ def _contact_fit(r, g, Z):
     return float(np.exp(coef[-1]))
 
 
+def _run_chains(args: list, jobs: int, total: int, desc: str, progress: bool) -> list:
+    """:func:`_run_chain` for each of ``args``, in ``jobs`` processes, with one progress bar of
+    ``total`` sweeps."""
+    from tqdm.auto import tqdm
+    bar = tqdm(total=total, unit="sweep", disable=not progress, desc=desc)
+    try:
+        if jobs == 1:
+            return [_run_chain(*a, progress_cb=bar.update) for a in args]
+        import concurrent.futures as cf
+        import multiprocessing as mp
+        import sys
+        ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
+        with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as ex:
+            futs = [ex.submit(_chain_worker, a) for a in args]
+            for f in cf.as_completed(futs):
+                bar.update(total // len(args))
+            return [f.result() for f in futs]
+    finally:
+        bar.close()
+
+
+def _pooled_structure_factor(runs: list, n_blocks: int) -> tuple:
+    """S(k) of the chains pooled, in the bins with wave vectors: (bins kept, S, its standard error,
+    the block means)."""
+    ok = runs[0]["cnt"] > 0
+    S_blocks = np.concatenate([_blocks(r["S_snap"][:, ok], n_blocks) for r in runs])
+    S = np.concatenate([r["S_snap"][:, ok] for r in runs]).mean(axis=0)
+    nbk = S_blocks.shape[0]
+    S_err = S_blocks.std(axis=0, ddof=1) / math.sqrt(nbk) if nbk > 1 else np.full_like(S, np.nan)
+    return ok, S, S_err, S_blocks
+
+
+def _pooled_pair_correlation(runs: list, n_disks: int, dr: float, n_blocks: int) -> tuple:
+    """g(r) of the chains pooled: (bin centres [σ], g, its standard error, the block means)."""
+    L = runs[0]["L"]
+    n_r = runs[0]["hist"].shape[1]
+    edges = np.arange(n_r + 1) * dr
+    rho = n_disks / L**2
+    norm = 0.5 * n_disks * rho * math.pi * (edges[1:] ** 2 - edges[:-1] ** 2)
+    g_blocks = np.concatenate([_blocks(r["hist"].astype(float), n_blocks) for r in runs]) / norm
+    g = np.concatenate([r["hist"] for r in runs]).mean(axis=0) / norm
+    g_err = g_blocks.std(axis=0, ddof=1) / math.sqrt(g_blocks.shape[0]) if g_blocks.shape[0] > 1 \
+        else np.full_like(g, np.nan)
+    return 0.5 * (edges[1:] + edges[:-1]), g, g_err, g_blocks
+
+
+def _pooled_pressure(runs: list, n_blocks: int, r_c, g, g_blocks) -> tuple:
+    """(Z, its standard error, the contact value g(σ⁺) of g(r), its standard error) of the chains
+    pooled: Z from the event chains' lifts, g(σ⁺) by :func:`_contact_fit` of g and of each block."""
+    lift = np.concatenate([r["lift"] for r in runs])
+    length = np.concatenate([r["length"] for r in runs])
+    Z = 1.0 + lift.sum() / length.sum()
+    Zb = np.concatenate([1.0 + _blocks(r["lift"], n_blocks) / _blocks(r["length"], n_blocks)
+                         for r in runs])
+    Z_err = Zb.std(ddof=1) / math.sqrt(len(Zb)) if len(Zb) > 1 else float("nan")
+    gc = _contact_fit(r_c, g, Z)
+    gcb = np.array([_contact_fit(r_c, gb, Z) for gb in g_blocks])
+    gc_err = float(np.nanstd(gcb, ddof=1) / math.sqrt(np.isfinite(gcb).sum())) if len(gcb) > 1 \
+        else float("nan")
+    return Z, Z_err, gc, gc_err
+
+
 def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, progress=True, *,
                         n_equilibration=None, sample_every=100, n_chains=1, jobs=1,
                         q_sigma_max=42.0, bin_width=0.05, r_max=5.0, dr=0.005,
@@ -732,58 +794,17 @@ def simulate_hard_disks(packing_fraction, n_disks=2000, n_sweeps=40000, seed=0, 
              r_max, dr, n_blocks, n_keep, start) for sd in seeds]
     t0 = time.perf_counter()
     total = n_chains * (n_equilibration + max(1, n_sweeps // sample_every) * sample_every)
-    from tqdm.auto import tqdm
-    bar = tqdm(total=total, unit="sweep", disable=not progress,
-               desc=f"hard disks η={eta:.3g} N={n_disks}")
-    try:
-        if jobs == 1:
-            runs = [_run_chain(*a, progress_cb=bar.update) for a in args]
-        else:
-            import concurrent.futures as cf
-            import multiprocessing as mp
-            import sys
-            ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
-            with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as ex:
-                futs = [ex.submit(_chain_worker, a) for a in args]
-                for f in cf.as_completed(futs):
-                    bar.update(total // n_chains)
-                runs = [f.result() for f in futs]
-    finally:
-        bar.close()
+    runs = _run_chains(args, jobs, total, f"hard disks η={eta:.3g} N={n_disks}", progress)
     wall = time.perf_counter() - t0
-    L = runs[0]["L"]
-    cnt = runs[0]["cnt"]
-    ok = cnt > 0
-    # blocks per chain, pooled
-    S_blocks = np.concatenate([_blocks(r["S_snap"][:, ok], n_blocks) for r in runs])
-    S = np.concatenate([r["S_snap"][:, ok] for r in runs]).mean(axis=0)
-    nbk = S_blocks.shape[0]
-    S_err = S_blocks.std(axis=0, ddof=1) / math.sqrt(nbk) if nbk > 1 else np.full_like(S, np.nan)
-    n_r = runs[0]["hist"].shape[1]
-    edges = np.arange(n_r + 1) * dr
-    rho = n_disks / L**2
-    norm = 0.5 * n_disks * rho * math.pi * (edges[1:] ** 2 - edges[:-1] ** 2)
-    g_blocks = np.concatenate([_blocks(r["hist"].astype(float), n_blocks) for r in runs]) / norm
-    g = np.concatenate([r["hist"] for r in runs]).mean(axis=0) / norm
-    g_err = g_blocks.std(axis=0, ddof=1) / math.sqrt(g_blocks.shape[0]) if g_blocks.shape[0] > 1 \
-        else np.full_like(g, np.nan)
-    r_c = 0.5 * (edges[1:] + edges[:-1])
-    lift = np.concatenate([r["lift"] for r in runs])
-    length = np.concatenate([r["length"] for r in runs])
-    Z = 1.0 + lift.sum() / length.sum()
-    Zb = np.concatenate([1.0 + _blocks(r["lift"], n_blocks) / _blocks(r["length"], n_blocks)
-                         for r in runs])
-    Z_err = Zb.std(ddof=1) / math.sqrt(len(Zb)) if len(Zb) > 1 else float("nan")
-    gc = _contact_fit(r_c, g, Z)
-    gcb = np.array([_contact_fit(r_c, gb, Z) for gb in g_blocks])
-    gc_err = float(np.nanstd(gcb, ddof=1) / math.sqrt(np.isfinite(gcb).sum())) if len(gcb) > 1 \
-        else float("nan")
+    ok, S, S_err, S_blocks = _pooled_structure_factor(runs, n_blocks)
+    r_c, g, g_err, g_blocks = _pooled_pair_correlation(runs, n_disks, dr, n_blocks)
+    Z, Z_err, gc, gc_err = _pooled_pressure(runs, n_blocks, r_c, g, g_blocks)
     snaps = [s for r in runs for s in r["snapshots"]]
     return HardDiskSimulation(
-        packing_fraction=eta, n_disks=n_disks, box_length=L, seed=int(seed), n_sweeps=n_sweeps,
+        packing_fraction=eta, n_disks=n_disks, box_length=runs[0]["L"], seed=int(seed), n_sweeps=n_sweeps,
         n_equilibration=n_equilibration, sample_every=sample_every, n_chains=n_chains,
         n_snapshots=sum(r["n_snap"] for r in runs),
-        q_sigma=runs[0]["qmean"][ok], S=S, S_err=S_err, n_vectors=cnt[ok].astype(int),
+        q_sigma=runs[0]["qmean"][ok], S=S, S_err=S_err, n_vectors=runs[0]["cnt"][ok].astype(int),
         bin_width=bin_width, r_sigma=r_c, g=g, g_err=g_err,
         contact_value=gc, contact_value_err=gc_err,
         compressibility_factor=float(Z), compressibility_factor_err=float(Z_err),
@@ -1108,6 +1129,110 @@ def _peak_warp(q_peak, stretch=(4.0, 1.0), width=(0.6, 1.0)):
     return t
 
 
+def _row_data(q, S, S_err) -> tuple:
+    """Binned data sorted by q, the errors completed (non-finite or non-positive ones: the median
+    relative error) and floored at 0.2 % of S."""
+    q = np.asarray(q, float)
+    S = np.asarray(S, float)
+    e = np.asarray(S_err, float)
+    o = np.argsort(q)
+    q, S, e = q[o], S[o], e[o]
+    med = np.nanmedian(e / S)
+    e = np.where(np.isfinite(e) & (e > 0), e, med * S)
+    return q, S, np.maximum(e, 0.002 * S)
+
+
+def _mirrored_residual(q, r, e, eta, base_g) -> tuple:
+    """The residual ``r`` mirrored to negative q with Henderson's S(0) added below ETA_PRIOR_MAX:
+    (x, y, weights 1/err², the prior S(0) or None)."""
+    xs, ys, es = [-q[::-1], q], [r[::-1], r], [e[::-1], e]
+    S0_prior = None
+    if eta <= ETA_PRIOR_MAX + 1e-9:
+        S0_prior = float(henderson_structure_factor_zero(eta))
+        xs.insert(1, np.array([0.0]))
+        ys.insert(1, np.array([S0_prior - base_g[0]]))
+        es.insert(1, np.array([PRIOR_REL_ERR * S0_prior]))
+    return np.concatenate(xs), np.concatenate(ys), 1.0 / np.concatenate(es) ** 2, S0_prior
+
+
+def _near_residual(q, r, x, y, w, eta, q_peak) -> tuple:
+    """The smoothed residual on (the table's grid, the data's q) up to the far band."""
+    from scipy.interpolate import make_smoothing_spline
+    qg = TABLE_Q_SIGMA
+    if eta >= ETA_ORDERED - 1e-9:
+        # Bragg-like spikes of the (partly) ordered finite system: a few box
+        # wave vectors carry most of a peak, with huge errors that would make
+        # a weighted fit ignore them.  Near band: an area-conserving Gaussian
+        # kernel average (uniform weights) of the residual instead.
+        xm = np.concatenate([-q[::-1], q])
+        rm = np.concatenate([r[::-1], r])
+
+        def nw(at):
+            K = np.exp(-0.5 * ((at[:, None] - xm[None, :]) / ORDERED_KERNEL) ** 2)
+            return (K @ rm) / K.sum(axis=1)
+
+        return nw(qg), nw(q)
+    # smoothing spline in a warped coordinate t(q) that stretches the
+    # first two peaks: one smoothing parameter (GCV), but effectively much
+    # weaker smoothing where S changes fast and stronger elsewhere
+    sharp = min(1.0, max(0.0, (eta - 0.2) / 0.4))      # peaks sharpen with η
+    a, b = PEAK_STRETCH_DENSE if eta >= ETA_DENSE - 1e-9 else PEAK_STRETCH
+    warp = _peak_warp(q_peak, stretch=(a * sharp, b * sharp))
+    spl = make_smoothing_spline(warp(x), y, w=w)
+    return spl(warp(qg)), spl(warp(q))
+
+
+def _far_blend(q, r, e, x, y, w, q_peak):
+    """The blend of a residual with a separate, smoother spline beyond the second peak (over
+    [F_BLEND0, F_BLEND1] q_peak): a function (q, residual) -> blended residual."""
+    far = x >= F_DATA * q_peak
+    # noise scale of the far band from differences of neighbouring bins (the
+    # blocking errors are themselves uncertain by ~15 %)
+    rf, ef = r[q >= F_DATA * q_peak], e[q >= F_DATA * q_peak]
+    scale = max(1.0, float(np.std(np.diff(rf) / np.sqrt(ef[1:] ** 2 + ef[:-1] ** 2))))
+    spl_far = _discrepancy_spline(x[far], y[far], w[far] / scale**2)
+
+    def blend_far(qq, res):
+        t = np.clip((qq - F_BLEND0 * q_peak) / ((F_BLEND1 - F_BLEND0) * q_peak), 0.0, 1.0)
+        t = t * t * (3.0 - 2.0 * t)
+        return (1.0 - t) * res + t * spl_far(np.maximum(qq, F_DATA * q_peak))
+
+    return blend_far
+
+
+def _low_q_blend(x, y, w, q_peak):
+    """The blend of a residual with a weighted even polynomial ``a + b q² + c q⁴`` of the data below
+    0.4 q_peak: a function (q, residual) -> blended residual."""
+    q_lo = 0.4 * q_peak
+    sel = (x >= 0.0) & (x <= q_lo)
+    M = np.stack([np.ones(sel.sum()), x[sel] ** 2, x[sel] ** 4], 1) * np.sqrt(w[sel])[:, None]
+    coef = np.linalg.lstsq(M, y[sel] * np.sqrt(w[sel]), rcond=None)[0]
+
+    def blend(qq, res):
+        t = np.clip((qq - 0.6 * q_lo) / (0.4 * q_lo), 0.0, 1.0)
+        t = t * t * (3.0 - 2.0 * t)
+        poly = coef[0] + coef[1] * qq**2 + coef[2] * qq**4
+        return (1.0 - t) * poly + t * res
+
+    return blend
+
+
+def _tail_coefficients(q, S, e, eta, Z) -> tuple:
+    """(A, B) of the large-q tail ``S - 1 = A J1(qσ)/(qσ) + B J0(qσ)/(qσ)²``: A from the pressure
+    ``Z`` and B fitted to the data at ``qσ ≥ TAIL_FIT_FROM``; both fitted without a pressure."""
+    if Z is None:
+        Z = float("nan")
+    A = -8.0 * eta * ((Z - 1.0) / (2.0 * eta)) if np.isfinite(Z) else np.nan
+    sel = q >= TAIL_FIT_FROM
+    b1, b2 = tail_basis(q[sel])
+    if not np.isfinite(A):     # no pressure: fit both coefficients
+        Mt = np.stack([b1, b2], 1) / e[sel, None]
+        A, B = np.linalg.lstsq(Mt, (S[sel] - 1.0) / e[sel], rcond=None)[0]
+    else:
+        B = float(np.sum(b2 * (S[sel] - 1.0 - A * b1) / e[sel] ** 2) / np.sum(b2**2 / e[sel] ** 2))
+    return A, B
+
+
 def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
     """Turn binned simulation data of one η into a smooth table row.
 
@@ -1154,95 +1279,22 @@ def smooth_structure_factor_row(q, S, S_err, eta, Z=None):
     ``S0_prior``, ``tail`` (``A``, ``B``, 0) and ``chi2`` (reduced
     chi-square of the row against the data).
     """
-    from scipy.interpolate import make_smoothing_spline
-    q = np.asarray(q, float)
-    S = np.asarray(S, float)
-    e = np.asarray(S_err, float)
-    o = np.argsort(q)
-    q, S, e = q[o], S[o], e[o]
-    med = np.nanmedian(e / S)
-    e = np.where(np.isfinite(e) & (e > 0), e, med * S)
-    e = np.maximum(e, 0.002 * S)
+    q, S, e = _row_data(q, S, S_err)
     qg = TABLE_Q_SIGMA
     base_d = structure_factor_percus_yevick(q, eta)
     base_g = structure_factor_percus_yevick(qg, eta)
     r = S - base_d
-    xs, ys, es = [-q[::-1], q], [r[::-1], r], [e[::-1], e]
-    S0_prior = None
-    if eta <= ETA_PRIOR_MAX + 1e-9:
-        S0_prior = float(henderson_structure_factor_zero(eta))
-        xs.insert(1, np.array([0.0]))
-        ys.insert(1, np.array([S0_prior - base_g[0]]))
-        es.insert(1, np.array([PRIOR_REL_ERR * S0_prior]))
-    x = np.concatenate(xs)
-    y = np.concatenate(ys)
-    w = 1.0 / np.concatenate(es) ** 2
+    x, y, w, S0_prior = _mirrored_residual(q, r, e, eta, base_g)
     q_peak = float(qg[np.argmax(base_g)])
-    if eta >= ETA_ORDERED - 1e-9:
-        # Bragg-like spikes of the (partly) ordered finite system: a few box
-        # wave vectors carry most of a peak, with huge errors that would make
-        # a weighted fit ignore them.  Near band: an area-conserving Gaussian
-        # kernel average (uniform weights) of the residual instead.
-        xm = np.concatenate([-q[::-1], q])
-        rm = np.concatenate([r[::-1], r])
-
-        def nw(at):
-            K = np.exp(-0.5 * ((at[:, None] - xm[None, :]) / ORDERED_KERNEL) ** 2)
-            return (K @ rm) / K.sum(axis=1)
-
-        res_g, res_d = nw(qg), nw(q)
-    else:
-        # smoothing spline in a warped coordinate t(q) that stretches the
-        # first two peaks: one smoothing parameter (GCV), but effectively much
-        # weaker smoothing where S changes fast and stronger elsewhere
-        sharp = min(1.0, max(0.0, (eta - 0.2) / 0.4))      # peaks sharpen with η
-        a, b = PEAK_STRETCH_DENSE if eta >= ETA_DENSE - 1e-9 else PEAK_STRETCH
-        warp = _peak_warp(q_peak, stretch=(a * sharp, b * sharp))
-        spl = make_smoothing_spline(warp(x), y, w=w)
-        res_g = spl(warp(qg))
-        res_d = spl(warp(q))
-    # beyond the second peak: a separate, smoother spline, blended in over
-    # [F_BLEND0, F_BLEND1] q_peak
-    far = x >= F_DATA * q_peak
-    # noise scale of the far band from differences of neighbouring bins (the
-    # blocking errors are themselves uncertain by ~15 %)
-    rf, ef = r[q >= F_DATA * q_peak], e[q >= F_DATA * q_peak]
-    scale = max(1.0, float(np.std(np.diff(rf) / np.sqrt(ef[1:] ** 2 + ef[:-1] ** 2))))
-    spl_far = _discrepancy_spline(x[far], y[far], w[far] / scale**2)
-
-    def blend_far(qq, res):
-        t = np.clip((qq - F_BLEND0 * q_peak) / ((F_BLEND1 - F_BLEND0) * q_peak), 0.0, 1.0)
-        t = t * t * (3.0 - 2.0 * t)
-        return (1.0 - t) * res + t * spl_far(np.maximum(qq, F_DATA * q_peak))
-
+    res_g, res_d = _near_residual(q, r, x, y, w, eta, q_peak)
+    blend_far = _far_blend(q, r, e, x, y, w, q_peak)
     res_g = blend_far(qg, res_g)
     res_d = blend_far(q, res_d)
-    # low q: even polynomial of the residual, blended in
-    q_lo = 0.4 * q_peak
-    sel = (x >= 0.0) & (x <= q_lo)
-    M = np.stack([np.ones(sel.sum()), x[sel] ** 2, x[sel] ** 4], 1) * np.sqrt(w[sel])[:, None]
-    coef = np.linalg.lstsq(M, y[sel] * np.sqrt(w[sel]), rcond=None)[0]
-
-    def blend(qq, res):
-        t = np.clip((qq - 0.6 * q_lo) / (0.4 * q_lo), 0.0, 1.0)
-        t = t * t * (3.0 - 2.0 * t)
-        poly = coef[0] + coef[1] * qq**2 + coef[2] * qq**4
-        return (1.0 - t) * poly + t * res
-
+    blend = _low_q_blend(x, y, w, q_peak)
     row = base_g + blend(qg, res_g)
     fit_d = base_d + blend(q, res_d)
     chi2 = float(np.mean(((S - fit_d) / e) ** 2))
-    # large-q tail
-    if Z is None:
-        Z = float("nan")
-    A = -8.0 * eta * ((Z - 1.0) / (2.0 * eta)) if np.isfinite(Z) else np.nan
-    sel = q >= TAIL_FIT_FROM
-    b1, b2 = tail_basis(q[sel])
-    if not np.isfinite(A):     # no pressure: fit both coefficients
-        Mt = np.stack([b1, b2], 1) / e[sel, None]
-        A, B = np.linalg.lstsq(Mt, (S[sel] - 1.0) / e[sel], rcond=None)[0]
-    else:
-        B = float(np.sum(b2 * (S[sel] - 1.0 - A * b1) / e[sel] ** 2) / np.sum(b2**2 / e[sel] ** 2))
+    A, B = _tail_coefficients(q, S, e, eta, Z)
     return dict(S=row, S0=float(row[0]), S0_prior=S0_prior, tail=np.array([A, B, 0.0]),
                 chi2=chi2)
 

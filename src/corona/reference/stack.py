@@ -24,12 +24,125 @@ measured.  Numpy only (no extra needed).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from corona._validation import CoronaError
 
 #: The model's components and the paths they stand for.
 CLASSES = ("coherent", "specular", "lobe_transmission", "lobe_reflection", "diffuse", "dropped")
+
+
+@dataclass
+class _Photons:
+    """The walk's photons: travel direction (n, 3), the next element each meets (0 layer, 1 pane,
+    2 escaped above (layer side), 3 escaped below, 4 absorbed), and counts of the events on its path:
+    scatterings into the lobe, diffuse reflections off the layer, reflections off the pane that meet
+    the layer again (or glass first), front-face reflections back through the place of the layer
+    just crossed, layer events; ``crossed``: the last layer event let it through towards the pane."""
+    dirs: np.ndarray
+    nxt: np.ndarray
+    lobes: np.ndarray
+    diffuse: np.ndarray
+    pane_r: np.ndarray
+    pane_f: np.ndarray
+    crossed: np.ndarray
+    layer_hits: np.ndarray
+
+    @classmethod
+    def start(cls, n: int, ci: float, first: bool) -> "_Photons":
+        s = np.sqrt(max(0.0, 1.0 - ci * ci))
+        return cls(dirs=np.tile([-s, 0.0, -abs(ci) if first else abs(ci)], (n, 1)),
+                   nxt=np.full(n, 0 if first else 1), lobes=np.zeros(n, int), diffuse=np.zeros(n, int),
+                   pane_r=np.zeros(n, int), pane_f=np.zeros(n, int), crossed=np.zeros(n, bool),
+                   layer_hits=np.zeros(n, int))
+
+
+def _at_pane(ph: _Photons, at_p: np.ndarray, pane, rng) -> None:
+    """The photons ``at_p`` meet the pane: reflected specularly with R'(θ) or transmitted."""
+    d = ph.dirs[at_p]
+    x = rng.random(at_p.size)
+    refl = x < pane.reflectance(np.abs(d[:, 2]))
+    front = ph.crossed[at_p] & (x < pane.face_reflectance(np.abs(d[:, 2])))
+    d[refl, 2] *= -1.0
+    ph.dirs[at_p] = d
+    ph.pane_r[at_p] += refl & ~front
+    ph.pane_f[at_p] += front
+    up = d[:, 2] > 0
+    # up: back to the layer (out above if the front face returned it through the layer)
+    ph.nxt[at_p] = np.where(front, 2, np.where(up, 0, 3))
+
+
+def _at_layer(ph: _Photons, at_l: np.ndarray, material, energies: tuple, wavelength: float, rng) -> None:
+    """The photons ``at_l`` meet the layer with ``energies`` = (diffuse reflectance, lobe, coherent):
+    reflected diffusely, scattered into the lobe, passed or absorbed."""
+    rho, d_plane, c = energies
+    d = ph.dirs[at_l]
+    ph.layer_hits[at_l] += 1
+    x = rng.random(at_l.size)
+    is_diffuse = x < rho
+    is_lobe = (x >= rho) & (x < rho + d_plane)
+    is_absorbed = x >= rho + d_plane + c
+    # diffuse reflection: cosine-weighted, back towards where it came from
+    k = np.flatnonzero(is_diffuse)
+    if k.size:
+        r2 = rng.random(k.size)
+        phi = 2 * np.pi * rng.random(k.size)
+        z = np.sqrt(1.0 - r2)
+        sign = -np.sign(d[k, 2])
+        d[k] = np.stack([np.sqrt(r2) * np.cos(phi), np.sqrt(r2) * np.sin(phi), sign * z], -1)
+        ph.diffuse[at_l[k]] += 1
+    # the lobe: d_lobe = (wo + wi).xy with wi = -travel direction
+    k = np.flatnonzero(is_lobe)
+    if k.size:
+        dl = material.sample(rng.random((k.size, 2)), wavelength)
+        oxy = dl + d[k, :2]
+        r2 = np.sum(oxy * oxy, -1)
+        ok = r2 < 1.0
+        oz = np.sign(d[k, 2]) * np.sqrt(np.maximum(0.0, 1.0 - r2))
+        d[k] = np.concatenate([oxy, oz[:, None]], -1)
+        ph.lobes[at_l[k]] += 1
+        is_absorbed[k[~ok]] = True
+    ph.dirs[at_l] = d
+    up = d[:, 2] > 0
+    ph.crossed[at_l] = ~is_diffuse & ~up
+    ph.nxt[at_l] = np.where(is_absorbed, 4, np.where(up, 2, 1))   # down: on to the pane
+
+
+def _energy_by_path(ph: _Photons, first: bool) -> dict:
+    """The escaped photons sorted into :data:`CLASSES` and the totals (:func:`random_walk`'s result)."""
+    n = ph.nxt.size
+    lobes, diffuse, pane_r, pane_f, layer_hits = ph.lobes, ph.diffuse, ph.pane_r, ph.pane_f, ph.layer_hits
+    unfinished = float(np.mean((ph.nxt == 0) | (ph.nxt == 1)))
+    # the side of wi: above for layer-first light, below for glass-first light
+    out_refl = ph.nxt == (2 if first else 3)
+    out_trans = ph.nxt == (3 if first else 2)
+    one_layer = layer_hits == 1
+    no_pane = (pane_r == 0) & (pane_f == 0)
+    # one reflection off the pane: by the front face through the layer once, or a round trip
+    # between two crossings of the layer (light meeting the layer first); glass first: the pane
+    one_refl = (((pane_f == 1) & (pane_r == 0) & one_layer) | ((pane_f == 0) & (pane_r == 1) & (layer_hits == 2))
+                if first else (pane_f == 0) & (pane_r == 1) & (layer_hits == 0))
+    classes = {
+        "coherent": out_trans & (lobes == 0) & (diffuse == 0) & no_pane & one_layer,
+        "specular": out_refl & (lobes == 0) & (diffuse == 0) & one_refl,
+        "lobe_transmission": out_trans & (lobes == 1) & (diffuse == 0) & no_pane & one_layer,
+        "lobe_reflection": out_refl & (lobes == 1) & (diffuse == 0) & one_refl & first,
+        "diffuse": out_refl & (lobes == 0) & (diffuse == 1) & no_pane & one_layer,
+    }
+    out = {k: float(np.mean(v)) for k, v in classes.items()}
+    kept = np.zeros(n, bool)
+    for v in classes.values():
+        kept |= v
+    out["dropped"] = float(np.mean((out_refl | out_trans) & ~kept))
+    out["lobe_reflection_front"] = float(np.mean(classes["lobe_reflection"] & (pane_f == 1)))
+    out["reflected"] = float(np.mean(out_refl))
+    out["transmitted"] = float(np.mean(out_trans))
+    out["unfinished"] = unfinished
+    p = max(out[k] for k in CLASSES)
+    out["sigma"] = float(np.sqrt(max(p * (1 - p), 1.0 / n) / n))
+    return out
 
 
 def random_walk(material, cos_theta_i: float, wavelength: float = 550.0, n: int = 200_000,
@@ -76,92 +189,14 @@ def random_walk(material, cos_theta_i: float, wavelength: float = 550.0, n: int 
     # layer's outside.  Light meeting the layer first comes from above.
     ci = float(cos_theta_i)
     first = bool(pane.layer_first(ci))
-    s = np.sqrt(max(0.0, 1.0 - ci * ci))
-    dirs = np.tile([-s, 0.0, -abs(ci) if first else abs(ci)], (n, 1))   # travel direction
-    # next element: 0 layer, 1 pane, 2 escaped above (layer side), 3 escaped below, 4 absorbed
-    nxt = np.full(n, 0 if first else 1)
-    lobes = np.zeros(n, int)        # scatterings into the lobe
-    diffuse = np.zeros(n, int)      # diffuse reflections off the layer
-    pane_r = np.zeros(n, int)       # reflections off the pane that meet the layer again (or glass first)
-    pane_f = np.zeros(n, int)       # front-face reflections back through the place of the layer just crossed
-    crossed = np.zeros(n, bool)     # the last layer event let the photon through towards the pane
-    layer_hits = np.zeros(n, int)
+    ph = _Photons.start(n, ci, first)
     for _ in range(max_events):
-        at_l = np.flatnonzero(nxt == 0)
-        at_p = np.flatnonzero(nxt == 1)
+        at_l = np.flatnonzero(ph.nxt == 0)
+        at_p = np.flatnonzero(ph.nxt == 1)
         if at_l.size == 0 and at_p.size == 0:
             break
-        # --- the pane ---------------------------------------------------------
         if at_p.size:
-            d = dirs[at_p]
-            x = rng.random(at_p.size)
-            refl = x < pane.reflectance(np.abs(d[:, 2]))
-            front = crossed[at_p] & (x < pane.face_reflectance(np.abs(d[:, 2])))
-            d[refl, 2] *= -1.0
-            dirs[at_p] = d
-            pane_r[at_p] += refl & ~front
-            pane_f[at_p] += front
-            up = d[:, 2] > 0
-            # up: back to the layer (out above if the front face returned it through the layer)
-            nxt[at_p] = np.where(front, 2, np.where(up, 0, 3))
-        # --- the layer --------------------------------------------------------
+            _at_pane(ph, at_p, pane, rng)
         if at_l.size:
-            d = dirs[at_l]
-            layer_hits[at_l] += 1
-            x = rng.random(at_l.size)
-            is_diffuse = x < rho
-            is_lobe = (x >= rho) & (x < rho + d_plane)
-            is_absorbed = x >= rho + d_plane + c
-            # diffuse reflection: cosine-weighted, back towards where it came from
-            k = np.flatnonzero(is_diffuse)
-            if k.size:
-                r2 = rng.random(k.size)
-                phi = 2 * np.pi * rng.random(k.size)
-                z = np.sqrt(1.0 - r2)
-                sign = -np.sign(d[k, 2])
-                d[k] = np.stack([np.sqrt(r2) * np.cos(phi), np.sqrt(r2) * np.sin(phi), sign * z], -1)
-                diffuse[at_l[k]] += 1
-            # the lobe: d_lobe = (wo + wi).xy with wi = -travel direction
-            k = np.flatnonzero(is_lobe)
-            if k.size:
-                dl = material.sample(rng.random((k.size, 2)), wavelength)
-                oxy = dl + d[k, :2]
-                r2 = np.sum(oxy * oxy, -1)
-                ok = r2 < 1.0
-                oz = np.sign(d[k, 2]) * np.sqrt(np.maximum(0.0, 1.0 - r2))
-                d[k] = np.concatenate([oxy, oz[:, None]], -1)
-                lobes[at_l[k]] += 1
-                is_absorbed[k[~ok]] = True
-            dirs[at_l] = d
-            up = d[:, 2] > 0
-            crossed[at_l] = ~is_diffuse & ~up
-            nxt[at_l] = np.where(is_absorbed, 4, np.where(up, 2, 1))   # down: on to the pane
-    unfinished = float(np.mean((nxt == 0) | (nxt == 1)))
-    # the side of wi: above for layer-first light, below for glass-first light
-    out_refl = nxt == (2 if first else 3)
-    out_trans = nxt == (3 if first else 2)
-    one_layer = layer_hits == 1
-    no_pane = (pane_r == 0) & (pane_f == 0)
-    # one reflection off the pane: by the front face through the layer once, or a round trip
-    # between two crossings of the layer (light meeting the layer first); glass first: the pane
-    one_refl = (((pane_f == 1) & (pane_r == 0) & one_layer) | ((pane_f == 0) & (pane_r == 1) & (layer_hits == 2))
-                if first else (pane_f == 0) & (pane_r == 1) & (layer_hits == 0))
-    classes = {
-        "coherent": out_trans & (lobes == 0) & (diffuse == 0) & no_pane & one_layer,
-        "specular": out_refl & (lobes == 0) & (diffuse == 0) & one_refl,
-        "lobe_transmission": out_trans & (lobes == 1) & (diffuse == 0) & no_pane & one_layer,
-        "lobe_reflection": out_refl & (lobes == 1) & (diffuse == 0) & one_refl & first,
-        "diffuse": out_refl & (lobes == 0) & (diffuse == 1) & no_pane & one_layer,
-    }
-    out = {k: float(np.mean(v)) for k, v in classes.items()}
-    kept = np.zeros(n, bool)
-    for v in classes.values():
-        kept |= v
-    out["dropped"] = float(np.mean((out_refl | out_trans) & ~kept))
-    out["lobe_reflection_front"] = float(np.mean(classes["lobe_reflection"] & (pane_f == 1)))
-    out["reflected"] = float(np.mean(out_refl))
-    out["transmitted"] = float(np.mean(out_trans))
-    out["unfinished"] = unfinished
-    p = max(out[k] for k in CLASSES)
-    out["sigma"] = float(np.sqrt(max(p * (1 - p), 1.0 / n) / n))
-    return out
+            _at_layer(ph, at_l, material, (rho, d_plane, c), wavelength, rng)
+    return _energy_by_path(ph, first)

@@ -302,6 +302,80 @@ def _binmean(lab, nb, values):
         return s / cnt, cnt
 
 
+def _quiet_lobe(material, d, lam):
+    """``material.lobe(d, lam)`` without its CoronaWarnings."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CoronaWarning)
+        return material.lobe(d, lam)
+
+
+def _compared_region(info, cnt, Mb, dmax) -> np.ndarray:
+    """The bins compared: populated, the model above REGION_FRACTION of its peak (Bragg-peak bins and
+    background bins each against their own), and propagating (``dmax <= 1``)."""
+    nb = Mb.size
+    region = np.zeros(nb, dtype=bool)
+    groups = [np.ones(nb, dtype=bool)]
+    if "bragg_peaks" in info:   # Bragg-peak bins and background bins, each against its own peak
+        groups = [info["sector"] < 0, info["sector"] >= 0]
+    for g in groups:
+        gg = g & (cnt > 0)
+        if np.any(gg):
+            region |= gg & (Mb > REGION_FRACTION * np.nanmax(Mb[gg])) & (dmax <= 1.0)
+    return region
+
+
+def _wavelength_metrics(material, bf, lam, grid: dict, bins: tuple, u_compare) -> tuple:
+    """The comparison at ``lam`` [nm] (module notes): (metrics, model lobe, brute-force intensity,
+    model and brute force per bin, compared bins) on ``grid`` = {"q", "ua", "dc", "P", "Ph"} (the
+    cropped spectrum) with ``bins`` = (labels, count, info, radial labels, count, info)."""
+    lab, nb, info, rlab, rnb, rinfo = bins
+    R = bf.length_scale
+    lam_um = lam * 1e-3
+    mod = _quiet_lobe(material, grid["q"] * (lam_um / (2 * np.pi)), lam)
+    I = grid["P"] / lam_um**2
+    Ih = grid["Ph"] / lam_um**2
+    Mb, cnt = _binmean(lab, nb, mod)
+    Bb, _ = _binmean(lab, nb, I)
+    Ha, _ = _binmean(lab, nb, Ih[0])
+    Hb, _ = _binmean(lab, nb, Ih[1])
+    region = _compared_region(info, cnt, Mb, info["u_hi"] * lam_um / (2 * np.pi * R))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        err = Bb / Mb - 1.0
+        if bf.realisations > 1:
+            noise = np.abs(Ha - Hb) / (2.0 * Mb)
+        else:   # one screen: speckle, |T̂|² exponential, cnt/2 independent points per bin
+            noise = np.sqrt(2.0 / cnt) * np.ones(nb)
+    e = err[region]
+    # the same on rings only (azimuthal averages)
+    Mr_, rc_ = _binmean(rlab, rnb, mod)
+    Br_, _ = _binmean(rlab, rnb, I)
+    rd = rinfo["u_hi"] * lam_um / (2 * np.pi * R)
+    rreg = (rc_ > 0) & (Mr_ > REGION_FRACTION * np.nanmax(np.where(rc_ > 0, Mr_, np.nan))) & (rd <= 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        er = (Br_ / Mr_ - 1.0)[rreg]
+    m = {
+        "rms_radial": float(np.sqrt(np.mean(er**2))) if er.size else float("nan"),
+        "rms": float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
+        "max": float(np.max(np.abs(e))) if e.size else float("nan"),
+        "mean": float(np.mean(e)) if e.size else float("nan"),
+        "noise": float(np.sqrt(np.mean(noise[region] ** 2))) if e.size else float("nan"),
+        "bins": int(region.sum()),
+        "u_region": [float(info["u_lo"][region].min()) if e.size else 0.0,
+                     float(info["u_hi"][region].max()) if e.size else 0.0],
+    }
+    # energies: the grid points of |u| <= u_compare (one cell = λ²/A_box in d)
+    inside = (grid["ua"] <= u_compare) & ~grid["dc"]
+    cell = lam_um**2 / (bf.grid.box[0] * bf.grid.box[1])
+    m["window_brute"] = float(np.sum(I[inside]) * cell)
+    m["window_model"] = float(np.sum(mod[inside]) * cell)
+    # propagating diffuse transmittance at normal incidence: |q| <= 2π/λ
+    covered = bool(2 * np.pi / lam_um <= min(np.max(bf.qx), np.max(bf.qy)))
+    m["propagating_brute"] = _energy_within(bf, 2 * np.pi / lam_um) if covered else float("nan")
+    m["propagating_model"] = float(material.diffuse_transmittance(lam, cos_theta_i=1.0))
+    m["propagating_covered"] = covered
+    return m, mod, I, Ih, Mb, Bb, region
+
+
 def compare(material, bf, wavelengths=WAVELENGTHS, particle=None, u_compare=U_COMPARE,
             u_image=U_IMAGE) -> dict:
     """Compare ``material`` (aperture) — and the particle twin — with the ensemble ``bf``.
@@ -316,12 +390,11 @@ def compare(material, bf, wavelengths=WAVELENGTHS, particle=None, u_compare=U_CO
     iy = np.nonzero(np.abs(qy) * R <= u_compare)[0]
     sub = (slice(iy[0], iy[-1] + 1), slice(ix[0], ix[-1] + 1))
     QX, QY = np.meshgrid(qx[sub[1]], qy[sub[0]], indexing="xy")
-    q = np.stack([QX, QY], -1)
     ua = np.hypot(QX, QY) * R
     phi = np.arctan2(QY, QX)
     dc = (QX == 0) & (QY == 0)
-    P = bf.power[sub]
-    Ph = bf.power_halves[:, sub[0], sub[1]]
+    grid = {"q": np.stack([QX, QY], -1), "ua": ua, "dc": dc, "P": bf.power[sub],
+            "Ph": bf.power_halves[:, sub[0], sub[1]]}
     period = _period(material.shape)
     is_lattice = isinstance(material.process, Lattice) and material.process.orientation == "fixed"
     if is_lattice:
@@ -330,63 +403,10 @@ def compare(material, bf, wavelengths=WAVELENGTHS, particle=None, u_compare=U_CO
         lab, nb, info = _labels(ua, phi, period, u_compare, dc)
     rlab, rnb, rinfo = _labels(ua, phi, None, u_compare, dc)
     out = {"wavelengths": {}, "bins": info, "radial_bins": rinfo}
-    A_box = bf.grid.box[0] * bf.grid.box[1]
     model_u = None
     for lam in wavelengths:
-        lam_um = lam * 1e-3
-        d = q * (lam_um / (2 * np.pi))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", CoronaWarning)
-            mod = material.lobe(d, lam)
-        I = P / lam_um**2
-        Ih = Ph / lam_um**2
-        Mb, cnt = _binmean(lab, nb, mod)
-        Bb, _ = _binmean(lab, nb, I)
-        Ha, _ = _binmean(lab, nb, Ih[0])
-        Hb, _ = _binmean(lab, nb, Ih[1])
-        dmax = info["u_hi"] * lam_um / (2 * np.pi * R)
-        region = np.zeros(nb, dtype=bool)
-        groups = [np.ones(nb, dtype=bool)]
-        if "bragg_peaks" in info:   # Bragg-peak bins and background bins, each against its own peak
-            groups = [info["sector"] < 0, info["sector"] >= 0]
-        for g in groups:
-            gg = g & (cnt > 0)
-            if np.any(gg):
-                region |= gg & (Mb > REGION_FRACTION * np.nanmax(Mb[gg])) & (dmax <= 1.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            err = Bb / Mb - 1.0
-            if bf.realisations > 1:
-                noise = np.abs(Ha - Hb) / (2.0 * Mb)
-            else:   # one screen: speckle, |T̂|² exponential, cnt/2 independent points per bin
-                noise = np.sqrt(2.0 / cnt) * np.ones(nb)
-        e = err[region]
-        # the same on rings only (azimuthal averages)
-        Mr_, rc_ = _binmean(rlab, rnb, mod)
-        Br_, _ = _binmean(rlab, rnb, I)
-        rd = rinfo["u_hi"] * lam_um / (2 * np.pi * R)
-        rreg = (rc_ > 0) & (Mr_ > REGION_FRACTION * np.nanmax(np.where(rc_ > 0, Mr_, np.nan))) & (rd <= 1.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            er = (Br_ / Mr_ - 1.0)[rreg]
-        m = {
-            "rms_radial": float(np.sqrt(np.mean(er**2))) if er.size else float("nan"),
-            "rms": float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
-            "max": float(np.max(np.abs(e))) if e.size else float("nan"),
-            "mean": float(np.mean(e)) if e.size else float("nan"),
-            "noise": float(np.sqrt(np.mean(noise[region] ** 2))) if e.size else float("nan"),
-            "bins": int(region.sum()),
-            "u_region": [float(info["u_lo"][region].min()) if e.size else 0.0,
-                         float(info["u_hi"][region].max()) if e.size else 0.0],
-        }
-        # energies: the grid points of |u| <= u_compare (one cell = λ²/A_box in d)
-        inside = (ua <= u_compare) & ~dc
-        cell = lam_um**2 / A_box
-        m["window_brute"] = float(np.sum(I[inside]) * cell)
-        m["window_model"] = float(np.sum(mod[inside]) * cell)
-        # propagating diffuse transmittance at normal incidence: |q| <= 2π/λ
-        covered = bool(2 * np.pi / lam_um <= min(np.max(bf.qx), np.max(bf.qy)))
-        m["propagating_brute"] = _energy_within(bf, 2 * np.pi / lam_um) if covered else float("nan")
-        m["propagating_model"] = float(material.diffuse_transmittance(lam, cos_theta_i=1.0))
-        m["propagating_covered"] = covered
+        m, mod, I, Ih, Mb, Bb, region = _wavelength_metrics(material, bf, lam, grid,
+                                                            (lab, nb, info, rlab, rnb, rinfo), u_compare)
         out["wavelengths"][lam] = m
         if lam == wavelengths[len(wavelengths) // 2]:
             out["maps"] = _maps(qx[sub[1]], qy[sub[0]], mod, I, lab, Mb, Bb, region, R, lam, u_image)
@@ -399,10 +419,7 @@ def compare(material, bf, wavelengths=WAVELENGTHS, particle=None, u_compare=U_CO
             model_u = mod
     if particle is not None:
         lam = wavelengths[len(wavelengths) // 2]
-        d = q * (lam * 1e-3 / (2 * np.pi))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", CoronaWarning)
-            mp = particle.lobe(d, lam)
+        mp = _quiet_lobe(particle, grid["q"] * (lam * 1e-3 / (2 * np.pi)), lam)
         out["particle_lobe_equal"] = bool(np.allclose(mp, model_u, rtol=1e-12, atol=0.0))
     out["grid"] = {"nx": bf.grid.nx, "ny": bf.grid.ny, "h_um": bf.grid.h,
                    "samples_per_radius": bf.samples_per_radius, "box_um": list(bf.grid.box)}
@@ -783,8 +800,25 @@ def _case(cases, name):
 
 def _findings(summary, matrix, extra, skipped, lams) -> list[str]:
     """Plain statements of what the numbers show (only for the cases that were run)."""
-    out = []
     mid = lams[len(lams) // 2]
+    out = _matrix_findings(summary, matrix, lams, mid)
+    if skipped:
+        out.append("* **Unreachable cases**: " + "; ".join(
+            f"`{c['name']}`" for c in skipped) + " — the hard-disk table ends at η = 0.72 and "
+            "σ is the circumscribed diameter, so non-circular shapes reach lower F_a (square "
+            "≤ 0.458, hexagon ≤ 0.595, this mask ≤ 0.473).")
+    out += _poisson_findings(extra, mid) + _extra_findings(extra, mid) + _limit_findings(extra, lams, mid)
+    out += _sum_rule_findings(matrix + extra, mid)
+    out.append("* **Wavelengths**: model and brute force depend on λ only through d = qλ/2π, so the "
+               "per-wavelength numbers are the same except where |d| ≤ 1 cuts the region (R = 2.5 µm "
+               "keeps the compared region propagating at all three wavelengths).")
+    return out
+
+
+def _matrix_findings(summary, matrix, lams, mid) -> list[str]:
+    """:func:`_findings` of the hard-disk matrix: the cases within the goal, the coherent weights and
+    each case that misses the goal."""
+    out = []
     goal = summary["goal_rms"]
     ok = [c for c in matrix if all(c["wavelengths"][lam]["rms"] <= goal for lam in lams)]
     bad = [c for c in matrix if c not in ok]
@@ -820,11 +854,12 @@ def _findings(summary, matrix, extra, skipped, lams) -> list[str]:
                "RMS 22 %: six-fold spots on the ring).  A model "
                "limitation of the table near freezing, not of F_a T_a T_s."
                if eta >= 0.69 else "See its picture."))
-    if skipped:
-        out.append("* **Unreachable cases**: " + "; ".join(
-            f"`{c['name']}`" for c in skipped) + " — the hard-disk table ends at η = 0.72 and "
-            "σ is the circumscribed diameter, so non-circular shapes reach lower F_a (square "
-            "≤ 0.458, hexagon ≤ 0.595, this mask ≤ 0.473).")
+    return out
+
+
+def _poisson_findings(extra, mid) -> list[str]:
+    """:func:`_findings` of the Poisson (overlapping) cases."""
+    out = []
     p1, p3, pa = (_case(extra, n) for n in ("circle-poisson-0.10", "circle-poisson-0.30",
                                              "circle-poisson-0.30-add"))
     if p1 or p3:
@@ -845,6 +880,12 @@ def _findings(summary, matrix, extra, skipped, lams) -> list[str]:
                    + (f"  With the model's own linear superposition (`circle-poisson-0.30-add`) the "
                       f"brute force agrees: RMS {_pct(pa['wavelengths'][mid]['rms'])} %, noise "
                       f"{_pct(pa['wavelengths'][mid]['noise'])} %." if pa else ""))
+    return out
+
+
+def _extra_findings(extra, mid) -> list[str]:
+    """:func:`_findings` of the size distribution, random orientation, mixture, soft edge and RSA."""
+    out = []
     sz = _case(extra, "circle-size-hd-0.30")
     if sz:
         w = sz["wavelengths"][mid]
@@ -862,6 +903,12 @@ def _findings(summary, matrix, extra, skipped, lams) -> list[str]:
         if c:
             w = c["wavelengths"][mid]
             out.append(f"* **{what}** (`{name}`): RMS {_pct(w['rms'])} %, noise {_pct(w['noise'])} %.")
+    return out
+
+
+def _limit_findings(extra, lams, mid) -> list[str]:
+    """:func:`_findings` of the evanescent part, the jittered lattice and the measured point set."""
+    out = []
     sm = _case(extra, "circle-small-hd-0.30")
     if sm:
         fr = [1 - sm["wavelengths"][lam]["propagating_model"] / sm["model_total"] for lam in lams]
@@ -892,7 +939,13 @@ def _findings(summary, matrix, extra, skipped, lams) -> list[str]:
                    f"RMS {_pct(w['rms'])} % against an expected speckle noise of {_pct(w['noise'])} % "
                    "(χ² estimate, 1/√(points/2) per bin; the model's tapered periodogram has its own "
                    "noise).")
-    hard = [c for c in matrix + extra if c.get("expected_total") and c["overlap_loss"] < 1e-6]
+    return out
+
+
+def _sum_rule_findings(cases, mid) -> list[str]:
+    """:func:`_findings` of the sum rule over the non-overlapping cases with an expected total."""
+    out = []
+    hard = [c for c in cases if c.get("expected_total") and c["overlap_loss"] < 1e-6]
     if hard:
         win = [abs(c["wavelengths"][mid]["window_brute"] / c["wavelengths"][mid]["window_model"] - 1)
                for c in hard]
@@ -906,9 +959,6 @@ def _findings(summary, matrix, extra, skipped, lams) -> list[str]:
                    "stops at u_max (|d| = 2 at 360 nm) and the Airy tail beyond holds ≈ 2/(π u_max) "
                    "of T_a; the exact whole-plane sum rule of the model is checked in "
                    "`benchmarks/results/hard_disk.json`.")
-    out.append("* **Wavelengths**: model and brute force depend on λ only through d = qλ/2π, so the "
-               "per-wavelength numbers are the same except where |d| ≤ 1 cuts the region (R = 2.5 µm "
-               "keeps the compared region propagating at all three wavelengths).")
     return out
 
 

@@ -862,6 +862,123 @@ def _lam_um(wavelength) -> float:
     return lam * 1e-3
 
 
+def _check_brute_force_args(material, realisations, n_scatterers, overlaps, max_grid, workers, q_max) -> tuple:
+    """The checked arguments of :func:`brute_force`: (realisations, n_scatterers, max_grid, workers,
+    q_max)."""
+    from corona.model.material import Layer
+    from corona.model.mie.material import SphereMaterial
+    if not isinstance(material, Layer):
+        raise CoronaError(f"material={material!r} is not a corona.Material")
+    if isinstance(material, SphereMaterial):
+        from corona.model import registry
+        flat = ", ".join(f.name for f in registry.SHAPE_FAMILIES.values() if f.material is None)
+        raise CoronaError(f"material={material!r} is out of range for the brute force: it sums the far "
+                          f"fields of planar screens (Fraunhofer); allowed a flat layer ({flat})")
+    M = int(check_range("realisations", realisations, 1, 1e7))
+    n_sc = int(check_range("n_scatterers", n_scatterers, 1, 1e8))
+    check_choice("overlaps", overlaps, _OVERLAPS)
+    max_grid = int(check_range("max_grid", max_grid, 16, 65536))
+    workers = (os.cpu_count() or 1) if workers is None else int(check_range("workers", workers, 1, 1024))
+    if q_max is not None:
+        q_max = check_range("q_max", q_max, 0.0, math.inf, lo_open=True, unit="rad/µm")
+    return M, n_sc, max_grid, workers, q_max
+
+
+def _spectrum_crop(grid: Grid, q_max: float | None) -> tuple[int, int]:
+    """The kept spectrum's half sizes (Kx, Ky) in bins (all of the grid, or ``|q_x|, |q_y| ≤ q_max``);
+    a :class:`CoronaError` if accumulating it would not fit in the available memory."""
+    Lx, Ly = grid.box
+    Kx, Ky = grid.nx // 2 - 1, grid.ny // 2 - 1
+    if q_max is not None:
+        Kx, Ky = min(Kx, int(math.ceil(q_max / (2 * np.pi / Lx)))), min(Ky, int(math.ceil(q_max / (2 * np.pi / Ly))))
+    need = _memory_needed(grid, (2 * Ky + 1) * (Kx + 1))
+    avail = _available_memory()
+    if need > 0.6 * avail:
+        raise CoronaError(f"grid={grid.nx}x{grid.ny} needs about {need / 2**30:.1f} GiB; only "
+                          f"{avail / 2**30:.1f} GiB is available: use a smaller n_scatterers, "
+                          "samples_per_radius or q_max")
+    return Kx, Ky
+
+
+@dataclass
+class _ScreenSums:
+    """Sums over the screens of a brute force: ``|T̂|²`` in the kept bins for even and odd screens
+    (``acc``, ``count``), the screens' mean ``t``, mean ``t²`` and squared mean ``t``, the scatterers'
+    stamped and rasterised areas, their number, and the seconds spent rasterising and in FFTs."""
+    acc: np.ndarray
+    count: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    t: float = 0.0
+    t2: float = 0.0
+    mean2: float = 0.0
+    mass_stamps: float = 0.0
+    mass_screen: float = 0.0
+    n_total: int = 0
+    seconds_rasterise: float = 0.0
+    seconds_fft: float = 0.0
+
+
+def _sum_screens(shape, source: PositionSource, M: int, grid: Grid, stretch, exact: bool, crop: tuple,
+                 overlaps: str, workers: int, rng, desc: str, progress: bool) -> _ScreenSums:
+    """Rasterise ``M`` screens of ``source``'s positions (stretched, randomly translated) and sum their
+    power spectra in the ``crop`` = (Kx, Ky) bins and their moments (:class:`_ScreenSums`)."""
+    from tqdm.auto import tqdm
+    Kx, Ky = crop
+    Lx, Ly = grid.box
+    rows = np.r_[grid.ny - Ky:grid.ny, 0:Ky + 1]
+    s = _ScreenSums(acc=np.zeros((2, 2 * Ky + 1, Kx + 1)))
+    work = np.empty((grid.ny, grid.nx))
+    for r in tqdm(range(M), desc=desc, unit="screen", disable=not progress, leave=False):
+        ta = time.perf_counter()
+        pts = np.asarray(source.draw(r, rng), dtype=np.float64)
+        pts = pts * np.array(stretch) + rng.uniform(0.0, 1.0, 2) * np.array(grid.box)
+        draws = _draw(shape, len(pts), rng)
+        t = rasterise(shape, pts, grid, draws=draws, overlaps=overlaps, exact_masks=exact, out=work)
+        s.n_total += len(pts)
+        s.mass_stamps += float(np.sum(draws.scale**2 * np.array([lf.area for lf in draws.leaves])[draws.leaf]))
+        m1 = float(t.mean())
+        s.mass_screen += m1 * Lx * Ly
+        s.t += m1
+        s.t2 += float(np.mean(t * t))
+        s.mean2 += m1 * m1
+        t -= m1
+        tb = time.perf_counter()
+        F = sp_fft.rfft2(t, workers=workers)
+        sub = F[rows, :Kx + 1]
+        s.acc[r % 2] += sub.real**2 + sub.imag**2
+        s.count[r % 2] += 1
+        del F, sub
+        s.seconds_rasterise += tb - ta
+        s.seconds_fft += time.perf_counter() - tb
+    return s
+
+
+def _power_spectrum(s: _ScreenSums, M: int, grid: Grid, crop: tuple, ramp: bool) -> tuple:
+    """(qx, qy, power, power of the even and of the odd screens) of the sums ``s``: both halves of the
+    q plane, the DC bin the variance of the screens' mean over the screen's area, divided by the
+    pixels' anti-aliasing transfer where ``ramp``."""
+    Kx, Ky = crop
+    Lx, Ly = grid.box
+    norm = grid.hx * grid.hy / (grid.nx * grid.ny)         # |h² F|² / A_screen
+    halves = np.stack([s.acc[k] / max(s.count[k], 1) for k in range(2)]) * norm
+    right = (s.acc[0] + s.acc[1]) / M * norm
+    full = np.concatenate([right[::-1, Kx:0:-1], right], axis=1)
+    halves = np.stack([np.concatenate([hh[::-1, Kx:0:-1], hh], axis=1) for hh in halves])
+    if s.count[1] == 0:
+        halves[1] = halves[0]
+    qx = np.arange(-Kx, Kx + 1) * (2 * np.pi / Lx)
+    qy = np.arange(-Ky, Ky + 1) * (2 * np.pi / Ly)
+    mean_t = s.t / M
+    var_mean = max(s.mean2 / M - mean_t**2, 0.0)
+    full[Ky, Kx] = Lx * Ly * var_mean
+    halves[:, Ky, Kx] = Lx * Ly * var_mean
+    if ramp:
+        QX, QY = np.meshgrid(qx, qy, indexing="xy")
+        Hq = np.sinc(np.hypot(QX, QY) * grid.h / (2 * np.pi)) ** 2
+        full /= Hq
+        halves /= Hq[None]
+    return qx, qy, full, halves
+
+
 def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATTERERS,
                 samples_per_radius: float = SAMPLES_PER_RADIUS, q_max: float | None = None,
                 seed: int = 0, overlaps: str = "clip", deconvolve: bool = True,
@@ -902,22 +1019,8 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
     -------
     BruteForce
     """
-    from corona.model.material import Layer
-    from corona.model.mie.material import SphereMaterial
-    if not isinstance(material, Layer):
-        raise CoronaError(f"material={material!r} is not a corona.Material")
-    if isinstance(material, SphereMaterial):
-        from corona.model import registry
-        flat = ", ".join(f.name for f in registry.SHAPE_FAMILIES.values() if f.material is None)
-        raise CoronaError(f"material={material!r} is out of range for the brute force: it sums the far "
-                          f"fields of planar screens (Fraunhofer); allowed a flat layer ({flat})")
-    M = int(check_range("realisations", realisations, 1, 1e7))
-    n_sc = int(check_range("n_scatterers", n_scatterers, 1, 1e8))
-    check_choice("overlaps", overlaps, _OVERLAPS)
-    max_grid = int(check_range("max_grid", max_grid, 16, 65536))
-    workers = (os.cpu_count() or 1) if workers is None else int(check_range("workers", workers, 1, 1024))
-    if q_max is not None:
-        q_max = check_range("q_max", q_max, 0.0, math.inf, lo_open=True, unit="rad/µm")
+    M, n_sc, max_grid, workers, q_max = _check_brute_force_args(material, realisations, n_scatterers, overlaps,
+                                                                max_grid, workers, q_max)
     shape, process = material.shape, material.process
     t0 = time.perf_counter()
     if source is None:
@@ -927,80 +1030,21 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
         M = min(M, source.realisations_max)
     t_pos = time.perf_counter() - t0
     grid, stretch, exact = choose_grid(shape, source.box, samples_per_radius, max_grid)
-    leaves = _leaves_of(shape)
-    ramp = deconvolve and not any(isinstance(lf, Mask) for lf in leaves)
-    # crop of the spectrum
-    Lx, Ly = grid.box
-    dqx, dqy = 2 * np.pi / Lx, 2 * np.pi / Ly
-    Kx, Ky = grid.nx // 2 - 1, grid.ny // 2 - 1
-    if q_max is not None:
-        Kx, Ky = min(Kx, int(math.ceil(q_max / dqx))), min(Ky, int(math.ceil(q_max / dqy)))
-    need = _memory_needed(grid, (2 * Ky + 1) * (Kx + 1))
-    avail = _available_memory()
-    if need > 0.6 * avail:
-        raise CoronaError(f"grid={grid.nx}x{grid.ny} needs about {need / 2**30:.1f} GiB; only "
-                          f"{avail / 2**30:.1f} GiB is available: use a smaller n_scatterers, "
-                          "samples_per_radius or q_max")
-    rows = np.r_[grid.ny - Ky:grid.ny, 0:Ky + 1]
-    acc = np.zeros((2, 2 * Ky + 1, Kx + 1))
-    count = np.zeros(2)
+    ramp = deconvolve and not any(isinstance(lf, Mask) for lf in _leaves_of(shape))
+    crop = _spectrum_crop(grid, q_max)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5EED]))
-    work = np.empty((grid.ny, grid.nx))
-    sum_t = sum_t2 = sum_mean2 = 0.0
-    mass_stamps = mass_screen = 0.0
-    n_total = 0
-    t_ras = t_fft = 0.0
-    from tqdm.auto import tqdm
     desc = f"brute force {type(shape).__name__} F_a={material.area_fraction:.3g}"
-    for r in tqdm(range(M), desc=desc, unit="screen", disable=not progress, leave=False):
-        ta = time.perf_counter()
-        pts = np.asarray(source.draw(r, rng), dtype=np.float64)
-        pts = pts * np.array(stretch) + rng.uniform(0.0, 1.0, 2) * np.array(grid.box)
-        draws = _draw(shape, len(pts), rng)
-        t = rasterise(shape, pts, grid, draws=draws, overlaps=overlaps, exact_masks=exact, out=work)
-        n_total += len(pts)
-        mass_stamps += float(np.sum(draws.scale**2 * np.array([lf.area for lf in draws.leaves])[draws.leaf]))
-        m1 = float(t.mean())
-        mass_screen += m1 * Lx * Ly
-        sum_t += m1
-        sum_t2 += float(np.mean(t * t))
-        sum_mean2 += m1 * m1
-        t -= m1
-        tb = time.perf_counter()
-        F = sp_fft.rfft2(t, workers=workers)
-        sub = F[rows, :Kx + 1]
-        acc[r % 2] += sub.real**2 + sub.imag**2
-        count[r % 2] += 1
-        del F, sub
-        t_ras += tb - ta
-        t_fft += time.perf_counter() - tb
-    A_screen = Lx * Ly
-    norm = grid.hx * grid.hy / (grid.nx * grid.ny)         # |h² F|² / A_screen
-    halves = np.stack([acc[k] / max(count[k], 1) for k in range(2)]) * norm
-    right = (acc[0] + acc[1]) / M * norm
-    full = np.concatenate([right[::-1, Kx:0:-1], right], axis=1)
-    halves = np.stack([np.concatenate([hh[::-1, Kx:0:-1], hh], axis=1) for hh in halves])
-    if count[1] == 0:
-        halves[1] = halves[0]
-    qx = np.arange(-Kx, Kx + 1) * dqx
-    qy = np.arange(-Ky, Ky + 1) * dqy
-    mean_t = sum_t / M
-    var_mean = max(sum_mean2 / M - mean_t**2, 0.0)
-    full[Ky, Kx] = A_screen * var_mean
-    halves[:, Ky, Kx] = A_screen * var_mean
-    if ramp:
-        QX, QY = np.meshgrid(qx, qy, indexing="xy")
-        Hq = np.sinc(np.hypot(QX, QY) * grid.h / (2 * np.pi)) ** 2
-        full /= Hq
-        halves /= Hq[None]
-    mean_t2 = sum_t2 / M
+    sums = _sum_screens(shape, source, M, grid, stretch, exact, crop, overlaps, workers, rng, desc, progress)
+    qx, qy, full, halves = _power_spectrum(sums, M, grid, crop, ramp)
+    A_screen = grid.box[0] * grid.box[1]
+    mean_t, mean_t2 = sums.t / M, sums.t2 / M
     trans = {"aperture": mean_t, "particle": 1.0 - mean_t}
     coherent = {k: v * v for k, v in trans.items()}
     diffuse = {"aperture": mean_t2 - mean_t**2,
                "particle": (1.0 - 2.0 * mean_t + mean_t2) - (1.0 - mean_t) ** 2}
-    n_mean = n_total / M
+    n_mean = sums.n_total / M
     fa_screen = n_mean * float(shape.area) / A_screen
-    loss = 0.0 if mass_stamps <= 0 else max(0.0, 1.0 - mass_screen / mass_stamps)
+    loss = 0.0 if sums.mass_stamps <= 0 else max(0.0, 1.0 - sums.mass_screen / sums.mass_stamps)
     return BruteForce(
         mode=material.mode, material=repr(material), area_fraction=material.area_fraction,
         area_fraction_screen=fa_screen, length_scale=material.length_scale, grid=grid,
@@ -1008,5 +1052,5 @@ def brute_force(material, *, realisations: int = 16, n_scatterers: int = N_SCATT
         transmittance=trans, coherent=coherent, diffuse_total=diffuse, overlap_loss=loss,
         pixel_transfer="ramp-deconvolved" if ramp else "none", overlaps=overlaps,
         positions=source.description,
-        seconds={"positions": t_pos, "rasterise": t_ras, "fft": t_fft,
+        seconds={"positions": t_pos, "rasterise": sums.seconds_rasterise, "fft": sums.seconds_fft,
                  "total": time.perf_counter() - t0})

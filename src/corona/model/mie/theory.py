@@ -350,6 +350,83 @@ def _work(work: dict | None, name: str, shape, dtype=np.float64) -> np.ndarray:
     return buf[:size].reshape(shape)
 
 
+def _coefficient_rows(m, x, psi, chi, D, work: dict | None) -> list:
+    """``Re a_n``, ``Im a_n``, ``Re b_n``, ``Im b_n`` (N, B) by order (:func:`_power_both_ways`), the
+    terms past a sphere's own ``N`` zero; real arithmetic for a real index."""
+    N, B = psi.shape[0] - 1, x.size
+    real = not np.any(m.imag)
+    n = np.arange(1, N + 1, dtype=np.float64)
+    nx = np.multiply(n[:, None], (1.0 / x)[None, :], out=_work(work, "nx", (N, B)))
+    own = n_terms(x)
+    parts = []                                          # Re a, Im a, Re b, Im b: (N, B) by order
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for ab, f in (("a", 1.0 / m), ("b", m)):
+            if real:
+                t = np.multiply(D[1:], f.real, out=_work(work, "t" + ab, (N, B)))
+                t += nx
+                u = np.multiply(t, psi[1:], out=_work(work, "u", (N, B)))
+                u -= psi[:-1]
+                t *= chi[1:]
+                t -= chi[:-1]
+                t /= u                                  # r = v/u
+                re = np.multiply(t, t, out=_work(work, "re" + ab, (N, B)))
+                re += 1.0
+                np.reciprocal(re, out=re)               # Re = 1/(1 + r²)
+                t *= re
+                np.negative(t, out=t)                   # Im = -r/(1 + r²)
+                parts += [re, t]
+            else:
+                t = D[1:] * f + nx
+                u = t * psi[1:] - psi[:-1]
+                c = u / (u + 1j * (t * chi[1:] - chi[:-1]))
+                parts += [np.ascontiguousarray(c.real), np.ascontiguousarray(c.imag)]
+    lo = int(own.min())
+    if lo < N:                                          # terms past a sphere's own N are left out
+        past = n[lo:, None] > own[None, :]
+        for v in parts:
+            np.copyto(v[lo:], 0.0, where=past)
+    return parts
+
+
+def _angular_sums(parts: list, basis: AngularBasis, work: dict | None) -> np.ndarray:
+    """``R`` of :func:`_power_both_ways` from the coefficient rows ``parts`` (:func:`_coefficient_rows`):
+    four single-precision matrix products with ``π_n``, ``τ_n`` by parity, combined in place."""
+    N, B = parts[0].shape
+    n = np.arange(1, N + 1, dtype=np.float64)
+    w = 2.0 * n + 1.0
+    # the operands of the products, rows (Re ca, Im ca, Re cb, Im cb) per parity, c_n = (2n+1)/(n(n+1))
+    cn = w / (n * (n + 1.0))
+    dtype = basis.pi_odd.dtype
+    no, ne = (N + 1) // 2, N // 2                       # odd n = 1, 3, …; even n = 2, 4, …
+    M = basis.mu.size
+    out = {}
+    for par, k, name in ((slice(0, N, 2), no, "odd"), (slice(1, N, 2), ne, "even")):
+        L = _work(work, "L" + name, (k, 4, B), dtype)
+        for i, v in enumerate(parts):
+            np.multiply(v[par], cn[par, None], out=L[:, i])
+        L = L.reshape(k, 4 * B).T
+        for f in ("pi", "tau"):
+            out[f + name] = np.matmul(L, getattr(basis, f"{f}_{name}")[:k],
+                                      out=_work(work, f + name, (4 * B, M), dtype))
+    po, to, pe, te = out["piodd"], out["tauodd"], out["pieven"], out["taueven"]
+    Fp = np.add(po, pe, out=_work(work, "Fp", (4 * B, M), dtype))   # forward: both parities add
+    Ft = np.add(to, te, out=_work(work, "Ft", (4 * B, M), dtype))
+    po -= pe                                            # backward: π_n picks (-1)^(n-1), τ_n (-1)^n
+    to -= te
+    A, Bb = slice(0, 2 * B), slice(2 * B, 4 * B)        # the a-sums and the b-sums, each [Re; Im]
+    R = _work(work, "R", (6, B, M), dtype)
+    np.add(Fp[A], Ft[Bb], out=R[2:4].reshape(2 * B, M))          # S1(μ)
+    np.add(Ft[A], Fp[Bb], out=R[4:6].reshape(2 * B, M))          # S2(μ)
+    np.subtract(po[A], to[Bb], out=Fp[A])                        # S1(-μ)
+    np.subtract(to[A], po[Bb], out=Fp[Bb])                       # -S2(-μ)
+    for k, S in ((0, R[2:6].reshape(4 * B, M)), (1, Fp)):
+        np.square(S, out=Ft)
+        np.add(Ft[:B], Ft[B:2 * B], out=R[k])
+        R[k] += Ft[2 * B:3 * B]
+        R[k] += Ft[3 * B:]
+    return R
+
+
 def _power_both_ways(m, x, basis: AngularBasis, psi, chi, D, work: dict | None = None):
     """``|S1|² + |S2|²`` at ``μ`` and ``-μ``, the forward ``S1``, ``S2`` and the efficiencies' sums of
     many spheres, from their Riccati–Bessel functions and logarithmic derivatives laid out by order.
@@ -388,77 +465,18 @@ def _power_both_ways(m, x, basis: AngularBasis, psi, chi, D, work: dict | None =
     """
     m = np.asarray(m, dtype=np.complex128).ravel()
     x = np.asarray(x, dtype=np.float64).ravel()
-    N, B = psi.shape[0] - 1, x.size
+    N = psi.shape[0] - 1
     if N > basis.n_max:
         raise CoronaError(f"n_max={basis.n_max} of the angular basis is below the {N} terms the sizes need")
     real = not np.any(m.imag)
-    n = np.arange(1, N + 1, dtype=np.float64)
-    nx = np.multiply(n[:, None], (1.0 / x)[None, :], out=_work(work, "nx", (N, B)))
-    own = n_terms(x)
-    parts = []                                          # Re a, Im a, Re b, Im b: (N, B) by order
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        for ab, f in (("a", 1.0 / m), ("b", m)):
-            if real:
-                t = np.multiply(D[1:], f.real, out=_work(work, "t" + ab, (N, B)))
-                t += nx
-                u = np.multiply(t, psi[1:], out=_work(work, "u", (N, B)))
-                u -= psi[:-1]
-                t *= chi[1:]
-                t -= chi[:-1]
-                t /= u                                  # r = v/u
-                re = np.multiply(t, t, out=_work(work, "re" + ab, (N, B)))
-                re += 1.0
-                np.reciprocal(re, out=re)               # Re = 1/(1 + r²)
-                t *= re
-                np.negative(t, out=t)                   # Im = -r/(1 + r²)
-                parts += [re, t]
-            else:
-                t = D[1:] * f + nx
-                u = t * psi[1:] - psi[:-1]
-                c = u / (u + 1j * (t * chi[1:] - chi[:-1]))
-                parts += [np.ascontiguousarray(c.real), np.ascontiguousarray(c.imag)]
-    lo = int(own.min())
-    if lo < N:                                          # terms past a sphere's own N are left out
-        past = n[lo:, None] > own[None, :]
-        for v in parts:
-            np.copyto(v[lo:], 0.0, where=past)
+    parts = _coefficient_rows(m, x, psi, chi, D, work)
     ra, ia, rb, ib = parts
-    w = 2.0 * n + 1.0
+    w = 2.0 * np.arange(1, N + 1, dtype=np.float64) + 1.0
     s0 = 0.5 * (w @ ra + w @ rb) + 0.5j * (w @ ia + w @ ib)
     q_ext = 4.0 * s0.real
     # a real index: |a_n|² = Re a_n (no absorption), so Q_sca = Q_ext
     q_sca = q_ext.copy() if real else 2.0 * (w @ (ra * ra + ia * ia + rb * rb + ib * ib))
-    # the operands of the products, rows (Re ca, Im ca, Re cb, Im cb) per parity, c_n = (2n+1)/(n(n+1))
-    cn = w / (n * (n + 1.0))
-    dtype = basis.pi_odd.dtype
-    no, ne = (N + 1) // 2, N // 2                       # odd n = 1, 3, …; even n = 2, 4, …
-    M = basis.mu.size
-    out = {}
-    for par, k, name in ((slice(0, N, 2), no, "odd"), (slice(1, N, 2), ne, "even")):
-        L = _work(work, "L" + name, (k, 4, B), dtype)
-        for i, v in enumerate(parts):
-            np.multiply(v[par], cn[par, None], out=L[:, i])
-        L = L.reshape(k, 4 * B).T
-        for f in ("pi", "tau"):
-            out[f + name] = np.matmul(L, getattr(basis, f"{f}_{name}")[:k],
-                                      out=_work(work, f + name, (4 * B, M), dtype))
-    po, to, pe, te = out["piodd"], out["tauodd"], out["pieven"], out["taueven"]
-    Fp = np.add(po, pe, out=_work(work, "Fp", (4 * B, M), dtype))   # forward: both parities add
-    Ft = np.add(to, te, out=_work(work, "Ft", (4 * B, M), dtype))
-    po -= pe                                            # backward: π_n picks (-1)^(n-1), τ_n (-1)^n
-    to -= te
-    A, Bb = slice(0, 2 * B), slice(2 * B, 4 * B)        # the a-sums and the b-sums, each [Re; Im]
-    R = _work(work, "R", (6, B, M), dtype)
-    np.add(Fp[A], Ft[Bb], out=R[2:4].reshape(2 * B, M))          # S1(μ)
-    np.add(Ft[A], Fp[Bb], out=R[4:6].reshape(2 * B, M))          # S2(μ)
-    np.subtract(po[A], to[Bb], out=Fp[A])                        # S1(-μ)
-    np.subtract(to[A], po[Bb], out=Fp[Bb])                       # -S2(-μ)
-    for k, S in ((0, R[2:6].reshape(4 * B, M)), (1, Fp)):
-        np.square(S, out=Ft)
-        np.add(Ft[:B], Ft[B:2 * B], out=R[k])
-        R[k] += Ft[2 * B:3 * B]
-        R[k] += Ft[3 * B:]
-    return R, s0, q_sca, q_ext
+    return _angular_sums(parts, basis, work), s0, q_sca, q_ext
 
 
 def efficiencies(m, x) -> dict:
