@@ -92,11 +92,12 @@ def test_one_area_fraction_centred_matches_the_rows_and_updates_without_recompil
     import mitsuba as mi
     if not dr.is_array_v(mi.Float):
         pytest.skip("kernels: vectorised variants")
+    from corona.mitsuba.lobes import CentredFaTables
     bsdf = _load(LAYERS["hard-disk"])
-    assert bsdf.fa_centred
+    assert isinstance(bsdf.fa_tables, CentredFaTables)
     # the Hermite between the F_a rows (as for a texture) at the same value
     rows_only = _load(LAYERS["hard-disk"])
-    rows_only.fa_centred = False
+    rows_only.fa_tables = rows_only.fa_tables.grid     # the Hermite between the rows
     _assert_close(_figures(bsdf, 20.0), _figures(rows_only, 20.0), "centred vs rows")
     params = mi.traverse(bsdf)
     key = "area_fraction.value"

@@ -109,12 +109,13 @@ from corona.model import tabulated
 from corona._validation import CoronaError, CoronaWarning
 from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
                                    guided_cdfs, positive as _positive,
-                                   read_props as _read_props, selection, texture_range, uniform as _uniform,
+                                   read_props as _read_props, texture_range, uniform as _uniform,
                                    variant_class)
 from corona.mitsuba.common import centre_rows, clip as _clip, gather as _gather
 from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, CentredRow,
                                   ChannelTables, KernelLobe, OneRow, PackedRowGrid, PairedTable, RadialRow,
                                   RadialRowPairs, RadialRows, RowGrid, SampledTable, Wavelengths)
+from corona.mitsuba.core import PluginCore
 from corona.mitsuba.substrate import substrate_component
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
@@ -182,8 +183,9 @@ def _channel_tables(v, dv, du, lams_nm, weights):
     return ds, g, dg
 
 
-class CoronaBSDFMixin:
-    """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring).
+class CoronaBSDFMixin(PluginCore):
+    """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring): the flat family
+    on the shared shell (:class:`corona.mitsuba.core.PluginCore`).
 
     The methods live in this plain class; :func:`bsdf_class` copies them into a
     subclass of the active variant's ``mi.BSDF`` (each variant has its own
@@ -247,11 +249,8 @@ class CoronaBSDFMixin:
         comps += self.substrate.components(sides, not self.isotropic)   # the pane: 3 and 4
         if self._textured:
             comps = [c | mi.BSDFFlags.SpatiallyVarying for c in comps]
-        self.m_components = comps
-        flags = mi.BSDFFlags.Empty
-        for c in comps:
-            flags = flags | c
-        self.m_flags = flags
+        self.set_components(comps, (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
+                                    mi.BSDFFlags.DiffuseReflection) + self.substrate.flags())
 
     # ------------------------------------------------------------------
     # textures -> tables
@@ -686,14 +685,6 @@ class CoronaBSDFMixin:
         (the representation's: :mod:`corona.mitsuba.lobes`)."""
         return self.lobe.lobe_and_pdf(layer, wo.x + wi.x, wo.y + wi.y, wavelengths, active, modulation)
 
-    def _selection(self, ctx, layer, cos_i=None):
-        """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
-        honouring the context: each component's energy, roughly for the lobes."""
-        flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
-                 mi.BSDFFlags.DiffuseReflection) + self.substrate.flags()
-        energies = self.substrate.energies(layer, cos_i)
-        return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
-
     # ------------------------------------------------------------------
     # BSDF interface
     # ------------------------------------------------------------------
@@ -733,16 +724,7 @@ class CoronaBSDFMixin:
         pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
         return substrate.add_reflected(ctx, value, pdf, reflect, lobe_reflected, probs, pdf_d, abs_cos_o)
 
-    def eval(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, active)[0]
-
-    def pdf(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, active)[1]
-
-    def eval_pdf(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, active)
-
-    def sample(self, ctx, si, sample1, sample2, active=True):
+    def _sample(self, ctx, si, sample1, sample2, active=True):
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
@@ -811,18 +793,27 @@ class CoronaBSDFMixin:
         if self.time_tex is not None:
             callback.put("breath_time", self.time_tex, flag)
 
-    def parameters_changed(self, keys):
-        # new values: check them; rebuild the tables only when they leave what the tables cover
-        (fa_lo, fa_hi), radius, albedo = ranges = self._ranges()
+    # updates (:meth:`corona.mitsuba.core.PluginCore.parameters_changed`)
+    def _checked_ranges(self):
+        """Checked (lo, hi) of the area fraction, radius and albedo textures (:meth:`_ranges`) and of
+        the breath time (None without a ``breath_time`` texture)."""
+        return self._ranges(), (self._time_range() if self.time_tex is not None else None)
+
+    def _outside(self, ranges):
+        ((fa_lo, fa_hi), radius, albedo), times = ranges
         outside = (fa_lo < self.fa_cover[0] - 1e-7 or fa_hi > self.fa_cover[1] + 1e-7
                    or (not self.fixed_radius and radius[1] > self.radius_cover * (1 + 1e-6)))
-        if self.time_tex is not None:
-            t_lo, t_hi = self._time_range()
+        if times is not None:
+            t_lo, t_hi = times
             outside = outside or t_lo < self.time_cover[0] * (1 - 1e-6) or t_hi > self.time_cover[1] * (1 + 1e-6)
-        if outside:
-            self._setup(*ranges)
-        elif self.centred:
-            self._centre(float(np.float32(fa_hi)))
+        return outside
+
+    def _rebuild(self, ranges):
+        self._setup(*ranges[0])
+
+    def _recentre(self, ranges):
+        if self.centred:
+            self._centre(float(np.float32(ranges[0][0][1])))
 
     def to_string(self):
         # the material at the current (largest) values, not at the table's headroom

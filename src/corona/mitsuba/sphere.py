@@ -83,14 +83,15 @@ import numpy as np
 from corona.model import tabulated
 from corona._validation import CoronaError
 from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, picked, texture_range
-from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, positive as _positive, selection
+from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, positive as _positive
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
-from corona.mitsuba.common import centre_rows, clip, host_buffer, read_props as _read_props
+from corona.mitsuba.common import clip, host_buffer, read_props as _read_props
+from corona.mitsuba.lobes import CentredFaTables, FixedFaTables, UniformFaTables, bilinear_corners
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
-from corona.model.rows import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, SphereMaterial, radius_span
 from corona.model.mie.layer import share_forward_energies
+from corona.mitsuba.core import PluginCore
 from corona.mitsuba.substrate import BareLayer, PaneSubstrate, pane_delta_weights, pane_smooth_factors
 
 __all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "SpheresAlone", "SpheresOnPane", "sphere_bsdf_class",
@@ -100,8 +101,10 @@ __all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "SpheresAlone", "Sp
 #: rebuild); a radius texture's rows serve its range.
 RADIUS_HEADROOM = 1.05
 #: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa)
-#: (a uniform value: ± one step about it; the flat layers' rows span ± ``bsdf.FA_WINDOW`` at the
-#: spacing their material picks; both centre through :func:`corona.mitsuba.common.centre_rows`).
+#: (a uniform value: ± one step about it), read by :class:`corona.mitsuba.lobes.FaTables` as the flat
+#: layer's rows are.  Why a step of its own: a sphere's F_a row is a whole Mie layer's build (S and
+#: the forward energies over x and μ), a flat one a radial table the accuracy rule places
+#: (``bsdf.FA_WINDOW``, :meth:`corona.Material.area_fraction_rows`).
 FA_ROW_STEP = 0.05
 #: The most memory [bytes] the lobes' rows take as packed Catmull–Rom intervals (four floats a node:
 #: one Vector4f gather reads a row's interval; beyond it the plain rows are held instead, read by
@@ -109,8 +112,6 @@ FA_ROW_STEP = 0.05
 LOBE_PACKING_BYTES = 1 << 28
 #: Chord nodes per block of rows of the lobes' CDFs and guides (:func:`_guided_rows`).
 GUIDE_BLOCK = 1 << 18
-#: Marks the F_a weights of a layer with one F_a (:meth:`SphereBSDFMixin._fa_weights`).
-_CENTRE = "centre"
 
 
 def _catmull_rom_intervals(*lobes, out=None):
@@ -150,13 +151,6 @@ def _catmull_rom_intervals(*lobes, out=None):
     return out
 
 
-def _corners(e):
-    """The four corners ``(e[j, b], e[j, b+1], e[j+1, b], e[j+1, b+1])`` of each cell of a table
-    ``e`` (rows j of x, columns b of μ), cell by cell: one Vector4f gather reads a bilinear cell."""
-    e = np.asarray(e, dtype=np.float64)
-    return np.stack([e[:-1, :-1], e[:-1, 1:], e[1:, :-1], e[1:, 1:]], axis=-1)
-
-
 def _guided_rows(material, rows) -> dict:
     """:func:`corona.mitsuba.common.guided_cdfs` of the forward then the backward rows of
     ``rows["P_f"]``, ``rows["P_b"]`` (radial densities ``2π s P(s)``), kept in the table cache
@@ -193,8 +187,9 @@ def _guided_rows(material, rows) -> dict:
             **{k: int(g[k]) for k in ("G", "n_bins", "steps")}}
 
 
-class SphereBSDFMixin:
-    """Mitsuba 3 BSDF of a layer of Mie spheres (see the module docstring)."""
+class SphereBSDFMixin(PluginCore):
+    """Mitsuba 3 BSDF of a layer of Mie spheres (see the module docstring): the sphere family on the
+    shared shell (:class:`corona.mitsuba.core.PluginCore`), its lobe component :attr:`lobe`."""
 
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
@@ -235,12 +230,10 @@ class SphereBSDFMixin:
         #: the substrate component, chosen once here: none (:class:`SpheresAlone`) or a glass pane
         #: (:class:`SpheresOnPane`: 3, the pane's mirror image, 4, the lobes in reflection)
         self.substrate = sphere_substrate(self.material.substrate)
-        self.m_components = [mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
-        self.m_components += self.substrate.components(sides, False)
-        flags = self.m_components[0]
-        for c in self.m_components[1:]:
-            flags = flags | c
-        self.m_flags = flags
+        self.set_components([mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
+                            + self.substrate.components(sides, False),
+                            (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
+                             mi.BSDFFlags.GlossyReflection) + self.substrate.flags())
         #: the fixed lattice of ``process=lattice-*`` (its Bragg orders), None for a disordered layer
         self.lattice = lattice
         #: the lobe component, chosen once here: the disordered layer's Mie rows (:class:`MieRowsLobe`),
@@ -432,72 +425,25 @@ class SphereBSDFMixin:
     def _setup_area_fraction_rows(self, material, fa_rows, fa_hi):
         """``S(u)`` and the forward energies ``e_f(x_j, μ)`` in rows of F_a (a hard core; ``fa_rows``
         from :meth:`_area_fraction_layers`, ``fa_hi`` the top of the layer's F_a) with their slopes
-        in F_a, or the one F_a-independent energy table (Poisson)."""
+        in F_a, or the one F_a-independent energy table (Poisson): the representation
+        (:class:`corona.mitsuba.lobes.FaTables`) chosen here, once per build."""
         st = material.structure_table
         self.has_S = st is not None
-        self.fa_centred = False
+        n_rows, n_mu = self.n_rows, len(INCIDENCE_MU)
         if not self.has_S:
-            self.n_fa = 1
-            self.Ef = _array(mi.Float, material.row_totals["e_f_mu"].ravel())
-            self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material.row_totals["e_f_mu"]).ravel()), None
+            self.fa_tables = FixedFaTables(_array(mi.Float, bilinear_corners(material.row_totals["e_f_mu"]).ravel()),
+                                           n_rows, n_mu)
             self.fa_cover = (0.0, 1.0)
             return
         fas, layers = fa_rows
         S = np.array([m.structure_table[1] for m in layers])
         E = np.array([m.row_totals["e_f_mu"] for m in layers])
-        self.S_du, self.S_n = float(st[0]), int(S.shape[1])
-        self.n_fa, self.fa0, self.dfa = int(fas.size), float(fas[0]), float(fas[1] - fas[0])
         self.fa_cover = (float(fas[0]), float(fas[-1]))
         self.fa_rows_np = fas
-        self.S = self._packed(fas, S)
-        self.Ef = self._packed(fas, E)
-        if not self.fa_textured:      # one F_a: its rows at that value (:meth:`_centre_area_fraction`)
-            self.fa_window = (fas, S, E)
-            self._centre_area_fraction(float(fa_hi) if material.process.varying_area_fraction else self.fa)
-
-    def _centre_area_fraction(self, fa):
-        """The layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the
-        cubic Hermite between the F_a rows, :func:`corona.mitsuba.common.centre_rows`), read as
-        value + slope × (F_a - ``fa_centre``) so that ``∂/∂F_a`` is the rows' and an update
-        (:meth:`parameters_changed`) re-centres them without recompiling."""
-        fas, S, E = self.fa_window
-        self.fa_centre, ((s_at, ds_at), (e_at, de_at)) = centre_rows(fas, fa, S, E)
-        self.S_centre = _array(mi.Float, np.stack([s_at[:-1], s_at[1:], ds_at[:-1], ds_at[1:]], axis=-1).ravel())
-        # the slopes apart: a render without derivatives reads only the values
-        self.Ef_corners = _array(mi.Float, _corners(e_at).ravel())
-        self.Ef_slopes = _array(mi.Float, _corners(de_at).ravel())
-        self.fa_centred = True
-
-    def _packed(self, fas, rows):
-        """Rows in F_a packed for one Vector4f gather per node: (y_k, Δ y'_k, y_k+1, Δ y'_k+1) of each
-        interval k (Δ the row step, ``y'`` from :func:`corona.model.rows.row_slopes`)."""
-        y = rows.reshape(rows.shape[0], -1)
-        m = row_slopes(fas, y) * self.dfa
-        return _array(mi.Float, np.stack([y[:-1], m[:-1], y[1:], m[1:]], axis=-1).ravel())
-
-    def _fa_weights(self, fa):
-        """Row k and the cubic Hermite weights (value k, slope k, value k+1, slope k+1) of the lane's F_a
-        between the F_a rows (the slopes stored times the row step)."""
-        if self.n_fa == 1:
-            return None
-        if self.fa_centred:   # ("centre", F_a - F_a,centre where F_a has a gradient, else None)
-            return _CENTRE, (fa - self.fa_centre if dr.grad_enabled(fa) else None)
-        g = (fa - self.fa0) / self.dfa                # itself on the end rows (as _lane_radius)
-        g = clip(g, 0.0, self.n_fa - 1.0)
-        k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
-        t = g - mi.Float(k)
-        t2 = t * t
-        t3 = t2 * t
-        return k, (2.0 * t3 - 3.0 * t2 + 1.0, t3 - 2.0 * t2 + t, 3.0 * t2 - 2.0 * t3, t3 - t2)
-
-    def _hermite(self, values, stride, index, hw, active):
-        """Node ``index`` of rows ``stride`` long, interpolated in F_a with the weights ``hw``
-        (:meth:`_fa_weights`) from the :meth:`_packed` rows; ``hw`` None: the one row, unpacked."""
-        if hw is None:
-            return _gather(mi.Float, values, index, active)
-        k, (a, b, c, d) = hw
-        v = gather4(values, k * stride + index, active)
-        return a * v.x + b * v.y + c * v.z + d * v.w
+        grid = UniformFaTables(fas, S, E, n_rows, n_mu, float(st[0]), int(S.shape[1]))
+        # a texture: the Hermite between the rows; one F_a: the rows centred at that value
+        self.fa_tables = grid if self.fa_textured else CentredFaTables(
+            grid, fas, S, E, float(fa_hi) if material.process.varying_area_fraction else self.fa)
 
     # ------------------------------------------------------------------
     # per-wavelength state
@@ -535,7 +481,7 @@ class SphereBSDFMixin:
 
     def _state(self, lam_nm, mu_i, active, fa, hw=None, radius=None):
         """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a, ``hw`` its
-        F_a rows' weights, :meth:`_fa_weights`; ``radius`` its radius [µm])."""
+        F_a rows' weights, :meth:`corona.mitsuba.lobes.FaTables.locate`; ``radius`` its radius [µm])."""
         j, t, lam, x, xj, xj1, (c, r) = self._row(lam_nm, radius, active)
         a = gather4(self.row_data, 4 * j, active)           # (Re s0, Im s0) of rows j, j+1
         e = gather4(self.row_data, 4 * j + 1, active)       # (e_b j, e_b j+1, T_f j, T_f j+1)
@@ -554,52 +500,28 @@ class SphereBSDFMixin:
 
     def _forward(self, st_j, t, mu_i, active, hw=None):
         """The forward lobe's energy e_f at the row (j, t), ``mu_i`` (SphereMaterial._forward) and the
-        lane's F_a (``hw``, :meth:`_fa_weights`): bilinear in (x row, μ) from the four corners packed
-        as one Vector4f, at the layer's one F_a (value + slope × (F_a - F_a,centre)) or cubic
-        Hermite between rows of F_a (a texture)."""
+        lane's F_a (``hw``, its weights in the F_a rows: :attr:`fa_tables`): bilinear in (x row, μ)."""
         n = len(INCIDENCE_MU)
         g = (1.0 - dr.clip(mu_i, 0.0, 1.0)) * (n - 1)
         b = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), n - 2)
         f = dr.clip(g - mi.Float(b), 0.0, 1.0)
-        if hw is None or hw[0] is _CENTRE:
-            k = st_j * (n - 1) + b
-            e = gather4(self.Ef_corners, k, active)
-            if hw is not None and hw[1] is not None:        # the slope in F_a, where it has a gradient
-                e = dr.fma(gather4(self.Ef_slopes, k, active), hw[1], e)
-            return dr.lerp(dr.lerp(e.x, e.y, f), dr.lerp(e.z, e.w, f), t)
-        k = st_j * n + b
-        stride = self.n_rows * n
-        e00 = self._hermite(self.Ef, stride, k, hw, active)
-        e01 = self._hermite(self.Ef, stride, k + 1, hw, active)
-        e10 = self._hermite(self.Ef, stride, k + n, hw, active)
-        e11 = self._hermite(self.Ef, stride, k + n + 1, hw, active)
-        return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
+        return self.fa_tables.forward(hw, st_j, b, f, t, active)
 
     def _lane(self, si, active):
         """What a lane's wavelengths share: (wavelengths [nm], their mixture weight, μ_i, F_a, its rows'
-        weights (:meth:`_fa_weights`), radius [µm])."""
+        weights (:attr:`fa_tables`), radius [µm])."""
         lams, m = self._wavelengths(si.wavelengths)
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
         fa = self.fa_tex.eval_1(si, active)
         if self.fa_textured:
             lo, hi = self.fa_range          # fa itself on the ends (as _lane_radius)
             fa = clip(fa, lo, hi)
-        return lams, m, mu_i, fa, self._fa_weights(fa), self._lane_radius(si, active)
+        return lams, m, mu_i, fa, self.fa_tables.locate(fa), self._lane_radius(si, active)
 
     def _states(self, si, active, lane=None):
         lams, m, mu_i, fa, hw, radius = lane if lane is not None else self._lane(si, active)
         states = [self._state(lam, mu_i, active, fa, hw, radius) for lam in lams]
         return states, m
-
-    def _selection(self, ctx, states, cos_i):
-        """Per-lane probabilities of (coherent, forward, backward, then the substrate's components) ∝
-        their energies summed over the lane's wavelengths (:meth:`SpheresAlone.energies_of`),
-        honouring the context."""
-        flags = [(mi.BSDFFlags.DeltaTransmission, 0), (mi.BSDFFlags.GlossyTransmission, 1),
-                 (mi.BSDFFlags.GlossyReflection, 2)]
-        flags += [(fl, 3 + i) for i, fl in enumerate(self.substrate.flags())]
-        en = self.substrate.energies_of(states, cos_i)
-        return selection(en, [ctx.is_enabled(fl, i) for fl, i in flags])
 
     def _spectrum(self, values):
         """Per-wavelength values as a Spectrum (:func:`fold_spectrum`)."""
@@ -640,22 +562,6 @@ class SphereBSDFMixin:
             cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
             lin += dr.select(inside, dr.maximum(dr.lerp(p1, p2, f), 0.0) * scale, 0.0)
         return cub, lin
-
-    def _structure(self, u, hw, active):
-        """``S`` at ``u = q r``: linear in u, the cubic Hermite in F_a between its rows; 1 beyond."""
-        x = u * (1.0 / self.S_du)
-        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
-        f = dr.minimum(x - mi.Float(i), 1.0)       # >= 0; no clip at 0 (a node): see _rows_at
-        inside = active & (x <= self.S_n - 1)
-        if hw[0] is _CENTRE:       # (S_i, S_i+1, their slopes in F_a) at the layer's one F_a
-            v4 = gather4(self.S_centre, i, inside)
-            v = dr.lerp(v4.x, v4.y, f)
-            if hw[1] is not None:
-                v = dr.fma(dr.lerp(v4.z, v4.w, f), hw[1], v)
-            return dr.select(inside, v, 1.0)
-        v = dr.lerp(self._hermite(self.S, self.S_n, i, hw, inside),
-                    self._hermite(self.S, self.S_n, i + 1, hw, inside), f)
-        return dr.select(inside, v, 1.0)
 
     def _sample_chord(self, xi, row, forward, active, total=None):
         """Invert the normalised CDF of a row of the forward or backward table (radial density 2π s P):
@@ -720,7 +626,7 @@ class SphereBSDFMixin:
         P, P_lin = self._rows_at("P", st, geo["s_any"], active, geo["offset"])   # P_f or P_b
         Z = P
         if self.has_S:
-            S = self._structure(st["x"] * geo["dxy"], st["hw"], a_f)   # u = q r = x |wo + wi|_xy
+            S = self.fa_tables.structure(st["hw"], st["x"] * geo["dxy"], a_f)   # u = q r = x |wo + wi|_xy
             C_f = self._rows_at("Cf", st, geo["s_f"], a_f)[0] if self.has_C else P
             # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
             Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
@@ -790,8 +696,16 @@ class SphereBSDFMixin:
     # ------------------------------------------------------------------
     # BSDF interface
     # ------------------------------------------------------------------
-    def _eval_pdf(self, ctx, si, wo, active, cached=None):
-        """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_sample`'s states)."""
+    def _eval_pdf(self, ctx, si, wo, active=True):
+        """``(f |cos θo|, pdf)``: the lobe component's (:attr:`lobe`)."""
+        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))
+
+    def _sample(self, ctx, si, sample1, sample2, active=True):
+        """``(BSDFSample3f, weight)``: the lobe component's (:attr:`lobe`)."""
+        return self.lobe.sample(ctx, si, sample1, sample2, active)
+
+    def _rows_eval_pdf(self, ctx, si, wo, active, cached=None):
+        """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_rows_sample`'s states)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
@@ -816,7 +730,7 @@ class SphereBSDFMixin:
         return self._spectrum(values), dr.select(active, pdf, 0.0)
 
     def _looped_eval_pdf(self, ctx, si, wo, active, lane):
-        """:meth:`_eval_pdf` without a pane (its lane's share ``lane``, :meth:`_lane`) as one symbolic
+        """:meth:`_rows_eval_pdf` without a pane (its lane's share ``lane``, :meth:`_lane`) as one symbolic
         Dr.Jit loop over the wavelengths: each wavelength's state (:meth:`_state`) and its lobes
         (:meth:`_lobe_at`) in one traced copy; the loop hands out per wavelength the value, the two
         lobe densities and the energies, summed after it (the selection, the mixture) in the same
@@ -852,19 +766,7 @@ class SphereBSDFMixin:
             pdf = dr.select(active, (p_f + p_b) * (0.25 * dr.inv_pi), 0.0)
         return self._spectrum([d["value"] for d in per]), dr.select(active, pdf, 0.0)
 
-    def eval(self, ctx, si, wo, active=True):
-        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))[0]
-
-    def pdf(self, ctx, si, wo, active=True):
-        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))[1]
-
-    def eval_pdf(self, ctx, si, wo, active=True):
-        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))
-
-    def sample(self, ctx, si, sample1, sample2, active=True):
-        return self.lobe.sample(ctx, si, sample1, sample2, active)
-
-    def _sample(self, ctx, si, sample1, sample2, active=True):
+    def _rows_sample(self, ctx, si, sample1, sample2, active=True):
         """The disordered layer's sample (:meth:`MieRowsLobe.sample`)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
@@ -913,7 +815,7 @@ class SphereBSDFMixin:
         # the substrate's sampled components (the lobes mirrored: wo_lobe's mirror image)
         smooth, pick_delta = self.substrate.sampled(bs, wi, picks, mi.Vector3f(wo_lobe.x, wo_lobe.y, -wo_lobe.z),
                                                     True, pick_f | pick_b, pick_coh)
-        value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, (states, m))
+        value, pdf = self._rows_eval_pdf(ctx, si, bs.wo, smooth, (states, m))
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
         weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)
         deltas = [self.substrate.delta_weights(st, cos_i) for st in states]
@@ -929,36 +831,50 @@ class SphereBSDFMixin:
         callback.put("area_fraction", self.fa_tex, mi.ParamFlags.Differentiable)
         callback.put("radius", self.radius_tex, mi.ParamFlags.Differentiable)
 
-    def parameters_changed(self, keys):
+    # updates (:meth:`corona.mitsuba.core.PluginCore.parameters_changed`)
+    def _checked_ranges(self):
+        """Checked ``((lo, hi) of F_a, (lo, hi) of the radius)``; None on a lattice (whose values are
+        fixed: one error where they changed)."""
+        lo, hi = texture_range(self.fa_tex)
         if self.lattice is not None:
-            lo, hi = texture_range(self.fa_tex)
-            r_lo, r_hi = texture_range(self.radius_tex)
-            if abs(hi - self.fa) > 1e-7 or abs(r_hi - float(self.params.get("radius", SPEC["radius"].default))) > 1e-7:
+            if abs(hi - self.fa) > 1e-7 or abs(texture_range(self.radius_tex)[1]
+                                              - float(self.params.get("radius", SPEC["radius"].default))) > 1e-7:
                 raise CoronaError("corona BSDF: area_fraction and radius of spheres on a lattice are out of range "
                                   "for updates; allowed the values the layer was loaded with (the lattice's "
                                   "spacing follows them)")
-            return
-        # new values: check them; rebuild the F_a rows only when they leave what the rows cover
-        lo, hi = texture_range(self.fa_tex)
+            return None
         if lo is None or not (0.0 < lo and hi < 1.0) or not (np.isfinite(lo) and np.isfinite(hi)):
             raise CoronaError(f"corona BSDF: area_fraction={lo!r} … {hi!r} is out of range for "
                               "shape='sphere'; allowed (0, 1)")
         if self.fa_textured:
             self.fa_range = (lo, hi)
-        r_lo, r_hi = self._radius_range()
-        radius_out = r_lo < self.radius_cover[0] * (1 - 1e-6) or r_hi > self.radius_cover[1] * (1 + 1e-6)
-        if radius_out:          # new rows in x about the new radii (a new kernel)
+        return (lo, hi), self._radius_range()
+
+    def _radius_out(self, radii):
+        """Whether the radii leave those the rows serve (:attr:`radius_cover`)."""
+        return radii[0] < self.radius_cover[0] * (1 - 1e-6) or radii[1] > self.radius_cover[1] * (1 + 1e-6)
+
+    def _outside(self, ranges):
+        if ranges is None:
+            return False
+        (lo, hi), radii = ranges
+        return self._radius_out(radii) or lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7
+
+    def _rebuild(self, ranges):
+        (lo, hi), (r_lo, r_hi) = ranges
+        if self._radius_out((r_lo, r_hi)):          # new rows in x about the new radii (a new kernel)
             if self.radius_textured:
                 self.radius_cover = (r_lo, r_hi)
                 self.params["radius"] = float(np.sqrt(r_lo * r_hi))
             else:
                 self.params["radius"] = r_hi
                 self.radius_cover = None
-        if radius_out or lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7:
-            self.params["area_fraction"] = hi
-            self._setup(*(self.fa_range if self.fa_textured else (hi, hi)))
-        elif self.fa_centred:
-            self._centre_area_fraction(hi)
+        self.params["area_fraction"] = hi
+        self._setup(*(self.fa_range if self.fa_textured else (hi, hi)))
+
+    def _recentre(self, ranges):
+        if ranges is not None:
+            self.fa_tables.recentre(ranges[0][1])
 
     def to_string(self):
         return f"CoronaSphereBSDF[{self.material!r}]"
@@ -996,11 +912,11 @@ class MieRowsLobe:
 
     def eval_pdf(self, ctx, si, wo, active=True):
         """``(f |cos θo|, pdf)`` at ``wo`` (Mitsuba's ``eval_pdf``)."""
-        return self._bsdf._eval_pdf(ctx, si, wo, mi.Bool(active))
+        return self._bsdf._rows_eval_pdf(ctx, si, wo, mi.Bool(active))
 
     def sample(self, ctx, si, sample1, sample2, active=True):
         """``(BSDFSample3f, weight)`` (Mitsuba's ``sample``)."""
-        return self._bsdf._sample(ctx, si, sample1, sample2, active)
+        return self._bsdf._rows_sample(ctx, si, sample1, sample2, active)
 
     def states(self, si, active=True):
         """``(states, m)``: per wavelength of the lane its row, energies, coherent weight and cap (a
@@ -1030,13 +946,13 @@ def sphere_substrate(pane):
 
 class SpheresAlone(BareLayer):
     """No substrate under the spheres: components 0, 1, 2 (the flat layer's :class:`BareLayer`,
-    with the sphere plugin's per-wavelength parts: :meth:`energies_of`, :meth:`lobe_values`,
+    with the sphere plugin's per-wavelength parts: :meth:`energies`, :meth:`lobe_values`,
     :meth:`lobe_picks`, :meth:`specular_sample`)."""
 
     #: the lane's wavelengths may run as one symbolic loop (:meth:`SphereBSDFMixin._looped_eval_pdf`)
     wavelength_loop = True
 
-    def energies_of(self, states, cos_i):
+    def energies(self, states, cos_i):
         """Energies of (coherent, forward, backward) summed over the lane's wavelengths (``states``)."""
         en = [mi.Float(0.0) for _ in range(3)]
         for st in states:
@@ -1081,7 +997,7 @@ class SpheresOnPane(PaneSubstrate):
         specular reflection (:func:`pane_delta_weights`, the face's ``R`` from the pane's ``R'``)."""
         return pane_delta_weights(layer["coherent"], self.reflectance(cos_i), self.layer_first(cos_i))
 
-    def energies_of(self, states, cos_i):
+    def energies(self, states, cos_i):
         """Energies of (coherent, forward, backward, specular, lobe in reflection) summed over the lane's
         wavelengths: the lobes through the pane where the glass comes first (``T'(θi)``), the lobe in
         reflection ``2 C R'(θi) (e_f + e_b)`` where the layer does (roughly: its selection weight)."""
