@@ -21,7 +21,7 @@ import mitsuba as mi
 import numpy as np
 
 from corona.model import tabulated
-from corona._validation import CoronaError, _short
+from corona._validation import CoronaError, short_repr
 from corona.parameters import SPEC
 from corona.model.rows import row_slopes
 
@@ -118,7 +118,7 @@ def scatterer(value) -> ScattererObject:
     them (``area_fraction`` and ``radius`` are plain values there, as with a point file).
     """
     if not isinstance(value, tuple(_kinds().values())):
-        raise CoronaError(f"corona.scatterer: {_short(value)} is neither a corona.Shape nor a "
+        raise CoronaError(f"corona.scatterer: {short_repr(value)} is neither a corona.Shape nor a "
                           "corona.Process instance (a subclass of either: corona.Shape implementing area, "
                           "length_scale and amplitude; corona.Process implementing structure_factor_at and "
                           "area_fraction)")
@@ -137,7 +137,7 @@ def instance_of(name: str, value):
     kind = _kinds()[name]
     held = value.value if isinstance(value, ScattererObject) else None
     if not isinstance(held, kind):
-        what = (f"corona.scatterer({_short(held)})" if isinstance(value, ScattererObject)
+        what = (f"corona.scatterer({short_repr(held)})" if isinstance(value, ScattererObject)
                 else f"a {type(value).__name__}")
         raise CoronaError(f"corona BSDF: {name}={what} is out of range; allowed a registered {name} name "
                           f"({', '.join(SPEC[name].choices)}) or corona.scatterer(<a corona.{kind.__name__} "
