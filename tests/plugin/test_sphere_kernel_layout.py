@@ -74,16 +74,16 @@ def test_packed_lobe_rows_read_the_plain_rows(mi_variant, monkeypatch, name):
         pytest.skip("the vectorised variants pack the rows")
     from corona.mitsuba import sphere
     packed = _load(LAYERS[name])
-    assert packed.P_spline is not None
+    assert isinstance(packed.chords, sphere.PackedChordRows)
     monkeypatch.setattr(sphere, "LOBE_PACKING_BYTES", 0)
     plain = _load(LAYERS[name])
-    assert plain.P_spline is None
+    assert isinstance(plain.chords, sphere.PlainChordRows)
     for deg in (0.0, 35.0, 75.0):
         _assert_close(_figures(packed, deg), _figures(plain, deg), f"{name} at {deg}°")
     # a negative control: a lobe row shifted by one node is seen
     rows = packed.material.rows
     shifted = np.roll(np.concatenate([rows["P_f"], rows["P_b"]]), 1, axis=1)
-    plain.P = sphere._array(mi.Float, shifted.ravel())
+    plain.chords.P = sphere._array(mi.Float, shifted.ravel())
     with pytest.raises(AssertionError):
         _assert_close(_figures(packed, 0.0), _figures(plain, 0.0), "shifted")
 
@@ -191,11 +191,11 @@ def test_packed_rows_written_in_place_are_the_intervals(mi_variant, upload_branc
     import mitsuba as mi
     from corona.mitsuba import common, sphere
     bsdf = _load(LAYERS["hard-disk"])
-    if bsdf.P_spline is None:
+    if not isinstance(bsdf.chords, sphere.PackedChordRows):
         pytest.skip("the vectorised variants pack the rows")
     rows = bsdf.material.rows
     want = sphere._catmull_rom_intervals(rows["P_f"], rows["P_b"]).ravel()
-    np.testing.assert_array_equal(np.asarray(bsdf.P_spline), want)
+    np.testing.assert_array_equal(np.asarray(bsdf.chords.P), want)
     buf, view = common.host_buffer(mi.Float, 8)
     assert (buf is None) == (upload_branch or not mi_variant.startswith("llvm")), (upload_branch, mi_variant)
     if buf is None:                                 # CUDA (or the upload branch): filled in numpy, uploaded

@@ -183,6 +183,49 @@ def _channel_tables(v, dv, du, lams_nm, weights):
     return ds, g, dg
 
 
+class LobeSampling:
+    """``sampling='lobe'`` (the default) of a flat plugin: the lobe's ``d`` drawn from its representation
+    (:mod:`corona.mitsuba.lobes`: ``sample_d``), the pdf its density."""
+
+    def pdf_d(self, pdf_d):
+        """The lobe's d-space pdf: its density (``pdf_d``)."""
+        return pdf_d
+
+    def directions(self, bsdf, si, layer, sample1, sample2, probs, picks, pick_lobe, wo_cos, wo_refl):
+        """``(wo_lobe, wo_rlobe, lobe_ok)``: the lobe's direction in transmission and, with a pane, in
+        reflection, and where they are valid (``wo_cos``, ``wo_refl``: the cosine warp and its
+        reflection on the side of ``wi``)."""
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        p_coh, p_lobe = probs[0], probs[1]
+        # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
+        # sample1's position inside the lobe's share picks the wavelength (equal weights)
+        # and what is left of it the row (j with probability 1 - t, j + 1 with t)
+        s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
+        s, pick_any_lobe = bsdf.substrate.lobe_share(picks, probs, sample1, s, pick_lobe)
+        d = bsdf.lobe.sample_d(sample2, layer, s, si.wavelengths, pick_any_lobe)
+        ox = d.x - wi.x
+        oy = d.y - wi.y
+        r2 = dr.fma(ox, ox, oy * oy)
+        oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
+        wo_lobe = mi.Vector3f(ox, oy, oz)
+        wo_rlobe = mi.Vector3f(ox, oy, -oz)   # the lobe in reflection (a pane): the same d
+        lobe_ok = (r2 < 1.0) & (oz != 0)
+        return wo_lobe, wo_rlobe, lobe_ok
+
+
+class CosineSampling(LobeSampling):
+    """``sampling='cosine'`` of a flat plugin (comparisons only): the lobe drawn as the cosine warp,
+    mirrored to the far side, ``p_ω = |cos θo| / π``."""
+
+    def pdf_d(self, pdf_d):
+        return mi.Float(dr.inv_pi)                                    # p_ω = |cos θo| / π
+
+    def directions(self, bsdf, si, layer, sample1, sample2, probs, picks, pick_lobe, wo_cos, wo_refl):
+        wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
+        return wo_lobe, wo_refl, wo_cos.z > 0        # (the lobe in reflection, a pane: the warp itself)
+
+
 class CoronaBSDFMixin(PluginCore):
     """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring): the flat family
     on the shared shell (:class:`corona.mitsuba.core.PluginCore`).
@@ -196,6 +239,8 @@ class CoronaBSDFMixin(PluginCore):
         mi.BSDF.__init__(self, props)  # the active variant's base class
         params, textures = _read_props(props)
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
+        #: how the lobe is sampled, chosen once here (:class:`LobeSampling`, :class:`CosineSampling`)
+        self.sampler = CosineSampling() if self.sampling == "cosine" else LobeSampling()
         self.params = params
         # textured parameters: a float is a uniform texture (traverse: "<name>.value")
         for name in TEXTURED:
@@ -717,8 +762,7 @@ class CoronaBSDFMixin(PluginCore):
         # Fresnel factors of a pane (module docstring's table), its lobe in reflection
         lobe, diffuse, lobe_reflected = substrate.smooth(layer, cos_i, cos_o, lobe, diffuse, f_mod, abs_cos_o)
         value = dr.select(transmit & lobe_on, lobe, 0.0)
-        if self.sampling == "cosine":
-            pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
+        pdf_d = self.sampler.pdf_d(pdf_d)
         pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
         value += dr.select(reflect & refl_on, diffuse, 0.0)
         pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
@@ -743,24 +787,8 @@ class CoronaBSDFMixin(PluginCore):
         wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
         wo_refl = mi.Vector3f(wo_cos.x, wo_cos.y, dr.mulsign(wo_cos.z, cos_i))
 
-        if self.sampling == "cosine":   # lobe: the same warp, mirrored to the far side
-            wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
-            wo_rlobe = wo_refl          # the lobe in reflection (a pane): the warp itself
-            lobe_ok = wo_cos.z > 0
-        else:
-            # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
-            # sample1's position inside the lobe's share picks the wavelength (equal weights)
-            # and what is left of it the row (j with probability 1 - t, j + 1 with t)
-            s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
-            s, pick_any_lobe = substrate.lobe_share(picks, probs, sample1, s, pick_lobe)
-            d = self.lobe.sample_d(sample2, layer, s, si.wavelengths, pick_any_lobe)
-            ox = d.x - wi.x
-            oy = d.y - wi.y
-            r2 = dr.fma(ox, ox, oy * oy)
-            oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
-            wo_lobe = mi.Vector3f(ox, oy, oz)
-            wo_rlobe = mi.Vector3f(ox, oy, -oz)   # the lobe in reflection (a pane): the same d
-            lobe_ok = (r2 < 1.0) & (oz != 0)
+        wo_lobe, wo_rlobe, lobe_ok = self.sampler.directions(self, si, layer, sample1, sample2, probs, picks,
+                                                             pick_lobe, wo_cos, wo_refl)
         lobe_valid = pick_lobe & lobe_ok
 
         bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))

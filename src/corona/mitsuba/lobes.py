@@ -509,6 +509,13 @@ class FaTables:
     def recentre(self, fa):
         """Put a uniform layer's rows at ``fa`` (only :class:`CentredFaTables` has one)."""
 
+    def decoupled(self, w, u, P, C_f, forward, active):
+        """The lobe per steradian at ``u = q r`` by the decoupling rule (corona.model.layer.decoupled_lobe):
+        ``max(P + C (S - 1), 0)`` on the forward lobe (``forward``), ``P`` on the backward one; ``C_f()``
+        reads the forward ``C``."""
+        S = self.structure(w, u, active)
+        return dr.select(forward, dr.maximum(dr.fma(C_f(), S - 1.0, P), 0.0), P)
+
     def _node(self, u, active):
         """``S``'s node ``i`` at ``u``, the position ``f`` after it and where ``u`` is inside the table."""
         x = u * (1.0 / self.S_du)
@@ -528,6 +535,10 @@ class FixedFaTables(FaTables):
     def locate(self, fa):
         """The lane's weights in F_a: none."""
         return None
+
+    def decoupled(self, w, u, P, C_f, forward, active):
+        """No ``S`` (Poisson centres): the lobe is ``P``."""
+        return P
 
     def forward(self, w, j, b, f, t, active):
         """``e_f`` at x row ``j`` (weight ``t`` of ``j + 1``) and μ node ``b`` (weight ``f`` of ``b + 1``)."""
@@ -603,6 +614,8 @@ class CentredFaTables(FixedFaTables):
         # the slopes apart: a render without derivatives reads only the values
         self.corners = array(mi.Float, bilinear_corners(e_at).ravel())
         self.slopes = array(mi.Float, bilinear_corners(de_at).ravel())
+
+    decoupled = FaTables.decoupled
 
     def locate(self, fa):
         """``F_a - F_a,centre`` where F_a has a gradient, else None (the values alone)."""

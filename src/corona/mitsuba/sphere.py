@@ -1,7 +1,10 @@
 """The ``corona`` plugin's code path for ``shape=sphere``: a layer of Mie droplets (docs/physics.md#transparent-droplets-mie-spheres).
 
 ``mi.load_dict({'type': 'corona', 'shape': 'sphere', ...})`` builds this BSDF
-(:func:`corona.mitsuba.bsdf.register` dispatches on ``shape``).  It evaluates
+(:func:`corona.mitsuba.bsdf.register` dispatches on ``shape``), a family on the plugins' one shell
+(:class:`corona.mitsuba.core.PluginCore`) with its components chosen at load: the lobe
+(:class:`MieRowsLobe`, or the lattice's), the substrate, the rows' layout (:class:`ChordRows`), the
+F_a rows (:class:`corona.mitsuba.lobes.FaTables`) and the sampler.  It evaluates
 and samples the tables of :class:`corona.model.mie.layer.SphereMaterial`
 exactly as that numpy reference does, in Dr.Jit, with the parts every
 ``corona`` BSDF shares (:mod:`corona.mitsuba.common`: the guide-table CDFs and
@@ -94,7 +97,7 @@ from corona.model.mie.layer import share_forward_energies
 from corona.mitsuba.core import PluginCore
 from corona.mitsuba.substrate import BareLayer, PaneSubstrate, pane_delta_weights, pane_smooth_factors
 
-__all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "SpheresAlone", "SpheresOnPane", "sphere_bsdf_class",
+__all__ = ["NEWTON_STEPS", "ChordRows", "MieRowsLobe", "MieRowsSampling", "UniformSampling", "PackedChordRows", "PlainChordRows", "SphereBSDFMixin", "SpheresAlone", "SpheresOnPane", "sphere_bsdf_class",
            "sphere_substrate"]
 
 #: A uniform radius's rows serve radii this factor below and above it (an optimiser's steps need no
@@ -217,6 +220,8 @@ class SphereBSDFMixin(PluginCore):
             params["area_fraction"] = texture_range(fa_tex)[1]
             fa_tex = None
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
+        #: how the lobes are sampled, chosen once here (:class:`MieRowsSampling`, :class:`UniformSampling`)
+        self.sampler = UniformSampling() if self.sampling == "cosine" else MieRowsSampling()
         self.params = params
         self.fa_textured = fa_tex is not None
         self._setup(*(self.fa_range if self.fa_textured else (params.get("area_fraction", SPEC["area_fraction"].default),) * 2))
@@ -329,21 +334,20 @@ class SphereBSDFMixin(PluginCore):
         # the largest chord a lobe's sampler draws: a row's last node scaled by x_j+1 / x_j
         self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(np.max(x[1:] / x[:-1])) * (1 + 1e-6))
         self.K = int(rows["P_f"].shape[1])
-        self.has_C = bool(rows["C_f"].size)
+        has_C = bool(rows["C_f"].size)
         # the lobes' rows: packed Catmull–Rom intervals where the memory allows, else the plain rows
         # (one of the two is allocated, the other is None)
         packing = self._lobe_packing(rows)
         # the packed intervals (numpy, about a third of a cold load) are built on a second thread
         # while this one builds (or reads) the guided CDFs below: numpy releases the GIL, so on two
         # cores the two overlap; the same values
-        lobes = ([(rows["C_f"],)] if self.has_C else []) + [(rows["P_f"], rows["P_b"])]
+        lobes = ([(rows["C_f"],)] if has_C else []) + [(rows["P_f"], rows["P_b"])]
         pool = ThreadPoolExecutor(max_workers=1) if packing else None
         # written in place into the plugin's arrays where the backend allows (host_buffer): no numpy
         # copy of them beside (at 8 µm 174 MB, whose fresh pages cost more than the arithmetic here)
         buffers = [host_buffer(mi.Float, 4 * sum(a.size for a in ls)) for ls in lobes] if packing else None
         splines = ([pool.submit(_catmull_rom_intervals, *ls, out=view) for ls, (_, view) in zip(lobes, buffers)]
                    if packing else None)
-        self.Cf = self.Cf_spline = None
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
         self._setup_area_fraction_rows(material, fa_rows, fa_hi)
         # per-row scalars of both rows of an interval j, j+1 packed 16 to the interval (one 64-byte
@@ -366,20 +370,17 @@ class SphereBSDFMixin(PluginCore):
         finally:
             if pool is not None:
                 pool.shutdown(wait=True)
+        # the rows' layout, chosen here once (:class:`ChordRows`)
         if packing:
             packed = [buf if buf is not None else _array(mi.Float, job.result().ravel())
                       for job, (buf, _) in zip(splines, buffers)]
             for job in splines:
                 job.result()                       # (raises what the thread raised)
-            if self.has_C:
-                self.Cf_spline = packed[0]
-            self.P_spline = packed[-1]
-            self.P = None
+            self.chords = PackedChordRows(packed[-1], packed[0] if has_C else None, self.n_rows, self.K, self.ds)
         else:
-            if self.has_C:
-                self.Cf = _array(mi.Float, rows["C_f"].ravel())
-            self.P_spline = None
-            self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
+            self.chords = PlainChordRows(_array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()])),
+                                         _array(mi.Float, rows["C_f"].ravel()) if has_C else None,
+                                         self.n_rows, self.K, self.ds)
         self.cdf, self.guide = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
         self.G, self.n_bins, self.steps = g["G"], g["n_bins"], g["steps"]
 
@@ -428,9 +429,8 @@ class SphereBSDFMixin(PluginCore):
         in F_a, or the one F_a-independent energy table (Poisson): the representation
         (:class:`corona.mitsuba.lobes.FaTables`) chosen here, once per build."""
         st = material.structure_table
-        self.has_S = st is not None
         n_rows, n_mu = self.n_rows, len(INCIDENCE_MU)
-        if not self.has_S:
+        if st is None:
             self.fa_tables = FixedFaTables(_array(mi.Float, bilinear_corners(material.row_totals["e_f_mu"]).ravel()),
                                            n_rows, n_mu)
             self.fa_cover = (0.0, 1.0)
@@ -530,39 +530,6 @@ class SphereBSDFMixin(PluginCore):
     # ------------------------------------------------------------------
     # tables
     # ------------------------------------------------------------------
-    def _rows_at(self, lobe, st, s, active, offset=0):
-        """Rows j, j+1 (weight t) of the chord table ``lobe`` (``"P"``: both lobes' P, ``"Cf"``: the
-        forward C), each read at its chord scaled by ``x / x_row`` (corona.model.mie.layer._scaled_blend):
-        (Catmull–Rom value, linear value: the sampler's density up to its total).  The packed
-        intervals ``<lobe>_spline`` where they exist, else the plain rows ``<lobe>``."""
-        cub, lin = mi.Float(0.0), mi.Float(0.0)
-        K = self.K
-        spline = getattr(self, lobe + "_spline")
-        arr = getattr(self, lobe)
-        for d, wgt, r in ((0, 1.0 - st["t"], st["rj"]), (1, st["t"], st["rj1"])):
-            row = st["j"] + d              # read at the chord s x / x_row (r = x / x_row)
-            g = s * (r * (1.0 / self.ds))
-            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
-            f = dr.minimum(g - mi.Float(i), 1.0)   # >= 0; no clip at 0: its derivative there (a node) is 0
-            inside = active & (g <= K - 1)
-            k = row * K + i + offset
-            scale = wgt * (r * r)
-            if spline is not None:        # one Vector4f: (p1, p2 - p1, c1, c2), node-major
-                q = gather4(spline, i * self.n_rows + row + offset, inside)
-                v = dr.fma(f, dr.fma(f, dr.fma(f, q.y - q.z - q.w, q.w), q.z), q.x)
-                cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
-                lin += dr.select(inside, dr.maximum(dr.fma(f, q.y, q.x), 0.0) * scale, 0.0)
-                continue
-            p1 = _gather(mi.Float, arr, k, inside)
-            p2 = _gather(mi.Float, arr, k + 1, inside)
-            p0 = dr.select(i > 0, _gather(mi.Float, arr, k - 1, inside & (i > 0)), p1)
-            p3 = dr.select(i + 2 < K, _gather(mi.Float, arr, k + 2, inside & (i + 2 < K)), p2)
-            v = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3
-                                               + f * (3.0 * (p1 - p2) + p3 - p0)))
-            cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
-            lin += dr.select(inside, dr.maximum(dr.lerp(p1, p2, f), 0.0) * scale, 0.0)
-        return cub, lin
-
     def _sample_chord(self, xi, row, forward, active, total=None):
         """Invert the normalised CDF of a row of the forward or backward table (radial density 2π s P):
         :func:`guided_search` for the bin, :func:`invert_radial_bin` inside it (``total``: the row's
@@ -570,12 +537,7 @@ class SphereBSDFMixin(PluginCore):
         table_row = dr.select(forward, row, row + self.n_rows)
         idx, c0, c1 = guided_search(self.cdf, self.guide, self.G, self.n_bins, self.steps, table_row, xi, active)
         k = row * self.K + idx + dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
-        if self.P_spline is not None:   # node-major (:func:`_catmull_rom_intervals`)
-            q = gather4(self.P_spline, idx * self.n_rows + row + (k - row * self.K - idx), active)
-            a, b = q.x, q.y
-        else:
-            a = _gather(mi.Float, self.P, k, active)
-            b = _gather(mi.Float, self.P, k + 1, active) - a
+        a, b = self.chords.interval(idx, row, k, active)
         if total is None:
             total = dr.select(forward, _gather(mi.Float, self.Tf, row, active),
                               _gather(mi.Float, self.Tb, row, active))
@@ -589,7 +551,7 @@ class SphereBSDFMixin(PluginCore):
         cosine sampling).  One symbolic Dr.Jit loop over the wavelengths (:meth:`_looped_lobes`) where
         the kernel is traced and no derivative flows, else unrolled; the same sums either way."""
         geo = self._lobe_geometry(wi, wo, active, on_f, on_b)
-        with_pdf = mix is not None and self.sampling != "cosine"
+        with_pdf = mix is not None and self.sampler.densities
         if self._loopable(len(states), wi, wo, *(mix if with_pdf else ()),
                           *(st[k] for st in states for k in self._LOBE_KEYS + ("fs",))):
             return self._looped_lobes(states, geo, mix if with_pdf else None)
@@ -623,13 +585,11 @@ class SphereBSDFMixin(PluginCore):
         """One wavelength's ``Z`` at the lane's ``wo`` (:meth:`_lobe_geometry`) and, given the other
         lobe's linear rows ``Q_lin`` there, the sampler's density of each lobe (dens_f, dens_b)."""
         forward, active, a_f = geo["forward"], geo["active"], geo["a_f"]
-        P, P_lin = self._rows_at("P", st, geo["s_any"], active, geo["offset"])   # P_f or P_b
-        Z = P
-        if self.has_S:
-            S = self.fa_tables.structure(st["hw"], st["x"] * geo["dxy"], a_f)   # u = q r = x |wo + wi|_xy
-            C_f = self._rows_at("Cf", st, geo["s_f"], a_f)[0] if self.has_C else P
-            # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
-            Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
+        chords = self.chords
+        P, P_lin = chords.rows_at(chords.P, st, geo["s_any"], active, geo["offset"])   # P_f or P_b
+        # with S (a hard core) the decoupling rule, u = q r = x |wo + wi|_xy
+        Z = self.fa_tables.decoupled(st["hw"], st["x"] * geo["dxy"], P,
+                                     lambda: chords.forward_C(st, geo["s_f"], a_f, P), forward, a_f)
         Z = dr.select(geo["on"], Z, 0.0)
         if Q_lin is None:
             return Z, None, None
@@ -684,7 +644,7 @@ class SphereBSDFMixin(PluginCore):
             out = []
             for i in range(n):
                 st = dict(zip(keys, flat[4 * i:4 * i + 4]))
-                out.append(self._rows_at("P", st, s_o, near_, off)[1])
+                out.append(self.chords.rows_at(self.chords.P, st, s_o, near_, off)[1])
             return tuple(out)
 
         def zeros(s_o, near_, off, *flat):
@@ -724,9 +684,7 @@ class SphereBSDFMixin(PluginCore):
         Z, pdf = self._lobes(states, wi, wo, active, on_f, on_b, (m, p_f, p_b))
         values, pdf = self.substrate.lobe_values(self, ctx, states, wi, wo, cos_i, cos_o, active, Z, pdf,
                                                  (m, p_f, p_b), p_sub)
-        if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes
-            smooth = p_f + p_b + self.substrate.smooth_share(p_sub)
-            pdf = dr.select(active, smooth * (0.25 * dr.inv_pi), 0.0)
+        pdf = self.sampler.smooth_pdf(active, pdf, p_f + p_b + self.substrate.smooth_share(p_sub))
         return self._spectrum(values), dr.select(active, pdf, 0.0)
 
     def _looped_eval_pdf(self, ctx, si, wo, active, lane):
@@ -741,7 +699,7 @@ class SphereBSDFMixin(PluginCore):
         on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
         geo = self._lobe_geometry(wi, wo, active, on_f, on_b)
-        with_pdf = self.sampling != "cosine"
+        with_pdf = self.sampler.densities
         n = len(lams)
         keys = ("value", "coherent", "e_f", "e_b") + (("dens_f", "dens_b") if with_pdf else ())
 
@@ -758,12 +716,11 @@ class SphereBSDFMixin(PluginCore):
                                  label="corona sphere wavelengths")
         per = [dict(zip(keys, vals)) for vals in zip(*outs)]   # per wavelength, as the states
         p_coh, p_f, p_b = self._selection(ctx, per, cos_i)
+        pdf = mi.Float(0.0)
         if with_pdf:
-            pdf = mi.Float(0.0)
             for d in per:
                 pdf += m * (p_f * d["dens_f"] + p_b * d["dens_b"])
-        else:          # comparisons only: uniform sphere for the lobes
-            pdf = dr.select(active, (p_f + p_b) * (0.25 * dr.inv_pi), 0.0)
+        pdf = self.sampler.smooth_pdf(active, pdf, p_f + p_b)
         return self._spectrum([d["value"] for d in per]), dr.select(active, pdf, 0.0)
 
     def _rows_sample(self, ctx, si, sample1, sample2, active=True):
@@ -785,27 +742,7 @@ class SphereBSDFMixin(PluginCore):
                                                                       pick_b, s)
         bs = dr.zeros(mi.BSDFSample3f)
         bs.eta = 1.0
-        if self.sampling == "cosine":
-            wo_lobe = mi.warp.square_to_uniform_sphere(sample2)
-        else:
-            # the lobe's share of sample1 picks the hero wavelength, what is left of it the row
-            pick, x, rest = pick_wavelength(s, [st["x"] for st in states])
-            # the picked wavelength's row interval, its lobe's totals at both rows, their x
-            j, t, xj, xj1, Tf0, Tf1, Tb0, Tb1 = (picked(pick, [st[k] for st in states])
-                                                 for k in ("j", "t", "xj", "xj1", "Tf0", "Tf1", "Tb0", "Tb1"))
-            T0, T1 = dr.select(lobe_f, Tf0, Tb0), dr.select(lobe_f, Tf1, Tb1)
-            p_next = t * T1 / dr.maximum(dr.lerp(T0, T1, t), 1e-30)
-            up = rest < p_next
-            row = dr.select(up, j + 1, j)
-            chord = self._sample_chord(sample2.x, row, lobe_f, lobe_any, dr.select(up, T1, T0))
-            # the row's chord scaled to the lane's x: rings at a fixed x·s
-            chord = dr.minimum(chord * dr.select(up, xj1, xj) / x, 2.0)
-            cos_t = 1.0 - 0.5 * chord * chord
-            sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
-            sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)
-            axis = dr.select(lobe_f, -wi, wi)
-            wo_lobe = mi.Frame3f(axis).to_world(mi.Vector3f(sin_t * cp, sin_t * sp, cos_t))
-            wo_lobe = dr.normalize(wo_lobe)
+        wo_lobe = self.sampler.direction(self, states, s, lobe_f, lobe_any, wi, sample2)
         bs.wo = dr.select(pick_coh, -wi, wo_lobe)
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0), dr.select(pick_f, mi.UInt32(1), mi.UInt32(2)))
         same_side = cos_i * mi.Frame3f.cos_theta(bs.wo) > 0
@@ -931,11 +868,124 @@ class MieRowsLobe:
         s_f, s_b = dr.norm(wo + wi), dr.norm(wo - wi)
         forward = s_f <= s_b
         offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
-        return b._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0], forward
+        return b.chords.rows_at(b.chords.P, st, dr.select(forward, s_f, s_b), active, offset)[0], forward
 
     def spectrum(self, values):
         """Per-wavelength values of :meth:`states`' order as a Spectrum."""
         return self._bsdf._spectrum(values)
+
+
+class MieRowsSampling:
+    """``sampling='lobe'`` (the default) of a sphere plugin: a lobe's direction drawn from its Mie rows
+    (:meth:`SphereBSDFMixin._sample_chord`), the pdf the lobes' samplers' mixture (their densities)."""
+
+    #: the lobes' densities are summed for the pdf
+    densities = True
+
+    def smooth_pdf(self, active, pdf, p_smooth):
+        """The smooth components' pdf: the densities summed (``pdf``)."""
+        return pdf
+
+    def direction(self, bsdf, states, s, lobe_f, lobe_any, wi, sample2):
+        """The lobe's direction (``lobe_f``: the forward one) for the lane's ``states``, ``s`` what is left
+        of ``sample1`` inside the lobe's share."""
+        # the lobe's share of sample1 picks the hero wavelength, what is left of it the row
+        pick, x, rest = pick_wavelength(s, [st["x"] for st in states])
+        # the picked wavelength's row interval, its lobe's totals at both rows, their x
+        j, t, xj, xj1, Tf0, Tf1, Tb0, Tb1 = (picked(pick, [st[k] for st in states])
+                                             for k in ("j", "t", "xj", "xj1", "Tf0", "Tf1", "Tb0", "Tb1"))
+        T0, T1 = dr.select(lobe_f, Tf0, Tb0), dr.select(lobe_f, Tf1, Tb1)
+        p_next = t * T1 / dr.maximum(dr.lerp(T0, T1, t), 1e-30)
+        up = rest < p_next
+        row = dr.select(up, j + 1, j)
+        chord = bsdf._sample_chord(sample2.x, row, lobe_f, lobe_any, dr.select(up, T1, T0))
+        # the row's chord scaled to the lane's x: rings at a fixed x·s
+        chord = dr.minimum(chord * dr.select(up, xj1, xj) / x, 2.0)
+        cos_t = 1.0 - 0.5 * chord * chord
+        sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
+        sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)
+        axis = dr.select(lobe_f, -wi, wi)
+        wo_lobe = mi.Frame3f(axis).to_world(mi.Vector3f(sin_t * cp, sin_t * sp, cos_t))
+        wo_lobe = dr.normalize(wo_lobe)
+        return wo_lobe
+
+
+class UniformSampling:
+    """``sampling='cosine'`` of a sphere plugin (comparisons only): the lobes drawn uniformly over the sphere."""
+
+    densities = False
+
+    def smooth_pdf(self, active, pdf, p_smooth):
+        """The smooth components' pdf: their share ``p_smooth`` over the sphere."""
+        return dr.select(active, p_smooth * (0.25 * dr.inv_pi), 0.0)
+
+    def direction(self, bsdf, states, s, lobe_f, lobe_any, wi, sample2):
+        return mi.warp.square_to_uniform_sphere(sample2)
+
+
+class ChordRows:
+    """The Mie rows in the chord ``s``: both lobes' ``P`` (``P``: the forward rows, then the backward
+    ones from ``offset``) and the forward ``C`` (``Cf``; None for one size, where ``C = P``), ``n_rows``
+    rows of x, ``K`` nodes ``ds`` apart, in one layout chosen at load: :class:`PackedChordRows` (one
+    Vector4f an interval) or :class:`PlainChordRows` (the nodes)."""
+
+    def __init__(self, P, Cf, n_rows, K, ds):
+        self.P, self.Cf, self.n_rows, self.K, self.ds = P, Cf, n_rows, K, ds
+
+    def rows_at(self, table, st, s, active, offset=0):
+        """Rows j, j+1 (weight t) of ``table`` (:attr:`P` or :attr:`Cf`), each read at its chord scaled by
+        ``x / x_row`` (corona.model.mie.layer's scaled blend): (Catmull–Rom value, linear value: the
+        sampler's density up to its total)."""
+        cub, lin = mi.Float(0.0), mi.Float(0.0)
+        K = self.K
+        for d, wgt, r in ((0, 1.0 - st["t"], st["rj"]), (1, st["t"], st["rj1"])):
+            row = st["j"] + d              # read at the chord s x / x_row (r = x / x_row)
+            g = s * (r * (1.0 / self.ds))
+            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
+            f = dr.minimum(g - mi.Float(i), 1.0)   # >= 0; no clip at 0: its derivative there (a node) is 0
+            inside = active & (g <= K - 1)
+            scale = wgt * (r * r)
+            v, v_lin = self.node(table, row, i, offset, f, inside)
+            cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
+            lin += dr.select(inside, dr.maximum(v_lin, 0.0) * scale, 0.0)
+        return cub, lin
+
+    def forward_C(self, st, s, active, P):
+        """The forward ``C`` at chord ``s`` (:meth:`rows_at`); ``P`` itself for one size (``C = P``)."""
+        return P if self.Cf is None else self.rows_at(self.Cf, st, s, active)[0]
+
+
+class PackedChordRows(ChordRows):
+    """:class:`ChordRows` as Catmull–Rom intervals, node-major (:func:`_catmull_rom_intervals`)."""
+
+    def node(self, table, row, i, offset, f, inside):
+        """(Catmull–Rom, linear) value of row ``row`` in interval ``i`` at ``f``."""
+        q = gather4(table, i * self.n_rows + row + offset, inside)     # (p1, p2 - p1, c1, c2)
+        return dr.fma(f, dr.fma(f, dr.fma(f, q.y - q.z - q.w, q.w), q.z), q.x), dr.fma(f, q.y, q.x)
+
+    def interval(self, idx, row, k, active):
+        """``(P(i), P(i + 1) - P(i))`` of the :attr:`P` interval ``idx`` of row ``row`` (node ``k``, row-major)."""
+        q = gather4(self.P, idx * self.n_rows + row + (k - row * self.K - idx), active)
+        return q.x, q.y
+
+
+class PlainChordRows(ChordRows):
+    """:class:`ChordRows` as the nodes, row-major (four scalar gathers a Catmull–Rom value)."""
+
+    def node(self, table, row, i, offset, f, inside):
+        K = self.K
+        k = row * K + i + offset
+        p1 = _gather(mi.Float, table, k, inside)
+        p2 = _gather(mi.Float, table, k + 1, inside)
+        p0 = dr.select(i > 0, _gather(mi.Float, table, k - 1, inside & (i > 0)), p1)
+        p3 = dr.select(i + 2 < K, _gather(mi.Float, table, k + 2, inside & (i + 2 < K)), p2)
+        v = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3
+                                           + f * (3.0 * (p1 - p2) + p3 - p0)))
+        return v, dr.lerp(p1, p2, f)
+
+    def interval(self, idx, row, k, active):
+        a = _gather(mi.Float, self.P, k, active)
+        return a, _gather(mi.Float, self.P, k + 1, active) - a
 
 
 def sphere_substrate(pane):
