@@ -108,7 +108,7 @@ import numpy as np
 from corona.model import tabulated
 from corona._validation import CoronaError, CoronaWarning
 from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
-                                   guided_cdfs, positive as _positive,
+                                   guided_cdfs,
                                    read_props as _read_props, texture_range, uniform as _uniform,
                                    variant_class)
 from corona.mitsuba.common import centre_rows, clip as _clip, gather as _gather
@@ -780,8 +780,7 @@ class CoronaBSDFMixin(PluginCore):
         pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
         pick_refl, picks = substrate.pick(active, sample1, probs)   # (a pane: 3 specular, 4 the lobe reflected)
 
-        bs = dr.zeros(mi.BSDFSample3f)
-        bs.eta = 1.0
+        bs = self._new_sample()
 
         # reflection: cosine-weighted on the side of wi
         wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
@@ -802,12 +801,11 @@ class CoronaBSDFMixin(PluginCore):
         smooth, pick_delta = substrate.sampled(bs, wi, picks, wo_rlobe, lobe_ok, lobe_valid | pick_refl, pick_coh)
 
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, layer)
-        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)          # no 0/0 (scalar variants too)
+        weight = self._sample_weight(value, pdf)
         w_coh, bs.pdf, weight = substrate.delta_sample(layer, cos_i, si.wavelengths, picks, probs,
                                                        dr.select(pick_coh, p_coh, pdf), weight)
         weight = dr.select(pick_coh, w_coh / dr.maximum(p_coh, 1e-30), weight)
-        ok = pick_delta | (smooth & (bs.pdf > 0))
-        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
+        return self._accepted(bs, weight, pick_delta, smooth)
 
     def traverse(self, callback):
         # float parameters are uniform textures: keys "area_fraction.value", "radius.value",

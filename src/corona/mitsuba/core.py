@@ -8,7 +8,8 @@ holds a substrate component (``substrate``: its ``energies(layer, cos_i)`` are t
 energies in :meth:`PluginCore.set_components`'s order), and supplies
 
 - ``_eval_pdf(ctx, si, wo, active)``: ``(f |cos θo|, pdf)``;
-- ``_sample(ctx, si, sample1, sample2, active)``: ``(BSDFSample3f, weight)``;
+- ``_sample(ctx, si, sample1, sample2, active)``: ``(BSDFSample3f, weight)`` (with the shell's
+  ``_new_sample``, ``_sample_weight`` and ``_accepted``);
 - ``_checked_ranges()``: the textures' current ranges, checked (one :class:`corona.CoronaError`
   naming a bad one); ``_outside(ranges)``: whether they leave what the tables cover;
   ``_rebuild(ranges)``: new tables about them; ``_recentre(ranges)``: the tables moved without a new
@@ -16,9 +17,10 @@ energies in :meth:`PluginCore.set_components`'s order), and supplies
 """
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 
-from corona.mitsuba.common import selection
+from corona.mitsuba.common import positive, selection
 
 __all__ = ["PluginCore"]
 
@@ -54,6 +56,26 @@ class PluginCore:
 
     def sample(self, ctx, si, sample1, sample2, active=True):
         return self._sample(ctx, si, sample1, sample2, active)
+
+    # what every family's sample shares
+    @staticmethod
+    def _new_sample():
+        """A zeroed ``BSDFSample3f`` (``eta`` 1: the layer does not refract)."""
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.eta = 1.0
+        return bs
+
+    @staticmethod
+    def _sample_weight(value, pdf):
+        """``value / pdf`` where ``pdf > 0``, else 0 (no 0/0, scalar variants too)."""
+        return dr.select(pdf > 0, value / positive(pdf), 0.0)
+
+    @staticmethod
+    def _accepted(bs, weight, pick_delta, smooth):
+        """``(bs, weight)`` with the weight kept where a delta component was picked or a smooth one
+        has a density, 0 elsewhere."""
+        ok = pick_delta | (smooth & (bs.pdf > 0))
+        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
 
     def parameters_changed(self, keys):
         # new values: check them; rebuild the tables only when they leave what the tables cover

@@ -740,8 +740,7 @@ class SphereBSDFMixin(PluginCore):
         # the backward lobe takes what is left; the substrate's own picks after the lobes
         pick_b, lobe_f, lobe_any, s, picks = self.substrate.lobe_picks(active, sample1, probs, pick_coh, pick_f,
                                                                       pick_b, s)
-        bs = dr.zeros(mi.BSDFSample3f)
-        bs.eta = 1.0
+        bs = self._new_sample()
         wo_lobe = self.sampler.direction(self, states, s, lobe_f, lobe_any, wi, sample2)
         bs.wo = dr.select(pick_coh, -wi, wo_lobe)
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0), dr.select(pick_f, mi.UInt32(1), mi.UInt32(2)))
@@ -754,14 +753,13 @@ class SphereBSDFMixin(PluginCore):
                                                     True, pick_f | pick_b, pick_coh)
         value, pdf = self._rows_eval_pdf(ctx, si, bs.wo, smooth, (states, m))
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
-        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)
+        weight = self._sample_weight(value, pdf)
         deltas = [self.substrate.delta_weights(st, cos_i) for st in states]
         coh = self._spectrum([d[0] for d in deltas])
         weight = dr.select(pick_coh, coh / dr.maximum(p_coh, 1e-30), weight)
         bs.pdf, weight = self.substrate.specular_sample(picks, probs, [d[1] for d in deltas], self._spectrum,
                                                         bs.pdf, weight)
-        ok = pick_delta | (smooth & (bs.pdf > 0))
-        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
+        return self._accepted(bs, weight, pick_delta, smooth)
 
     def traverse(self, callback):
         # area_fraction and radius (a uniform texture's "….value", or the texture's own keys), differentiable
