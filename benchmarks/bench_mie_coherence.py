@@ -94,8 +94,9 @@ def main():
         finally:
             sphere_module.LOBE_PACKING_BYTES = packing
         if mode == "plain":
-            found = [s.bsdf() for s in scene.shapes() if hasattr(s.bsdf(), "P_spline")]
-            assert found and all(b.P_spline is None for b in found), "the rows are still packed"
+            found = [s.bsdf() for s in scene.shapes() if hasattr(s.bsdf(), "chords")]
+            assert found and all(isinstance(b.chords, sphere_module.PlainChordRows) for b in found), \
+                "the rows are still packed"
         elif mode is not None:
             found = [s.bsdf() for s in scene.shapes() if hasattr(s.bsdf(), "_wavelengths")]
             assert found, "no sphere layer in the scene"

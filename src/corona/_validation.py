@@ -69,14 +69,14 @@ def check_finite_array(name: str, value, unit: str = "") -> np.ndarray:
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise CoronaError(f"{name}={_short(value)} is not a numeric array") from None
+        raise CoronaError(f"{name}={short_repr(value)} is not a numeric array") from None
     if not np.all(np.isfinite(a)):
         bad = float(a[~np.isfinite(a)].ravel()[0])
         raise CoronaError(f"{name} contains {bad!r}; expected finite values" + (f" {unit}" if unit else ""))
     return a
 
 
-def _short(value, limit: int = 80) -> str:
+def short_repr(value, limit: int = 80) -> str:
     """``repr(value)`` on one line, shortened (arrays can be long)."""
     r = " ".join(repr(value).split())
     return r if len(r) <= limit else r[:limit - 3] + "..."

@@ -99,6 +99,31 @@ def test_white_furnace_by_sampling(layers, name):
         assert mean == pytest.approx(ref, abs=5e-3), (deg, mean, ref)
 
 
+def test_both_families_are_one_shell(mi_variant):
+    """Spheres are a family of the plugins' one core, not a second stack: Mitsuba's entry points, the
+    selection and the update protocol of both variant classes are :class:`corona.mitsuba.core.PluginCore`'s
+    own functions."""
+    from corona.mitsuba import core, sphere
+    from corona.mitsuba.bsdf import bsdf_class
+    flat, spheres = bsdf_class(), sphere.sphere_bsdf_class()
+    for name in ("eval", "pdf", "eval_pdf", "sample", "_selection", "parameters_changed", "set_components"):
+        shared = vars(core.PluginCore)[name]
+        assert vars(flat)[name] is shared and vars(spheres)[name] is shared, name
+
+
+@pytest.mark.slow     # the module's sphere layers (Mie tables)
+def test_sphere_components_are_chosen_at_load(layers):
+    """A sphere layer holds its components (lobe, substrate, rows' layout, F_a rows, sampler) as objects
+    chosen at load."""
+    from corona.mitsuba import lobes, sphere
+    hd, poisson = layers["hd"], layers["poisson"]
+    assert isinstance(hd.lobe, sphere.MieRowsLobe) and isinstance(hd.substrate, sphere.SpheresAlone)
+    assert isinstance(hd.chords, sphere.ChordRows) and isinstance(hd.sampler, sphere.MieRowsSampling)
+    assert isinstance(hd.fa_tables, lobes.CentredFaTables)       # a uniform F_a with a hard core
+    assert isinstance(poisson.fa_tables, lobes.FixedFaTables) and not isinstance(poisson.fa_tables,
+                                                                                 lobes.CentredFaTables)
+
+
 def test_bad_input(mi_variant):
     import mitsuba as mi
     # Mitsuba wraps the plugin's CoronaError in its parser's error; the one line is kept

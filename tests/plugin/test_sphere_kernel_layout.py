@@ -74,16 +74,16 @@ def test_packed_lobe_rows_read_the_plain_rows(mi_variant, monkeypatch, name):
         pytest.skip("the vectorised variants pack the rows")
     from corona.mitsuba import sphere
     packed = _load(LAYERS[name])
-    assert packed.P_spline is not None
+    assert isinstance(packed.chords, sphere.PackedChordRows)
     monkeypatch.setattr(sphere, "LOBE_PACKING_BYTES", 0)
     plain = _load(LAYERS[name])
-    assert plain.P_spline is None
+    assert isinstance(plain.chords, sphere.PlainChordRows)
     for deg in (0.0, 35.0, 75.0):
         _assert_close(_figures(packed, deg), _figures(plain, deg), f"{name} at {deg}°")
     # a negative control: a lobe row shifted by one node is seen
     rows = packed.material.rows
     shifted = np.roll(np.concatenate([rows["P_f"], rows["P_b"]]), 1, axis=1)
-    plain.P = sphere._array(mi.Float, shifted.ravel())
+    plain.chords.P = sphere._array(mi.Float, shifted.ravel())
     with pytest.raises(AssertionError):
         _assert_close(_figures(packed, 0.0), _figures(plain, 0.0), "shifted")
 
@@ -92,11 +92,12 @@ def test_one_area_fraction_centred_matches_the_rows_and_updates_without_recompil
     import mitsuba as mi
     if not dr.is_array_v(mi.Float):
         pytest.skip("kernels: vectorised variants")
+    from corona.mitsuba.lobes import CentredFaTables
     bsdf = _load(LAYERS["hard-disk"])
-    assert bsdf.fa_centred
+    assert isinstance(bsdf.fa_tables, CentredFaTables)
     # the Hermite between the F_a rows (as for a texture) at the same value
     rows_only = _load(LAYERS["hard-disk"])
-    rows_only.fa_centred = False
+    rows_only.fa_tables = rows_only.fa_tables.grid     # the Hermite between the rows
     _assert_close(_figures(bsdf, 20.0), _figures(rows_only, 20.0), "centred vs rows")
     params = mi.traverse(bsdf)
     key = "area_fraction.value"
@@ -190,11 +191,11 @@ def test_packed_rows_written_in_place_are_the_intervals(mi_variant, upload_branc
     import mitsuba as mi
     from corona.mitsuba import common, sphere
     bsdf = _load(LAYERS["hard-disk"])
-    if bsdf.P_spline is None:
+    if not isinstance(bsdf.chords, sphere.PackedChordRows):
         pytest.skip("the vectorised variants pack the rows")
     rows = bsdf.material.rows
     want = sphere._catmull_rom_intervals(rows["P_f"], rows["P_b"]).ravel()
-    np.testing.assert_array_equal(np.asarray(bsdf.P_spline), want)
+    np.testing.assert_array_equal(np.asarray(bsdf.chords.P), want)
     buf, view = common.host_buffer(mi.Float, 8)
     assert (buf is None) == (upload_branch or not mi_variant.startswith("llvm")), (upload_branch, mi_variant)
     if buf is None:                                 # CUDA (or the upload branch): filled in numpy, uploaded

@@ -110,13 +110,14 @@ import numpy as np
 from corona.model import tabulated
 from corona._validation import CoronaError, CoronaWarning
 from corona.mitsuba.common import (N_RESPONSE, NEWTON_STEPS, TEXTURED, array as _array, channel_response,
-                                   guided_cdfs, positive as _positive,
-                                   read_props as _read_props, selection, texture_range, uniform as _uniform,
+                                   guided_cdfs,
+                                   read_props as _read_props, texture_range, uniform as _uniform,
                                    variant_class)
 from corona.mitsuba.common import PROCESS_TEXTURED, centre_rows, clip as _clip, gather as _gather
 from corona.mitsuba.lobes import (CentredChannelTables, CentredKernelLobe, CentredRadialRow, CentredRow,
                                   ChannelTables, KernelLobe, OneRow, PackedRowGrid, PairedTable, RadialRow,
                                   RadialRowPairs, RadialRows, RowGrid, SampledTable, Wavelengths)
+from corona.mitsuba.core import PluginCore
 from corona.mitsuba.substrate import substrate_component
 from corona.model.registry import process_family, shape_family
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, parse_mixture, rst_table
@@ -184,8 +185,52 @@ def _channel_tables(v, dv, du, lams_nm, weights):
     return ds, g, dg
 
 
-class CoronaBSDFMixin:
-    """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring).
+class LobeSampling:
+    """``sampling='lobe'`` (the default) of a flat plugin: the lobe's ``d`` drawn from its representation
+    (:mod:`corona.mitsuba.lobes`: ``sample_d``), the pdf its density."""
+
+    def pdf_d(self, pdf_d):
+        """The lobe's d-space pdf: its density (``pdf_d``)."""
+        return pdf_d
+
+    def directions(self, bsdf, si, layer, sample1, sample2, probs, picks, pick_lobe, wo_cos, wo_refl):
+        """``(wo_lobe, wo_rlobe, lobe_ok)``: the lobe's direction in transmission and, with a pane, in
+        reflection, and where they are valid (``wo_cos``, ``wo_refl``: the cosine warp and its
+        reflection on the side of ``wi``)."""
+        wi = si.wi
+        cos_i = mi.Frame3f.cos_theta(wi)
+        p_coh, p_lobe = probs[0], probs[1]
+        # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
+        # sample1's position inside the lobe's share picks the wavelength (equal weights)
+        # and what is left of it the row (j with probability 1 - t, j + 1 with t)
+        s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
+        s, pick_any_lobe = bsdf.substrate.lobe_share(picks, probs, sample1, s, pick_lobe)
+        d = bsdf.lobe.sample_d(sample2, layer, s, si.wavelengths, pick_any_lobe)
+        ox = d.x - wi.x
+        oy = d.y - wi.y
+        r2 = dr.fma(ox, ox, oy * oy)
+        oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
+        wo_lobe = mi.Vector3f(ox, oy, oz)
+        wo_rlobe = mi.Vector3f(ox, oy, -oz)   # the lobe in reflection (a pane): the same d
+        lobe_ok = (r2 < 1.0) & (oz != 0)
+        return wo_lobe, wo_rlobe, lobe_ok
+
+
+class CosineSampling(LobeSampling):
+    """``sampling='cosine'`` of a flat plugin (comparisons only): the lobe drawn as the cosine warp,
+    mirrored to the far side, ``p_ω = |cos θo| / π``."""
+
+    def pdf_d(self, pdf_d):
+        return mi.Float(dr.inv_pi)                                    # p_ω = |cos θo| / π
+
+    def directions(self, bsdf, si, layer, sample1, sample2, probs, picks, pick_lobe, wo_cos, wo_refl):
+        wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
+        return wo_lobe, wo_refl, wo_cos.z > 0        # (the lobe in reflection, a pane: the warp itself)
+
+
+class CoronaBSDFMixin(PluginCore):
+    """Mitsuba 3 BSDF of a layer of correlated scatterers (see the module docstring): the flat family
+    on the shared shell (:class:`corona.mitsuba.core.PluginCore`).
 
     The methods live in this plain class; :func:`bsdf_class` copies them into a
     subclass of the active variant's ``mi.BSDF`` (each variant has its own
@@ -196,6 +241,8 @@ class CoronaBSDFMixin:
         mi.BSDF.__init__(self, props)  # the active variant's base class
         params, textures = _read_props(props)
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
+        #: how the lobe is sampled, chosen once here (:class:`LobeSampling`, :class:`CosineSampling`)
+        self.sampler = CosineSampling() if self.sampling == "cosine" else LobeSampling()
         self.params = params
         # textured parameters: a float is a uniform texture (traverse: "<name>.value")
         for name in TEXTURED:
@@ -254,11 +301,8 @@ class CoronaBSDFMixin:
         comps += self.substrate.components(sides, not self.isotropic)   # the pane: 3 and 4
         if self._textured:
             comps = [c | mi.BSDFFlags.SpatiallyVarying for c in comps]
-        self.m_components = comps
-        flags = mi.BSDFFlags.Empty
-        for c in comps:
-            flags = flags | c
-        self.m_flags = flags
+        self.set_components(comps, (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
+                                    mi.BSDFFlags.DiffuseReflection) + self.substrate.flags())
 
     # ------------------------------------------------------------------
     # textures -> tables
@@ -719,14 +763,6 @@ class CoronaBSDFMixin:
         (the representation's: :mod:`corona.mitsuba.lobes`)."""
         return self.lobe.lobe_and_pdf(layer, wo.x + wi.x, wo.y + wi.y, wavelengths, active, modulation)
 
-    def _selection(self, ctx, layer, cos_i=None):
-        """Per-lane probabilities of (coherent, lobe, reflection[, specular, lobe in reflection])
-        honouring the context: each component's energy, roughly for the lobes."""
-        flags = (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
-                 mi.BSDFFlags.DiffuseReflection) + self.substrate.flags()
-        energies = self.substrate.energies(layer, cos_i)
-        return selection(energies, [ctx.is_enabled(fl, i) for i, fl in enumerate(flags)])
-
     # ------------------------------------------------------------------
     # BSDF interface
     # ------------------------------------------------------------------
@@ -759,23 +795,13 @@ class CoronaBSDFMixin:
         # Fresnel factors of a pane (module docstring's table), its lobe in reflection
         lobe, diffuse, lobe_reflected = substrate.smooth(layer, cos_i, cos_o, lobe, diffuse, f_mod, abs_cos_o)
         value = dr.select(transmit & lobe_on, lobe, 0.0)
-        if self.sampling == "cosine":
-            pdf_d = mi.Float(dr.inv_pi)                                   # p_ω = |cos θo| / π
+        pdf_d = self.sampler.pdf_d(pdf_d)
         pdf = dr.select(transmit, p_lobe * pdf_d * abs_cos_o, 0.0)        # p_ω = p_d |cos θo|
         value += dr.select(reflect & refl_on, diffuse, 0.0)
         pdf += dr.select(reflect, p_refl * dr.inv_pi * abs_cos_o, 0.0)
         return substrate.add_reflected(ctx, value, pdf, reflect, lobe_reflected, probs, pdf_d, abs_cos_o)
 
-    def eval(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, active)[0]
-
-    def pdf(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, active)[1]
-
-    def eval_pdf(self, ctx, si, wo, active=True):
-        return self._eval_pdf(ctx, si, wo, active)
-
-    def sample(self, ctx, si, sample1, sample2, active=True):
+    def _sample(self, ctx, si, sample1, sample2, active=True):
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         active = mi.Bool(active) & (cos_i != 0)
@@ -787,31 +813,14 @@ class CoronaBSDFMixin:
         pick_lobe = active & (sample1 >= p_coh) & (sample1 < p_coh + p_lobe)
         pick_refl, picks = substrate.pick(active, sample1, probs)   # (a pane: 3 specular, 4 the lobe reflected)
 
-        bs = dr.zeros(mi.BSDFSample3f)
-        bs.eta = 1.0
+        bs = self._new_sample()
 
         # reflection: cosine-weighted on the side of wi
         wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
         wo_refl = mi.Vector3f(wo_cos.x, wo_cos.y, dr.mulsign(wo_cos.z, cos_i))
 
-        if self.sampling == "cosine":   # lobe: the same warp, mirrored to the far side
-            wo_lobe = mi.Vector3f(wo_refl.x, wo_refl.y, -wo_refl.z)
-            wo_rlobe = wo_refl          # the lobe in reflection (a pane): the warp itself
-            lobe_ok = wo_cos.z > 0
-        else:
-            # lobe: sample u for one wavelength and one F_a row, d = u λ / (2π L), wo.xy = d - wi.xy.
-            # sample1's position inside the lobe's share picks the wavelength (equal weights)
-            # and what is left of it the row (j with probability 1 - t, j + 1 with t)
-            s = (sample1 - p_coh) / dr.maximum(p_lobe, 1e-30)
-            s, pick_any_lobe = substrate.lobe_share(picks, probs, sample1, s, pick_lobe)
-            d = self.lobe.sample_d(sample2, layer, s, si.wavelengths, pick_any_lobe)
-            ox = d.x - wi.x
-            oy = d.y - wi.y
-            r2 = dr.fma(ox, ox, oy * oy)
-            oz = -dr.mulsign(dr.safe_sqrt(1.0 - r2), cos_i)
-            wo_lobe = mi.Vector3f(ox, oy, oz)
-            wo_rlobe = mi.Vector3f(ox, oy, -oz)   # the lobe in reflection (a pane): the same d
-            lobe_ok = (r2 < 1.0) & (oz != 0)
+        wo_lobe, wo_rlobe, lobe_ok = self.sampler.directions(self, si, layer, sample1, sample2, probs, picks,
+                                                             pick_lobe, wo_cos, wo_refl)
         lobe_valid = pick_lobe & lobe_ok
 
         bs.wo = dr.select(pick_coh, -wi, dr.select(pick_lobe, wo_lobe, wo_refl))
@@ -825,12 +834,11 @@ class CoronaBSDFMixin:
         smooth, pick_delta = substrate.sampled(bs, wi, picks, wo_rlobe, lobe_ok, lobe_valid | pick_refl, pick_coh)
 
         value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, layer)
-        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)          # no 0/0 (scalar variants too)
+        weight = self._sample_weight(value, pdf)
         w_coh, bs.pdf, weight = substrate.delta_sample(layer, cos_i, si.wavelengths, picks, probs,
                                                        dr.select(pick_coh, p_coh, pdf), weight)
         weight = dr.select(pick_coh, w_coh / dr.maximum(p_coh, 1e-30), weight)
-        ok = pick_delta | (smooth & (bs.pdf > 0))
-        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
+        return self._accepted(bs, weight, pick_delta, smooth)
 
     def traverse(self, callback):
         # float parameters are uniform textures: keys "area_fraction.value", "radius.value",
@@ -844,18 +852,27 @@ class CoronaBSDFMixin:
         if self.time_tex is not None:
             callback.put(self.time_name, self.time_tex, flag)
 
-    def parameters_changed(self, keys):
-        # new values: check them; rebuild the tables only when they leave what the tables cover
-        (fa_lo, fa_hi), radius, albedo = ranges = self._ranges()
+    # updates (:meth:`corona.mitsuba.core.PluginCore.parameters_changed`)
+    def _checked_ranges(self):
+        """Checked (lo, hi) of the area fraction, radius and albedo textures (:meth:`_ranges`) and of
+        the breath time (None without a ``breath_time`` texture)."""
+        return self._ranges(), (self._time_range() if self.time_tex is not None else None)
+
+    def _outside(self, ranges):
+        ((fa_lo, fa_hi), radius, albedo), times = ranges
         outside = (fa_lo < self.fa_cover[0] - 1e-7 or fa_hi > self.fa_cover[1] + 1e-7
                    or (not self.fixed_radius and radius[1] > self.radius_cover * (1 + 1e-6)))
-        if self.time_tex is not None:
-            t_lo, t_hi = self._time_range()
+        if times is not None:
+            t_lo, t_hi = times
             outside = outside or t_lo < self.time_cover[0] * (1 - 1e-6) or t_hi > self.time_cover[1] * (1 + 1e-6)
-        if outside:
-            self._setup(*ranges)
-        elif self.centred:
-            self._centre(float(np.float32(fa_hi)))
+        return outside
+
+    def _rebuild(self, ranges):
+        self._setup(*ranges[0])
+
+    def _recentre(self, ranges):
+        if self.centred:
+            self._centre(float(np.float32(ranges[0][0][1])))
 
     def to_string(self):
         # the material at the current (largest) values, not at the table's headroom

@@ -21,7 +21,7 @@ import mitsuba as mi
 import numpy as np
 
 from corona.model import tabulated
-from corona._validation import CoronaError, _short
+from corona._validation import CoronaError, short_repr
 from corona.parameters import SPEC
 from corona.model.rows import row_slopes
 
@@ -118,7 +118,7 @@ def scatterer(value) -> ScattererObject:
     them (``area_fraction`` and ``radius`` are plain values there, as with a point file).
     """
     if not isinstance(value, tuple(_kinds().values())):
-        raise CoronaError(f"corona.scatterer: {_short(value)} is neither a corona.Shape nor a "
+        raise CoronaError(f"corona.scatterer: {short_repr(value)} is neither a corona.Shape nor a "
                           "corona.Process instance (a subclass of either: corona.Shape implementing area, "
                           "length_scale and amplitude; corona.Process implementing structure_factor_at and "
                           "area_fraction)")
@@ -137,7 +137,7 @@ def instance_of(name: str, value):
     kind = _kinds()[name]
     held = value.value if isinstance(value, ScattererObject) else None
     if not isinstance(held, kind):
-        what = (f"corona.scatterer({_short(held)})" if isinstance(value, ScattererObject)
+        what = (f"corona.scatterer({short_repr(held)})" if isinstance(value, ScattererObject)
                 else f"a {type(value).__name__}")
         raise CoronaError(f"corona BSDF: {name}={what} is out of range; allowed a registered {name} name "
                           f"({', '.join(SPEC[name].choices)}) or corona.scatterer(<a corona.{kind.__name__} "
@@ -227,11 +227,14 @@ def variant_class(mixin: type, base_name: str, name: str) -> type:
     ``"PhaseFunction"``) holding ``mixin``'s methods, made once per variant.
 
     Each Mitsuba variant has its own base classes and nanobind types take a single base, so the
-    plugins keep their methods in plain mixins and copy them into one subclass per variant.
+    plugins keep their methods in plain mixins (with their plain bases', e.g.
+    :class:`corona.mitsuba.core.PluginCore`) and copy them into one subclass per variant.
     """
     key = (mi.variant(), mixin, base_name)
     if key not in _VARIANT_CLASSES:
-        methods = {k: v for k, v in vars(mixin).items() if k not in ("__dict__", "__weakref__")}
+        methods = {}
+        for klass in reversed(mixin.__mro__[:-1]):     # a shared shell's methods, then the family's own
+            methods.update({k: v for k, v in vars(klass).items() if k not in ("__dict__", "__weakref__")})
         _VARIANT_CLASSES[key] = type(name, (getattr(mi, base_name),), methods)
     return _VARIANT_CLASSES[key]
 
@@ -378,6 +381,14 @@ def hermite_rows(x, rows, at):
     v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * mb
     dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * ma + (6 * t - 6 * t2) * b + (3 * t2 - 2 * t) * mb) / h
     return v, dv
+
+
+def hermite_weights(t):
+    """The cubic Hermite basis at ``t`` in [0, 1] of an interval of unit width: the weights of (value at
+    0, slope at 0, value at 1, slope at 1); slopes in the interval's units (scale them by its width)."""
+    t2 = t * t
+    t3 = t2 * t
+    return (2.0 * t3 - 3.0 * t2 + 1.0, t3 - 2.0 * t2 + t, 3.0 * t2 - 2.0 * t3, t3 - t2)
 
 
 def centre_rows(x, at, *tables):

@@ -307,7 +307,7 @@ class LobeKernel:
         c = table.lo + np.arange(n) * cell
         c[-1] = table.lo + span * (1.0 - 1e-12)            # inside the fine table's last cell
         gx, gy = np.meshgrid(c, c)                          # index [iy, ix]
-        values = np.maximum(table._eval_t(np.stack([gx, gy], -1)), 0.0)
+        values = np.maximum(table.eval_grid(np.stack([gx, gy], -1)), 0.0)
         seg = 0.5 * cell * (values[:, 1:] + values[:, :-1]).sum(axis=1)
         total = float(0.5 * cell * (seg[1:] + seg[:-1]).sum())
         return values, float(cell), total

@@ -32,12 +32,14 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from corona.mitsuba.common import (array, channel_response, fold_spectrum, gather, gather4, guided_search,
-                                   invert_radial_bin, lambda_um, pick_wavelength, wavelength_mixture)
+from corona.mitsuba.common import (array, centre_rows, channel_response, clip, fold_spectrum, gather, gather4,
+                                   guided_search, hermite_weights, invert_radial_bin, lambda_um, pick_wavelength,
+                                   wavelength_mixture)
 
 __all__ = ["Wavelengths", "SampledTable", "Lobe", "RadialRow", "CentredRadialRow", "RadialRows",
            "RadialRowPairs", "ChannelTables", "CentredChannelTables", "KernelLobe", "CentredKernelLobe",
-           "OneRow", "CentredRow", "RowGrid", "PackedRowGrid", "differentiated"]
+           "OneRow", "CentredRow", "RowGrid", "PackedRowGrid", "differentiated",
+           "FaTables", "FixedFaTables", "UniformFaTables", "CentredFaTables", "bilinear_corners"]
 
 
 def differentiated(layer, dx, dy):
@@ -467,9 +469,8 @@ class RowGrid:
         h = dr.maximum(f1 - f0, 1e-12)
         t = (fa - f0) / h
         # cubic Hermite weights between the rows (the slopes' two scaled by the spacing h)
-        t2 = dr.square(t)
-        t3 = t2 * t
-        hermite = (2.0 * t3 - 3.0 * t2 + 1.0, (t3 - 2.0 * t2 + t) * h, 3.0 * t2 - 2.0 * t3, (t3 - t2) * h)
+        h00, h10, h01, h11 = hermite_weights(t)
+        hermite = (h00, h10 * h, h01, h11 * h)
         energy = (hermite[0] * total + hermite[2] * total_next
                   + hermite[1] * slope + hermite[3] * slope_next)
         return dict(j=j, t=t, total=total, total_next=total_next, hermite=hermite, energy=energy)
@@ -489,3 +490,155 @@ class PackedRowGrid(RowGrid):
         found = (dr.select(up, r[4], r[3]), dr.select(up, r[5], r[4]),
                  dr.select(up, r[7], r[6]), dr.select(up, r[8], r[7]))
         return up, r[0], r[1], r[2], lambda jj: found
+
+
+# --------------------------------------------------------------------------
+# tables read node by node in rows of F_a (the sphere plugin's S(u) and forward energies e_f(x, μ))
+# --------------------------------------------------------------------------
+class FaTables:
+    """The sphere plugin's F_a-dependent tables, ``S(u)`` (``S_n`` nodes ``S_du`` apart) and the
+    forward energies ``e_f`` (``n_rows`` rows of x, ``n_mu`` nodes of μ), in one representation
+    chosen at load (:class:`FixedFaTables`, :class:`UniformFaTables`, :class:`CentredFaTables`): the
+    flat layer's row lookups (:class:`OneRow`, :class:`CentredRow`, :class:`RowGrid`) for tables read
+    at several nodes a lane.  ``locate(fa)`` gives the lane's weights ``w`` once; ``structure`` and
+    ``forward`` read with them.  ``recentre(fa)`` re-centres a centred layer (others: nothing)."""
+
+    def __init__(self, n_rows, n_mu, S_du=None, S_n=None):
+        self.n_rows, self.n_mu, self.S_du, self.S_n = n_rows, n_mu, S_du, S_n
+
+    def recentre(self, fa):
+        """Put a uniform layer's rows at ``fa`` (only :class:`CentredFaTables` has one)."""
+
+    def decoupled(self, w, u, P, C_f, forward, active):
+        """The lobe per steradian at ``u = q r`` by the decoupling rule (corona.model.layer.decoupled_lobe):
+        ``max(P + C (S - 1), 0)`` on the forward lobe (``forward``), ``P`` on the backward one; ``C_f()``
+        reads the forward ``C``."""
+        S = self.structure(w, u, active)
+        return dr.select(forward, dr.maximum(dr.fma(C_f(), S - 1.0, P), 0.0), P)
+
+    def _node(self, u, active):
+        """``S``'s node ``i`` at ``u``, the position ``f`` after it and where ``u`` is inside the table."""
+        x = u * (1.0 / self.S_du)
+        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
+        f = dr.minimum(x - mi.Float(i), 1.0)       # >= 0; no clip at 0 (a node): its derivative there is 0
+        return i, f, active & (x <= self.S_n - 1)
+
+
+class FixedFaTables(FaTables):
+    """One F_a that nothing moves (Poisson centres: no ``S``): the forward energies' bilinear cells
+    (``corners``: one Vector4f a cell)."""
+
+    def __init__(self, corners, n_rows, n_mu):
+        super().__init__(n_rows, n_mu)
+        self.corners = corners
+
+    def locate(self, fa):
+        """The lane's weights in F_a: none."""
+        return None
+
+    def decoupled(self, w, u, P, C_f, forward, active):
+        """No ``S`` (Poisson centres): the lobe is ``P``."""
+        return P
+
+    def forward(self, w, j, b, f, t, active):
+        """``e_f`` at x row ``j`` (weight ``t`` of ``j + 1``) and μ node ``b`` (weight ``f`` of ``b + 1``)."""
+        e = gather4(self.corners, j * (self.n_mu - 1) + b, active)
+        return dr.lerp(dr.lerp(e.x, e.y, f), dr.lerp(e.z, e.w, f), t)
+
+
+class UniformFaTables(FaTables):
+    """Rows at ``F_a = fa0 + k dfa`` (``n_fa >= 2``; a texture's range), the cubic Hermite in F_a between
+    rows ``k`` and ``k + 1`` (:func:`corona.mitsuba.common.hermite_weights`) from packets
+    ``(y_k, dfa y'_k, y_k+1, dfa y'_k+1)`` (:meth:`pack`)."""
+
+    def __init__(self, fas, S, E, n_rows, n_mu, S_du, S_n):
+        super().__init__(n_rows, n_mu, S_du, S_n)
+        fas = np.asarray(fas, dtype=np.float64)
+        self.n_fa, self.fa0, self.dfa = int(fas.size), float(fas[0]), float(fas[1] - fas[0])
+        self.S, self.Ef = self.pack(fas, S), self.pack(fas, E)
+
+    def pack(self, fas, rows):
+        """Rows in F_a packed for one Vector4f gather per node: (y_k, Δ y'_k, y_k+1, Δ y'_k+1) of each
+        interval k (Δ the row step, ``y'`` from :func:`corona.model.rows.row_slopes`)."""
+        from corona.model.rows import row_slopes
+        y = rows.reshape(rows.shape[0], -1)
+        m = row_slopes(fas, y) * self.dfa
+        return array(mi.Float, np.stack([y[:-1], m[:-1], y[1:], m[1:]], axis=-1).ravel())
+
+    def locate(self, fa):
+        """Row k and the cubic Hermite weights (value k, slope k, value k+1, slope k+1) of the lane's F_a."""
+        g = (fa - self.fa0) / self.dfa                # itself on the end rows
+        g = clip(g, 0.0, self.n_fa - 1.0)
+        k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
+        return k, hermite_weights(g - mi.Float(k))
+
+    def read(self, values, stride, index, w, active):
+        """Node ``index`` of rows ``stride`` long, interpolated in F_a with the weights ``w``."""
+        k, (a, b, c, d) = w
+        v = gather4(values, k * stride + index, active)
+        return a * v.x + b * v.y + c * v.z + d * v.w
+
+    def structure(self, w, u, active):
+        """``S`` at ``u = q r``: linear in u, the cubic Hermite in F_a between its rows; 1 beyond."""
+        i, f, inside = self._node(u, active)
+        v = dr.lerp(self.read(self.S, self.S_n, i, w, inside), self.read(self.S, self.S_n, i + 1, w, inside), f)
+        return dr.select(inside, v, 1.0)
+
+    def forward(self, w, j, b, f, t, active):
+        n = self.n_mu
+        k = j * n + b
+        stride = self.n_rows * n
+        e00 = self.read(self.Ef, stride, k, w, active)
+        e01 = self.read(self.Ef, stride, k + 1, w, active)
+        e10 = self.read(self.Ef, stride, k + n, w, active)
+        e11 = self.read(self.Ef, stride, k + n + 1, w, active)
+        return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
+
+
+class CentredFaTables(FixedFaTables):
+    """A uniform layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the cubic
+    Hermite between the rows ``fas``, :func:`corona.mitsuba.common.centre_rows`, as the flat layer's
+    :class:`CentredRow`), read as value + slope × (F_a - ``fa_centre``) so that ``∂/∂F_a`` is the rows'
+    and :meth:`recentre` moves them without recompiling.  ``grid``: the same rows as
+    :class:`UniformFaTables` (what a texture of F_a reads)."""
+
+    def __init__(self, grid: UniformFaTables, fas, S, E, fa):
+        FaTables.__init__(self, grid.n_rows, grid.n_mu, grid.S_du, grid.S_n)
+        self.grid, self.window = grid, (fas, S, E)
+        self.recentre(fa)
+
+    def recentre(self, fa):
+        fas, S, E = self.window
+        self.fa_centre, ((s_at, ds_at), (e_at, de_at)) = centre_rows(fas, fa, S, E)
+        self.S_centre = array(mi.Float, np.stack([s_at[:-1], s_at[1:], ds_at[:-1], ds_at[1:]], axis=-1).ravel())
+        # the slopes apart: a render without derivatives reads only the values
+        self.corners = array(mi.Float, bilinear_corners(e_at).ravel())
+        self.slopes = array(mi.Float, bilinear_corners(de_at).ravel())
+
+    decoupled = FaTables.decoupled
+
+    def locate(self, fa):
+        """``F_a - F_a,centre`` where F_a has a gradient, else None (the values alone)."""
+        return fa - self.fa_centre if dr.grad_enabled(fa) else None
+
+    def structure(self, w, u, active):
+        i, f, inside = self._node(u, active)
+        v4 = gather4(self.S_centre, i, inside)     # (S_i, S_i+1, their slopes in F_a)
+        v = dr.lerp(v4.x, v4.y, f)
+        if w is not None:
+            v = dr.fma(dr.lerp(v4.z, v4.w, f), w, v)
+        return dr.select(inside, v, 1.0)
+
+    def forward(self, w, j, b, f, t, active):
+        k = j * (self.n_mu - 1) + b
+        e = gather4(self.corners, k, active)
+        if w is not None:                           # the slope in F_a, where it has a gradient
+            e = dr.fma(gather4(self.slopes, k, active), w, e)
+        return dr.lerp(dr.lerp(e.x, e.y, f), dr.lerp(e.z, e.w, f), t)
+
+
+def bilinear_corners(e):
+    """The four corners ``(e[j, b], e[j, b+1], e[j+1, b], e[j+1, b+1])`` of each cell of a table
+    ``e`` (rows j of x, columns b of μ), cell by cell: one Vector4f gather reads a bilinear cell."""
+    e = np.asarray(e, dtype=np.float64)
+    return np.stack([e[:-1, :-1], e[:-1, 1:], e[1:, :-1], e[1:, 1:]], axis=-1)

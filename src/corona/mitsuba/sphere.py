@@ -1,8 +1,11 @@
 """The ``corona`` plugin's code path for ``shape=sphere``: a layer of Mie droplets (docs/physics.md#transparent-droplets-mie-spheres).
 
 ``mi.load_dict({'type': 'corona', 'shape': 'sphere', ...})`` builds this BSDF
-(:func:`corona.mitsuba.bsdf.register` dispatches on ``shape``).  It evaluates
-and samples the tables of :class:`corona.model.mie.layer.SphereMaterial`
+(:func:`corona.mitsuba.bsdf.register` dispatches on ``shape``), a family on the plugins' one shell
+(:class:`corona.mitsuba.core.PluginCore`) with its components chosen at load: the lobe
+(:class:`MieRowsLobe`, or the lattice's), the substrate, the rows' layout (:class:`ChordRows`), the
+F_a rows (:class:`corona.mitsuba.lobes.FaTables`) and the sampler.  It evaluates
+and samples the tables of :class:`corona.model.mie.material.SphereMaterial`
 exactly as that numpy reference does, in Dr.Jit, with the parts every
 ``corona`` BSDF shares (:mod:`corona.mitsuba.common`: the guide-table CDFs and
 their search, the radial Newton inversion, the wavelength mixture and pick,
@@ -83,26 +86,29 @@ import numpy as np
 from corona.model import tabulated
 from corona._validation import CoronaError
 from corona.mitsuba.common import NEWTON_STEPS, fold_spectrum, logical_not as _not, pick_wavelength, picked, texture_range
-from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, positive as _positive, selection
+from corona.mitsuba.common import guided_cdfs, guided_search, invert_radial_bin, positive as _positive
 from corona.mitsuba.common import uniform as _uniform, variant_class, wavelength_mixture
 from corona.mitsuba.common import array as _array, channel_response as _channel_response, gather as _gather, gather4
-from corona.mitsuba.common import centre_rows, clip, host_buffer, read_props as _read_props
+from corona.mitsuba.common import clip, host_buffer, read_props as _read_props
+from corona.mitsuba.lobes import CentredFaTables, FixedFaTables, UniformFaTables, bilinear_corners
 from corona.parameters import DEFAULTS, SPEC, material_from_parameters, warn_unused
-from corona.model.rows import row_slopes
 from corona.model.mie.layer import ENERGY_MARGIN, INCIDENCE_MU, SPHERE_RADIUS_MAX, radius_span
 from corona.model.mie.material import SphereMaterial
 from corona.model.mie.layer import share_forward_energies
+from corona.mitsuba.core import PluginCore
 from corona.mitsuba.substrate import BareLayer, PaneSubstrate, pane_delta_weights, pane_smooth_factors
 
-__all__ = ["NEWTON_STEPS", "MieRowsLobe", "SphereBSDFMixin", "SpheresAlone", "SpheresOnPane", "sphere_bsdf_class",
+__all__ = ["NEWTON_STEPS", "ChordRows", "MieRowsLobe", "MieRowsSampling", "UniformSampling", "PackedChordRows", "PlainChordRows", "SphereBSDFMixin", "SpheresAlone", "SpheresOnPane", "sphere_bsdf_class",
            "sphere_substrate"]
 
 #: A uniform radius's rows serve radii this factor below and above it (an optimiser's steps need no
 #: rebuild); a radius texture's rows serve its range.
 RADIUS_HEADROOM = 1.05
 #: Spacing of the F_a rows of ``S(q)`` and the forward energies with a hard core (hard-disk, rsa)
-#: (a uniform value: ± one step about it; the flat layers' rows span ± ``bsdf.FA_WINDOW`` at the
-#: spacing their material picks; both centre through :func:`corona.mitsuba.common.centre_rows`).
+#: (a uniform value: ± one step about it), read by :class:`corona.mitsuba.lobes.FaTables` as the flat
+#: layer's rows are.  Why a step of its own: a sphere's F_a row is a whole Mie layer's build (S and
+#: the forward energies over x and μ), a flat one a radial table the accuracy rule places
+#: (``bsdf.FA_WINDOW``, :meth:`corona.Material.area_fraction_rows`).
 FA_ROW_STEP = 0.05
 #: The most memory [bytes] the lobes' rows take as packed Catmull–Rom intervals (four floats a node:
 #: one Vector4f gather reads a row's interval; beyond it the plain rows are held instead, read by
@@ -110,8 +116,6 @@ FA_ROW_STEP = 0.05
 LOBE_PACKING_BYTES = 1 << 28
 #: Chord nodes per block of rows of the lobes' CDFs and guides (:func:`_guided_rows`).
 GUIDE_BLOCK = 1 << 18
-#: Marks the F_a weights of a layer with one F_a (:meth:`SphereBSDFMixin._fa_weights`).
-_CENTRE = "centre"
 
 
 def _catmull_rom_intervals(*lobes, out=None):
@@ -151,13 +155,6 @@ def _catmull_rom_intervals(*lobes, out=None):
     return out
 
 
-def _corners(e):
-    """The four corners ``(e[j, b], e[j, b+1], e[j+1, b], e[j+1, b+1])`` of each cell of a table
-    ``e`` (rows j of x, columns b of μ), cell by cell: one Vector4f gather reads a bilinear cell."""
-    e = np.asarray(e, dtype=np.float64)
-    return np.stack([e[:-1, :-1], e[:-1, 1:], e[1:, :-1], e[1:, 1:]], axis=-1)
-
-
 def _guided_rows(material, rows) -> dict:
     """:func:`corona.mitsuba.common.guided_cdfs` of the forward then the backward rows of
     ``rows["P_f"]``, ``rows["P_b"]`` (radial densities ``2π s P(s)``), kept in the table cache
@@ -194,8 +191,9 @@ def _guided_rows(material, rows) -> dict:
             **{k: int(g[k]) for k in ("G", "n_bins", "steps")}}
 
 
-class SphereBSDFMixin:
-    """Mitsuba 3 BSDF of a layer of Mie spheres (see the module docstring)."""
+class SphereBSDFMixin(PluginCore):
+    """Mitsuba 3 BSDF of a layer of Mie spheres (see the module docstring): the sphere family on the
+    shared shell (:class:`corona.mitsuba.core.PluginCore`), its lobe component :attr:`lobe`."""
 
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
@@ -223,6 +221,8 @@ class SphereBSDFMixin:
             params["area_fraction"] = texture_range(fa_tex)[1]
             fa_tex = None
         self.sampling = params.pop("sampling", SPEC["sampling"].default)
+        #: how the lobes are sampled, chosen once here (:class:`MieRowsSampling`, :class:`UniformSampling`)
+        self.sampler = UniformSampling() if self.sampling == "cosine" else MieRowsSampling()
         self.params = params
         self.fa_textured = fa_tex is not None
         self._setup(*(self.fa_range if self.fa_textured else (params.get("area_fraction", SPEC["area_fraction"].default),) * 2))
@@ -236,12 +236,10 @@ class SphereBSDFMixin:
         #: the substrate component, chosen once here: none (:class:`SpheresAlone`) or a glass pane
         #: (:class:`SpheresOnPane`: 3, the pane's mirror image, 4, the lobes in reflection)
         self.substrate = sphere_substrate(self.material.substrate)
-        self.m_components = [mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
-        self.m_components += self.substrate.components(sides, False)
-        flags = self.m_components[0]
-        for c in self.m_components[1:]:
-            flags = flags | c
-        self.m_flags = flags
+        self.set_components([mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
+                            + self.substrate.components(sides, False),
+                            (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
+                             mi.BSDFFlags.GlossyReflection) + self.substrate.flags())
         #: the fixed lattice of ``process=lattice-*`` (its Bragg orders), None for a disordered layer
         self.lattice = lattice
         #: the lobe component, chosen once here: the disordered layer's Mie rows (:class:`MieRowsLobe`),
@@ -337,21 +335,20 @@ class SphereBSDFMixin:
         # the largest chord a lobe's sampler draws: a row's last node scaled by x_j+1 / x_j
         self.reach = min(2.0, (rows["P_f"].shape[1] - 1) * self.ds * float(np.max(x[1:] / x[:-1])) * (1 + 1e-6))
         self.K = int(rows["P_f"].shape[1])
-        self.has_C = bool(rows["C_f"].size)
+        has_C = bool(rows["C_f"].size)
         # the lobes' rows: packed Catmull–Rom intervals where the memory allows, else the plain rows
         # (one of the two is allocated, the other is None)
         packing = self._lobe_packing(rows)
         # the packed intervals (numpy, about a third of a cold load) are built on a second thread
         # while this one builds (or reads) the guided CDFs below: numpy releases the GIL, so on two
         # cores the two overlap; the same values
-        lobes = ([(rows["C_f"],)] if self.has_C else []) + [(rows["P_f"], rows["P_b"])]
+        lobes = ([(rows["C_f"],)] if has_C else []) + [(rows["P_f"], rows["P_b"])]
         pool = ThreadPoolExecutor(max_workers=1) if packing else None
         # written in place into the plugin's arrays where the backend allows (host_buffer): no numpy
         # copy of them beside (at 8 µm 174 MB, whose fresh pages cost more than the arithmetic here)
         buffers = [host_buffer(mi.Float, 4 * sum(a.size for a in ls)) for ls in lobes] if packing else None
         splines = ([pool.submit(_catmull_rom_intervals, *ls, out=view) for ls, (_, view) in zip(lobes, buffers)]
                    if packing else None)
-        self.Cf = self.Cf_spline = None
         self.Tf, self.Tb = _array(mi.Float, der["T_f"]), _array(mi.Float, der["T_b"])
         self._setup_area_fraction_rows(material, fa_rows, fa_hi)
         # per-row scalars of both rows of an interval j, j+1 packed 16 to the interval (one 64-byte
@@ -374,20 +371,17 @@ class SphereBSDFMixin:
         finally:
             if pool is not None:
                 pool.shutdown(wait=True)
+        # the rows' layout, chosen here once (:class:`ChordRows`)
         if packing:
             packed = [buf if buf is not None else _array(mi.Float, job.result().ravel())
                       for job, (buf, _) in zip(splines, buffers)]
             for job in splines:
                 job.result()                       # (raises what the thread raised)
-            if self.has_C:
-                self.Cf_spline = packed[0]
-            self.P_spline = packed[-1]
-            self.P = None
+            self.chords = PackedChordRows(packed[-1], packed[0] if has_C else None, self.n_rows, self.K, self.ds)
         else:
-            if self.has_C:
-                self.Cf = _array(mi.Float, rows["C_f"].ravel())
-            self.P_spline = None
-            self.P = _array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()]))
+            self.chords = PlainChordRows(_array(mi.Float, np.concatenate([rows["P_f"].ravel(), rows["P_b"].ravel()])),
+                                         _array(mi.Float, rows["C_f"].ravel()) if has_C else None,
+                                         self.n_rows, self.K, self.ds)
         self.cdf, self.guide = _array(mi.Float, g["cdf"]), _array(mi.UInt32, g["guide"])
         self.G, self.n_bins, self.steps = g["G"], g["n_bins"], g["steps"]
 
@@ -433,72 +427,24 @@ class SphereBSDFMixin:
     def _setup_area_fraction_rows(self, material, fa_rows, fa_hi):
         """``S(u)`` and the forward energies ``e_f(x_j, μ)`` in rows of F_a (a hard core; ``fa_rows``
         from :meth:`_area_fraction_layers`, ``fa_hi`` the top of the layer's F_a) with their slopes
-        in F_a, or the one F_a-independent energy table (Poisson)."""
+        in F_a, or the one F_a-independent energy table (Poisson): the representation
+        (:class:`corona.mitsuba.lobes.FaTables`) chosen here, once per build."""
         st = material.structure_table
-        self.has_S = st is not None
-        self.fa_centred = False
-        if not self.has_S:
-            self.n_fa = 1
-            self.Ef = _array(mi.Float, material.row_totals["e_f_mu"].ravel())
-            self.Ef_corners, self.Ef_slopes = _array(mi.Float, _corners(material.row_totals["e_f_mu"]).ravel()), None
+        n_rows, n_mu = self.n_rows, len(INCIDENCE_MU)
+        if st is None:
+            self.fa_tables = FixedFaTables(_array(mi.Float, bilinear_corners(material.row_totals["e_f_mu"]).ravel()),
+                                           n_rows, n_mu)
             self.fa_cover = (0.0, 1.0)
             return
         fas, layers = fa_rows
         S = np.array([m.structure_table[1] for m in layers])
         E = np.array([m.row_totals["e_f_mu"] for m in layers])
-        self.S_du, self.S_n = float(st[0]), int(S.shape[1])
-        self.n_fa, self.fa0, self.dfa = int(fas.size), float(fas[0]), float(fas[1] - fas[0])
         self.fa_cover = (float(fas[0]), float(fas[-1]))
         self.fa_rows_np = fas
-        self.S = self._packed(fas, S)
-        self.Ef = self._packed(fas, E)
-        if not self.fa_textured:      # one F_a: its rows at that value (:meth:`_centre_area_fraction`)
-            self.fa_window = (fas, S, E)
-            self._centre_area_fraction(float(fa_hi) if material.process.varying_area_fraction else self.fa)
-
-    def _centre_area_fraction(self, fa):
-        """The layer's one F_a: ``S`` and the forward energies there and their slopes in F_a (the
-        cubic Hermite between the F_a rows, :func:`corona.mitsuba.common.centre_rows`), read as
-        value + slope × (F_a - ``fa_centre``) so that ``∂/∂F_a`` is the rows' and an update
-        (:meth:`parameters_changed`) re-centres them without recompiling."""
-        fas, S, E = self.fa_window
-        self.fa_centre, ((s_at, ds_at), (e_at, de_at)) = centre_rows(fas, fa, S, E)
-        self.S_centre = _array(mi.Float, np.stack([s_at[:-1], s_at[1:], ds_at[:-1], ds_at[1:]], axis=-1).ravel())
-        # the slopes apart: a render without derivatives reads only the values
-        self.Ef_corners = _array(mi.Float, _corners(e_at).ravel())
-        self.Ef_slopes = _array(mi.Float, _corners(de_at).ravel())
-        self.fa_centred = True
-
-    def _packed(self, fas, rows):
-        """Rows in F_a packed for one Vector4f gather per node: (y_k, Δ y'_k, y_k+1, Δ y'_k+1) of each
-        interval k (Δ the row step, ``y'`` from :func:`corona.model.rows.row_slopes`)."""
-        y = rows.reshape(rows.shape[0], -1)
-        m = row_slopes(fas, y) * self.dfa
-        return _array(mi.Float, np.stack([y[:-1], m[:-1], y[1:], m[1:]], axis=-1).ravel())
-
-    def _fa_weights(self, fa):
-        """Row k and the cubic Hermite weights (value k, slope k, value k+1, slope k+1) of the lane's F_a
-        between the F_a rows (the slopes stored times the row step)."""
-        if self.n_fa == 1:
-            return None
-        if self.fa_centred:   # ("centre", F_a - F_a,centre where F_a has a gradient, else None)
-            return _CENTRE, (fa - self.fa_centre if dr.grad_enabled(fa) else None)
-        g = (fa - self.fa0) / self.dfa                # itself on the end rows (as _lane_radius)
-        g = clip(g, 0.0, self.n_fa - 1.0)
-        k = dr.minimum(mi.UInt32(dr.floor(g)), self.n_fa - 2)
-        t = g - mi.Float(k)
-        t2 = t * t
-        t3 = t2 * t
-        return k, (2.0 * t3 - 3.0 * t2 + 1.0, t3 - 2.0 * t2 + t, 3.0 * t2 - 2.0 * t3, t3 - t2)
-
-    def _hermite(self, values, stride, index, hw, active):
-        """Node ``index`` of rows ``stride`` long, interpolated in F_a with the weights ``hw``
-        (:meth:`_fa_weights`) from the :meth:`_packed` rows; ``hw`` None: the one row, unpacked."""
-        if hw is None:
-            return _gather(mi.Float, values, index, active)
-        k, (a, b, c, d) = hw
-        v = gather4(values, k * stride + index, active)
-        return a * v.x + b * v.y + c * v.z + d * v.w
+        grid = UniformFaTables(fas, S, E, n_rows, n_mu, float(st[0]), int(S.shape[1]))
+        # a texture: the Hermite between the rows; one F_a: the rows centred at that value
+        self.fa_tables = grid if self.fa_textured else CentredFaTables(
+            grid, fas, S, E, float(fa_hi) if material.process.varying_area_fraction else self.fa)
 
     # ------------------------------------------------------------------
     # per-wavelength state
@@ -536,7 +482,7 @@ class SphereBSDFMixin:
 
     def _state(self, lam_nm, mu_i, active, fa, hw=None, radius=None):
         """Row, energies and lobe weight of one wavelength of the lane (``fa``: the lane's F_a, ``hw`` its
-        F_a rows' weights, :meth:`_fa_weights`; ``radius`` its radius [µm])."""
+        F_a rows' weights, :meth:`corona.mitsuba.lobes.FaTables.locate`; ``radius`` its radius [µm])."""
         j, t, lam, x, xj, xj1, (c, r) = self._row(lam_nm, radius, active)
         a = gather4(self.row_data, 4 * j, active)           # (Re s0, Im s0) of rows j, j+1
         e = gather4(self.row_data, 4 * j + 1, active)       # (e_b j, e_b j+1, T_f j, T_f j+1)
@@ -555,52 +501,28 @@ class SphereBSDFMixin:
 
     def _forward(self, st_j, t, mu_i, active, hw=None):
         """The forward lobe's energy e_f at the row (j, t), ``mu_i`` (SphereMaterial._forward) and the
-        lane's F_a (``hw``, :meth:`_fa_weights`): bilinear in (x row, μ) from the four corners packed
-        as one Vector4f, at the layer's one F_a (value + slope × (F_a - F_a,centre)) or cubic
-        Hermite between rows of F_a (a texture)."""
+        lane's F_a (``hw``, its weights in the F_a rows: :attr:`fa_tables`): bilinear in (x row, μ)."""
         n = len(INCIDENCE_MU)
         g = (1.0 - dr.clip(mu_i, 0.0, 1.0)) * (n - 1)
         b = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), n - 2)
         f = dr.clip(g - mi.Float(b), 0.0, 1.0)
-        if hw is None or hw[0] is _CENTRE:
-            k = st_j * (n - 1) + b
-            e = gather4(self.Ef_corners, k, active)
-            if hw is not None and hw[1] is not None:        # the slope in F_a, where it has a gradient
-                e = dr.fma(gather4(self.Ef_slopes, k, active), hw[1], e)
-            return dr.lerp(dr.lerp(e.x, e.y, f), dr.lerp(e.z, e.w, f), t)
-        k = st_j * n + b
-        stride = self.n_rows * n
-        e00 = self._hermite(self.Ef, stride, k, hw, active)
-        e01 = self._hermite(self.Ef, stride, k + 1, hw, active)
-        e10 = self._hermite(self.Ef, stride, k + n, hw, active)
-        e11 = self._hermite(self.Ef, stride, k + n + 1, hw, active)
-        return dr.lerp(dr.lerp(e00, e01, f), dr.lerp(e10, e11, f), t)
+        return self.fa_tables.forward(hw, st_j, b, f, t, active)
 
     def _lane(self, si, active):
         """What a lane's wavelengths share: (wavelengths [nm], their mixture weight, μ_i, F_a, its rows'
-        weights (:meth:`_fa_weights`), radius [µm])."""
+        weights (:attr:`fa_tables`), radius [µm])."""
         lams, m = self._wavelengths(si.wavelengths)
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
         fa = self.fa_tex.eval_1(si, active)
         if self.fa_textured:
             lo, hi = self.fa_range          # fa itself on the ends (as _lane_radius)
             fa = clip(fa, lo, hi)
-        return lams, m, mu_i, fa, self._fa_weights(fa), self._lane_radius(si, active)
+        return lams, m, mu_i, fa, self.fa_tables.locate(fa), self._lane_radius(si, active)
 
     def _states(self, si, active, lane=None):
         lams, m, mu_i, fa, hw, radius = lane if lane is not None else self._lane(si, active)
         states = [self._state(lam, mu_i, active, fa, hw, radius) for lam in lams]
         return states, m
-
-    def _selection(self, ctx, states, cos_i):
-        """Per-lane probabilities of (coherent, forward, backward, then the substrate's components) ∝
-        their energies summed over the lane's wavelengths (:meth:`SpheresAlone.energies_of`),
-        honouring the context."""
-        flags = [(mi.BSDFFlags.DeltaTransmission, 0), (mi.BSDFFlags.GlossyTransmission, 1),
-                 (mi.BSDFFlags.GlossyReflection, 2)]
-        flags += [(fl, 3 + i) for i, fl in enumerate(self.substrate.flags())]
-        en = self.substrate.energies_of(states, cos_i)
-        return selection(en, [ctx.is_enabled(fl, i) for fl, i in flags])
 
     def _spectrum(self, values):
         """Per-wavelength values as a Spectrum (:func:`fold_spectrum`)."""
@@ -609,55 +531,6 @@ class SphereBSDFMixin:
     # ------------------------------------------------------------------
     # tables
     # ------------------------------------------------------------------
-    def _rows_at(self, lobe, st, s, active, offset=0):
-        """Rows j, j+1 (weight t) of the chord table ``lobe`` (``"P"``: both lobes' P, ``"Cf"``: the
-        forward C), each read at its chord scaled by ``x / x_row`` (corona.model.mie.layer._scaled_blend):
-        (Catmull–Rom value, linear value: the sampler's density up to its total).  The packed
-        intervals ``<lobe>_spline`` where they exist, else the plain rows ``<lobe>``."""
-        cub, lin = mi.Float(0.0), mi.Float(0.0)
-        K = self.K
-        spline = getattr(self, lobe + "_spline")
-        arr = getattr(self, lobe)
-        for d, wgt, r in ((0, 1.0 - st["t"], st["rj"]), (1, st["t"], st["rj1"])):
-            row = st["j"] + d              # read at the chord s x / x_row (r = x / x_row)
-            g = s * (r * (1.0 / self.ds))
-            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
-            f = dr.minimum(g - mi.Float(i), 1.0)   # >= 0; no clip at 0: its derivative there (a node) is 0
-            inside = active & (g <= K - 1)
-            k = row * K + i + offset
-            scale = wgt * (r * r)
-            if spline is not None:        # one Vector4f: (p1, p2 - p1, c1, c2), node-major
-                q = gather4(spline, i * self.n_rows + row + offset, inside)
-                v = dr.fma(f, dr.fma(f, dr.fma(f, q.y - q.z - q.w, q.w), q.z), q.x)
-                cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
-                lin += dr.select(inside, dr.maximum(dr.fma(f, q.y, q.x), 0.0) * scale, 0.0)
-                continue
-            p1 = _gather(mi.Float, arr, k, inside)
-            p2 = _gather(mi.Float, arr, k + 1, inside)
-            p0 = dr.select(i > 0, _gather(mi.Float, arr, k - 1, inside & (i > 0)), p1)
-            p3 = dr.select(i + 2 < K, _gather(mi.Float, arr, k + 2, inside & (i + 2 < K)), p2)
-            v = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3
-                                               + f * (3.0 * (p1 - p2) + p3 - p0)))
-            cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
-            lin += dr.select(inside, dr.maximum(dr.lerp(p1, p2, f), 0.0) * scale, 0.0)
-        return cub, lin
-
-    def _structure(self, u, hw, active):
-        """``S`` at ``u = q r``: linear in u, the cubic Hermite in F_a between its rows; 1 beyond."""
-        x = u * (1.0 / self.S_du)
-        i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(x), 0)), self.S_n - 2)
-        f = dr.minimum(x - mi.Float(i), 1.0)       # >= 0; no clip at 0 (a node): see _rows_at
-        inside = active & (x <= self.S_n - 1)
-        if hw[0] is _CENTRE:       # (S_i, S_i+1, their slopes in F_a) at the layer's one F_a
-            v4 = gather4(self.S_centre, i, inside)
-            v = dr.lerp(v4.x, v4.y, f)
-            if hw[1] is not None:
-                v = dr.fma(dr.lerp(v4.z, v4.w, f), hw[1], v)
-            return dr.select(inside, v, 1.0)
-        v = dr.lerp(self._hermite(self.S, self.S_n, i, hw, inside),
-                    self._hermite(self.S, self.S_n, i + 1, hw, inside), f)
-        return dr.select(inside, v, 1.0)
-
     def _sample_chord(self, xi, row, forward, active, total=None):
         """Invert the normalised CDF of a row of the forward or backward table (radial density 2π s P):
         :func:`guided_search` for the bin, :func:`invert_radial_bin` inside it (``total``: the row's
@@ -665,12 +538,7 @@ class SphereBSDFMixin:
         table_row = dr.select(forward, row, row + self.n_rows)
         idx, c0, c1 = guided_search(self.cdf, self.guide, self.G, self.n_bins, self.steps, table_row, xi, active)
         k = row * self.K + idx + dr.select(forward, mi.UInt32(0), mi.UInt32(self.back_offset))
-        if self.P_spline is not None:   # node-major (:func:`_catmull_rom_intervals`)
-            q = gather4(self.P_spline, idx * self.n_rows + row + (k - row * self.K - idx), active)
-            a, b = q.x, q.y
-        else:
-            a = _gather(mi.Float, self.P, k, active)
-            b = _gather(mi.Float, self.P, k + 1, active) - a
+        a, b = self.chords.interval(idx, row, k, active)
         if total is None:
             total = dr.select(forward, _gather(mi.Float, self.Tf, row, active),
                               _gather(mi.Float, self.Tb, row, active))
@@ -684,7 +552,7 @@ class SphereBSDFMixin:
         cosine sampling).  One symbolic Dr.Jit loop over the wavelengths (:meth:`_looped_lobes`) where
         the kernel is traced and no derivative flows, else unrolled; the same sums either way."""
         geo = self._lobe_geometry(wi, wo, active, on_f, on_b)
-        with_pdf = mix is not None and self.sampling != "cosine"
+        with_pdf = mix is not None and self.sampler.densities
         if self._loopable(len(states), wi, wo, *(mix if with_pdf else ()),
                           *(st[k] for st in states for k in self._LOBE_KEYS + ("fs",))):
             return self._looped_lobes(states, geo, mix if with_pdf else None)
@@ -718,13 +586,11 @@ class SphereBSDFMixin:
         """One wavelength's ``Z`` at the lane's ``wo`` (:meth:`_lobe_geometry`) and, given the other
         lobe's linear rows ``Q_lin`` there, the sampler's density of each lobe (dens_f, dens_b)."""
         forward, active, a_f = geo["forward"], geo["active"], geo["a_f"]
-        P, P_lin = self._rows_at("P", st, geo["s_any"], active, geo["offset"])   # P_f or P_b
-        Z = P
-        if self.has_S:
-            S = self._structure(st["x"] * geo["dxy"], st["hw"], a_f)   # u = q r = x |wo + wi|_xy
-            C_f = self._rows_at("Cf", st, geo["s_f"], a_f)[0] if self.has_C else P
-            # the decoupling rule, corona.model.layer.decoupled_lobe (R = 1: Z per steradian)
-            Z = dr.select(forward, dr.maximum(dr.fma(C_f, S - 1.0, P), 0.0), P)
+        chords = self.chords
+        P, P_lin = chords.rows_at(chords.P, st, geo["s_any"], active, geo["offset"])   # P_f or P_b
+        # with S (a hard core) the decoupling rule, u = q r = x |wo + wi|_xy
+        Z = self.fa_tables.decoupled(st["hw"], st["x"] * geo["dxy"], P,
+                                     lambda: chords.forward_C(st, geo["s_f"], a_f, P), forward, a_f)
         Z = dr.select(geo["on"], Z, 0.0)
         if Q_lin is None:
             return Z, None, None
@@ -779,7 +645,7 @@ class SphereBSDFMixin:
             out = []
             for i in range(n):
                 st = dict(zip(keys, flat[4 * i:4 * i + 4]))
-                out.append(self._rows_at("P", st, s_o, near_, off)[1])
+                out.append(self.chords.rows_at(self.chords.P, st, s_o, near_, off)[1])
             return tuple(out)
 
         def zeros(s_o, near_, off, *flat):
@@ -791,8 +657,16 @@ class SphereBSDFMixin:
     # ------------------------------------------------------------------
     # BSDF interface
     # ------------------------------------------------------------------
-    def _eval_pdf(self, ctx, si, wo, active, cached=None):
-        """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_sample`'s states)."""
+    def _eval_pdf(self, ctx, si, wo, active=True):
+        """``(f |cos θo|, pdf)``: the lobe component's (:attr:`lobe`)."""
+        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))
+
+    def _sample(self, ctx, si, sample1, sample2, active=True):
+        """``(BSDFSample3f, weight)``: the lobe component's (:attr:`lobe`)."""
+        return self.lobe.sample(ctx, si, sample1, sample2, active)
+
+    def _rows_eval_pdf(self, ctx, si, wo, active, cached=None):
+        """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_rows_sample`'s states)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
@@ -811,13 +685,11 @@ class SphereBSDFMixin:
         Z, pdf = self._lobes(states, wi, wo, active, on_f, on_b, (m, p_f, p_b))
         values, pdf = self.substrate.lobe_values(self, ctx, states, wi, wo, cos_i, cos_o, active, Z, pdf,
                                                  (m, p_f, p_b), p_sub)
-        if self.sampling == "cosine":   # comparisons only: uniform sphere for the lobes
-            smooth = p_f + p_b + self.substrate.smooth_share(p_sub)
-            pdf = dr.select(active, smooth * (0.25 * dr.inv_pi), 0.0)
+        pdf = self.sampler.smooth_pdf(active, pdf, p_f + p_b + self.substrate.smooth_share(p_sub))
         return self._spectrum(values), dr.select(active, pdf, 0.0)
 
     def _looped_eval_pdf(self, ctx, si, wo, active, lane):
-        """:meth:`_eval_pdf` without a pane (its lane's share ``lane``, :meth:`_lane`) as one symbolic
+        """:meth:`_rows_eval_pdf` without a pane (its lane's share ``lane``, :meth:`_lane`) as one symbolic
         Dr.Jit loop over the wavelengths: each wavelength's state (:meth:`_state`) and its lobes
         (:meth:`_lobe_at`) in one traced copy; the loop hands out per wavelength the value, the two
         lobe densities and the energies, summed after it (the selection, the mixture) in the same
@@ -828,7 +700,7 @@ class SphereBSDFMixin:
         on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
         geo = self._lobe_geometry(wi, wo, active, on_f, on_b)
-        with_pdf = self.sampling != "cosine"
+        with_pdf = self.sampler.densities
         n = len(lams)
         keys = ("value", "coherent", "e_f", "e_b") + (("dens_f", "dens_b") if with_pdf else ())
 
@@ -845,27 +717,14 @@ class SphereBSDFMixin:
                                  label="corona sphere wavelengths")
         per = [dict(zip(keys, vals)) for vals in zip(*outs)]   # per wavelength, as the states
         p_coh, p_f, p_b = self._selection(ctx, per, cos_i)
+        pdf = mi.Float(0.0)
         if with_pdf:
-            pdf = mi.Float(0.0)
             for d in per:
                 pdf += m * (p_f * d["dens_f"] + p_b * d["dens_b"])
-        else:          # comparisons only: uniform sphere for the lobes
-            pdf = dr.select(active, (p_f + p_b) * (0.25 * dr.inv_pi), 0.0)
+        pdf = self.sampler.smooth_pdf(active, pdf, p_f + p_b)
         return self._spectrum([d["value"] for d in per]), dr.select(active, pdf, 0.0)
 
-    def eval(self, ctx, si, wo, active=True):
-        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))[0]
-
-    def pdf(self, ctx, si, wo, active=True):
-        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))[1]
-
-    def eval_pdf(self, ctx, si, wo, active=True):
-        return self.lobe.eval_pdf(ctx, si, wo, mi.Bool(active))
-
-    def sample(self, ctx, si, sample1, sample2, active=True):
-        return self.lobe.sample(ctx, si, sample1, sample2, active)
-
-    def _sample(self, ctx, si, sample1, sample2, active=True):
+    def _rows_sample(self, ctx, si, sample1, sample2, active=True):
         """The disordered layer's sample (:meth:`MieRowsLobe.sample`)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
@@ -882,29 +741,8 @@ class SphereBSDFMixin:
         # the backward lobe takes what is left; the substrate's own picks after the lobes
         pick_b, lobe_f, lobe_any, s, picks = self.substrate.lobe_picks(active, sample1, probs, pick_coh, pick_f,
                                                                       pick_b, s)
-        bs = dr.zeros(mi.BSDFSample3f)
-        bs.eta = 1.0
-        if self.sampling == "cosine":
-            wo_lobe = mi.warp.square_to_uniform_sphere(sample2)
-        else:
-            # the lobe's share of sample1 picks the hero wavelength, what is left of it the row
-            pick, x, rest = pick_wavelength(s, [st["x"] for st in states])
-            # the picked wavelength's row interval, its lobe's totals at both rows, their x
-            j, t, xj, xj1, Tf0, Tf1, Tb0, Tb1 = (picked(pick, [st[k] for st in states])
-                                                 for k in ("j", "t", "xj", "xj1", "Tf0", "Tf1", "Tb0", "Tb1"))
-            T0, T1 = dr.select(lobe_f, Tf0, Tb0), dr.select(lobe_f, Tf1, Tb1)
-            p_next = t * T1 / dr.maximum(dr.lerp(T0, T1, t), 1e-30)
-            up = rest < p_next
-            row = dr.select(up, j + 1, j)
-            chord = self._sample_chord(sample2.x, row, lobe_f, lobe_any, dr.select(up, T1, T0))
-            # the row's chord scaled to the lane's x: rings at a fixed x·s
-            chord = dr.minimum(chord * dr.select(up, xj1, xj) / x, 2.0)
-            cos_t = 1.0 - 0.5 * chord * chord
-            sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
-            sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)
-            axis = dr.select(lobe_f, -wi, wi)
-            wo_lobe = mi.Frame3f(axis).to_world(mi.Vector3f(sin_t * cp, sin_t * sp, cos_t))
-            wo_lobe = dr.normalize(wo_lobe)
+        bs = self._new_sample()
+        wo_lobe = self.sampler.direction(self, states, s, lobe_f, lobe_any, wi, sample2)
         bs.wo = dr.select(pick_coh, -wi, wo_lobe)
         bs.sampled_component = dr.select(pick_coh, mi.UInt32(0), dr.select(pick_f, mi.UInt32(1), mi.UInt32(2)))
         same_side = cos_i * mi.Frame3f.cos_theta(bs.wo) > 0
@@ -914,52 +752,65 @@ class SphereBSDFMixin:
         # the substrate's sampled components (the lobes mirrored: wo_lobe's mirror image)
         smooth, pick_delta = self.substrate.sampled(bs, wi, picks, mi.Vector3f(wo_lobe.x, wo_lobe.y, -wo_lobe.z),
                                                     True, pick_f | pick_b, pick_coh)
-        value, pdf = self._eval_pdf(ctx, si, bs.wo, smooth, (states, m))
+        value, pdf = self._rows_eval_pdf(ctx, si, bs.wo, smooth, (states, m))
         bs.pdf = dr.select(pick_coh, p_coh, pdf)
-        weight = dr.select(pdf > 0, value / _positive(pdf), 0.0)
+        weight = self._sample_weight(value, pdf)
         deltas = [self.substrate.delta_weights(st, cos_i) for st in states]
         coh = self._spectrum([d[0] for d in deltas])
         weight = dr.select(pick_coh, coh / dr.maximum(p_coh, 1e-30), weight)
         bs.pdf, weight = self.substrate.specular_sample(picks, probs, [d[1] for d in deltas], self._spectrum,
                                                         bs.pdf, weight)
-        ok = pick_delta | (smooth & (bs.pdf > 0))
-        return bs, dr.select(ok, mi.Spectrum(weight), 0.0)
+        return self._accepted(bs, weight, pick_delta, smooth)
 
     def traverse(self, callback):
         # area_fraction and radius (a uniform texture's "….value", or the texture's own keys), differentiable
         callback.put("area_fraction", self.fa_tex, mi.ParamFlags.Differentiable)
         callback.put("radius", self.radius_tex, mi.ParamFlags.Differentiable)
 
-    def parameters_changed(self, keys):
+    # updates (:meth:`corona.mitsuba.core.PluginCore.parameters_changed`)
+    def _checked_ranges(self):
+        """Checked ``((lo, hi) of F_a, (lo, hi) of the radius)``; None on a lattice (whose values are
+        fixed: one error where they changed)."""
+        lo, hi = texture_range(self.fa_tex)
         if self.lattice is not None:
-            lo, hi = texture_range(self.fa_tex)
-            r_lo, r_hi = texture_range(self.radius_tex)
-            if abs(hi - self.fa) > 1e-7 or abs(r_hi - float(self.params.get("radius", SPEC["radius"].default))) > 1e-7:
+            if abs(hi - self.fa) > 1e-7 or abs(texture_range(self.radius_tex)[1]
+                                              - float(self.params.get("radius", SPEC["radius"].default))) > 1e-7:
                 raise CoronaError("corona BSDF: area_fraction and radius of spheres on a lattice are out of range "
                                   "for updates; allowed the values the layer was loaded with (the lattice's "
                                   "spacing follows them)")
-            return
-        # new values: check them; rebuild the F_a rows only when they leave what the rows cover
-        lo, hi = texture_range(self.fa_tex)
+            return None
         if lo is None or not (0.0 < lo and hi < 1.0) or not (np.isfinite(lo) and np.isfinite(hi)):
             raise CoronaError(f"corona BSDF: area_fraction={lo!r} … {hi!r} is out of range for "
                               "shape='sphere'; allowed (0, 1)")
         if self.fa_textured:
             self.fa_range = (lo, hi)
-        r_lo, r_hi = self._radius_range()
-        radius_out = r_lo < self.radius_cover[0] * (1 - 1e-6) or r_hi > self.radius_cover[1] * (1 + 1e-6)
-        if radius_out:          # new rows in x about the new radii (a new kernel)
+        return (lo, hi), self._radius_range()
+
+    def _radius_out(self, radii):
+        """Whether the radii leave those the rows serve (:attr:`radius_cover`)."""
+        return radii[0] < self.radius_cover[0] * (1 - 1e-6) or radii[1] > self.radius_cover[1] * (1 + 1e-6)
+
+    def _outside(self, ranges):
+        if ranges is None:
+            return False
+        (lo, hi), radii = ranges
+        return self._radius_out(radii) or lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7
+
+    def _rebuild(self, ranges):
+        (lo, hi), (r_lo, r_hi) = ranges
+        if self._radius_out((r_lo, r_hi)):          # new rows in x about the new radii (a new kernel)
             if self.radius_textured:
                 self.radius_cover = (r_lo, r_hi)
                 self.params["radius"] = float(np.sqrt(r_lo * r_hi))
             else:
                 self.params["radius"] = r_hi
                 self.radius_cover = None
-        if radius_out or lo < self.fa_cover[0] - 1e-7 or hi > self.fa_cover[1] + 1e-7:
-            self.params["area_fraction"] = hi
-            self._setup(*(self.fa_range if self.fa_textured else (hi, hi)))
-        elif self.fa_centred:
-            self._centre_area_fraction(hi)
+        self.params["area_fraction"] = hi
+        self._setup(*(self.fa_range if self.fa_textured else (hi, hi)))
+
+    def _recentre(self, ranges):
+        if ranges is not None:
+            self.fa_tables.recentre(ranges[0][1])
 
     def to_string(self):
         return f"CoronaSphereBSDF[{self.material!r}]"
@@ -992,16 +843,16 @@ class MieRowsLobe:
 
     @property
     def material(self):
-        """The numpy layer the rows are of (:class:`corona.model.mie.layer.SphereMaterial`)."""
+        """The numpy layer the rows are of (:class:`corona.model.mie.material.SphereMaterial`)."""
         return self._bsdf.material
 
     def eval_pdf(self, ctx, si, wo, active=True):
         """``(f |cos θo|, pdf)`` at ``wo`` (Mitsuba's ``eval_pdf``)."""
-        return self._bsdf._eval_pdf(ctx, si, wo, mi.Bool(active))
+        return self._bsdf._rows_eval_pdf(ctx, si, wo, mi.Bool(active))
 
     def sample(self, ctx, si, sample1, sample2, active=True):
         """``(BSDFSample3f, weight)`` (Mitsuba's ``sample``)."""
-        return self._bsdf._sample(ctx, si, sample1, sample2, active)
+        return self._bsdf._rows_sample(ctx, si, sample1, sample2, active)
 
     def states(self, si, active=True):
         """``(states, m)``: per wavelength of the lane its row, energies, coherent weight and cap (a
@@ -1016,11 +867,124 @@ class MieRowsLobe:
         s_f, s_b = dr.norm(wo + wi), dr.norm(wo - wi)
         forward = s_f <= s_b
         offset = dr.select(forward, mi.UInt32(0), mi.UInt32(b.back_offset))
-        return b._rows_at("P", st, dr.select(forward, s_f, s_b), active, offset)[0], forward
+        return b.chords.rows_at(b.chords.P, st, dr.select(forward, s_f, s_b), active, offset)[0], forward
 
     def spectrum(self, values):
         """Per-wavelength values of :meth:`states`' order as a Spectrum."""
         return self._bsdf._spectrum(values)
+
+
+class MieRowsSampling:
+    """``sampling='lobe'`` (the default) of a sphere plugin: a lobe's direction drawn from its Mie rows
+    (:meth:`SphereBSDFMixin._sample_chord`), the pdf the lobes' samplers' mixture (their densities)."""
+
+    #: the lobes' densities are summed for the pdf
+    densities = True
+
+    def smooth_pdf(self, active, pdf, p_smooth):
+        """The smooth components' pdf: the densities summed (``pdf``)."""
+        return pdf
+
+    def direction(self, bsdf, states, s, lobe_f, lobe_any, wi, sample2):
+        """The lobe's direction (``lobe_f``: the forward one) for the lane's ``states``, ``s`` what is left
+        of ``sample1`` inside the lobe's share."""
+        # the lobe's share of sample1 picks the hero wavelength, what is left of it the row
+        pick, x, rest = pick_wavelength(s, [st["x"] for st in states])
+        # the picked wavelength's row interval, its lobe's totals at both rows, their x
+        j, t, xj, xj1, Tf0, Tf1, Tb0, Tb1 = (picked(pick, [st[k] for st in states])
+                                             for k in ("j", "t", "xj", "xj1", "Tf0", "Tf1", "Tb0", "Tb1"))
+        T0, T1 = dr.select(lobe_f, Tf0, Tb0), dr.select(lobe_f, Tf1, Tb1)
+        p_next = t * T1 / dr.maximum(dr.lerp(T0, T1, t), 1e-30)
+        up = rest < p_next
+        row = dr.select(up, j + 1, j)
+        chord = bsdf._sample_chord(sample2.x, row, lobe_f, lobe_any, dr.select(up, T1, T0))
+        # the row's chord scaled to the lane's x: rings at a fixed x·s
+        chord = dr.minimum(chord * dr.select(up, xj1, xj) / x, 2.0)
+        cos_t = 1.0 - 0.5 * chord * chord
+        sin_t = chord * dr.safe_sqrt(1.0 - 0.25 * chord * chord)
+        sp, cp = dr.sincos(2.0 * dr.pi * sample2.y)
+        axis = dr.select(lobe_f, -wi, wi)
+        wo_lobe = mi.Frame3f(axis).to_world(mi.Vector3f(sin_t * cp, sin_t * sp, cos_t))
+        wo_lobe = dr.normalize(wo_lobe)
+        return wo_lobe
+
+
+class UniformSampling:
+    """``sampling='cosine'`` of a sphere plugin (comparisons only): the lobes drawn uniformly over the sphere."""
+
+    densities = False
+
+    def smooth_pdf(self, active, pdf, p_smooth):
+        """The smooth components' pdf: their share ``p_smooth`` over the sphere."""
+        return dr.select(active, p_smooth * (0.25 * dr.inv_pi), 0.0)
+
+    def direction(self, bsdf, states, s, lobe_f, lobe_any, wi, sample2):
+        return mi.warp.square_to_uniform_sphere(sample2)
+
+
+class ChordRows:
+    """The Mie rows in the chord ``s``: both lobes' ``P`` (``P``: the forward rows, then the backward
+    ones from ``offset``) and the forward ``C`` (``Cf``; None for one size, where ``C = P``), ``n_rows``
+    rows of x, ``K`` nodes ``ds`` apart, in one layout chosen at load: :class:`PackedChordRows` (one
+    Vector4f an interval) or :class:`PlainChordRows` (the nodes)."""
+
+    def __init__(self, P, Cf, n_rows, K, ds):
+        self.P, self.Cf, self.n_rows, self.K, self.ds = P, Cf, n_rows, K, ds
+
+    def rows_at(self, table, st, s, active, offset=0):
+        """Rows j, j+1 (weight t) of ``table`` (:attr:`P` or :attr:`Cf`), each read at its chord scaled by
+        ``x / x_row`` (corona.model.mie.layer's scaled blend): (Catmull–Rom value, linear value: the
+        sampler's density up to its total)."""
+        cub, lin = mi.Float(0.0), mi.Float(0.0)
+        K = self.K
+        for d, wgt, r in ((0, 1.0 - st["t"], st["rj"]), (1, st["t"], st["rj1"])):
+            row = st["j"] + d              # read at the chord s x / x_row (r = x / x_row)
+            g = s * (r * (1.0 / self.ds))
+            i = dr.minimum(mi.UInt32(dr.maximum(dr.floor(g), 0)), K - 2)
+            f = dr.minimum(g - mi.Float(i), 1.0)   # >= 0; no clip at 0: its derivative there (a node) is 0
+            inside = active & (g <= K - 1)
+            scale = wgt * (r * r)
+            v, v_lin = self.node(table, row, i, offset, f, inside)
+            cub += dr.select(inside, dr.maximum(v, 0.0) * scale, 0.0)
+            lin += dr.select(inside, dr.maximum(v_lin, 0.0) * scale, 0.0)
+        return cub, lin
+
+    def forward_C(self, st, s, active, P):
+        """The forward ``C`` at chord ``s`` (:meth:`rows_at`); ``P`` itself for one size (``C = P``)."""
+        return P if self.Cf is None else self.rows_at(self.Cf, st, s, active)[0]
+
+
+class PackedChordRows(ChordRows):
+    """:class:`ChordRows` as Catmull–Rom intervals, node-major (:func:`_catmull_rom_intervals`)."""
+
+    def node(self, table, row, i, offset, f, inside):
+        """(Catmull–Rom, linear) value of row ``row`` in interval ``i`` at ``f``."""
+        q = gather4(table, i * self.n_rows + row + offset, inside)     # (p1, p2 - p1, c1, c2)
+        return dr.fma(f, dr.fma(f, dr.fma(f, q.y - q.z - q.w, q.w), q.z), q.x), dr.fma(f, q.y, q.x)
+
+    def interval(self, idx, row, k, active):
+        """``(P(i), P(i + 1) - P(i))`` of the :attr:`P` interval ``idx`` of row ``row`` (node ``k``, row-major)."""
+        q = gather4(self.P, idx * self.n_rows + row + (k - row * self.K - idx), active)
+        return q.x, q.y
+
+
+class PlainChordRows(ChordRows):
+    """:class:`ChordRows` as the nodes, row-major (four scalar gathers a Catmull–Rom value)."""
+
+    def node(self, table, row, i, offset, f, inside):
+        K = self.K
+        k = row * K + i + offset
+        p1 = _gather(mi.Float, table, k, inside)
+        p2 = _gather(mi.Float, table, k + 1, inside)
+        p0 = dr.select(i > 0, _gather(mi.Float, table, k - 1, inside & (i > 0)), p1)
+        p3 = dr.select(i + 2 < K, _gather(mi.Float, table, k + 2, inside & (i + 2 < K)), p2)
+        v = p1 + 0.5 * f * (p2 - p0 + f * (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3
+                                           + f * (3.0 * (p1 - p2) + p3 - p0)))
+        return v, dr.lerp(p1, p2, f)
+
+    def interval(self, idx, row, k, active):
+        a = _gather(mi.Float, self.P, k, active)
+        return a, _gather(mi.Float, self.P, k + 1, active) - a
 
 
 def sphere_substrate(pane):
@@ -1031,13 +995,13 @@ def sphere_substrate(pane):
 
 class SpheresAlone(BareLayer):
     """No substrate under the spheres: components 0, 1, 2 (the flat layer's :class:`BareLayer`,
-    with the sphere plugin's per-wavelength parts: :meth:`energies_of`, :meth:`lobe_values`,
+    with the sphere plugin's per-wavelength parts: :meth:`energies`, :meth:`lobe_values`,
     :meth:`lobe_picks`, :meth:`specular_sample`)."""
 
     #: the lane's wavelengths may run as one symbolic loop (:meth:`SphereBSDFMixin._looped_eval_pdf`)
     wavelength_loop = True
 
-    def energies_of(self, states, cos_i):
+    def energies(self, states, cos_i):
         """Energies of (coherent, forward, backward) summed over the lane's wavelengths (``states``)."""
         en = [mi.Float(0.0) for _ in range(3)]
         for st in states:
@@ -1082,7 +1046,7 @@ class SpheresOnPane(PaneSubstrate):
         specular reflection (:func:`pane_delta_weights`, the face's ``R`` from the pane's ``R'``)."""
         return pane_delta_weights(layer["coherent"], self.reflectance(cos_i), self.layer_first(cos_i))
 
-    def energies_of(self, states, cos_i):
+    def energies(self, states, cos_i):
         """Energies of (coherent, forward, backward, specular, lobe in reflection) summed over the lane's
         wavelengths: the lobes through the pane where the glass comes first (``T'(θi)``), the lobe in
         reflection ``2 C R'(θi) (e_f + e_b)`` where the layer does (roughly: its selection weight)."""

@@ -14,7 +14,7 @@ import numpy as np
 
 from corona.model import tabulated
 from corona.model.mie.volume import medium_coefficients
-from corona._validation import CoronaError, _short, check_range
+from corona._validation import CoronaError, short_repr, check_range
 
 __all__ = ["homogeneous_medium", "heterogeneous_medium", "slab_scene", "radial_profile", "spectrum_dict"]
 
@@ -168,7 +168,7 @@ def heterogeneous_medium(radius, density, *, lwc=None, number_density=None, numb
         except (TypeError, ValueError):
             box = None
         if box is None or box.shape != (2, 3) or not np.all(np.isfinite(box)) or np.any(box[1] <= box[0]):
-            raise CoronaError(f"bbox={_short(bbox)} is out of range; allowed ((x0, y0, z0), (x1, y1, z1)), "
+            raise CoronaError(f"bbox={short_repr(bbox)} is out of range; allowed ((x0, y0, z0), (x1, y1, z1)), "
                               "finite, each x1 > x0")
     if grid.ndim != 3 or min(grid.shape) < 2 or not np.all(np.isfinite(grid)) or np.any(grid < 0):
         raise CoronaError(f"density of shape {grid.shape} is out of range; allowed a (Z, Y, X) array, "

@@ -385,10 +385,12 @@ class GridTable:
         u = np.asarray(u, dtype=np.float64)
         if self.warp > 0:
             t = self.to_t(u)
-            return self._eval_t(t) / self.jacobian(u)
-        return self._eval_t(u)
+            return self.eval_grid(t) / self.jacobian(u)
+        return self.eval_grid(u)
 
-    def _eval_t(self, u) -> np.ndarray:
+    def eval_grid(self, u) -> np.ndarray:
+        """Bilinear interpolation of the nodes at ``u`` (..., 2) in the grid's own coordinate (``t``
+        where warped; no Jacobian); 0 outside the vertex square."""
         fx = (u[..., 0] - self.lo) / self.cell
         fy = (u[..., 1] - self.lo) / self.cell
         inside = (fx >= 0) & (fx <= self.n - 1) & (fy >= 0) & (fy <= self.n - 1)
