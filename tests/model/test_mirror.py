@@ -371,7 +371,7 @@ def test_white_furnace(params, cos_i):
     e = m.directional_albedo(cos_i, 550.0)
     assert e["total"] <= 1.0 + 1e-9
     # the bound behind it (docs/physics.md): both ends of the excess in P_s within the slack
-    d = m.lobe_weight * m._plane_integral / (4 * np.pi**2)
+    d = m.lobe_weight * m.plane_integral / (4 * np.pi**2)
     c, rho, v = m.coherent_transmittance, m.reflectance, m.double_pass_visibility
     first = (rho + c * c + 2 * c * d * (1 + v) <= 1.0 + 1e-12 and c * d * v <= 1.0 - rho - c - c * d + 1e-12
              and c * d * (1 + v) <= 1.0 - rho - c * c - d + 1e-12)

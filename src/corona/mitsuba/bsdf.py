@@ -504,7 +504,7 @@ class CoronaBSDFMixin(PluginCore):
             self.fa_rows_np = fas
             self.n_rows = 1
             self._centre(float(np.float32(material.area_fraction)))     # (chooses the lobe's representation)
-            self.tail = float(material._plane_integral - material.table.total)
+            self.tail = float(material.plane_integral - material.table.total)
             return
         self.fa_rows_np = fas
         self.n_rows = len(fas)
@@ -527,7 +527,7 @@ class CoronaBSDFMixin(PluginCore):
         if not (process.varying_area_fraction and s_rows is None and not material.isotropic):
             self.fa_cover = (float(fas[0]), float(fas[-1]))
         # the form factor's tail beyond the tables (S -> 1 there: the same for every row)
-        self.tail = float(material._plane_integral - material.table.total)
+        self.tail = float(material.plane_integral - material.table.total)
         self._choose_lobe()
 
     def _area_fraction_rows(self, material, fa_lo, fa_hi):

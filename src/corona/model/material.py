@@ -308,11 +308,11 @@ class Material(Layer):
         """
         fa = self.area_fraction
         budget = max(0.0, 1.0 - self.coherent_transmittance)
-        plane = fa * self._plane_integral / (4 * np.pi**2)
+        plane = fa * self.plane_integral / (4 * np.pi**2)
         return float(fa if plane <= budget else fa * budget / plane)
 
     @functools.cached_property
-    def _plane_integral(self) -> float:
+    def plane_integral(self) -> float:
         """``∫ v d²u`` over the whole plane: the tables' integral plus the form
         factor's (evanescent) tail beyond them, ``4π² self_overlap - ∫_table P/R²``
         (Parseval; ``S → 1`` there)."""
@@ -762,7 +762,7 @@ class Material(Layer):
         t = self.table
         fa = self.lobe_weight
         if cos_theta_i is None:
-            return fa * self._plane_integral / (4 * np.pi**2)
+            return fa * self.plane_integral / (4 * np.pi**2)
         lam = self._wavelength(wavelength)
         ct = check_range("cos_theta_i", cos_theta_i, 0.0, 1.0)
         s = np.sqrt(max(0.0, 1.0 - ct * ct))
@@ -815,7 +815,7 @@ class Material(Layer):
     @functools.cached_property
     def double_pass_visibility(self) -> float:
         """Visibility cap of the coherent double pass (:func:`corona.model.substrate.double_pass_visibility`)."""
-        lobe = self.lobe_weight * self._plane_integral / (4 * np.pi**2)
+        lobe = self.lobe_weight * self.plane_integral / (4 * np.pi**2)
         return double_pass_visibility(self.coherent_transmittance, lobe, self.reflectance)
 
     def coherent_weight(self, cos_theta_i, wavelength=550.0) -> float | np.ndarray:

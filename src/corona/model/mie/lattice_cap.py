@@ -147,7 +147,7 @@ def diffuse_bound_rows(rows: dict, radius: float, jitter: float, sub: int = 8) -
     J, K = P_f.shape
     if jitter <= 0.0:
         return np.zeros(J)
-    from corona.model.mie.layer import _catmull_rom
+    from corona.model.mie.layer import catmull_rom
     xg, wg = np.polynomial.legendre.leggauss(sub)
     g = (np.arange(K - 1)[:, None] + 0.5 * (xg[None, :] + 1.0)).ravel()     # fractional nodes
     wq = np.tile(0.5 * wg, K - 1) * ds
@@ -155,8 +155,8 @@ def diffuse_bound_rows(rows: dict, radius: float, jitter: float, sub: int = 8) -
     out = np.zeros(J)
     for j in range(J):
         rr = np.full(g.shape, j)
-        vf = _catmull_rom(P_f, rr, g)
-        vb = _catmull_rom(P_b, rr, g)
+        vf = catmull_rom(P_f, rr, g)
+        vb = catmull_rom(P_b, rr, g)
         damp = -np.expm1(-(sigma * x[j] * jitter / radius) ** 2)
         out[j] = np.sum((vf * damp + vb) * 2 * np.pi * sigma * wq)
     return out

@@ -864,7 +864,7 @@ def _lerp_rows(values, j, t, i, f):
     return v0 * (1 - t) + v1 * t
 
 
-def _catmull_rom(values, row, g):
+def catmull_rom(values, row, g):
     """Cubic (Catmull–Rom) interpolation of ``values[row, ·]`` at the fractional node ``g``;
     the end nodes are repeated, 0 beyond the last node, never negative."""
     K = values.shape[1]
@@ -896,7 +896,7 @@ def scaled_blend(values, ds, x_rows, j, t, x, s, cubic=True):
         c = x_rows[jj] / x
         g = np.asarray(s, dtype=np.float64) / (c * ds)
         if cubic:
-            v = _catmull_rom(values, jj, g)
+            v = catmull_rom(values, jj, g)
         else:
             i = np.clip(np.floor(g).astype(np.int64), 0, K - 2)
             f = np.clip(g - i, 0.0, 1.0)
