@@ -409,6 +409,54 @@ def simulate_breath_figure(times, *, box: float = 100.0, contact_angle: float = 
     the growth of droplets on a surface (breath figures), Phys. Rev. A 43,
     2858 (1991).
     """
+    run = _checked_run(times, box, contact_angle, flux, nucleation_rate, nucleus_radius,
+                       nucleation_stop, dry_from, evaporation_rate, step, seed)
+    L, t_out = run["L"], run["t_out"]
+    rng = np.random.default_rng(int(seed))
+    drops = _Drops()
+    t = 0.0
+    tmin = t_out[0] / 10.0
+    merges = 0
+    out_c, out_r, out_v, out_m, cov = [], [], [], [], []
+    breaks = sorted({float(b) for b in (run["t_stop"], run["t_dry"]) if math.isfinite(b)})
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(t_out), desc="corona: breath figure", unit="frame", leave=False)
+    t0 = time.perf_counter()
+    try:
+        for t_next in t_out:
+            while t < t_next:
+                t_end = min(t + run["step"] * max(t, tmin), t_next)
+                for b in breaks:
+                    if t < b < t_end:
+                        t_end = b
+                merges += _advance(drops, run, rng, t, t_end, box)
+                t = t_end
+            x, y, V, a, n = drops.x, drops.y, drops.V, drops.a, drops.n
+            out_c.append(np.stack([x[:n], y[:n]], -1).copy())
+            out_r.append(a[:n].copy())
+            out_v.append(V[:n].copy())
+            out_m.append(merges)
+            cov.append(float(np.pi * np.sum(a[:n] ** 2) / (L * L)))
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(drops=n)
+    finally:
+        if bar is not None:
+            bar.close()
+    params = dict(box=L, contact_angle=float(contact_angle), flux=run["F"], nucleation_rate=run["J"],
+                  nucleus_radius=run["a0"], nucleation_stop=nucleation_stop, dry_from=dry_from,
+                  evaporation_rate=run["E"], step=run["step"], seed=int(seed))
+    return BreathFigure(times=t_out, centres=out_c, radii=out_r, volumes=out_v,
+                        coverage=np.array(cov), box=L, contact_angle=float(contact_angle),
+                        params=params, merges=np.array(out_m), seconds=time.perf_counter() - t0)
+
+
+def _checked_run(times, box, contact_angle, flux, nucleation_rate, nucleus_radius, nucleation_stop,
+                 dry_from, evaporation_rate, step, seed) -> dict:
+    """The checked arguments of :func:`simulate_breath_figure` (one :class:`CoronaError` naming the
+    parameter, its value and the allowed range otherwise)."""
     L = check_positive("box", box, "µm")
     kf = cap_volume_factor(contact_angle)
     F = check_positive("flux", flux, "µm/s")
@@ -430,75 +478,53 @@ def simulate_breath_figure(times, *, box: float = 100.0, contact_angle: float = 
         raise CoronaError(f"times={times!r} is out of range; expected increasing finite times > 0 s")
     if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise CoronaError(f"seed={seed!r} is out of range; expected an integer >= 0")
+    return dict(L=L, kf=kf, F=F, J=J, a0=a0, E=E, step=step, t_stop=t_stop, t_dry=t_dry, t_out=t_out)
 
-    rng = np.random.default_rng(int(seed))
-    cap = 1024
-    x, y, V, a = (np.empty(cap) for _ in range(4))
-    n = 0
-    t = 0.0
-    tmin = t_out[0] / 10.0
-    merges = 0
-    out_c, out_r, out_v, out_m, cov = [], [], [], [], []
-    breaks = sorted({float(b) for b in (t_stop, t_dry) if math.isfinite(b)})
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=len(t_out), desc="corona: breath figure", unit="frame", leave=False)
-    t0 = time.perf_counter()
-    try:
-        for t_next in t_out:
-            while t < t_next:
-                dt = step * max(t, tmin)
-                t_end = min(t + dt, t_next)
-                for b in breaks:
-                    if t < b < t_end:
-                        t_end = b
-                dt = t_end - t
-                drying = t >= t_dry
-                # growth (or evaporation) of the drops present
-                if n:
-                    dvol = (-E if drying else F) * L * L * dt
-                    _grow(V, a, n, dvol, kf)
-                    if drying:
-                        n = _drop_empty(x, y, V, a, n)
-                # nucleation on the free area
-                if not drying and t < t_stop and J > 0:
-                    k = rng.poisson(J * L * L * dt)
-                    if k:
-                        cx = rng.random(k) * L
-                        cy = rng.random(k) * L
-                        if n:
-                            ok = _free(cx, cy, x, y, a, n, L, _cell_count(a, n, L))
-                            cx, cy = cx[ok], cy[ok]
-                        k = len(cx)
-                        if n + k > cap:
-                            cap = max(2 * cap, n + k)
-                            x, y, V, a = (np.concatenate([arr[:n], np.empty(cap - n)]) for arr in (x, y, V, a))
-                        x[n:n + k], y[n:n + k] = cx, cy
-                        a[n:n + k] = a0
-                        V[n:n + k] = kf * a0 ** 3
-                        n += k
-                if n:
-                    if a[:n].max() >= L / 4:
-                        raise CoronaError(f"box={box!r} is out of range at t={t_end:g} s: a drop of radius "
-                                          f"{a[:n].max():g} µm needs box > {4 * a[:n].max():g} µm")
-                    n, mg = _merge_all(x, y, V, a, n, L, _cell_count(a, n, L), kf)
-                    merges += mg
-                t = t_end
-            out_c.append(np.stack([x[:n], y[:n]], -1).copy())
-            out_r.append(a[:n].copy())
-            out_v.append(V[:n].copy())
-            out_m.append(merges)
-            cov.append(float(np.pi * np.sum(a[:n] ** 2) / (L * L)))
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(drops=n)
-    finally:
-        if bar is not None:
-            bar.close()
-    params = dict(box=L, contact_angle=float(contact_angle), flux=F, nucleation_rate=J,
-                  nucleus_radius=a0, nucleation_stop=nucleation_stop, dry_from=dry_from,
-                  evaporation_rate=E, step=step, seed=int(seed))
-    return BreathFigure(times=t_out, centres=out_c, radii=out_r, volumes=out_v,
-                        coverage=np.array(cov), box=L, contact_angle=float(contact_angle),
-                        params=params, merges=np.array(out_m), seconds=time.perf_counter() - t0)
+
+class _Drops:
+    """The drops of a run: centres ``x``, ``y`` [µm], volumes ``V`` [µm³] and contact radii ``a``
+    [µm] in arrays whose capacity doubles when full; the first ``n`` entries are the drops."""
+
+    def __init__(self, cap: int = 1024):
+        self.x, self.y, self.V, self.a = (np.empty(cap) for _ in range(4))
+        self.n = 0
+
+    def add(self, cx, cy, a0: float, kf: float) -> None:
+        """Nuclei of contact radius ``a0`` [µm] at (``cx``, ``cy``)."""
+        n, k = self.n, len(cx)
+        if n + k > len(self.x):
+            cap = max(2 * len(self.x), n + k)
+            self.x, self.y, self.V, self.a = (np.concatenate([arr[:n], np.empty(cap - n)])
+                                              for arr in (self.x, self.y, self.V, self.a))
+        self.x[n:n + k], self.y[n:n + k] = cx, cy
+        self.a[n:n + k] = a0
+        self.V[n:n + k] = kf * a0 ** 3
+        self.n = n + k
+
+
+def _advance(drops: _Drops, run: dict, rng, t: float, t_end: float, box) -> int:
+    """One time step from ``t`` to ``t_end`` [s]: growth (or evaporation) of the drops present,
+    nucleation on the free area, then merging until no two drops overlap; the number of merges."""
+    L, kf, dt = run["L"], run["kf"], t_end - t
+    drying = t >= run["t_dry"]
+    if drops.n:
+        _grow(drops.V, drops.a, drops.n, (-run["E"] if drying else run["F"]) * L * L * dt, kf)
+        if drying:
+            drops.n = _drop_empty(drops.x, drops.y, drops.V, drops.a, drops.n)
+    if not drying and t < run["t_stop"] and run["J"] > 0:
+        k = rng.poisson(run["J"] * L * L * dt)
+        if k:
+            cx = rng.random(k) * L
+            cy = rng.random(k) * L
+            if drops.n:
+                ok = _free(cx, cy, drops.x, drops.y, drops.a, drops.n, L, _cell_count(drops.a, drops.n, L))
+                cx, cy = cx[ok], cy[ok]
+            drops.add(cx, cy, run["a0"], kf)
+    n, a = drops.n, drops.a
+    if not n:
+        return 0
+    if a[:n].max() >= L / 4:
+        raise CoronaError(f"box={box!r} is out of range at t={t_end:g} s: a drop of radius "
+                          f"{a[:n].max():g} µm needs box > {4 * a[:n].max():g} µm")
+    drops.n, merges = _merge_all(drops.x, drops.y, drops.V, a, n, L, _cell_count(a, n, L), kf)
+    return merges
