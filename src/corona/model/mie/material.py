@@ -65,6 +65,58 @@ from corona.model.processes import Lattice, Poisson, Process
 from corona.model.substrate import BareLayer, GlassPane, Mirror, layer_substrate
 
 
+def _bragg_nodes(G, W, pc, k: float, w: float, reach: float, wi):
+    """Quadrature nodes of the Bragg orders ``G`` (weights ``W``, ``pc = G/k - wi_xy``) for
+    :meth:`SphereMaterial.lattice_nodes`: (``p`` (M, 2) the nodes' ``wo_xy``, ``cz`` (M,) their
+    ``|cos θo|``, ``wq`` (M,) their weights ``W_G g_G d²q / (k² |cos θo|)``)."""
+    xg, wg = np.polynomial.legendre.leggauss(LATTICE_PEAK_NODES)
+    # orders well inside the unit disk of wo_xy: a tensor grid in q, weights d²q / (k² |cos θo|)
+    rho0 = np.hypot(pc[:, 0], pc[:, 1])
+    r_w = reach / k
+    flat = rho0 + r_w < LATTICE_STEEP
+    d = reach * xg
+    g1 = reach * wg * np.exp(-0.5 * (d / w) ** 2) / (math.sqrt(2 * np.pi) * w)
+    Gf, Wf = G[flat], W[flat]
+    q = np.stack(np.broadcast_arrays(Gf[:, None, None, 0] + d[None, :, None],
+                                     Gf[:, None, None, 1] + d[None, None, :]), -1).reshape(-1, 2)
+    wq = (Wf[:, None, None] * g1[None, :, None] * g1[None, None, :]).reshape(-1)
+    p = q / k - wi[:2]
+    r2 = p[:, 0] ** 2 + p[:, 1] ** 2
+    ok = (r2 < 1.0) & (wq > 0)
+    p, r2 = p[ok], r2[ok]
+    cz = np.sqrt(1.0 - r2)
+    wq = wq[ok] / (k * k * cz)
+    if np.any(~flat):
+        pg, czg, wg_ = _grazing_nodes(G[~flat], W[~flat], pc[~flat], k, w, r_w, wi, xg, wg)
+        p, cz, wq = np.concatenate([p, pg]), np.concatenate([cz, czg]), np.concatenate([wq, wg_])
+    return p, cz, wq
+
+
+def _grazing_nodes(Gs, Ws, ps, k: float, w: float, r_w: float, wi, xg, wg):
+    """Orders near grazing exit for :func:`_bragg_nodes`: ``wo_xy = sin θ (cos φ, sin φ)``,
+    ``d²q / (k² |cos θo|) = sin θ dθ dφ`` (no ``1/|cos θo|`` singularity), a Gauss–Legendre grid in
+    θ and φ over each peak's window."""
+    r0 = np.hypot(ps[:, 0], ps[:, 1])
+    ph0 = np.arctan2(ps[:, 1], ps[:, 0])
+    th_lo = np.arcsin(np.clip(r0 - r_w, 0.0, 1.0))
+    th_hi = np.arcsin(np.clip(r0 + r_w, 0.0, 1.0))
+    dph = np.arcsin(np.clip(r_w / np.maximum(r0, 1e-12), 0.0, 1.0))
+    xt, wt = np.polynomial.legendre.leggauss(2 * LATTICE_PEAK_NODES)
+    th = 0.5 * (th_lo + th_hi)[:, None] + 0.5 * (th_hi - th_lo)[:, None] * xt[None, :]
+    wth = 0.5 * (th_hi - th_lo)[:, None] * wt[None, :]
+    ph = ph0[:, None] + dph[:, None] * xg[None, :]
+    wph = dph[:, None] * wg[None, :]
+    st = np.sin(th)[:, :, None]
+    pp = np.stack(np.broadcast_arrays(st * np.cos(ph)[:, None, :], st * np.sin(ph)[:, None, :]), -1)
+    dq = k * (pp + wi[:2]) - Gs[:, None, None, :]
+    gauss = np.exp(-0.5 * np.sum(dq * dq, axis=-1) / (w * w)) / (2 * np.pi * w * w)
+    ws = (Ws[:, None, None] * gauss * st * wth[:, :, None] * wph[:, None, :]).reshape(-1)
+    pp = pp.reshape(-1, 2)
+    r2s = np.sum(pp * pp, axis=-1)
+    ok = (r2s < 1.0) & (ws > 0)
+    return pp[ok], np.sqrt(1.0 - r2s[ok]), ws[ok]
+
+
 class SphereMaterial(Layer):
     """A layer of Mie spheres: coherent beam, forward and backward lobes (see the module docstring).
 
@@ -520,48 +572,7 @@ class SphereMaterial(Layer):
         pc = G / k - wi[:2]
         keep = np.hypot(pc[:, 0], pc[:, 1]) < 1.0 + reach / k
         G, W = G[keep], W[keep]
-        xg, wg = np.polynomial.legendre.leggauss(LATTICE_PEAK_NODES)
-        # orders well inside the unit disk of wo_xy: a tensor grid in q, weights d²q / (k² |cos θo|)
-        rho0 = np.hypot(pc[keep, 0], pc[keep, 1])
-        r_w = reach / k
-        flat = rho0 + r_w < LATTICE_STEEP
-        d = reach * xg
-        g1 = reach * wg * np.exp(-0.5 * (d / w) ** 2) / (math.sqrt(2 * np.pi) * w)
-        Gf, Wf = G[flat], W[flat]
-        q = np.stack(np.broadcast_arrays(Gf[:, None, None, 0] + d[None, :, None],
-                                         Gf[:, None, None, 1] + d[None, None, :]), -1).reshape(-1, 2)
-        wq = (Wf[:, None, None] * g1[None, :, None] * g1[None, None, :]).reshape(-1)
-        p = q / k - wi[:2]
-        r2 = p[:, 0] ** 2 + p[:, 1] ** 2
-        ok = (r2 < 1.0) & (wq > 0)
-        p, r2 = p[ok], r2[ok]
-        cz = np.sqrt(1.0 - r2)
-        wq = wq[ok] / (k * k * cz)
-        # orders near grazing exit: wo_xy = sin θ (cos φ, sin φ), d²q / (k² |cos θo|) = sin θ dθ dφ
-        # (no 1/|cos θo| singularity), a Gauss–Legendre grid in θ and φ over the peak's window
-        if np.any(~flat):
-            Gs, Ws, ps = G[~flat], W[~flat], pc[keep][~flat]
-            r0 = np.hypot(ps[:, 0], ps[:, 1])
-            ph0 = np.arctan2(ps[:, 1], ps[:, 0])
-            th_lo = np.arcsin(np.clip(r0 - r_w, 0.0, 1.0))
-            th_hi = np.arcsin(np.clip(r0 + r_w, 0.0, 1.0))
-            dph = np.arcsin(np.clip(r_w / np.maximum(r0, 1e-12), 0.0, 1.0))
-            xt, wt = np.polynomial.legendre.leggauss(2 * LATTICE_PEAK_NODES)
-            th = 0.5 * (th_lo + th_hi)[:, None] + 0.5 * (th_hi - th_lo)[:, None] * xt[None, :]
-            wth = 0.5 * (th_hi - th_lo)[:, None] * wt[None, :]
-            ph = ph0[:, None] + dph[:, None] * xg[None, :]
-            wph = dph[:, None] * wg[None, :]
-            st = np.sin(th)[:, :, None]
-            pp = np.stack(np.broadcast_arrays(st * np.cos(ph)[:, None, :], st * np.sin(ph)[:, None, :]), -1)
-            dq = k * (pp + wi[:2]) - Gs[:, None, None, :]
-            gauss = np.exp(-0.5 * np.sum(dq * dq, axis=-1) / (w * w)) / (2 * np.pi * w * w)
-            ws = (Ws[:, None, None] * gauss * st * wth[:, :, None] * wph[:, None, :]).reshape(-1)
-            pp = pp.reshape(-1, 2)
-            r2s = np.sum(pp * pp, axis=-1)
-            ok = (r2s < 1.0) & (ws > 0)
-            p = np.concatenate([p, pp[ok]])
-            cz = np.concatenate([cz, np.sqrt(1.0 - r2s[ok])])
-            wq = np.concatenate([wq, ws[ok]])
+        p, cz, wq = _bragg_nodes(G, W, pc[keep], k, w, reach, wi)
         parts_wo, parts_e, parts_f = [], [], []
         for side in (1.0, -1.0):
             wo = np.concatenate([p, side * cz[:, None]], axis=-1)
@@ -570,24 +581,7 @@ class SphereMaterial(Layer):
             parts_e.append(np.where(fwd, P_f, P_b) * wq)
             parts_f.append(fwd)
         if lat.jitter > 0.0:
-            K = self.rows["P_f"].shape[1]
-            s = np.linspace(0.0, CHORD_MAX, K)
-            ws = np.full(s.size, s[1] - s[0])
-            ws[0] = ws[-1] = 0.5 * ws[0]
-            phi = (np.arange(LATTICE_DIFFUSE_PHI) + 0.5) * (2 * np.pi / LATTICE_DIFFUSE_PHI)
-            cos_t, sin_t = 1 - 0.5 * s * s, s * np.sqrt(1 - 0.25 * s * s)
-            for axis in (-wi, wi):
-                e1, e2 = frame(axis)
-                wo = (cos_t[:, None, None] * axis + sin_t[:, None, None]
-                      * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2)).reshape(-1, 3)
-                dw = np.repeat(ws * s * (2 * np.pi / LATTICE_DIFFUSE_PHI), phi.size)
-                P_f, P_b, fwd = self._mie_at(wi, wo, lam)
-                mine = fwd if axis[2] == -wi[2] else ~fwd     # each lobe on its own grid
-                q2 = k * k * np.sum((wo + wi)[:, :2] ** 2, axis=-1)
-                diffuse = np.where(fwd, P_f, P_b) * -np.expm1(-q2 * lat.jitter ** 2)
-                parts_wo.append(wo)
-                parts_e.append(np.where(mine, diffuse * dw, 0.0))
-                parts_f.append(fwd)
+            self._diffuse_nodes(wi, lam, k, parts_wo, parts_e, parts_f)
         n_bragg = 2 * p.shape[0]
         out = {"wo": np.concatenate(parts_wo), "energy": np.concatenate(parts_e),
                "forward": np.concatenate(parts_f)}
@@ -596,6 +590,29 @@ class SphereMaterial(Layer):
             self._lattice_cache.clear()
         self._lattice_cache[key] = out
         return out
+
+    def _diffuse_nodes(self, wi, lam: float, k: float, parts_wo: list, parts_e: list, parts_f: list) -> None:
+        """The diffuse part ``P (1 - e^{-q²δ²})`` of a jittered lattice on the tables' chord grid
+        about ``∓wi`` (``dΩ = s ds dφ``, ``LATTICE_DIFFUSE_PHI`` azimuths), appended to the parts of
+        :meth:`lattice_nodes`."""
+        K = self.rows["P_f"].shape[1]
+        s = np.linspace(0.0, CHORD_MAX, K)
+        ws = np.full(s.size, s[1] - s[0])
+        ws[0] = ws[-1] = 0.5 * ws[0]
+        phi = (np.arange(LATTICE_DIFFUSE_PHI) + 0.5) * (2 * np.pi / LATTICE_DIFFUSE_PHI)
+        cos_t, sin_t = 1 - 0.5 * s * s, s * np.sqrt(1 - 0.25 * s * s)
+        for axis in (-wi, wi):
+            e1, e2 = frame(axis)
+            wo = (cos_t[:, None, None] * axis + sin_t[:, None, None]
+                  * (np.cos(phi)[None, :, None] * e1 + np.sin(phi)[None, :, None] * e2)).reshape(-1, 3)
+            dw = np.repeat(ws * s * (2 * np.pi / LATTICE_DIFFUSE_PHI), phi.size)
+            P_f, P_b, fwd = self._mie_at(wi, wo, lam)
+            mine = fwd if axis[2] == -wi[2] else ~fwd     # each lobe on its own grid
+            q2 = k * k * np.sum((wo + wi)[:, :2] ** 2, axis=-1)
+            diffuse = np.where(fwd, P_f, P_b) * -np.expm1(-q2 * self.lattice.jitter ** 2)
+            parts_wo.append(wo)
+            parts_e.append(np.where(mine, diffuse * dw, 0.0))
+            parts_f.append(fwd)
 
     def lattice_energy(self, wi, wavelength: float) -> float:
         """``e = ∫ Z dΩ`` of both lobes on the lattice for one ``wi`` (3,) (:meth:`lattice_nodes`)."""
