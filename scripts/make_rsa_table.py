@@ -5,7 +5,7 @@ factor ``S(qσ, η)`` of random sequential adsorption (RSA) of disks.
 Method
 ------
 * Exact RSA of unit disks (σ = 1) in a periodic square box of side ``--box``
-  run to saturation (``corona.model.processes.rsa._rsa_fill``: plain attempts to
+  run to saturation (``corona.model.processes.rsa.rsa_fill``: plain attempts to
   coverage 0.40, then the voxel method that samples only where space may be
   left).  RSA never removes a disk, so the first ``N_t`` centres of one run are
   a configuration at coverage ``η_t = N_t π/4 / L²``: one run gives every row

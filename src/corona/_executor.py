@@ -75,7 +75,7 @@ def default_workers(n_tasks: int | None = None) -> int:
 
 
 #: per worker process: the Dr.Jit thread count it was given and the variant it set
-_WORKER: dict = {}
+WORKER: dict = {}
 _JOB_LOCK = threading.Lock()      # one job at a time per process, whatever the worker's nthreads
 
 
@@ -83,8 +83,8 @@ def _configure_worker(workers_on_host: dict, dask_worker=None) -> int:
     """Run on every worker once: its Dr.Jit thread count, cores // workers on its host
     (applied before its first render, :func:`_prepare_renderer`)."""
     n = int(workers_on_host.get(getattr(dask_worker, "address", None), 1))
-    _WORKER["threads"] = max(1, _cpus() // max(1, n))
-    return _WORKER["threads"]
+    WORKER["threads"] = max(1, _cpus() // max(1, n))
+    return WORKER["threads"]
 
 
 #: The address schemes of a Dask scheduler (``distributed.comm``) that a sweep connects to.

@@ -184,11 +184,11 @@ def layer(material=None, **params):
 
 def xyz_to_rgb_matrix(colorspace: str) -> np.ndarray:
     """The 3x3 CIE XYZ -> linear RGB matrix of ``colorspace`` ("srgb" or "acescg")."""
-    from corona.color import _xyz_to_srgb
+    from corona.color import XYZ_TO_SRGB
     from corona._validation import check_choice
     colorspace = check_choice("colorspace", colorspace, COLORSPACES)
     if colorspace == "srgb":
-        return _xyz_to_srgb()
+        return XYZ_TO_SRGB
     return np.linalg.inv(AP1_TO_XYZ)
 
 

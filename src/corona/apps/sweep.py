@@ -40,7 +40,7 @@ import time
 
 import numpy as np
 
-from corona._executor import _WORKER, Executor, Outcome
+from corona._executor import WORKER, Executor, Outcome
 from corona._validation import CoronaError
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -126,22 +126,22 @@ def check_out_dir(out_dir: str) -> str:
 def _prepare_renderer(variant: str | None) -> str:
     """Set Dr.Jit's thread count (on a worker), the variant, and register the plugin
     in this process (once per variant)."""
-    if "threads" in _WORKER and not _WORKER.get("threads_set"):
+    if "threads" in WORKER and not WORKER.get("threads_set"):
         from corona import _environment  # noqa: F401  (libLLVM before drjit)
         import drjit as dr
-        dr.set_thread_count(_WORKER["threads"])
-        _WORKER["threads_set"] = True
+        dr.set_thread_count(WORKER["threads"])
+        WORKER["threads_set"] = True
     key = variant or "<default>"
-    if _WORKER.get("variant_key") != key:
+    if WORKER.get("variant_key") != key:
         from corona.apps.render import setup_variant
-        _WORKER["variant"] = setup_variant(variant)
-        _WORKER["variant_key"] = key
+        WORKER["variant"] = setup_variant(variant)
+        WORKER["variant_key"] = key
     else:
         import mitsuba as mi
-        if mi.variant() != _WORKER["variant"]:   # someone switched it since
+        if mi.variant() != WORKER["variant"]:   # someone switched it since
             from corona.apps.render import setup_variant
-            setup_variant(_WORKER["variant"])
-    return _WORKER["variant"]
+            setup_variant(WORKER["variant"])
+    return WORKER["variant"]
 
 
 def render_point(scene: str, defines: dict, spp: int | None, seed: int, variant: str | None,

@@ -16,12 +16,14 @@ import numpy as np
 
 from corona.model.processes import rsa as _runtime
 # the generator lives with the process (the runtime samples it too); re-exported here
-from corona.model.processes.rsa import RSA_JAMMING_LIMIT, _rsa_fill, _wrap, rsa_configuration  # noqa: F401
+from corona.model.processes.rsa import RSA_JAMMING_LIMIT, minimum_image, rsa_configuration, rsa_fill  # noqa: F401
 
 # =====================================================================
 # numba kernels of the table (compiled lazily on first use, cached on disk)
 # =====================================================================
 _KERNELS = ("_rsa_sk_prefix", "_rsa_pair_hist")
+#: the generator's kernels that this module's kernels call (rebound to their compiled versions)
+_GENERATOR = ("minimum_image", "rsa_fill")
 _JIT_DONE = False
 
 
@@ -30,10 +32,10 @@ def _jit() -> None:
     global _JIT_DONE
     if _JIT_DONE:
         return
-    _runtime._jit()
+    _runtime.compile_kernels()
     import numba
     g = globals()
-    for name in _runtime._KERNELS:          # the compiled generator, seen by the kernels below
+    for name in _GENERATOR:                 # the compiled generator, seen by the kernels below
         g[name] = getattr(_runtime, name)
     for name in _KERNELS:
         g[name] = numba.njit(cache=True, nogil=True)(g[name])
@@ -89,8 +91,8 @@ def _rsa_pair_hist(pos, L, targets, dr, nbins):
         if tb >= T:
             break
         for i in range(j):
-            dx = _wrap(pos[i, 0] - pos[j, 0], L)
-            dy = _wrap(pos[i, 1] - pos[j, 1], L)
+            dx = minimum_image(pos[i, 0] - pos[j, 0], L)
+            dy = minimum_image(pos[i, 1] - pos[j, 1], L)
             r2 = dx * dx + dy * dy
             if r2 < rmax2:
                 b = int(math.sqrt(r2) / dr)
@@ -134,7 +136,7 @@ def table_runs(L: float, kcut: float, dr: float, rmax: float, seeds) -> dict:
     """Sums over the RSA runs seeded by ``seeds`` (one chunk of the table; one task).
 
     Each run fills the periodic box of side ``L`` to saturation
-    (:func:`_rsa_fill`); for every coverage row ``t`` (and the saturated
+    (:func:`rsa_fill`); for every coverage row ``t`` (and the saturated
     state, the last row) it adds the bin sums of ``S(k)`` (``sk_sum``), their
     squares over the bin counts (``sk_sq``), the pair-distance histogram
     ``H`` (bin ``dr`` to ``rmax``) and the ideal-gas pair counts ``ideal``.
@@ -153,7 +155,7 @@ def table_runs(L: float, kcut: float, dr: float, rmax: float, seeds) -> dict:
     import time
     c0 = time.process_time()
     for seed in seeds:
-        pos = _rsa_fill(float(L), 0, int(seed))
+        pos = rsa_fill(float(L), 0, int(seed))
         N = len(pos)
         nsat.append(N)
         tg = np.concatenate([targets, [N]])

@@ -329,7 +329,7 @@ def wait_exact(m):
     with lock:
         if "rows" not in m.__dict__ and not m.use_cache:
             _read_cached_rows(m)
-        _ = m.rows, m._derived
+        _ = m.rows, m.row_totals
     return m
 
 
@@ -430,7 +430,7 @@ def shown_material(params: dict, preview: bool = True) -> tuple:
 
     def make():
         p = m.preview()
-        _ = p.rows, p._derived
+        _ = p.rows, p.row_totals
         return p
     with _preview_lock:
         preview = _previews.get(key, make)
@@ -847,10 +847,10 @@ def profiles(params: dict, view: dict, n: int = 400, preview: bool = False) -> d
 def _sphere_T_a(m, rho) -> list:
     """One sphere's ``n dσ/dΩ / F_a = dσ/dΩ / (π r²)`` [1/sr] at normal incidence towards
     ``wo = (ρ, 0, -√(1 - ρ²))`` at :data:`PROFILE_WAVELENGTH`, from Mie theory (the layer's
-    :meth:`~corona.model.mie.material.SphereMaterial._exact`, a size distribution's average included)."""
+    :meth:`~corona.model.mie.material.SphereMaterial.exact_parts`, a size distribution's average included)."""
     wi = np.array([0.0, 0.0, 1.0])
     wo = np.stack([rho, 0 * rho, -np.sqrt(np.maximum(1 - rho * rho, 0.0))], -1)
-    P_f = m._exact(np.linalg.norm(wo + wi, axis=-1), np.linalg.norm(wo - wi, axis=-1),
+    P_f = m.exact_parts(np.linalg.norm(wo + wi, axis=-1), np.linalg.norm(wo - wi, axis=-1),
                    np.full(rho.shape, PROFILE_WAVELENGTH))[0]
     return _finite(P_f)
 

@@ -668,7 +668,7 @@ class SphereMaterial(Layer):
             lam_um = np.clip(lam, tabulated.WAVELENGTH_MIN, tabulated.WAVELENGTH_MAX) * 1e-3
             S = self.lattice.structure_factor_at(2 * np.pi * (wo + wi)[..., :2] / lam_um[..., None])
         if exact:
-            P_f, C_f, P_b = self._exact(s_f, s_b, lam)
+            P_f, C_f, P_b = self.exact_parts(s_f, s_b, lam)
         else:
             j, t = self._row(lam)
             x = self._x(lam)
@@ -681,8 +681,10 @@ class SphereMaterial(Layer):
             return Z_f, decoupled_lobe(P_b, P_b, S), forward
         return Z_f, P_b, forward
 
-    def _exact(self, s_f, s_b, lam):
-        """Mie P, C (forward) and P (backward) computed directly at each direction (float64)."""
+    def exact_parts(self, s_f, s_b, lam):
+        """Mie ``P_f``, ``C_f`` (forward) and ``P_b`` (backward) at the chords ``s_f = |wo + wi|``,
+        ``s_b = |wo - wi|`` and wavelengths ``lam`` [nm], from Mie theory at each direction (float64,
+        no rows; a size distribution averaged): what :meth:`eval` uses with ``exact=True``."""
         r = self.sphere.radius
         s_nodes, s_w = (np.ones(1), np.ones(1)) if self.sizes is None else \
             self.sizes._nodes(2.0 * 2 * np.pi / (tabulated.WAVELENGTH_MIN * 1e-3))

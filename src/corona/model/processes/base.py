@@ -91,8 +91,8 @@ class Process:
         return np.zeros(0)
 
     def key(self) -> dict:
-        from corona.model.shapes.base import _keyable
-        return {"type": type(self).__name__, **{k: _keyable(v) for k, v in vars(self).items()
+        from corona.model.shapes.base import keyable
+        return {"type": type(self).__name__, **{k: keyable(v) for k, v in vars(self).items()
                                                 if not k.startswith("_")}}
 
 

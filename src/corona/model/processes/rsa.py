@@ -195,11 +195,11 @@ class SequentialAdsorption(Process):
 # =====================================================================
 # the generator: numba kernels (the ``reference`` extra), compiled lazily on first use
 # =====================================================================
-_KERNELS = ("_wrap", "_rsa_free", "_rsa_covered", "_rsa_fill")
+_KERNELS = ("minimum_image", "_rsa_free", "_rsa_covered", "rsa_fill")
 _JIT_DONE = False
 
 
-def _jit() -> None:
+def compile_kernels() -> None:
     """Compile the numba kernels of this module (once; numba caches them on disk)."""
     global _JIT_DONE
     if _JIT_DONE:
@@ -215,7 +215,7 @@ def _jit() -> None:
     _JIT_DONE = True
 
 
-def _wrap(d, L):
+def minimum_image(d, L):
     """Minimum-image convention for a separation ``d`` in a period ``L``."""
     if d > 0.5 * L:
         return d - L
@@ -234,8 +234,8 @@ def _rsa_free(x, y, pos, cell, nc, h, L):
                 continue  # corner cells are farther than h*sqrt(5) > 1
             p = cell[(ci + di) % nc, (cj + dj) % nc]
             if p >= 0:
-                dx = _wrap(pos[p, 0] - x, L)
-                dy = _wrap(pos[p, 1] - y, L)
+                dx = minimum_image(pos[p, 0] - x, L)
+                dy = minimum_image(pos[p, 1] - y, L)
                 if dx * dx + dy * dy < 1.0:
                     return False
     return True
@@ -252,14 +252,14 @@ def _rsa_covered(vx, vy, v, pos, cell, nc, h, L):
         for dj in range(-2, 3):
             p = cell[(ci + di) % nc, (cj + dj) % nc]
             if p >= 0:
-                dx = abs(_wrap(pos[p, 0] - cx, L)) + 0.5 * v
-                dy = abs(_wrap(pos[p, 1] - cy, L)) + 0.5 * v
+                dx = abs(minimum_image(pos[p, 0] - cx, L)) + 0.5 * v
+                dy = abs(minimum_image(pos[p, 1] - cy, L)) + 0.5 * v
                 if dx * dx + dy * dy < 1.0:
                     return True
     return False
 
 
-def _rsa_fill(L, n_stop, seed):
+def rsa_fill(L, n_stop, seed):
     """Random sequential adsorption of unit-diameter disks in the periodic box
     ``[0, L)²``; returns the centres (N, 2) in insertion order.
 
@@ -391,8 +391,8 @@ def rsa_configuration(box_size: float, packing_fraction: float | None = None, *,
             return np.zeros((0, 2))
     if seed is None:
         seed = int(np.random.default_rng().integers(2**31 - 1))
-    _jit()
-    return _rsa_fill(float(L), int(n_stop), int(seed)) * sigma
+    compile_kernels()
+    return rsa_fill(float(L), int(n_stop), int(seed)) * sigma
 
 
 

@@ -251,7 +251,7 @@ class Shape:
 
     def key(self) -> dict:
         """Parameters that identify this shape (for table caching)."""
-        return {"type": type(self).__name__, **{k: _keyable(v) for k, v in vars(self).items()
+        return {"type": type(self).__name__, **{k: keyable(v) for k, v in vars(self).items()
                                                 if not k.startswith("_")}}
 
     # --- internal ---------------------------------------------------------
@@ -369,7 +369,9 @@ def _gauss_legendre(n: int):
     return _GL_CACHE[n]
 
 
-def _keyable(v):
+def keyable(v):
+    """A cache-key value of the attribute ``v``: shapes by their identity, arrays by a digest,
+    sequences element-wise, numpy scalars as Python scalars (Shape.key and Process.key)."""
     if isinstance(v, Shape):
         from corona.model.tabulated import identity
         return identity(v)
@@ -380,7 +382,7 @@ def _keyable(v):
         h.update(a.tobytes())
         return "sha256:" + h.hexdigest()
     if isinstance(v, (list, tuple)):
-        return [_keyable(x) for x in v]
+        return [keyable(x) for x in v]
     if isinstance(v, (np.floating, np.integer, np.bool_)):
         return v.item()
     return v
