@@ -1,7 +1,7 @@
 """The test suite's wall time and item counts, cold (an empty tests' table cache) and warm (the same cache again).
 
     python benchmarks/suite_times.py [-m EXPR | --full] [-n WORKERS] [--runs cold,warm] [--cache DIR]
-                                     [--label TEXT] [--note TEXT]
+                                     [--label TEXT] [--note TEXT] [--log DIR] [--pytest-args ARGS]
 
 Runs ``pytest -n WORKERS -q -p no:cacheprovider -m EXPR tests`` (default ``-n 2 -m "not slow"``:
 what ``make test-fast`` runs; ``--full``: ``pytest -n 2 -q``, what ``make test`` runs) with
@@ -9,7 +9,7 @@ what ``make test-fast`` runs; ``--full``: ``pytest -n 2 -q``, what ``make test``
 ``warm`` reuses it.  Before the runs one collection (``--collect-only``, with this file as a pytest
 plugin: :func:`pytest_collection_finish`) counts the items the expression selects and the items of
 each marker (``slow``, ``chi2``, ``render``, ...) in the whole suite.  Records each run's wall time,
-the CPU time of pytest and its workers (``RUSAGE_CHILDREN``), the 1-minute load average before
+the CPU time of pytest and its workers (``RUSAGE_CHILDREN``), the load averages (1, 5, 15 min) before
 and after and pytest's summary line, with the counts and the machine (common.write), into
 benchmarks/results/suite_times.json; runs of other labels already there are kept.  Not run by
 ``make bench`` (it is not a ``bench_*.py``): it takes minutes.  The goals (issue 44): ``make test``
@@ -83,19 +83,25 @@ def count_items(marker: str | None, cache: str) -> dict:
     return out
 
 
-def run(args: list[str], cache: str) -> dict:
+def run(args: list[str], cache: str, log: str | None = None) -> dict:
+    """One pytest run: wall and CPU time, the load before and after; ``log``: a file for pytest's output."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    load0 = os.getloadavg()[0]
+    load0 = os.getloadavg()
     t0 = time.perf_counter()
     p = subprocess.run(args, cwd=ROOT, env=_env(cache), capture_output=True, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    load1 = os.getloadavg()
+    if log:
+        with open(log, "w") as f:
+            f.write(p.stdout + p.stderr)
     lines = [x for x in p.stdout.strip().splitlines() if x.strip()]
     summary = lines[-1] if lines else p.stderr[-300:]
     passed = re.search(r"(\d+) passed", summary)
     return {"wall_s": round(wall, 1),
             "cpu_s": round(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, 1),
-            "load_average_1min": [round(load0, 1), round(os.getloadavg()[0], 1)],
+            "load_average_1min": [round(load0[0], 1), round(load1[0], 1)],
+            "load_average_1_5_15min": {"start": [round(x, 1) for x in load0], "end": [round(x, 1) for x in load1]},
             "returncode": p.returncode, "passed": int(passed.group(1)) if passed else 0, "summary": summary}
 
 
@@ -108,6 +114,8 @@ def main():
     ap.add_argument("--cache", default=None, help="the tests' cache root (default: a new temporary folder)")
     ap.add_argument("--label", default=None, help="the result's name prefix (default: test-fast / test)")
     ap.add_argument("--note", default=None, help="a note stored with these runs (the machine's load, ...)")
+    ap.add_argument("--log", default=None, help="a folder for each run's pytest output (<label> <run>.txt)")
+    ap.add_argument("--pytest-args", default="", help="more pytest arguments, e.g. '--durations=0' (split on spaces)")
     args = ap.parse_args()
     cache = args.cache or tempfile.mkdtemp(prefix="corona-suite-times-")
     marker = None if args.full else args.marker
@@ -115,6 +123,7 @@ def main():
     label = args.label or kind
     cmd = [sys.executable, "-m", "pytest", "-n", str(args.workers), "-q", "-p", "no:cacheprovider"]
     cmd += [] if marker is None else ["-m", marker, "tests"]
+    cmd += args.pytest_args.split()
     path = os.path.join(RESULTS, "suite_times.json")
     data = {}
     if os.path.exists(path):
@@ -127,7 +136,11 @@ def main():
     for which in args.runs.split(","):
         if which == "cold":
             shutil.rmtree(cache, ignore_errors=True)
-        r = run(cmd, cache)
+        log = None
+        if args.log:
+            os.makedirs(args.log, exist_ok=True)
+            log = os.path.join(args.log, f"{label} {which}.txt".replace(" ", "_"))
+        r = run(cmd, cache, log)
         r.update(command=" ".join(["python"] + cmd[1:]), marker=marker or "", workers=args.workers,
                  items=counts.get("selection", counts["suite"])["selected"])
         if f"{kind} {which}" in GOALS_S and args.workers == 2:

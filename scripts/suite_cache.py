@@ -20,8 +20,14 @@ The tests therefore keep theirs in ``<root>/<fingerprint>/``, where
 Numba's compiled kernels (the reference tier) go to ``<root>/numba``: numba keys them itself
 on the source file's path and modification time.
 
+Pruning (``prune``, run by ../conftest.py at each test session): a fingerprint folder holds
+some hundreds of MB, and every edit of the table-building code starts one, so the root keeps the
+``KEEP_COUNT`` most recently used folders (their ``.last-used`` stamps) and deletes any other,
+and any folder unused for ``KEEP_DAYS`` whatever the count; a folder used within ``BUSY_HOURS``
+is never deleted by the count (another checkout's run may be writing to it).
+
 ``python scripts/suite_cache.py path|root|clear|prune`` prints the folder, the root, deletes
-every test cache (``make clean-cache``), or deletes fingerprint folders unused for 14 days.
+every test cache (``make clean-cache``), or prunes it as above.
 """
 from __future__ import annotations
 
@@ -39,6 +45,11 @@ EXCLUDED = ("apps", "reference")
 LIBRARIES = ("numpy", "scipy", "numba", "mitsuba", "drjit")
 #: a fingerprint folder unused this long is deleted by ``prune`` (run at each test session)
 KEEP_DAYS = 14
+#: ``prune`` keeps at most this many fingerprint folders (the most recently used), beyond
+#: those in use (:data:`BUSY_HOURS`): a few checkouts or branches of the code, each warm
+KEEP_COUNT = 4
+#: a folder used this recently is never deleted by the count: a run may still be writing to it
+BUSY_HOURS = 2.0
 STAMP = ".last-used"
 
 
@@ -89,16 +100,29 @@ def folder(src: str = SRC) -> str:
     return path
 
 
-def prune(keep_days: float = KEEP_DAYS) -> list[str]:
-    """Delete the fingerprint folders of ``root()`` not used for ``keep_days`` (their stamp's age)."""
+def prune(keep_days: float = KEEP_DAYS, keep_count: int = KEEP_COUNT,
+          busy_hours: float = BUSY_HOURS) -> list[str]:
+    """Delete the fingerprint folders of ``root()`` not used for ``keep_days`` (their stamp's age),
+    and the least recently used beyond the newest ``keep_count``, except those used within
+    ``busy_hours``.  Returns the deleted paths."""
     base, gone = root(), []
     if not os.path.isdir(base):
         return gone
-    limit = time.time() - keep_days * 86400
+    now = time.time()
+    stamped = []
     for name in os.listdir(base):
-        path = os.path.join(base, name)
-        stamp = os.path.join(path, STAMP)
-        if name != "numba" and os.path.isfile(stamp) and os.path.getmtime(stamp) < limit:
+        stamp = os.path.join(base, name, STAMP)
+        if name == "numba":
+            continue
+        try:
+            stamped.append((os.path.getmtime(stamp), os.path.join(base, name)))
+        except OSError:     # no stamp (not a fingerprint folder, or being made): left alone
+            continue
+    stamped.sort(reverse=True)
+    for rank, (used, path) in enumerate(stamped):
+        expired = used < now - keep_days * 86400
+        surplus = rank >= keep_count and used < now - busy_hours * 3600
+        if expired or surplus:
             shutil.rmtree(path, ignore_errors=True)
             gone.append(path)
     return gone

@@ -125,3 +125,33 @@ def test_prune_and_clear_touch_only_the_test_cache_root(tmp_path, monkeypatch):
     assert not old.exists() and os.path.isdir(new)
     assert suite_cache.clear() == str(tmp_path / "root")
     assert not (tmp_path / "root").exists() and tmp_path.exists()
+
+
+def test_prune_keeps_the_most_recently_used_folders_by_count(tmp_path, monkeypatch):
+    """Beyond the ``KEEP_COUNT`` newest folders the least recently used go, however young, except
+    one used within ``BUSY_HOURS`` (a run may be writing to it); ``numba`` and unstamped folders stay."""
+    monkeypatch.setenv("CORONA_TEST_CACHE", str(tmp_path / "root"))
+    now = suite_cache.time.time()
+    hours = {f"{i:024x}": 3.0 + i for i in range(suite_cache.KEEP_COUNT + 3)}   # 3 h, 4 h, ... old
+    busy = "b" * 24                                       # used 10 minutes ago
+    for name, age in {**hours, busy: 1 / 6}.items():
+        path = tmp_path / "root" / name
+        path.mkdir(parents=True)
+        (path / suite_cache.STAMP).write_text("x\n")
+        os.utime(path / suite_cache.STAMP, (now - age * 3600, now - age * 3600))
+    (tmp_path / "root" / "numba").mkdir()
+    (tmp_path / "root" / "c").mkdir()                      # no stamp: not a fingerprint folder of ours
+    gone = sorted(os.path.basename(p) for p in suite_cache.prune())
+    # the busy folder is the newest, so it takes one of the KEEP_COUNT places; the oldest of the rest go
+    kept = [busy] + sorted(hours, key=hours.get)[:suite_cache.KEEP_COUNT - 1]
+    assert gone == sorted(set(hours) - set(kept))
+    assert sorted(os.listdir(tmp_path / "root")) == sorted(kept + ["numba", "c"])
+    # a busy folder beyond the count stays: all are made busy, none goes
+    for name in kept[1:]:
+        os.utime(tmp_path / "root" / name / suite_cache.STAMP, (now, now))
+    young = tmp_path / "root" / ("d" * 24)
+    young.mkdir()
+    (young / suite_cache.STAMP).write_text("x\n")
+    os.utime(young / suite_cache.STAMP, (now - 600, now - 600))
+    assert suite_cache.prune() == []
+    assert suite_cache.prune(keep_count=2, busy_hours=0.0) != []           # the count alone would cut
