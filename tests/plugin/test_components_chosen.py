@@ -80,3 +80,23 @@ def test_no_flag_read_in_eval_pdf_sample(mi_variant, name, monkeypatch, tmp_path
     after = _run(mi, bsdf)
     for b, a in zip(before, after):
         assert np.array_equal(b, a)
+
+
+@pytest.mark.parametrize("name", ["particle", "breath-time-texture", "radius-texture", "sphere-fa-texture"])
+def test_chosen_functions_do_not_keep_a_dropped_plugin(mi_variant, name, tmp_path):
+    """The choices are the class's functions, not bound methods: a dropped plugin (and its tables) is
+    freed at once, without the garbage collector (a bound method on the instance is a reference cycle)."""
+    import gc
+    import weakref
+
+    import mitsuba as mi
+    bsdf = _load(mi, LAYERS[name], tmp_path)
+    alive = weakref.ref(bsdf)
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        del bsdf
+        assert alive() is None
+    finally:
+        if was:
+            gc.enable()

@@ -296,9 +296,11 @@ class CoronaBSDFMixin(PluginCore):
                               "or a process instance (their sizes and positions are absolute); give a float")
         #: where a lane's F_a and its length L come from, chosen once here: the breath figure's age
         #: (a time texture), the F_a texture with a fixed L, or with L from the radius texture
-        self._coverage = (self._coverage_from_time if self.time_tex is not None
-                          else self._coverage_fixed_radius if self.fixed_radius
-                          else self._coverage_from_radius)
+        #: (the class's function, called with the plugin: a bound method would be a reference cycle)
+        cls = type(self)
+        self._coverage = (cls._coverage_from_time if self.time_tex is not None
+                          else cls._coverage_fixed_radius if self.fixed_radius
+                          else cls._coverage_from_radius)
         ranges = self._ranges()
         # the wavelengths a lane evaluates (RGB / mono: the channels' response wavelengths)
         self.wavelengths = Wavelengths()
@@ -753,7 +755,7 @@ class CoronaBSDFMixin(PluginCore):
     def _layer(self, si, active):
         """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
         and the energies of the coherent beam, the lobe and the reflection."""
-        fa, L = self._coverage(si, active)
+        fa, L = self._coverage(self, si, active)
         rows = self.rows.locate(fa, active)      # the row j, its weight t, the energies, the Hermite weights
         energy = rows["energy"]
         held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables

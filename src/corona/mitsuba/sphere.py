@@ -226,7 +226,8 @@ class SphereBSDFMixin(PluginCore):
         self.params = params
         self.fa_textured = fa_tex is not None
         #: a lane's F_a, chosen once here: a texture's clipped to its range, a uniform one as it is
-        self._lane_fa = self._textured_fa if self.fa_textured else self._uniform_fa
+        #: (the class's function, called with the plugin: a bound method would be a reference cycle)
+        self._lane_fa = type(self)._textured_fa if self.fa_textured else type(self)._uniform_fa
         self._setup(*(self.fa_range if self.fa_textured else (params.get("area_fraction", SPEC["area_fraction"].default),) * 2))
         if self.radius_tex is None:
             self.radius_tex = _uniform(self.params.get("radius", SPEC["radius"].default))
@@ -239,8 +240,9 @@ class SphereBSDFMixin(PluginCore):
         #: (:class:`SpheresOnPane`: 3, the pane's mirror image, 4, the lobes in reflection)
         self.substrate = sphere_substrate(self.material.substrate)
         #: the rows' eval of a fresh lane, chosen once here: its wavelengths as one symbolic loop
-        #: where the substrate allows it (:meth:`_lane_eval_pdf`), else unrolled
-        self._fresh_eval_pdf = self._lane_eval_pdf if self.substrate.wavelength_loop else self._unrolled_eval_pdf
+        #: where the substrate allows it (:meth:`_lane_eval_pdf`), else unrolled (a function, as _lane_fa)
+        self._fresh_eval_pdf = (type(self)._lane_eval_pdf if self.substrate.wavelength_loop
+                                else type(self)._unrolled_eval_pdf)
         self.set_components([mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
                             + self.substrate.components(sides, False),
                             (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
@@ -518,7 +520,7 @@ class SphereBSDFMixin(PluginCore):
         weights (:attr:`fa_tables`), radius [µm])."""
         lams, m = self._wavelengths(si.wavelengths)
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
-        fa = self._lane_fa(si, active)
+        fa = self._lane_fa(self, si, active)
         return lams, m, mu_i, fa, self.fa_tables.locate(fa), self._lane_radius(si, active)
 
     def _textured_fa(self, si, active):
@@ -679,7 +681,7 @@ class SphereBSDFMixin(PluginCore):
     def _rows_eval_pdf(self, ctx, si, wo, active, cached=None):
         """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_rows_sample`'s states)."""
         if cached is None:
-            return self._fresh_eval_pdf(ctx, si, wo, active)
+            return self._fresh_eval_pdf(self, ctx, si, wo, active)
         return self._states_eval_pdf(ctx, si, wo, active, cached)
 
     def _lane_eval_pdf(self, ctx, si, wo, active):
