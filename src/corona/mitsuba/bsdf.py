@@ -138,6 +138,20 @@ CHANNEL_OVERSAMPLE = 2
 __all__ = ["N_RESPONSE", "NEWTON_STEPS", "TEXTURED", "FA_WINDOW", "texture_range", "bsdf_class", "register"]
 
 
+def _identity(x):
+    return x
+
+
+def _aperture_shares(fa):
+    """(coherent beam, opaque fraction) of apertures covering F_a of an opaque screen."""
+    return dr.square(fa), 1.0 - fa
+
+
+def _particle_shares(fa):
+    """(coherent beam, opaque fraction) of particles covering F_a of a clear layer."""
+    return dr.square(1.0 - fa), fa
+
+
 def _pack_rows(rows, slopes=None):
     """Radial rows ``(n_rows, n)`` and their slopes in F_a as one float32 array of packets, bin by bin:
     ``(v(i), v(i + 1), ∂v(i), ∂v(i + 1))`` for ``i < n - 1`` (slopes 0 without ``slopes``), so that one
@@ -256,6 +270,8 @@ class CoronaBSDFMixin(PluginCore):
         timed = [k for k in PROCESS_TEXTURED if k in textures]
         self.time_name = timed[0] if timed else None
         self.time_tex = textures.get(self.time_name)
+        #: the traced time coordinate, chosen once: log t for breath_time, t for dry_time (:meth:`_time_axis`)
+        self._time_coordinate = dr.log if self.time_name == "breath_time" else _identity
         if self.time_tex is not None and params.get("process", SPEC["process"].default) != "breath-figure":
             raise CoronaError(f"corona BSDF: {self.time_name} can be a texture only with process='breath-figure'")
         if len(timed) > 1 or (self.time_name == "breath_time" and params.get("dry_time", 0.0) != 0.0):
@@ -278,6 +294,13 @@ class CoronaBSDFMixin(PluginCore):
         if self.fixed_radius and "radius" in self._textured:
             raise CoronaError("corona BSDF: radius cannot be a texture with shape='mask', process='points' "
                               "or a process instance (their sizes and positions are absolute); give a float")
+        #: where a lane's F_a and its length L come from, chosen once here: the breath figure's age
+        #: (a time texture), the F_a texture with a fixed L, or with L from the radius texture
+        #: (the class's function, called with the plugin: a bound method would be a reference cycle)
+        cls = type(self)
+        self._coverage = (cls._coverage_from_time if self.time_tex is not None
+                          else cls._coverage_fixed_radius if self.fixed_radius
+                          else cls._coverage_from_radius)
         ranges = self._ranges()
         # the wavelengths a lane evaluates (RGB / mono: the channels' response wavelengths)
         self.wavelengths = Wavelengths()
@@ -422,7 +445,7 @@ class CoronaBSDFMixin(PluginCore):
 
     def _time_lookup(self, t):
         """(F_a, L) of a lane at time ``t`` [s]: gathers from the table uniform in :meth:`_time_axis`."""
-        x = ((dr.log(t) if self.time_name == "breath_time" else t) - self.time_log0) * self.time_scale
+        x = (self._time_coordinate(t) - self.time_log0) * self.time_scale
         j = mi.UInt32(dr.clip(dr.floor(x), 0, TIME_GRID - 2))
         w = x - mi.Float(j)
         f0, f1 = _gather(mi.Float, self.time_fa, j), _gather(mi.Float, self.time_fa, j + 1)
@@ -478,7 +501,8 @@ class CoronaBSDFMixin(PluginCore):
         self.radius_cover = (cover if self.mixture_scaled
                              else float(params.get("radius", SPEC["radius"].default)))
         self.L_per_radius = float(material.length_scale) / self.radius_cover   # L = radius · this
-        self.mode_aperture = material.mode == "aperture"
+        #: the coherent beam's share and the opaque fraction of F_a, chosen once by the layer's mode
+        self._shares = _aperture_shares if material.mode == "aperture" else _particle_shares
         if self.time_tex is None:
             fas, tabs, s_rows, totals = self._area_fraction_rows(material, fa_lo, fa_hi)
         else:
@@ -731,31 +755,35 @@ class CoronaBSDFMixin(PluginCore):
     def _layer(self, si, active):
         """Per-lane state at the shading point: F_a, its row j and weight t, the length L [µm],
         and the energies of the coherent beam, the lobe and the reflection."""
-        if self.time_tex is not None:     # the breath figure's age: its coverage and its length
-            fa, L = self._time_lookup(_clip(self.time_tex.eval_1(si, active), *self.time_cover))
-            fa = _clip(fa, self.fa_cover[0], self.fa_cover[1])
-        else:
-            fa = _clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
+        fa, L = self._coverage(self, si, active)
         rows = self.rows.locate(fa, active)      # the row j, its weight t, the energies, the Hermite weights
         energy = rows["energy"]
         held = fa * energy * (1.0 / (4.0 * dr.pi**2))   # F_a ∫v d²u / 4π², tables
         plane = held + fa * (self.tail / (4.0 * dr.pi**2))     # + the evanescent tail beyond them
-        coherent = dr.square(fa) if self.mode_aperture else dr.square(1.0 - fa)
+        coherent, opaque = self._shares(fa)
         budget = dr.maximum(1.0 - coherent, 0.0)
         # lobe weight F_a, lowered where coherent + lobe would exceed 1 (Poisson, see Material.lobe_weight)
         scale = dr.select(plane > budget, budget / dr.maximum(plane, 1e-30), 1.0)
         weight = fa * scale
         lobe = held * scale                  # the energy the tables hold: chooses the component
-        opaque = (1.0 - fa) if self.mode_aperture else fa
         albedo = _clip(self.albedo_tex.eval_1(si, active), 0.0, 1.0)
         reflect = dr.minimum(albedo * opaque, dr.maximum(1.0 - coherent - plane * scale, 0.0))
-        if self.time_tex is not None:
-            pass                                  # L from the time (above)
-        elif self.fixed_radius:
-            L = mi.Float(self.L_per_radius * self.radius_cover)
-        else:
-            L = self.radius_tex.eval_1(si, active) * self.L_per_radius
         return dict(fa=fa, **rows, weight=weight, L=L, coherent=coherent, lobe=lobe, reflect=reflect, plane=plane)
+
+    def _coverage_from_time(self, si, active):
+        """(F_a, L [µm]) of a lane from the breath figure's age (:attr:`time_tex`)."""
+        fa, L = self._time_lookup(_clip(self.time_tex.eval_1(si, active), *self.time_cover))
+        return _clip(fa, self.fa_cover[0], self.fa_cover[1]), L
+
+    def _coverage_fixed_radius(self, si, active):
+        """(F_a, L [µm]) of a lane: F_a from its texture, L the layer's own (absolute sizes)."""
+        fa = _clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
+        return fa, mi.Float(self.L_per_radius * self.radius_cover)
+
+    def _coverage_from_radius(self, si, active):
+        """(F_a, L [µm]) of a lane: F_a from its texture, L from the radius texture."""
+        fa = _clip(self.fa_tex.eval_1(si, active), self.fa_cover[0], self.fa_cover[1])
+        return fa, self.radius_tex.eval_1(si, active) * self.L_per_radius
 
     def _lobe_and_pdf(self, layer, wi, wo, wavelengths, active, modulation=None):
         """Lobe value f (Spectrum, no cosine) and the d-space pdf averaged over wavelengths;

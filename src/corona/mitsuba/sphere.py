@@ -225,6 +225,9 @@ class SphereBSDFMixin(PluginCore):
         self.sampler = UniformSampling() if self.sampling == "cosine" else MieRowsSampling()
         self.params = params
         self.fa_textured = fa_tex is not None
+        #: a lane's F_a, chosen once here: a texture's clipped to its range, a uniform one as it is
+        #: (the class's function, called with the plugin: a bound method would be a reference cycle)
+        self._lane_fa = type(self)._textured_fa if self.fa_textured else type(self)._uniform_fa
         self._setup(*(self.fa_range if self.fa_textured else (params.get("area_fraction", SPEC["area_fraction"].default),) * 2))
         if self.radius_tex is None:
             self.radius_tex = _uniform(self.params.get("radius", SPEC["radius"].default))
@@ -236,6 +239,10 @@ class SphereBSDFMixin(PluginCore):
         #: the substrate component, chosen once here: none (:class:`SpheresAlone`) or a glass pane
         #: (:class:`SpheresOnPane`: 3, the pane's mirror image, 4, the lobes in reflection)
         self.substrate = sphere_substrate(self.material.substrate)
+        #: the rows' eval of a fresh lane, chosen once here: its wavelengths as one symbolic loop
+        #: where the substrate allows it (:meth:`_lane_eval_pdf`), else unrolled (a function, as _lane_fa)
+        self._fresh_eval_pdf = (type(self)._lane_eval_pdf if self.substrate.wavelength_loop
+                                else type(self)._unrolled_eval_pdf)
         self.set_components([mi.BSDFFlags.DeltaTransmission | sides, glossy, glossy]
                             + self.substrate.components(sides, False),
                             (mi.BSDFFlags.DeltaTransmission, mi.BSDFFlags.GlossyTransmission,
@@ -513,11 +520,17 @@ class SphereBSDFMixin(PluginCore):
         weights (:attr:`fa_tables`), radius [µm])."""
         lams, m = self._wavelengths(si.wavelengths)
         mu_i = dr.abs(mi.Frame3f.cos_theta(si.wi))
-        fa = self.fa_tex.eval_1(si, active)
-        if self.fa_textured:
-            lo, hi = self.fa_range          # fa itself on the ends (as _lane_radius)
-            fa = clip(fa, lo, hi)
+        fa = self._lane_fa(self, si, active)
         return lams, m, mu_i, fa, self.fa_tables.locate(fa), self._lane_radius(si, active)
+
+    def _textured_fa(self, si, active):
+        """A lane's F_a from a texture, clipped to its range (fa itself on the ends, as _lane_radius)."""
+        lo, hi = self.fa_range
+        return clip(self.fa_tex.eval_1(si, active), lo, hi)
+
+    def _uniform_fa(self, si, active):
+        """A lane's F_a from a uniform texture (the rows are centred at it)."""
+        return self.fa_tex.eval_1(si, active)
 
     def _states(self, si, active, lane=None):
         lams, m, mu_i, fa, hw, radius = lane if lane is not None else self._lane(si, active)
@@ -667,18 +680,30 @@ class SphereBSDFMixin(PluginCore):
 
     def _rows_eval_pdf(self, ctx, si, wo, active, cached=None):
         """``(f |cos θo|, pdf)`` of the disordered layer (``cached``: :meth:`_rows_sample`'s states)."""
+        if cached is None:
+            return self._fresh_eval_pdf(self, ctx, si, wo, active)
+        return self._states_eval_pdf(ctx, si, wo, active, cached)
+
+    def _lane_eval_pdf(self, ctx, si, wo, active):
+        """:meth:`_rows_eval_pdf` of a fresh lane whose wavelengths may run as one symbolic loop."""
+        lane = self._lane(si, active)
+        # literal wavelengths (RGB's channels, fixed ones) fold into each unrolled copy with
+        # roundings a traced loop variable does not get: unrolled there, the values bit for bit
+        folded = any(getattr(lam, "state", None) == dr.VarState.Literal for lam in lane[0])
+        if not folded and self._loopable(len(lane[0]), si.wi, wo, lane[3], lane[5]):
+            return self._looped_eval_pdf(ctx, si, wo, active, lane)
+        return self._states_eval_pdf(ctx, si, wo, active, self._states(si, active, lane))
+
+    def _unrolled_eval_pdf(self, ctx, si, wo, active):
+        """:meth:`_rows_eval_pdf` of a fresh lane, its wavelengths unrolled."""
+        return self._states_eval_pdf(ctx, si, wo, active, self._states(si, active))
+
+    def _states_eval_pdf(self, ctx, si, wo, active, cached):
+        """:meth:`_rows_eval_pdf` from the lane's states ``cached`` (:meth:`_states`)."""
         wi = si.wi
         cos_i = mi.Frame3f.cos_theta(wi)
         cos_o = mi.Frame3f.cos_theta(wo)
-        lane = None
-        if cached is None and self.substrate.wavelength_loop:
-            lane = self._lane(si, active)
-            # literal wavelengths (RGB's channels, fixed ones) fold into each unrolled copy with
-            # roundings a traced loop variable does not get: unrolled there, the values bit for bit
-            folded = any(getattr(lam, "state", None) == dr.VarState.Literal for lam in lane[0])
-            if not folded and self._loopable(len(lane[0]), wi, wo, lane[3], lane[5]):
-                return self._looped_eval_pdf(ctx, si, wo, active, lane)
-        states, m = cached if cached is not None else self._states(si, active, lane)
+        states, m = cached
         p_coh, p_f, p_b, *p_sub = self._selection(ctx, states, cos_i)
         on_f = ctx.is_enabled(mi.BSDFFlags.GlossyTransmission, 1)
         on_b = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 2)
