@@ -48,6 +48,10 @@ CASES = {
     "ellipse aspect 5, spread 0.5 (2D table)": dict(shape="ellipse", aspect=5.0, size_spread=0.5,
                                                     process="poisson"),
     "mask 1024 px (max), fixed": dict(shape="mask", filename="@mask1024", pixel_size=0.01),
+    # --- an isotropic shape on a lattice: a 2D table (found by the property test, 827 s before)
+    "hexagon random, spread 0.5, on a lattice (2D table)": dict(
+        shape="polygon", sides=6, orientation="random", size_spread=0.5, size_distribution="schulz",
+        radius=0.001, process="lattice-square", jitter=2000.0),
 }
 
 CHILD = r"""

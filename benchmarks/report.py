@@ -413,6 +413,8 @@ BENCHMARKS = [
      "sampling_table_opaque_large_lamp", "the anisotropic layers' sampling table"),
     ("scaling", "python benchmarks/bench_scaling.py", "cost against image size"),
     ("slow_inputs", "python benchmarks/bench_slow_inputs.py", "the slowest accepted inputs' table builds"),
+    ("slow_inputs_lattice", "python benchmarks/bench_slow_inputs.py --only 'on a lattice' --out slow_inputs_lattice "
+     "(before: --src OLD/src --out slow_inputs_lattice_before)", "an isotropic shape's spread on a lattice"),
     ("hard_disk", "python benchmarks/bench_hard_disk.py", "the hard-disk S(q) table: lookup, error bars"),
     ("wave", "python benchmarks/bench_wave.py", "the brute-force wave reference against the model"),
     ("volume", "python benchmarks/bench_volume.py", "corona_mie volumes"),

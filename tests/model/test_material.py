@@ -221,3 +221,30 @@ def test_anisotropic_shape_on_a_powder_lattice_builds_its_table():
     # their weight: measured +2.3 % here (a known limit of 2-D tables for powder lattices)
     fa = m.area_fraction
     assert m.diffuse_transmittance() == pytest.approx(fa * (1 - fa), rel=0.03)
+
+
+@pytest.mark.parametrize("shape", [
+    "spread of random hexagons", "circle", "spread of circles"])
+def test_isotropic_shape_on_a_lattice_grid_equals_its_2d_form_factors(shape):
+    """On a lattice the lobe is a 2-D table; an isotropic shape's form factors there are evaluated
+    radially, once per distance of a vertex from the centre (``Material._grid_form_factors_radial``).
+    Vertex by vertex they must equal the shape's own 2-D evaluation (to the orientation quadrature's
+    error, 1e-6 of the peak): a wrong distance, a mis-scattered vertex or a radial path that is
+    not the shape's would fail."""
+    from corona.model.shapes import RandomOrientation, RegularPolygon, SizeDistribution
+    shapes = {"spread of random hexagons": SizeDistribution(RandomOrientation(RegularPolygon(6, 1.0, angle=10.0)),
+                                                            spread=0.5, distribution="schulz"),
+              "circle": corona.Circle(1.0),
+              "spread of circles": SizeDistribution(corona.Circle(1.0), spread=0.3)}
+    m = Material(shapes[shape], corona.Lattice("square", 3.0, jitter=0.3))
+    assert m.shape.isotropic and not m.isotropic
+    n, step = 64, 0.11
+    P, C = m._grid_form_factors_radial(n, step)
+    c = (2 * np.arange(n) + 1 - n) * (0.5 * step)
+    q = np.stack(np.meshgrid(c, c, indexing="xy"), -1).reshape(-1, 2)
+    pick = np.random.default_rng(3).choice(n * n, 400, replace=False)
+    P2, C2 = m._form_factors(q[pick], radial=False)
+    assert np.max(np.abs(P.ravel()[pick] - P2)) <= 1e-6 * P2.max()
+    assert np.max(np.abs(C.ravel()[pick] - C2)) <= 1e-6 * C2.max()
+    # negative control: the same values one vertex off
+    assert np.max(np.abs(np.roll(P, 1, axis=1).ravel()[pick] - P2)) > 1e-3 * P2.max()

@@ -565,6 +565,8 @@ class Material(Layer):
             P, C = np.empty((n, n)), np.empty((n, n))
             P[:half], C[:half] = inten / self.shape.area, np.abs(amp) ** 2 / self.shape.area
             P[half:], C[half:] = P[:n - half][::-1, ::-1], C[:n - half][::-1, ::-1]
+        elif self.shape.isotropic:
+            P, C = self._grid_form_factors_radial(n, cell / R)
         else:   # in blocks, with a progress bar for slow shapes (half the grid: v(-u) = v(u))
             P, C = np.moveaxis(self._in_chunks(lambda x: np.stack(self._form_factors(x, radial=False), -1), q),
                                -1, 0)
@@ -696,6 +698,23 @@ class Material(Layer):
                                          tolerance, max_rows)
         return {"area_fraction": np.array(keys), "values": np.stack([vals[k] for k in keys]).astype(np.float32),
                 "geometry": np.array(geo), "error": np.array(worst)}
+
+    def _grid_form_factors_radial(self, n: int, step: float):
+        """(P, C) of an isotropic shape (a circle, a random orientation, their size spreads) on the
+        centred ``n`` × ``n`` grid of vertices ``q = (2i + 1 - n, 2j + 1 - n) step/2`` of a 2-D table
+        (an anisotropic process: a lattice): they depend on ``|q|`` only, so they are evaluated
+        radially (the shape's radial path, as its radial tables are) once per distinct distance of
+        a vertex from the centre, about a fifth of the vertices.  A random orientation's 2-D path
+        would average the orientations at every vertex: 14 min for a spread of hexagons on a
+        lattice, against seconds here (the two agree to 1e-7, the orientation quadrature's own
+        error)."""
+        odd = 2 * np.arange(n) + 1 - n
+        key = odd[None, :] ** 2 + odd[:, None] ** 2
+        distinct, where = np.unique(key, return_inverse=True)
+        q = np.sqrt(distinct) * (0.5 * step)
+        PC = self._in_chunks(lambda x: np.stack(self._form_factors(x, radial=True), -1), q)
+        where = where.reshape(n, n)
+        return PC[where, 0], PC[where, 1]
 
     def _in_chunks(self, f, points) -> np.ndarray:
         """``f(points)`` evaluated in blocks, with a progress bar (on stderr) when
