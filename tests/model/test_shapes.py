@@ -769,3 +769,17 @@ BAD = [
 def test_bad_input_names_the_parameter(make, name):
     with pytest.raises(CoronaError, match=re.escape(name)):
         make()
+
+
+@pytest.mark.parametrize("spread", [1e-300, 9e-278, 1e-30])
+def test_a_vanishing_size_spread_is_the_single_size(spread):
+    """A spread so small that the log grid's step underflows (σ_y / points per σ_y -> 0) used to
+    raise OverflowError building a radial table (a property-test draw, 9e-278): it must give the
+    single size's form factor."""
+    from corona.model.shapes import Circle, SizeDistribution
+    q = np.geomspace(1e-3, 400.0, 3000)
+    one = Circle(1.0)._both_radial(q)
+    many = SizeDistribution(Circle(1.0), spread=spread)._both_radial(q)
+    for a, b in zip(many, one):
+        assert np.all(np.isfinite(a))
+        assert np.max(np.abs(a - b)) <= 1e-9 * np.max(np.abs(b))

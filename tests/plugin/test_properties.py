@@ -61,7 +61,10 @@ def _max_area_fraction(params: dict) -> float:
     if params["process"] == "lattice-hex":         # cell (√3/2) σ²
         return 2.0 * shape.area / (math.sqrt(3.0) * sd * sd)
     sd = params.get("exclusion_diameter", sd)
-    return min(LIMITS[params["process"]] * shape.area / (math.pi * sd * sd / 4.0), 1 - 1e-6)
+    limit = LIMITS[params["process"]] * shape.area / (math.pi * sd * sd / 4.0)
+    if params["process"] == "rsa":      # F_a itself is at most the jamming limit (a size spread: |A| > π σ²/4)
+        limit = min(limit, LIMITS["rsa"])
+    return min(limit, 1 - 1e-6)
 
 
 def _log_uniform(lo, hi):

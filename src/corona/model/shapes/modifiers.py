@@ -470,8 +470,10 @@ class SizeDistribution(Modifier):
             x = np.log(qa[rest])
             h = self._sig_y / self._LOG_GRID_PER_SIGMA
             pad = 3
-            n_grid = int(math.ceil((x.max() - x.min()) / h)) + 1 + 2 * pad
-            if 4 * n_grid < x.size:
+            # cells of the log grid (inf for a spread so small that σ_y underflows the step)
+            cells = (x.max() - x.min()) / h
+            n_grid = int(math.ceil(cells)) + 1 + 2 * pad if math.isfinite(cells) else None
+            if n_grid is not None and 4 * n_grid < x.size:
                 xg = x.min() + h * (np.arange(n_grid) - pad)
                 Ig, Ag = self._average_direct(np.exp(xg), radial=True)
                 inten[rest] = CubicSpline(xg, Ig)(x)
