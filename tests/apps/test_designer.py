@@ -1152,6 +1152,20 @@ def test_exported_command_runs_in_the_cli(client, shape, tmp_path, monkeypatch):
                                                               rel=1e-6)
 
 
+def _breath_profile_peak(client, q: dict) -> tuple[float, float]:
+    """The designer's profile for the breath-figure parameters ``q`` checked against the model's lobe
+    (it comes from the interpolated lobe table: 0.5 % of the peak at most, measured): (the profile's
+    peak angle [degree], the process's mean radius [µm])."""
+    res = client.get("/api/profiles", params=q)
+    assert res.status_code == 200, res.text
+    p = res.json()
+    m = material_from_parameters(**q)
+    theta = np.radians(p["angle"])
+    d = np.stack([np.sin(theta), 0 * theta], -1)
+    np.testing.assert_allclose(p["lobe"], m.lobe(d, 550.0), rtol=0, atol=1e-2 * max(p["lobe"]))
+    return p["angle"][int(np.argmax(p["lobe"]))], m.process.mean_radius
+
+
 def test_breath_figure_in_the_designer(client):
     """process=breath-figure (issue 46) in the page: offered with a breath-time slider over the
     table's 5–80 s and a preset; its profile is the model's lobe, and its ring (the lobe's peak)
@@ -1166,15 +1180,7 @@ def test_breath_figure_in_the_designer(client):
     peaks, R = {}, {}
     for t in (10.0, 40.0):
         q = {"process": "breath-figure", "breath_time": t}
-        res = client.get("/api/profiles", params=q)
-        assert res.status_code == 200, res.text
-        p = res.json()
-        m = material_from_parameters(**q)
-        theta = np.radians(p["angle"])
-        d = np.stack([np.sin(theta), 0 * theta], -1)
-        # the profile comes from the interpolated lobe table (0.5 % of the peak at most, measured)
-        np.testing.assert_allclose(p["lobe"], m.lobe(d, 550.0), rtol=0, atol=1e-2 * max(p["lobe"]))
-        peaks[t], R[t] = p["angle"][int(np.argmax(p["lobe"]))], m.process.mean_radius
+        peaks[t], R[t] = _breath_profile_peak(client, q)
         img = png(client.get("/api/corona.png", params={**q, "size": 64}))
         assert img.shape == (64, 64, 3) and img.std() > 5
     assert peaks[40.0] / peaks[10.0] == pytest.approx(R[10.0] / R[40.0], rel=0.2)   # 0.29 against 0.31
@@ -1196,14 +1202,7 @@ def test_breath_figure_fading_in_the_designer(client):
     peaks, R = {}, {}
     for tau in (0.0, 12.0):
         q = {"process": "breath-figure", "breath_time": 20.0, "dry_time": tau}
-        res = client.get("/api/profiles", params=q)
-        assert res.status_code == 200, res.text
-        p = res.json()
-        m = material_from_parameters(**q)
-        theta = np.radians(p["angle"])
-        d = np.stack([np.sin(theta), 0 * theta], -1)
-        np.testing.assert_allclose(p["lobe"], m.lobe(d, 550.0), rtol=0, atol=1e-2 * max(p["lobe"]))
-        peaks[tau], R[tau] = p["angle"][int(np.argmax(p["lobe"]))], m.process.mean_radius
+        peaks[tau], R[tau] = _breath_profile_peak(client, q)
     assert R[12.0] < 0.9 * R[0.0]
     assert peaks[12.0] < peaks[0.0] < 1.1 * peaks[12.0]      # 2.28° against 2.37°: not 1/R (2.8°)
     one_line_400(client.get("/api/corona.png", params={"process": "breath-figure", "breath_time": 20,
