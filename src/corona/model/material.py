@@ -705,9 +705,9 @@ class Material(Layer):
         (an anisotropic process: a lattice): they depend on ``|q|`` only, so they are evaluated
         radially (the shape's radial path, as its radial tables are) once per distinct distance of
         a vertex from the centre, about a fifth of the vertices.  A random orientation's 2-D path
-        would average the orientations at every vertex: 14 min for a spread of hexagons on a
-        lattice, against seconds here (the two agree to 1e-7, the orientation quadrature's own
-        error)."""
+        would average the orientations at every vertex (the build times, before and after:
+        ``benchmarks/results/slow_inputs_lattice*.json``); the two paths agree to the orientation
+        quadrature's own error."""
         odd = 2 * np.arange(n) + 1 - n
         key = odd[None, :] ** 2 + odd[:, None] ** 2
         distinct, where = np.unique(key, return_inverse=True)
