@@ -14,6 +14,13 @@ import suite_cache  # noqa: E402  (scripts/suite_cache.py)
 os.environ["CORONA_CACHE_DIR"] = suite_cache.folder()
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(suite_cache.root(), "numba"))
 suite_cache.prune()
+# glibc hands every freed block above its mmap threshold (a few MB) back to the kernel and faults
+# fresh pages in for the next large array; on small virtual machines those page faults cost more
+# than the arithmetic.  The xdist workers and the commands the tests start (they read the
+# environment at their start) keep large blocks in their heap instead: the system CPU time of the
+# suite falls several-fold, nothing computed changes (benchmarks/results/suite_times.json).
+os.environ.setdefault("MALLOC_MMAP_THRESHOLD_", str(1 << 30))
+os.environ.setdefault("MALLOC_TRIM_THRESHOLD_", str(1 << 29))
 
 import corona  # noqa: E402,F401  (sets DRJIT_LIBLLVM_PATH before drjit loads)
 import pytest  # noqa: E402
