@@ -551,3 +551,26 @@ def test_derivative_at_a_texture_least_value(mi_variant, key):
     dr.forward(xf)
     ad = float(np.asarray(dr.grad(y)).ravel()[0])
     assert abs(fd) > 1e-3 * abs(q[0]) and abs(ad - fd) < 0.01 * abs(fd), (ad, fd)
+
+
+def test_hermite_rows_reproduce_a_parabola(mi_variant):
+    # a uniform layer's rows recentred at F_a on each update (corona.mitsuba.common.hermite_rows):
+    # the slopes are the parabola's through each row and its neighbours (one-sided at the ends), so
+    # rows of a quadratic in x are interpolated exactly, value and derivative, in every interval
+    # of uneven rows (the first and the last too, and just outside, clamped to the end row); two
+    # rows: a straight line.  A slope taken from the wrong rows fails this by far more than 1e-9.
+    from corona.mitsuba.common import hermite_rows
+    rng = np.random.default_rng(3)
+    for n in (2, 3, 4, 7, 40):
+        x = np.sort(rng.uniform(0.0, 1.0, n))
+        c = rng.normal(size=(3, 2, 3))                       # a quadratic per entry of a (2, 3) row
+        quad = 0.0 if n == 2 else 1.0
+        f = lambda v: c[0] + c[1] * v + quad * c[2] * v * v
+        df = lambda v: c[1] + 2 * quad * c[2] * v
+        rows = np.stack([f(v) for v in x])
+        for at in np.concatenate([x, 0.5 * (x[1:] + x[:-1]), rng.uniform(x[0], x[-1], 20)]):
+            v, dv = hermite_rows(x, rows, at)
+            assert np.allclose(v, f(at), rtol=0, atol=1e-9) and np.allclose(dv, df(at), rtol=0, atol=1e-7), (n, at)
+        for at, end in ((x[0] - 0.1, x[0]), (x[-1] + 0.1, x[-1])):
+            v, dv = hermite_rows(x, rows, at)
+            assert np.allclose(v, f(end), rtol=0, atol=1e-9), (n, at)
