@@ -68,7 +68,7 @@ def _tensor(values):
     kernel cache and compiled those kernels anew."""
     from corona.mitsuba.common import array
     import mitsuba as mi
-    a = np.asarray(values, np.float32)
+    a = np.ascontiguousarray(values, np.float32)
     return mi.TensorXf(array(mi.Float, a.ravel()), shape=a.shape)
 
 

@@ -123,7 +123,7 @@ def _jit(cls, values, shape=None):
     missed Dr.Jit's kernel cache on some kernels and compiled them anew (most of this file's time)."""
     import mitsuba as mi
     from corona.mitsuba.common import array
-    a = np.asarray(values, np.float32)
+    a = np.ascontiguousarray(values, np.float32)
     if cls is mi.TensorXf:
         return mi.TensorXf(array(mi.Float, a.ravel()), shape=a.shape if shape is None else shape)
     if cls is mi.Float:

@@ -51,7 +51,7 @@ def _jit(cls, values):
     on some kernels and compiled them anew (most of this file's time)."""
     import mitsuba as mi
     from corona.mitsuba.common import array
-    a = np.asarray(values, np.float32)
+    a = np.ascontiguousarray(values, np.float32)
     if cls is mi.Float:
         return array(mi.Float, a.ravel())
     return cls(*[array(mi.Float, row) for row in a])
