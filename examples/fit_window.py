@@ -61,6 +61,17 @@ LAMP_DISTANCE, PANE_DISTANCE = 20.0, 0.5  # m
 LAYER = {"type": "corona", "process": "hard-disk", "mode": "particle"}
 
 
+def _tensor(values):
+    """A ``mi.TensorXf`` of numpy ``values`` in memory Dr.Jit allocated itself.  One made straight
+    from numpy maps numpy's memory, whose alignment varies from run to run and is compiled into
+    every kernel that reads it (the loss's, the backward render's): each run then missed Dr.Jit's
+    kernel cache and compiled those kernels anew."""
+    from corona.mitsuba.common import array
+    import mitsuba as mi
+    a = np.ascontiguousarray(values, np.float32)
+    return mi.TensorXf(array(mi.Float, a.ravel()), shape=a.shape)
+
+
 def _sensor(fov, res, spp):
     import mitsuba as mi
     return {"type": "perspective", "fov": fov, "fov_axis": "x",
@@ -109,7 +120,7 @@ def _off_lamp_mask(lamps, fov, res):
     for ax in (0, 1):
         for s in (-1, 1):
             grown |= np.roll(seen, s, axis=ax)
-    return mi.TensorXf(np.repeat((~grown).astype(np.float32)[..., None], 3, axis=2))
+    return _tensor(np.repeat((~grown).astype(np.float32)[..., None], 3, axis=2))
 
 
 def _optimise(scene, params, opt, keys_to_params, loss_of, iterations, spp, lr_schedule, clip, trace=None):
@@ -274,7 +285,7 @@ def fit_bitmap(n=8, pixels_per_texel=4, spp=16, target_spp=256, iterations=200, 
     # Adam on ln F_a: steps relative to each texel's value, so that a thin texel is found to the
     # same relative precision as a dense one
     opt = mi.ad.Adam(lr=0.05)
-    opt["ln_fa"] = mi.TensorXf(np.full((n, n, 1), np.log(fa_start), np.float32))
+    opt["ln_fa"] = _tensor(np.full((n, n, 1), np.log(fa_start)))
     state = {}
 
     def to_params(o, p):
@@ -290,7 +301,7 @@ def fit_bitmap(n=8, pixels_per_texel=4, spp=16, target_spp=256, iterations=200, 
 
     # on the sum of the channels: the sky's flat spectrum, sampled at random wavelengths, scatters
     # the colour of each sample (spectral noise) much more than its brightness
-    weight = mi.TensorXf(np.ones((res, res, 3), np.float32))
+    weight = _tensor(np.ones((res, res, 3)))
     grey = dr.sum(target * weight, axis=2)
 
     def loss(img):

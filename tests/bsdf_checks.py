@@ -8,6 +8,19 @@ import mitsuba as mi
 import numpy as np
 
 
+def jit_array(cls, values):
+    """``cls`` (``mi.Float``, ``mi.Point2f``, ``mi.Vector3f``: one row of numpy ``values`` per
+    component) in memory Dr.Jit allocated itself.  A Dr.Jit array made straight from numpy maps
+    numpy's memory, whose alignment (64 bytes or not) varies from run to run and is compiled into
+    each kernel that reads it (an aligned or an unaligned load): such a kernel missed Dr.Jit's
+    kernel cache at random and was compiled anew, warm runs too."""
+    from corona.mitsuba.common import array
+    a = np.ascontiguousarray(values, np.float32)
+    if cls is mi.Float:
+        return array(mi.Float, a.ravel())
+    return cls(*[array(mi.Float, row) for row in a])
+
+
 def interaction(n, wi, wavelengths=(450.0, 520.0, 600.0, 700.0)):
     si = dr.zeros(mi.SurfaceInteraction3f, n)
     si.wi = mi.Vector3f(*[float(x) for x in wi])
@@ -194,8 +207,8 @@ def furnace(bsdf, theta_deg: float, wavelengths=(550.0,) * 4, n: int = 200_000, 
     wi = (np.sin(abs(th)) * np.cos(ph), np.sin(abs(th)) * np.sin(ph), np.cos(th))
     rng = np.random.default_rng(seed)
     si = interaction(n, wi, wavelengths) if uv is None else uv_interaction(n, wi, uv, wavelengths)
-    bs, w = bsdf.sample(ctx or mi.BSDFContext(), si, mi.Float(rng.random(n).astype(np.float32)),
-                        mi.Point2f(rng.random((2, n)).astype(np.float32)))
+    bs, w = bsdf.sample(ctx or mi.BSDFContext(), si, jit_array(mi.Float, rng.random(n)),
+                        jit_array(mi.Point2f, rng.random((2, n))))
     w = np.asarray(w, dtype=np.float64).reshape(-1, n)
     assert np.all(np.isfinite(w)), "sample() returned a non-finite weight"
     assert np.all(w >= 0), "sample() returned a negative weight"
@@ -216,10 +229,10 @@ def plugin_eval(bsdf, wi, wo, wavelengths=(450.0, 520.0, 600.0, 700.0), uv=None,
     wi = np.asarray(wi, dtype=np.float64)
     n = len(wo)
     si = interaction(n, (0.0, 0.0, 1.0), wavelengths)
-    si.wi = mi.Vector3f(np.ascontiguousarray(np.broadcast_to(wi, (n, 3)).T, dtype=np.float32))
+    si.wi = jit_array(mi.Vector3f, np.broadcast_to(wi, (n, 3)).T)
     if uv is not None:
         si.uv = mi.Point2f(float(uv[0]), float(uv[1]))
-    e, pdf = bsdf.eval_pdf(ctx or mi.BSDFContext(), si, mi.Vector3f(np.ascontiguousarray(wo.T, dtype=np.float32)))
+    e, pdf = bsdf.eval_pdf(ctx or mi.BSDFContext(), si, jit_array(mi.Vector3f, wo.T))
     return np.asarray(e, dtype=np.float64).reshape(-1, n), np.asarray(pdf, dtype=np.float64).reshape(n)
 
 

@@ -115,6 +115,22 @@ LAMS = (450.0, 520.0, 600.0, 700.0)
 THETAS = (0.0, 30.0)
 
 
+def _jit(cls, values, shape=None):
+    """``cls`` (``mi.Float``, ``mi.Point2f``, ``mi.Vector3f``: one row of numpy ``values`` per
+    component; ``mi.TensorXf`` of ``shape``) in memory Dr.Jit allocated itself.  A Dr.Jit array
+    made straight from numpy maps numpy's memory, whose alignment (64 bytes or not) varies from run
+    to run and is part of each kernel that reads it (an aligned or an unaligned load): every run then
+    missed Dr.Jit's kernel cache on some kernels and compiled them anew (most of this file's time)."""
+    import mitsuba as mi
+    from corona.mitsuba.common import array
+    a = np.ascontiguousarray(values, np.float32)
+    if cls is mi.TensorXf:
+        return mi.TensorXf(array(mi.Float, a.ravel()), shape=a.shape if shape is None else shape)
+    if cls is mi.Float:
+        return array(mi.Float, a.ravel())
+    return cls(*[array(mi.Float, row) for row in a])
+
+
 def _directions(theta, n=300, seed=2):
     """Transmitted directions around the beam (the lobe) and reflected ones (the diffuse part)."""
     rng = np.random.default_rng(seed)
@@ -145,21 +161,21 @@ def _quantity(bsdf, what, key, theta, keep=None):
     uv = (0.25, 0.25)                                   # the first texel
     smooth = _context(mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection)
     if what == "eval":
-        return dr.sum(dr.sum(bsdf.eval(smooth, uv_interaction(len(wo), wi, uv, LAMS), mi.Vector3f(wo.T))))
+        return dr.sum(dr.sum(bsdf.eval(smooth, uv_interaction(len(wo), wi, uv, LAMS), _jit(mi.Vector3f, wo.T))))
     if what == "pdf":
-        return dr.sum(bsdf.pdf(smooth, uv_interaction(len(wo), wi, uv, LAMS), mi.Vector3f(wo.T)))
+        return dr.sum(bsdf.pdf(smooth, uv_interaction(len(wo), wi, uv, LAMS), _jit(mi.Vector3f, wo.T)))
     n = 400
     rng = np.random.default_rng(7)
     # sample1 in the first 40 % of each of the 4 wavelengths' shares: no row or component flips
     s1 = (rng.integers(0, 4, n) + 0.4 * rng.random(n)) / 4.0
     s2 = rng.random((2, n))
     one = mi.BSDFFlags.DiffuseReflection if key.startswith("albedo") else mi.BSDFFlags.GlossyTransmission
-    bs, w = bsdf.sample(_context(one), uv_interaction(n, wi, uv, LAMS), mi.Float(s1.astype(np.float32)),
-                        mi.Point2f(s2.astype(np.float32)))
+    bs, w = bsdf.sample(_context(one), uv_interaction(n, wi, uv, LAMS), _jit(mi.Float, s1),
+                        _jit(mi.Point2f, s2))
     if what == "keep":
         return np.asarray(dr.detach(dr.square(bs.wo.x) + dr.square(bs.wo.y))) < 0.98
     if keep is not None:
-        w = w * mi.Float(np.asarray(keep, dtype=np.float32))
+        w = w * _jit(mi.Float, keep)
     return dr.sum(dr.sum(w))
 
 
@@ -318,7 +334,7 @@ class Setup:
         import mitsuba as mi
         self.scene, self.entries = scene, entries
         self.params = mi.traverse(scene)
-        self.weights = {k: mi.TensorXf(np.ascontiguousarray(np.repeat(w[..., None], 3, 2), dtype=np.float32))
+        self.weights = {k: _jit(mi.TensorXf, np.repeat(w[..., None], 3, 2))
                         for k, w in weights.items()}
         self.base = {name: np.array(self.params[key]) for name, (key, *_) in entries.items()}
 
@@ -331,7 +347,7 @@ class Setup:
             return mi.Float(v)
         a = self.base[name].copy()
         a[texel] = v
-        return mi.TensorXf(a)
+        return _jit(mi.TensorXf, a)
 
     def set(self, values):
         for name, value in values.items():
@@ -381,7 +397,7 @@ class Setup:
                         e = np.zeros(np.shape(self.base[other]) if texel is not None else 1, np.float32)
                         if other == name:
                             e[texel if texel is not None else 0] = 1.0
-                        dr.set_grad(x, mi.TensorXf(e) if texel is not None else dr.opaque(mi.Float, float(e[0])))
+                        dr.set_grad(x, _jit(mi.TensorXf, e) if texel is not None else dr.opaque(mi.Float, float(e[0])))
                         dr.enqueue(dr.ADMode.Forward, x)
                     dr.traverse(dr.ADMode.Forward)
                     out[name].append(float(dr.grad(y).array[0]))
@@ -535,3 +551,26 @@ def test_derivative_at_a_texture_least_value(mi_variant, key):
     dr.forward(xf)
     ad = float(np.asarray(dr.grad(y)).ravel()[0])
     assert abs(fd) > 1e-3 * abs(q[0]) and abs(ad - fd) < 0.01 * abs(fd), (ad, fd)
+
+
+def test_hermite_rows_reproduce_a_parabola(mi_variant):
+    # a uniform layer's rows recentred at F_a on each update (corona.mitsuba.common.hermite_rows):
+    # the slopes are the parabola's through each row and its neighbours (one-sided at the ends), so
+    # rows of a quadratic in x are interpolated exactly, value and derivative, in every interval
+    # of uneven rows (the first and the last too, and just outside, clamped to the end row); two
+    # rows: a straight line.  A slope taken from the wrong rows fails this by far more than 1e-9.
+    from corona.mitsuba.common import hermite_rows
+    rng = np.random.default_rng(3)
+    for n in (2, 3, 4, 7, 40):
+        x = np.sort(rng.uniform(0.0, 1.0, n))
+        c = rng.normal(size=(3, 2, 3))                       # a quadratic per entry of a (2, 3) row
+        quad = 0.0 if n == 2 else 1.0
+        f = lambda v: c[0] + c[1] * v + quad * c[2] * v * v
+        df = lambda v: c[1] + 2 * quad * c[2] * v
+        rows = np.stack([f(v) for v in x])
+        for at in np.concatenate([x, 0.5 * (x[1:] + x[:-1]), rng.uniform(x[0], x[-1], 20)]):
+            v, dv = hermite_rows(x, rows, at)
+            assert np.allclose(v, f(at), rtol=0, atol=1e-9) and np.allclose(dv, df(at), rtol=0, atol=1e-7), (n, at)
+        for at, end in ((x[0] - 0.1, x[0]), (x[-1] + 0.1, x[-1])):
+            v, dv = hermite_rows(x, rows, at)
+            assert np.allclose(v, f(end), rtol=0, atol=1e-9), (n, at)

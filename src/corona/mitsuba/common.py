@@ -375,8 +375,12 @@ def hermite_rows(x, rows, at):
     j = int(np.clip(np.searchsorted(x, at, side="right") - 1, 0, x.size - 2))
     h = x[j + 1] - x[j]
     t = float(np.clip((at - x[j]) / h, 0.0, 1.0))
-    m = row_slopes(x, rows)
-    a, b, ma, mb = rows[j], rows[j + 1], m[j] * h, m[j + 1] * h
+    # the slopes at rows j and j + 1 read rows j - 1 … j + 2 only (the ends' one-sided ones the
+    # first or last three rows, which the window then holds): the same values as row_slopes over
+    # every row, without its cost in each update (an update recentres a uniform layer's rows)
+    lo = max(j - 1, 0)
+    m = row_slopes(x[lo:j + 3], rows[lo:j + 3])[j - lo:]
+    a, b, ma, mb = rows[j], rows[j + 1], m[0] * h, m[1] * h
     t2, t3 = t * t, t * t * t
     v = (2 * t3 - 3 * t2 + 1) * a + (t3 - 2 * t2 + t) * ma + (3 * t2 - 2 * t3) * b + (t3 - t2) * mb
     dv = ((6 * t2 - 6 * t) * a + (3 * t2 - 4 * t + 1) * ma + (6 * t - 6 * t2) * b + (3 * t2 - 2 * t) * mb) / h
