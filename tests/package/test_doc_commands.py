@@ -16,7 +16,7 @@ Renders are scaled down: ``corona render`` and ``corona sweep`` get ``-D res=64`
 existing ``-D res=...`` replaced) and ``--spp 4``.  A scene header's command that a page
 already runs (the same command once ``--out``, ``--name`` and ``--exposure`` are taken
 off: the gallery's commands are the scene headers' with an output name) is not run twice, and a
-``corona render``/``corona sweep`` command that an earlier case of this process ran on the same
+``corona render``/``sweep``/``lobe`` command that an earlier case of this process ran on the same
 files (the same command line, every file of the folder the same bytes) is not run again: its
 outputs are copied into the folder (the renders are seeded, so a second run writes the same bytes).
 
@@ -219,10 +219,11 @@ def _shims(folder: str) -> str:
     return folder
 
 
-#: the renders and sweeps run in this process: (the command, :func:`_state` of the folder it ran in)
-#: → the files it wrote there ({relative path: bytes}); a later case running the very same command
-#: on the very same files (the pages repeat a few: the moon photograph of `corona fit`, a sweep)
-#: gets those files instead of a second identical process (the renders are seeded: the same bytes)
+#: the renders, sweeps and lobe pictures run in this process: (the command's words, :func:`_state` of
+#: the folder it ran in) → the files it wrote there ({relative path: bytes}); a later case running the
+#: very same command on the very same files (the pages repeat a few: the moon photograph of `corona
+#: fit`, a sweep, a lobe picture) gets those files instead of a second identical process (seeded
+#: renders, deterministic pictures: the same bytes)
 _DONE: dict[tuple, dict[str, bytes]] = {}
 
 
@@ -240,7 +241,7 @@ def _state(folder) -> dict[str, bytes]:
 
 def _reusable(command: str) -> bool:
     words = shlex.split(command, comments=True)
-    return len(words) > 1 and words[0] == "corona" and words[1] in ("render", "sweep")
+    return len(words) > 1 and words[0] == "corona" and words[1] in ("render", "sweep", "lobe")
 
 
 def run_case(case: Case, tmp_path, cache: str) -> None:
@@ -262,7 +263,7 @@ def run_case(case: Case, tmp_path, cache: str) -> None:
         runs = [(scaled(c), ["bash", "-c", scaled(c)]) for c in case.commands()]
     for shown, argv in runs:
         before = _state(work) if case.lang == "sh" and _reusable(shown) else None
-        key = (shown, tuple(sorted(before.items()))) if before is not None else None
+        key = (tuple(shlex.split(shown, comments=True)), tuple(sorted(before.items()))) if before is not None else None
         if key in _DONE:                        # run already, on the same files: its outputs
             for rel, data in _DONE[key].items():
                 os.makedirs(os.path.dirname(work / rel), exist_ok=True)
