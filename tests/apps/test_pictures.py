@@ -177,3 +177,23 @@ def test_post_png_is_the_same_convention(tmp_path):
     assert ((auto[ring] > 2) & (auto[ring] < 253)).all(), auto[ring]
     old = tonemap_srgb(lin, exposure=1.0).astype(float) @ REC709      # negative control
     assert (old[ring] >= 253).mean() > 0.3
+
+
+def test_dilate_cross_is_scipys_binary_dilation():
+    """The exposure's lamp rim (numpy shifts, :func:`corona.apps.pictures.dilate_cross`) is
+    scipy.ndimage's binary dilation by the 4-neighbour cross, iterated: masks touching the
+    frame's edges, several sizes and widths; a negative control with the 8-neighbour square."""
+    from scipy import ndimage
+
+    from corona.apps.pictures import dilate_cross
+    rng = np.random.default_rng(3)
+    for shape, density in (((1, 1), 1.0), ((7, 5), 0.05), ((40, 64), 0.01), ((33, 33), 0.3)):
+        mask = rng.random(shape) < density
+        mask[0, -1] = True                                     # a lamp on the corner
+        for k in (0, 1, 2, 5):
+            assert np.array_equal(dilate_cross(mask, k), ndimage.binary_dilation(mask, iterations=k) if k else mask)
+    one = np.zeros((9, 9), bool)
+    one[4, 4] = True
+    square = ndimage.binary_dilation(one, np.ones((3, 3), bool), iterations=2)
+    assert not np.array_equal(dilate_cross(one, 2), square)   # the cross, not the square
+    assert dilate_cross(one, 2).sum() == 13                    # the city-block disc of radius 2

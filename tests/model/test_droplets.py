@@ -59,6 +59,28 @@ def test_size_nodes_reproduce_effective_radius_and_variance(dist):
     assert veff == pytest.approx(0.15, rel=2e-2)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("dist, radius, variance", [("lognormal", 8.0, 0.15), ("lognormal", 0.5, 0.005),
+                                                     ("gamma", 5.0, 0.02), ("gamma", 20.0, 0.1)])
+def test_size_nodes_span_scipy_stats_quantiles(dist, radius, variance):
+    """The nodes span the area-weighted distribution's 1e-4 .. 1 - 1e-4 quantiles, as
+    scipy.stats gives them (size_nodes computes them with scipy.special alone)."""
+    from scipy import optimize, special, stats
+    r, _ = size_nodes(radius, dist, variance)
+    if dist == "lognormal":
+        s2 = math.log1p(variance)
+        area = stats.lognorm(math.sqrt(s2), scale=radius / (1 + variance) ** 2.5 * math.exp(2 * s2))
+        lo, hi = area.ppf(1e-4), area.ppf(1 - 1e-4)
+    else:
+        lg = lambda a, k: special.gammaln(a + 1 + k)
+        alpha = optimize.brentq(lambda a: math.exp(lg(a, 4) + lg(a, 2) - 2 * lg(a, 3)) - 1 - variance,
+                                -2.999 + 1e-9, 1e5, xtol=1e-12)
+        B = 1.0 / (radius / math.exp(special.gammaln(alpha + 4) - special.gammaln(alpha + 3)))
+        lo, hi = (stats.gamma(alpha + 3).ppf([1e-4, 1 - 1e-4]) / B)
+    t, _ = np.polynomial.legendre.leggauss(r.size)
+    np.testing.assert_allclose(r, lo + (hi - lo) * 0.5 * (t + 1), rtol=1e-12)
+
+
 def test_modified_gamma_with_exponent_one_is_gamma():
     a = size_nodes(6.0, "gamma", 0.2)
     b = size_nodes(6.0, "modified_gamma", 0.2, gamma_exponent=1.0)

@@ -32,3 +32,19 @@ def test_runtime_never_imports_the_heavy_tier(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "", f"imported: {out.stdout.strip()}"
+
+
+#: scipy's submodules that cost a process most at import (their docstring parsing): loaded where used
+SCIPY_LAZY = ("scipy.ndimage", "scipy.interpolate", "scipy.optimize", "scipy.stats", "scipy.special")
+
+
+def test_the_cli_starts_without_scipys_heavy_submodules():
+    """``corona --help`` (importing corona and its CLI) loads none of :data:`SCIPY_LAZY`; a
+    negative control imports one through the same check."""
+    check = "import sys; {extra}import corona, corona.apps.cli; print(' '.join(k for k in {lazy!r} if k in sys.modules))"
+    for extra in ("", "import scipy.ndimage; "):
+        out = subprocess.run([sys.executable, "-c", check.format(extra=extra, lazy=SCIPY_LAZY)],
+                             capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stderr[-2000:]
+        loaded = out.stdout.split()
+        assert ("scipy.ndimage" in loaded) if extra else not loaded, f"imported: {loaded}"

@@ -1,5 +1,6 @@
 """The on-disk table cache under concurrency, truncation and format changes."""
 import json
+import mmap
 import multiprocessing as mp
 import os
 
@@ -176,10 +177,13 @@ def test_builder_killed_while_holding_the_lock(tmp_path, monkeypatch):
     assert np.all(out["values"] == 5.0)
 
 
-@pytest.mark.parametrize("damage", ["empty", "truncated", "garbage", "no-meta", "wrong-key"])
-def test_damaged_file_is_rebuilt(tmp_path, monkeypatch, damage):
-    """A truncated or otherwise damaged table (e.g. written by a non-atomic copy) is rebuilt."""
+@pytest.mark.parametrize("mapped", [False, True], ids=["read", "mapped"])
+@pytest.mark.parametrize("damage", ["empty", "truncated", "garbage", "no-meta", "wrong-key", "flipped"])
+def test_damaged_file_is_rebuilt(tmp_path, monkeypatch, damage, mapped):
+    """A truncated or otherwise damaged table (e.g. written by a non-atomic copy) is rebuilt,
+    whether read or mapped from its file (a large table: ``MAP_BYTES``)."""
     monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(tabulated, "MAP_BYTES", 0 if mapped else 1 << 60)
     params = {"damage-test": 1}
     tabulated.cached(params, lambda: {"values": np.arange(5000.0)})
     path = tmp_path / (tabulated.cache_key(params) + ".npz")
@@ -192,6 +196,8 @@ def test_damaged_file_is_rebuilt(tmp_path, monkeypatch, damage):
         path.write_bytes(os.urandom(len(raw)))
     elif damage == "no-meta":
         np.savez(path, values=np.arange(5000.0))
+    elif damage == "flipped":                   # one byte inside the array data
+        path.write_bytes(raw[:len(raw) // 2] + bytes([raw[len(raw) // 2] ^ 0xFF]) + raw[len(raw) // 2 + 1:])
     else:  # a valid table of another key copied over this one
         other = {"damage-test": 2}
         tabulated.cached(other, lambda: {"values": np.zeros(5000)})
@@ -365,3 +371,33 @@ def test_an_empty_cache_variable_builds_in_memory_with_a_warning(monkeypatch):
     with pytest.warns(RuntimeWarning, match="CORONA_CACHE_DIR='' is empty"):
         out = tabulated.cached({"empty-variable": 1}, lambda: {"values": np.arange(3.0)})
     assert out["values"].tolist() == [0.0, 1.0, 2.0]
+
+
+def test_a_mapped_table_equals_the_written_one(tmp_path, monkeypatch):
+    """A large table is mapped from its file (:func:`corona.model.tabulated._load_mapped`): the same
+    arrays as ``np.load`` gives (dtypes, shapes, Fortran order, 0-d and empty arrays), writable,
+    and a write to them changes neither the file nor a later read; a file replaced while mapped
+    leaves the mapped arrays as they were."""
+    monkeypatch.setenv("CORONA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(tabulated, "MAP_BYTES", 0)
+    rng = np.random.default_rng(1)
+    arrays = {"P": rng.random((37, 53)), "cdf": rng.random(1001).astype(np.float32),
+              "guide": rng.integers(0, 2**32 - 1, 999, dtype=np.uint32), "G": np.array(17),
+              "empty": np.zeros((0, 5)), "fortran": np.asfortranarray(rng.random((6, 7))),
+              "s0": rng.random((3, 2)) + 1j * rng.random((3, 2))}
+    params = {"mapped-test": 1}
+    tabulated.cached(params, lambda: {k: v.copy() for k, v in arrays.items()})
+    path = tmp_path / (tabulated.cache_key(params) + ".npz")
+    with np.load(path) as f:
+        assert sorted(f.files) == sorted([*arrays, "__meta__"])
+    out = tabulated.cached(params, lambda: pytest.fail("a valid table rebuilt"))
+    assert isinstance(out["P"].base, mmap.mmap)              # mapped, not read
+    for k, v in arrays.items():
+        assert out[k].dtype == v.dtype and out[k].shape == v.shape and np.array_equal(out[k], v), k
+        assert out[k].flags.writeable
+    out["P"][:] = -1.0
+    again = tabulated.cached(params, lambda: pytest.fail("rebuilt after a write to a mapped array"))
+    assert np.array_equal(again["P"], arrays["P"])
+    tabulated._write_atomic(str(path), tabulated.cache_key(params), {"P": np.zeros((2, 2))})
+    assert np.array_equal(again["P"], arrays["P"])         # the old file's pages
+    assert np.array_equal(tabulated._read(str(path), tabulated.cache_key(params))["P"], np.zeros((2, 2)))

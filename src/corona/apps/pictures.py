@@ -32,6 +32,22 @@ def _luminance(rgb: np.ndarray) -> np.ndarray:
     return rgb[..., 0] if rgb.shape[-1] == 1 else rgb[..., :3] @ _REC709
 
 
+def dilate_cross(mask: np.ndarray, iterations: int) -> np.ndarray:
+    """``scipy.ndimage.binary_dilation(mask, iterations=iterations)`` of a 2-D mask (the
+    4-neighbour cross, outside the frame False): the pixels within ``iterations`` steps of
+    ``mask`` (city-block).  numpy shifts, since importing scipy.ndimage costs every
+    ``corona render`` more CPU than the renders of a preview (its docstring parsing at import)."""
+    out = np.asarray(mask, dtype=bool).copy()
+    for _ in range(int(iterations)):
+        grown = out.copy()
+        grown[1:] |= out[:-1]
+        grown[:-1] |= out[1:]
+        grown[:, 1:] |= out[:, :-1]
+        grown[:, :-1] |= out[:, 1:]
+        out = grown
+    return out
+
+
 def display_exposure(rgb) -> float:
     """The automatic exposure of a picture: the glow around the lamps, not the lamps, maps to 1.
 
@@ -41,14 +57,13 @@ def display_exposure(rgb) -> float:
     the frame (a bright lamp covering 2 % of the frame would otherwise set the exposure and
     leave its corona black).  1 for a black picture.
     """
-    from scipy import ndimage
     lum = _luminance(rgb)
     peak = float(lum.max()) if lum.size else 0.0
     if peak <= 0.0:
         return 1.0
     lamp = lum > LAMP_LEVEL * peak
     if LAMP_RIM_PX and lum.ndim == 2:
-        lamp = ndimage.binary_dilation(lamp, iterations=LAMP_RIM_PX)
+        lamp = dilate_cross(lamp, LAMP_RIM_PX)
     glow = lum[~lamp] if 0 < lamp.mean() < LAMP_SHARE_MAX else lum.ravel()
     q = float(np.percentile(glow, GLOW_PERCENTILE)) if glow.size else 0.0
     if q <= 0.0:                       # nothing but lamps on black: the lamps' level

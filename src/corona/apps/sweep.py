@@ -194,11 +194,16 @@ def render_jobs(jobs, executor: Executor, *, desc: str = "render", progress: boo
 # contact sheet
 # ==========================================================================
 def label_font(size: int):
-    """DejaVu Sans (shipped with matplotlib: has µ, ×, °), else Pillow's default."""
+    """DejaVu Sans (shipped with matplotlib: has µ, ×, °), else Pillow's default.  The file is
+    found from matplotlib's package folder (importing matplotlib's font manager cost a sweep
+    more than its contact sheet)."""
+    import importlib.util
+
     from PIL import ImageFont
     try:
-        from matplotlib import font_manager
-        return ImageFont.truetype(font_manager.findfont("DejaVu Sans"), size)
+        spec = importlib.util.find_spec("matplotlib")
+        return ImageFont.truetype(os.path.join(spec.submodule_search_locations[0], "mpl-data", "fonts",
+                                               "ttf", "DejaVuSans.ttf"), size)
     except Exception:  # noqa: BLE001
         try:
             return ImageFont.load_default(size=size)

@@ -47,7 +47,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
+import scipy   # scipy.ndimage: loaded on first use (scipy imports its submodules lazily)
 
 from corona.model.layer import decoupled_lobe
 from corona.model.shapes.base import Term
@@ -126,7 +126,7 @@ class CubicGrid:
 
     @classmethod
     def from_values(cls, lo, cell, values):
-        coef = ndimage.spline_filter(np.asarray(values, dtype=np.float64), order=3, mode="mirror")
+        coef = scipy.ndimage.spline_filter(np.asarray(values, dtype=np.float64), order=3, mode="mirror")
         return cls(float(lo), float(cell), coef)
 
     @property
@@ -138,7 +138,7 @@ class CubicGrid:
         fx = (u[..., 0] - self.lo) / self.cell
         fy = (u[..., 1] - self.lo) / self.cell
         inside = (fx >= 0) & (fx <= self.n - 1) & (fy >= 0) & (fy <= self.n - 1)
-        out = ndimage.map_coordinates(self.coef, [np.ravel(fy), np.ravel(fx)], order=3,
+        out = scipy.ndimage.map_coordinates(self.coef, [np.ravel(fy), np.ravel(fx)], order=3,
                                       mode="mirror", prefilter=False).reshape(fx.shape)
         return np.where(inside, out, 0.0)
 

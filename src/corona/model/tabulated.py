@@ -610,10 +610,60 @@ def _checksum(arrays: dict) -> str:
     return h.hexdigest()
 
 
+#: a cached table at least this large is mapped from its file (:func:`_load_mapped`), not copied
+MAP_BYTES = 32 << 20
+
+
+def _load_mapped(path: str) -> dict:
+    """The arrays of an uncompressed ``.npz`` (what :func:`_write_atomic` writes), mapped from the
+    file copy-on-write instead of read into fresh memory: a large table's pages come from the
+    system's file cache (no copy, no zip CRC pass: the checksum of :func:`_read` is the check), and
+    the arrays stay writable without touching the file.  A file replaced later
+    (:func:`_write_atomic`'s rename) leaves the mapping on the old one.  Raises on anything it does
+    not recognise (the caller treats the file as damaged)."""
+    import io
+    import mmap
+    import struct
+    import zipfile
+
+    from numpy.lib import format as npformat
+    with open(path, "rb") as fh:
+        with zipfile.ZipFile(fh) as z:
+            infos = z.infolist()
+        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_COPY)
+    out = {}
+    for info in infos:
+        if info.compress_type != zipfile.ZIP_STORED or not info.filename.endswith(".npy"):
+            raise ValueError(f"{info.filename}: not a stored .npy member")
+        at = info.header_offset
+        if mm[at:at + 4] != b"PK\x03\x04":
+            raise ValueError(f"{info.filename}: no local header")
+        n_name, n_extra = struct.unpack("<HH", mm[at + 26:at + 30])
+        start = at + 30 + n_name + n_extra
+        head = io.BytesIO(mm[start:start + min(info.file_size, 1 << 17)])
+        version = npformat.read_magic(head)
+        shape, fortran, dtype = (npformat.read_array_header_1_0(head) if version == (1, 0)
+                                 else npformat.read_array_header_2_0(head))
+        if dtype.hasobject:
+            raise ValueError(f"{info.filename}: an object array")
+        offset = start + head.tell()
+        if offset + dtype.itemsize * int(np.prod(shape)) > start + info.file_size:
+            raise ValueError(f"{info.filename}: truncated")
+        # (a member's data need not be aligned to its item size: numpy and Dr.Jit read such arrays)
+        out[info.filename[:-4]] = np.ndarray(shape, dtype=dtype, buffer=mm, offset=offset,
+                                             order="F" if fortran else "C")
+    return out
+
+
 def _read(path: str, key: str) -> dict | None:
     try:
-        with np.load(path, allow_pickle=False) as f:
-            data = {k: f[k] for k in f.files}
+        # mapped where large (not on Windows, where a mapped file cannot be replaced; small tables
+        # read: each mapping holds a file descriptor while its arrays live)
+        if os.name != "nt" and os.path.getsize(path) >= MAP_BYTES:
+            data = _load_mapped(path)
+        else:
+            with np.load(path, allow_pickle=False) as f:
+                data = {k: f[k] for k in f.files}
         meta = json.loads(str(data.pop("__meta__")))
         if meta.get("format") != FORMAT_VERSION or meta.get("key") != key:
             return None

@@ -75,7 +75,7 @@ import functools
 import math
 
 import numpy as np
-from scipy import optimize, special, stats
+import scipy   # scipy.optimize, scipy.special: loaded on first use (a volume's size spread)
 
 from corona.model import tabulated
 from corona.model.mie import theory as mie
@@ -164,7 +164,9 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
         s2 = math.log1p(v_eff)
         rg = r_eff / (1 + v_eff) ** 2.5
         # area-weighted: ln r ~ N(ln rg + 2 s², s²)
-        area = stats.lognorm(math.sqrt(s2), scale=rg * math.exp(2 * s2))
+        # (scipy.stats.lognorm's ppf, without importing scipy.stats, the largest import of a volume scene)
+        s_ln, scale_ln = math.sqrt(s2), rg * math.exp(2 * s2)
+        area = type("Area", (), {"ppf": staticmethod(lambda p: np.exp(s_ln * scipy.special.ndtri(p)) * scale_ln)})
         logpdf = lambda r: -np.log(r) - (np.log(r / rg)) ** 2 / (2 * s2)
     else:
         g = 1.0 if distribution == "gamma" else check_range("gamma_exponent", gamma_exponent,
@@ -174,19 +176,19 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
                               "distribution='gamma'; allowed 1 (use 'modified_gamma')")
         # moments of r^α exp(-B r^γ): <r^k> ∝ Γ((α+1+k)/γ) B^{-k/γ}; v_eff depends on α only
         def veff_of(alpha):
-            lg = lambda k: special.gammaln((alpha + 1 + k) / g)
+            lg = lambda k: scipy.special.gammaln((alpha + 1 + k) / g)
             return math.exp(lg(4) + lg(2) - 2 * lg(3)) - 1
         lo, hi = -2.999 + 1e-9, 1e5
         if not (veff_of(hi) < v_eff < veff_of(lo)):
             raise CoronaError(f"variance={variance!r} is out of range for gamma_exponent={g:g}; "
                               f"allowed ({veff_of(hi):.3g}, {veff_of(lo):.3g})")
-        alpha = optimize.brentq(lambda a: veff_of(a) - v_eff, lo, hi, xtol=1e-12)
+        alpha = scipy.optimize.brentq(lambda a: veff_of(a) - v_eff, lo, hi, xtol=1e-12)
         # r_eff = B^{-1/γ} Γ((α+4)/γ)/Γ((α+3)/γ)
-        scale = r_eff / math.exp(special.gammaln((alpha + 4) / g) - special.gammaln((alpha + 3) / g))
+        scale = r_eff / math.exp(scipy.special.gammaln((alpha + 4) / g) - scipy.special.gammaln((alpha + 3) / g))
         B = scale ** (-g)
         # area-weighted: r^{α+2} exp(-B r^γ): u = B r^γ ~ Gamma((α+3)/γ)
-        ga = stats.gamma((alpha + 3) / g)
-        area = type("Area", (), {"ppf": staticmethod(lambda p: (ga.ppf(p) / B) ** (1 / g))})
+        a_ga = (alpha + 3) / g           # (scipy.stats.gamma(a_ga).ppf is gammaincinv(a_ga, p))
+        area = type("Area", (), {"ppf": staticmethod(lambda p: (scipy.special.gammaincinv(a_ga, p) / B) ** (1 / g))})
         logpdf = lambda r: alpha * np.log(r) - B * r**g
     lo_r, hi_r = float(area.ppf(1e-4)), float(area.ppf(1 - 1e-4))
     if n is None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import special
+import scipy   # scipy.special: loaded on first use (scipy imports its submodules lazily)
 
 from corona._validation import check_positive
 from corona.model import registry
@@ -79,7 +79,7 @@ class Circle(Shape):
         u = np.asarray(u, dtype=np.float64)
         out = np.ones_like(u)
         nz = np.abs(u) > 1e-8
-        out[nz] = 2.0 * special.j1(u[nz]) / u[nz]
+        out[nz] = 2.0 * scipy.special.j1(u[nz]) / u[nz]
         return out
 
     def kernel_terms(self):
@@ -340,7 +340,7 @@ class Rectangle(Shape):
 
         def one(L):
             t = L / s[pos]
-            return 2.0 * (L * (special.ndtr(t) - 0.5)
+            return 2.0 * (L * (scipy.special.ndtr(t) - 0.5)
                           - s[pos] * phi0 * (1.0 - np.exp(-0.5 * t * t)))
         blurred = np.sum(c[pos] * one(self.width) * one(self.height))
         return float(np.sum(c[~pos]) * self.area + blurred)

@@ -52,7 +52,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import special
+import scipy   # scipy.special: loaded on first use (scipy imports its submodules lazily)
 
 from corona._validation import CoronaError
 
@@ -311,7 +311,7 @@ class Shape:
             sel = qs > 0.75 * Q
             c = float(np.sum(ws[sel] * inten[sel] * qs[sel] ** 3) / np.sum(ws[sel]))
             tail = (np.exp(-(widths * Q) ** 2) / Q
-                    - widths * math.sqrt(math.pi) * special.erfc(widths * Q)) @ coeffs
+                    - widths * math.sqrt(math.pi) * scipy.special.erfc(widths * Q)) @ coeffs
             total += c / _TWO_PI * float(tail)
         return total
 
@@ -365,7 +365,7 @@ _GL_CACHE: dict = {}
 def _gauss_legendre(n: int):
     """Cached Gauss–Legendre nodes and weights on [-1, 1]."""
     if n not in _GL_CACHE:
-        _GL_CACHE[n] = special.roots_legendre(n)
+        _GL_CACHE[n] = scipy.special.roots_legendre(n)
     return _GL_CACHE[n]
 
 

@@ -5,8 +5,7 @@ import math
 import os
 
 import numpy as np
-from scipy import fft as sp_fft
-from scipy import ndimage
+import scipy   # scipy.fft, scipy.ndimage: loaded on first use (scipy imports its submodules lazily)
 
 from corona._validation import CoronaError, check_positive, check_range
 from corona.model import registry
@@ -190,11 +189,11 @@ class Mask(Shape):
         self._radius = p * float(np.max(np.hypot(ii[nzr] - ci, jj[nzr] - cj))) + p / math.sqrt(2.0)
         i0, j0 = int(round(ci)), int(round(cj))
         self._shift = (ci - i0, cj - j0)
-        self._P = tuple(sp_fft.next_fast_len(max(4 * n, min(8 * n, 2048))) for n in (ny, nx))
+        self._P = tuple(scipy.fft.next_fast_len(max(4 * n, min(8 * n, 2048))) for n in (ny, nx))
         self._crop_info = (crop, i0, j0)
         F = self._fft()
-        self._coef_re = ndimage.spline_filter(F.real, order=3, mode="grid-wrap")
-        self._coef_im = ndimage.spline_filter(F.imag, order=3, mode="grid-wrap")
+        self._coef_re = scipy.ndimage.spline_filter(F.real, order=3, mode="grid-wrap")
+        self._coef_im = scipy.ndimage.spline_filter(F.imag, order=3, mode="grid-wrap")
 
     def _fft(self) -> np.ndarray:
         crop, i0, j0 = self._crop_info
@@ -202,7 +201,7 @@ class Mask(Shape):
         arr = np.zeros((Py, Px))
         arr[:crop.shape[0], :crop.shape[1]] = crop
         arr = np.roll(arr, (-i0, -j0), axis=(0, 1))
-        return sp_fft.fft2(arr, workers=1)
+        return scipy.fft.fft2(arr, workers=1)
 
     def __repr__(self):
         ny, nx = self.image.shape
@@ -239,9 +238,9 @@ class Mask(Shape):
         if np.any(inb):
             qx, qy = qf[inb, 0], qf[inb, 1]
             coords = np.stack([-qy * p * Py / _TWO_PI, qx * p * Px / _TWO_PI])
-            re = ndimage.map_coordinates(self._coef_re, coords, order=3, mode="grid-wrap",
+            re = scipy.ndimage.map_coordinates(self._coef_re, coords, order=3, mode="grid-wrap",
                                          prefilter=False)
-            im = ndimage.map_coordinates(self._coef_im, coords, order=3, mode="grid-wrap",
+            im = scipy.ndimage.map_coordinates(self._coef_im, coords, order=3, mode="grid-wrap",
                                          prefilter=False)
             di, dj = self._shift
             out[inb] = p * p * (re + 1j * im) * np.exp(1j * p * (qx * dj - qy * di))
@@ -259,8 +258,8 @@ class Mask(Shape):
                 continue
             if power is None:
                 power = np.abs(self._fft()) ** 2
-                qy2 = (_TWO_PI * sp_fft.fftfreq(Py, d=p)) ** 2
-                qx2 = (_TWO_PI * sp_fft.fftfreq(Px, d=p)) ** 2
+                qy2 = (_TWO_PI * scipy.fft.fftfreq(Py, d=p)) ** 2
+                qx2 = (_TWO_PI * scipy.fft.fftfreq(Px, d=p)) ** 2
             g = np.exp(-qy2 * w * w)[:, None] * np.exp(-qx2 * w * w)[None, :]
             total += c * float(p * p * np.sum(power * g) / (Px * Py))
         return total

@@ -6,7 +6,7 @@ import os
 from functools import reduce
 
 import numpy as np
-from scipy import special
+import scipy   # scipy.special: loaded on first use (scipy imports its submodules lazily)
 
 from corona._validation import CoronaError, check_choice, check_range
 from corona.model.shapes.base import (_ORIENTATION_MAX_POINTS, _TWO_PI, Shape, Term, _check_int, _check_shape, _groups,
@@ -368,7 +368,7 @@ class SizeDistribution(Modifier):
         else:
             from scipy import stats
             k = 1.0 / (sp * sp)
-            self._sig_y = math.sqrt(float(special.polygamma(1, k)))
+            self._sig_y = math.sqrt(float(scipy.special.polygamma(1, k)))
             g = stats.gamma(k, scale=1.0 / k)
             g4 = stats.gamma(k + 4.0, scale=1.0 / k)
             g1 = stats.gamma(k + 1.0, scale=1.0 / k)
