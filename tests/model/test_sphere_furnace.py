@@ -30,8 +30,11 @@ def _material(params):
 @pytest.mark.slow
 @pytest.mark.parametrize("params", LAYERS, ids=lambda p: ",".join(f"{k}={v}" for k, v in p.items()))
 def test_furnace_sweep_numpy(params):
+    # at normal incidence the lobes are symmetric about the axis (spheres, an isotropic process):
+    # any number of azimuths gives their integral (to rounding), as in diffuse_transmittance
     m = _material(params)
-    worst = max((m.directional_albedo(sign * np.cos(np.radians(a)), lam, n_phi=96)["total"], a, lam, sign)
+    worst = max((m.directional_albedo(sign * np.cos(np.radians(a)), lam, n_phi=4 if a == 0.0 else 96)["total"],
+                 a, lam, sign)
                 for a in ANGLES for lam in LAMBDAS for sign in (1, -1))
     assert worst[0] <= 1.0 + 1e-4, worst
 

@@ -48,8 +48,9 @@ def _angles(radius):
     return ang, sinw, np.repeat([0, 1], n)
 
 
-def _colours(material, radius, ang, seed=0):
-    """XYZ (3, M) of the table's lobes (``material``) and of Mie theory at ``radius`` [µm]."""
+def _colours(material, radius, ang, seed=0, theory=True):
+    """XYZ (3, M) of the table's lobes (``material``) and of Mie theory at ``radius`` [µm] (None
+    without ``theory``)."""
     width = (LAM_MAX - LAM_MIN) / STRATA
     lams = LAM_MIN + (np.arange(STRATA) + np.random.default_rng(seed).random(STRATA)) * width
     wi = np.array([0.0, 0.0, 1.0])
@@ -59,12 +60,13 @@ def _colours(material, radius, ang, seed=0):
     for s in range(0, STRATA, chunk):
         lam = lams[s:s + chunk]
         zf, zb, fwd = material._lobes(wi, np.broadcast_to(wo, (lam.size,) + wo.shape), lam[:, None])
-        x = 2 * np.pi * radius / (lam * 1e-3)
-        S1, S2 = mie.amplitudes(mie.water_ior(lam).astype(np.complex128), x, np.cos(ang))
         cmf = cie1931_xyz(lam).T * width                   # (3, B)
         tab += cmf @ np.where(fwd, zf, zb)
-        ref += cmf @ ((np.abs(S1) ** 2 + np.abs(S2) ** 2) / (2 * np.pi * x[:, None] ** 2))
-    return tab, ref
+        if theory:
+            x = 2 * np.pi * radius / (lam * 1e-3)
+            S1, S2 = mie.amplitudes(mie.water_ior(lam).astype(np.complex128), x, np.cos(ang))
+            ref += cmf @ ((np.abs(S1) ** 2 + np.abs(S2) ** 2) / (2 * np.pi * x[:, None] ** 2))
+    return tab, (ref if theory else None)
 
 
 def _figures(tab, ref, sinw):
@@ -84,14 +86,12 @@ def test_lobe_colours_match_mie_theory(radius):
         rms, scale = _figures(tab[:, sel], ref[:, sel], sinw[sel])
         assert np.all(rms <= RMS_GOAL), (name, "X, Y, Z RMS", rms)
         assert abs(scale) <= SCALE_GOAL, (name, "Y scale", scale)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("radius", [2.0, 20.0])
-def test_negative_control_colours_see_a_one_percent_radius_error(radius):
-    # the table of a 1 % smaller droplet against Mie theory at the nominal radius: the forward
-    # corona's rings move by 1 %, well above the goal (1.7-3 % Y RMS measured at 2-20 µm)
-    ang, sinw, lobe = _angles(radius)
-    tab, ref = _colours(_material(0.99 * radius), radius, ang)
-    rms, _ = _figures(tab[:, lobe == 0], ref[:, lobe == 0], sinw[lobe == 0])
-    assert rms[1] > 1.5 * RMS_GOAL, rms
+    if radius in (2.0, 20.0):
+        # negative control: the table of a 1 % smaller droplet against the same Mie colours (the
+        # same wavelengths): the forward corona's rings move by 1 %, well above the goal (1.7-3 %
+        # Y RMS measured at 2-20 µm)
+        fwd = lobe == 0
+        wrong, _ = _colours(_material(0.99 * radius), radius, ang[fwd], theory=False)
+        rms, _ = _figures(wrong, ref[:, fwd], sinw[fwd])
+        print("a 1 % smaller droplet: X, Y, Z RMS", rms)
+        assert rms[1] > 1.5 * RMS_GOAL, rms

@@ -81,19 +81,21 @@ def structure_factor_mc(volume_fraction: float, n: int = 400, sweeps: int = 300,
     mmax = int(q_max * L / (2 * math.pi)) + 1
     r = np.arange(-mmax, mmax + 1)
     mv = np.array(np.meshgrid(r, r, r, indexing="ij")).reshape(3, -1).T
-    qv = 2 * math.pi / L * mv
-    qa = np.linalg.norm(qv, axis=1)
+    qa = 2 * math.pi / L * np.linalg.norm(mv, axis=1)
     keep = (qa > 0) & (qa < q_max)
-    qv, qa = qv[keep], qa[keep]
+    mv, qa = mv[keep], qa[keep]
     # at most 96 wave vectors per shell (a fixed random subset): the shells are isotropic
     edges = np.arange(0.0, q_max + dq, dq)
     idx = np.digitize(qa, edges) - 1
     rng = np.random.default_rng(seed)
     pick = np.concatenate([rng.permutation(np.flatnonzero(idx == k))[:96] for k in range(edges.size - 1)])
-    qv, qa = qv[pick], qa[pick]
+    mv, qa = mv[pick] + mmax, qa[pick]                   # the index of each m in r
     S = np.zeros(qa.size)
     for pos in confs:
-        ph = np.exp(1j * (pos @ qv.T))
+        # exp(i q·r) = Π over the axes of exp(i 2π m_a r_a / L): three small tables of phases
+        # (n, 2 mmax + 1) and two products a wave vector instead of a complex exponential
+        E = np.exp(1j * (2 * math.pi / L) * pos[:, :, None] * r[None, None, :])
+        ph = E[:, 0, mv[:, 0]] * E[:, 1, mv[:, 1]] * E[:, 2, mv[:, 2]]
         S += np.abs(ph.sum(axis=0)) ** 2 / n
     S /= len(confs)
     idx = np.digitize(qa, edges) - 1
