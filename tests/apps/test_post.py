@@ -5,9 +5,11 @@ quadrature of the lobe over the frame (``Material.lobe``), the ACES white point.
 """
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 import corona
 import corona.apps.post as post
@@ -241,8 +243,17 @@ def test_render_through_the_pane_equals_post_of_the_render_without_it():
 # ----------------------------------------------------------------------
 # the command line
 # ----------------------------------------------------------------------
-def _cli(*args):
+def _cli_process(*args):
+    """The real entry point, a separate process (``test_cli_exr_and_png``)."""
     return subprocess.run([sys.executable, "-m", "corona.apps.cli", *args], capture_output=True, text=True)
+
+
+def _cli(*args):
+    """The same command in this process through click's runner (the code path of
+    ``corona.apps.cli.main`` without a process start and import per call)."""
+    from corona.apps.cli import main
+    r = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    return SimpleNamespace(returncode=r.exit_code, stdout=r.stdout, stderr=r.stderr)
 
 
 @pytest.fixture(scope="module")
@@ -263,13 +274,13 @@ def test_cli_exr_and_png(images):
     import mitsuba as mi
     folder, img = images
     out = folder / "out.exr"
-    r = _cli("post", str(folder / "in.exr"), "--fov", "30", "-D", "radius=5", "-D", "area_fraction=0.3",
+    r = _cli_process("post", str(folder / "in.exr"), "--fov", "30", "-D", "radius=5", "-D", "area_fraction=0.3",
              "-D", "mode=particle", "--out", str(out), "--no-progress")
     assert r.returncode == 0, r.stderr
     got = np.array(mi.Bitmap(str(out)), dtype=np.float32)
     want = post.apply(img, 30.0, progress=False, radius=5.0, area_fraction=0.3, mode="particle")
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7)
-    r = _cli("post", str(folder / "in.exr"), "--fov", "30", "--out", str(folder / "out.png"))
+    r = _cli_process("post", str(folder / "in.exr"), "--fov", "30", "--out", str(folder / "out.png"))
     assert r.returncode == 0, r.stderr
     assert "corona post" in r.stderr               # the progress bar
     assert (folder / "out.png").stat().st_size > 0
@@ -505,15 +516,23 @@ def test_anisotropic_kernel_beyond_the_limit_is_one_line():
 # ----------------------------------------------------------------------
 # issue 47 item 13: the field of view's true bound
 # ----------------------------------------------------------------------
-def _white_frame_reference(m, W, H, fov, n=40, lams=post.WAVELENGTHS[::4]):
-    """A white image's pixel values for a frame that covers the unit disk but for slivers
-    (fields near 180°): ``T_c`` plus the t-average over each pixel of the directional diffuse
-    transmittance ``D(λ, cos θ = sqrt(1 - |p|²))`` (``Material.diffuse_transmittance``: the lobe
-    integrated over the propagating directions, exact for a radial lobe), channel-weighted."""
+def _diffuse_by_radius(m, lams=post.WAVELENGTHS[::4]):
+    """The channel-weighted directional diffuse transmittance ``D(λ, cos θ = sqrt(1 - |p|²))``
+    (``Material.diffuse_transmittance``: the lobe integrated over the propagating directions,
+    exact for a radial lobe) on 801 radii ``|p|`` of the unit disk; it does not depend on the
+    frame, so one table serves every field of view."""
     w = post.channel_responses("srgb", 3, lams)
     pr = np.linspace(0.0, 1.0, 801)
-    Dc = np.array([[m.diffuse_transmittance(float(lam), float(np.sqrt(max(0.0, 1 - r * r)))) for lam in lams]
-                   for r in pr]) @ w.T
+    lams = np.asarray(lams, dtype=float)         # every wavelength in one call (the same values)
+    Dc = np.array([m.diffuse_transmittance(lams, float(np.sqrt(max(0.0, 1 - r * r)))) for r in pr]) @ w.T
+    return pr, Dc
+
+
+def _white_frame_reference(m, W, H, fov, diffuse, n=40):
+    """A white image's pixel values for a frame that covers the unit disk but for slivers
+    (fields near 180°): ``T_c`` plus the t-average over each pixel of the directional diffuse
+    transmittance ``diffuse = _diffuse_by_radius(m)``."""
+    pr, Dc = diffuse
     tx, ty, s = post.pixel_tangents(W, H, fov)
     sub = (np.arange(n) + 0.5) / n - 0.5
     out = np.empty((H, W, 3))
@@ -543,10 +562,11 @@ def test_the_widest_field_keeps_the_lobe_within_3_percent(monkeypatch):
     m = post.layer(**LAYER)
     W, H = 31, 21
     out = post.apply(np.ones((H, W, 3), np.float32), 176.0, m, progress=False).astype(np.float64)
-    ref = _white_frame_reference(m, W, H, 176.0)
+    diffuse = _diffuse_by_radius(m)
+    ref = _white_frame_reference(m, W, H, 176.0, diffuse)
     rel = (out - ref) / (ref - m.coherent_transmittance)
     assert np.abs(rel).max() < 0.03
     monkeypatch.setattr(post, "FOV_MAX", 179.0)
     out = post.apply(np.ones((H, W, 3), np.float32), 179.0, m, progress=False).astype(np.float64)
-    ref = _white_frame_reference(m, W, H, 179.0)
+    ref = _white_frame_reference(m, W, H, 179.0, diffuse)
     assert np.abs((out - ref) / (ref - m.coherent_transmittance)).max() > 0.08

@@ -41,6 +41,11 @@ def test_far_field_is_the_direct_sum_and_partials_add_up():
     I, S = _direct(c, a, L, 5.0, 0.5)
     np.testing.assert_allclose(r["exact"], I, rtol=2e-6)           # the kernel's J1 table: 1e-7
     np.testing.assert_allclose(r["S"], S, rtol=1e-10)
+    # the lean kernel of the exact far field alone (the breath-figure lobe tests): the same values
+    e = far_field_rings(c, a, L, length=1.0, u_max=5.0, du=0.5, exact_only=True)
+    assert set(e) == {"u", "exact", "points", "coverage"}
+    for k in ("u", "exact", "points"):
+        np.testing.assert_array_equal(e[k], r[k], err_msg=k)
     # one class: the partial structure factors are the decoupling approximation
     r1 = far_field_rings(c, a, L, length=1.0, u_max=5.0, du=0.5, classes=1)
     np.testing.assert_allclose(r1["partial"], r1["decoupling"], rtol=1e-12)
