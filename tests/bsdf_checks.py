@@ -8,14 +8,16 @@ import mitsuba as mi
 import numpy as np
 
 
-def jit_array(cls, values):
+def jit_array(cls, values, shape=None):
     """``cls`` (``mi.Float``, ``mi.Point2f``, ``mi.Vector3f``: one row of numpy ``values`` per
-    component) in memory Dr.Jit allocated itself.  A Dr.Jit array made straight from numpy maps
+    component; ``mi.TensorXf`` of ``shape``, by default the values') in memory Dr.Jit allocated itself.  A Dr.Jit array made straight from numpy maps
     numpy's memory, whose alignment (64 bytes or not) varies from run to run and is compiled into
     each kernel that reads it (an aligned or an unaligned load): such a kernel missed Dr.Jit's
     kernel cache at random and was compiled anew, warm runs too."""
     from corona.mitsuba.common import array
     a = np.ascontiguousarray(values, np.float32)
+    if cls is mi.TensorXf:
+        return mi.TensorXf(array(mi.Float, a.ravel()), shape=a.shape if shape is None else shape)
     if cls is mi.Float:
         return array(mi.Float, a.ravel())
     return cls(*[array(mi.Float, row) for row in a])

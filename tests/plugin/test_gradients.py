@@ -96,7 +96,7 @@ import drjit as dr
 import numpy as np
 import pytest
 
-from bsdf_checks import bitmap_texture, uv_interaction
+from bsdf_checks import bitmap_texture, jit_array, uv_interaction
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
 
@@ -113,22 +113,6 @@ FAMILIES = {
 }
 LAMS = (450.0, 520.0, 600.0, 700.0)
 THETAS = (0.0, 30.0)
-
-
-def _jit(cls, values, shape=None):
-    """``cls`` (``mi.Float``, ``mi.Point2f``, ``mi.Vector3f``: one row of numpy ``values`` per
-    component; ``mi.TensorXf`` of ``shape``) in memory Dr.Jit allocated itself.  A Dr.Jit array
-    made straight from numpy maps numpy's memory, whose alignment (64 bytes or not) varies from run
-    to run and is part of each kernel that reads it (an aligned or an unaligned load): every run then
-    missed Dr.Jit's kernel cache on some kernels and compiled them anew (most of this file's time)."""
-    import mitsuba as mi
-    from corona.mitsuba.common import array
-    a = np.ascontiguousarray(values, np.float32)
-    if cls is mi.TensorXf:
-        return mi.TensorXf(array(mi.Float, a.ravel()), shape=a.shape if shape is None else shape)
-    if cls is mi.Float:
-        return array(mi.Float, a.ravel())
-    return cls(*[array(mi.Float, row) for row in a])
 
 
 def _directions(theta, n=300, seed=2):
@@ -161,21 +145,21 @@ def _quantity(bsdf, what, key, theta, keep=None):
     uv = (0.25, 0.25)                                   # the first texel
     smooth = _context(mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.DiffuseReflection)
     if what == "eval":
-        return dr.sum(dr.sum(bsdf.eval(smooth, uv_interaction(len(wo), wi, uv, LAMS), _jit(mi.Vector3f, wo.T))))
+        return dr.sum(dr.sum(bsdf.eval(smooth, uv_interaction(len(wo), wi, uv, LAMS), jit_array(mi.Vector3f, wo.T))))
     if what == "pdf":
-        return dr.sum(bsdf.pdf(smooth, uv_interaction(len(wo), wi, uv, LAMS), _jit(mi.Vector3f, wo.T)))
+        return dr.sum(bsdf.pdf(smooth, uv_interaction(len(wo), wi, uv, LAMS), jit_array(mi.Vector3f, wo.T)))
     n = 400
     rng = np.random.default_rng(7)
     # sample1 in the first 40 % of each of the 4 wavelengths' shares: no row or component flips
     s1 = (rng.integers(0, 4, n) + 0.4 * rng.random(n)) / 4.0
     s2 = rng.random((2, n))
     one = mi.BSDFFlags.DiffuseReflection if key.startswith("albedo") else mi.BSDFFlags.GlossyTransmission
-    bs, w = bsdf.sample(_context(one), uv_interaction(n, wi, uv, LAMS), _jit(mi.Float, s1),
-                        _jit(mi.Point2f, s2))
+    bs, w = bsdf.sample(_context(one), uv_interaction(n, wi, uv, LAMS), jit_array(mi.Float, s1),
+                        jit_array(mi.Point2f, s2))
     if what == "keep":
         return np.asarray(dr.detach(dr.square(bs.wo.x) + dr.square(bs.wo.y))) < 0.98
     if keep is not None:
-        w = w * _jit(mi.Float, keep)
+        w = w * jit_array(mi.Float, keep)
     return dr.sum(dr.sum(w))
 
 
@@ -334,7 +318,7 @@ class Setup:
         import mitsuba as mi
         self.scene, self.entries = scene, entries
         self.params = mi.traverse(scene)
-        self.weights = {k: _jit(mi.TensorXf, np.repeat(w[..., None], 3, 2))
+        self.weights = {k: jit_array(mi.TensorXf, np.repeat(w[..., None], 3, 2))
                         for k, w in weights.items()}
         self.base = {name: np.array(self.params[key]) for name, (key, *_) in entries.items()}
 
@@ -347,7 +331,7 @@ class Setup:
             return mi.Float(v)
         a = self.base[name].copy()
         a[texel] = v
-        return _jit(mi.TensorXf, a)
+        return jit_array(mi.TensorXf, a)
 
     def set(self, values):
         for name, value in values.items():
@@ -397,7 +381,7 @@ class Setup:
                         e = np.zeros(np.shape(self.base[other]) if texel is not None else 1, np.float32)
                         if other == name:
                             e[texel if texel is not None else 0] = 1.0
-                        dr.set_grad(x, _jit(mi.TensorXf, e) if texel is not None else dr.opaque(mi.Float, float(e[0])))
+                        dr.set_grad(x, jit_array(mi.TensorXf, e) if texel is not None else dr.opaque(mi.Float, float(e[0])))
                         dr.enqueue(dr.ADMode.Forward, x)
                     dr.traverse(dr.ADMode.Forward)
                     out[name].append(float(dr.grad(y).array[0]))

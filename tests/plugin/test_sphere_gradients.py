@@ -39,22 +39,10 @@ import drjit as dr
 import numpy as np
 import pytest
 
+from bsdf_checks import jit_array
+
 LAMS = (450.0, 520.0, 600.0, 700.0)
 THETAS = (0.0, 30.0, 60.0)
-
-
-def _jit(cls, values):
-    """``cls`` (``mi.Float``, ``mi.Point2f``, ``mi.Vector3f``, …) of numpy ``values`` (one row per
-    component) in memory Dr.Jit allocated itself.  A Dr.Jit array made straight from numpy maps
-    numpy's memory, whose alignment (64 bytes or not) varies from run to run and is part of the
-    compiled kernel (an aligned or an unaligned load): every run then missed Dr.Jit's kernel cache
-    on some kernels and compiled them anew (most of this file's time)."""
-    import mitsuba as mi
-    from corona.mitsuba.common import array
-    a = np.ascontiguousarray(values, np.float32)
-    if cls is mi.Float:
-        return array(mi.Float, a.ravel())
-    return cls(*[array(mi.Float, row) for row in a])
 
 
 def _directions(theta, n=400, seed=2):
@@ -78,7 +66,7 @@ def _si(n, wi, lams=None):
     si.wi = mi.Vector3f(*[float(x) for x in wi])
     si.uv = mi.Point2f(0.25, 0.25)                       # the bitmap's first texel
     si.wavelengths = (mi.Spectrum(*LAMS) if lams is None else
-                      _jit(mi.Spectrum, np.asarray(lams)[:, :n]))
+                      jit_array(mi.Spectrum, np.asarray(lams)[:, :n]))
     return si
 
 
@@ -90,15 +78,15 @@ def _quantity(bsdf, what, theta, lams=None, n_dirs=400):
     ctx = mi.BSDFContext()
     ctx.type_mask = mi.BSDFFlags.GlossyTransmission | mi.BSDFFlags.GlossyReflection
     if what == "eval":
-        return dr.sum(bsdf.eval(ctx, _si(len(wo), wi, lams), _jit(mi.Vector3f, wo.T)))
+        return dr.sum(bsdf.eval(ctx, _si(len(wo), wi, lams), jit_array(mi.Vector3f, wo.T)))
     if what == "pdf":   # every component on: the lobes' share of the selection depends on F_a
-        return bsdf.pdf(mi.BSDFContext(), _si(len(wo), wi, lams), _jit(mi.Vector3f, wo.T))
+        return bsdf.pdf(mi.BSDFContext(), _si(len(wo), wi, lams), jit_array(mi.Vector3f, wo.T))
     n = 500
     rng = np.random.default_rng(7)
     one = mi.BSDFContext()
     one.type_mask = mi.BSDFFlags.GlossyTransmission        # the forward lobe alone
-    bs, w = bsdf.sample(one, _si(n, wi, lams), _jit(mi.Float, rng.random(n)),
-                        _jit(mi.Point2f, rng.random((2, n))))
+    bs, w = bsdf.sample(one, _si(n, wi, lams), jit_array(mi.Float, rng.random(n)),
+                        jit_array(mi.Point2f, rng.random((2, n))))
     return dr.sum(w)
 
 
@@ -261,8 +249,8 @@ def _samples(bsdf, theta, n=500, lams=None):
     rng = np.random.default_rng(7)
     one = mi.BSDFContext()
     one.type_mask = mi.BSDFFlags.GlossyTransmission
-    bs, w = bsdf.sample(one, _si(n, wi, lams), _jit(mi.Float, rng.random(n)),
-                        _jit(mi.Point2f, rng.random((2, n))))
+    bs, w = bsdf.sample(one, _si(n, wi, lams), jit_array(mi.Float, rng.random(n)),
+                        jit_array(mi.Point2f, rng.random((2, n))))
     return bs.wo, dr.sum(w)
 
 
@@ -329,7 +317,7 @@ def test_radius_derivatives_match_central_differences(mi_variant, upload_branch,
             # cancelling, so the tolerance is a share of all of them
             weights = keep * np.sign(at[x + 2 * h][1] - at[x - 2 * h][1])
             up, down = _total(weights * q_up), _total(weights * q_down)
-            mask = _jit(mi.Float, weights)
+            mask = jit_array(mi.Float, weights)
             quantity = lambda: lanes()[1] * mask
             _assert_ad_matches(put, quantity, x, h, up, down, (process, textured, pane, what, theta), rtol=0.003)
     assert bsdf.material is material                          # no rebuild: r ± h inside the rows' radii
@@ -365,7 +353,7 @@ def test_radius_derivative_on_a_chord_node(mi_variant):
             lam_lanes += [lam] * len(steps)
             groups.append(len(steps))
     wx = np.array(wx, np.float32)
-    wo = _jit(mi.Vector3f, [wx, np.zeros_like(wx), -np.sqrt(1.0 - wx.astype(np.float64) ** 2)])
+    wo = jit_array(mi.Vector3f, [wx, np.zeros_like(wx), -np.sqrt(1.0 - wx.astype(np.float64) ** 2)])
     lams = np.array(lam_lanes)[None, :].repeat(4, 0)
     r = mi.Float(2.0)
     dr.enable_grad(r)
