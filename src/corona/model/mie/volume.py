@@ -166,7 +166,8 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
         # area-weighted: ln r ~ N(ln rg + 2 s², s²)
         # (scipy.stats.lognorm's ppf, without importing scipy.stats, the largest import of a volume scene)
         s_ln, scale_ln = math.sqrt(s2), rg * math.exp(2 * s2)
-        area = type("Area", (), {"ppf": staticmethod(lambda p: np.exp(s_ln * scipy.special.ndtri(p)) * scale_ln)})
+        def area_ppf(p):
+            return np.exp(s_ln * scipy.special.ndtri(p)) * scale_ln
         logpdf = lambda r: -np.log(r) - (np.log(r / rg)) ** 2 / (2 * s2)
     else:
         g = 1.0 if distribution == "gamma" else check_range("gamma_exponent", gamma_exponent,
@@ -188,9 +189,10 @@ def size_nodes(radius: float, distribution: str = "mono", variance: float = 0.0,
         B = scale ** (-g)
         # area-weighted: r^{α+2} exp(-B r^γ): u = B r^γ ~ Gamma((α+3)/γ)
         a_ga = (alpha + 3) / g           # (scipy.stats.gamma(a_ga).ppf is gammaincinv(a_ga, p))
-        area = type("Area", (), {"ppf": staticmethod(lambda p: (scipy.special.gammaincinv(a_ga, p) / B) ** (1 / g))})
+        def area_ppf(p):
+            return (scipy.special.gammaincinv(a_ga, p) / B) ** (1 / g)
         logpdf = lambda r: alpha * np.log(r) - B * r**g
-    lo_r, hi_r = float(area.ppf(1e-4)), float(area.ppf(1 - 1e-4))
+    lo_r, hi_r = float(area_ppf(1e-4)), float(area_ppf(1 - 1e-4))
     if n is None:
         n = int(np.clip(math.ceil(2 * np.pi * float(host_ior) * (hi_r - lo_r) / (tabulated.WAVELENGTH_MIN * 1e-3)),
                         *SIZE_NODES))
