@@ -50,7 +50,7 @@ from common import write  # noqa: E402
 from corona.color import cie1931_xyz  # noqa: E402
 from corona.reference.breath_figure import simulate_breath_figure  # noqa: E402
 from corona.model.processes.breath_figure import BreathFigure, load_table  # noqa: E402
-from corona.reference.breath_figure_optics import far_field_rings  # noqa: E402
+from corona.reference.breath_figure_optics import far_field_rings, ring_error  # noqa: E402
 
 TIMES = (10.0, 20.0, 40.0)
 BOX = 400.0
@@ -121,13 +121,7 @@ def fading_rows() -> tuple[list, dict]:
 
 
 def ring_errors(r: dict) -> dict:
-    ex = r["exact"]
-    sel = ex > 1e-3 * ex.max()
-    out = {}
-    for k in APPROX:
-        rel = r[k][sel] / ex[sel] - 1.0
-        out[k] = {"rms": float(np.sqrt(np.mean(rel ** 2))), "max": float(np.max(np.abs(rel)))}
-    return out
+    return {k: ring_error(r["exact"], r[k]) for k in APPROX}
 
 
 def xyz_errors(r: dict, R: float, density: float) -> dict:

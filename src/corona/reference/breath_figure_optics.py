@@ -195,6 +195,21 @@ def _exact_rings(x, y, a, L, q_max, dq_ring, n_ring, g, g_step):
     return out.sum(axis=0)
 
 
+def ring_error(exact, values) -> dict:
+    """The relative error of ring averages ``values`` against the exact ones ``exact`` (the same
+    rings, e.g. of :func:`far_field_rings`), over the rings holding at least 1e-3 of the exact
+    peak: ``{"rms": ..., "max": ...}``.
+
+    >>> e = ring_error(np.array([1.0, 2.0, 1e-6]), np.array([1.1, 1.8, 5.0]))   # the last ring: too faint
+    >>> round(e["rms"], 12), round(e["max"], 12)
+    (0.1, 0.1)
+    """
+    exact, values = np.asarray(exact, dtype=np.float64), np.asarray(values, dtype=np.float64)
+    sel = exact > 1e-3 * exact.max()
+    rel = values[sel] / exact[sel] - 1.0
+    return {"rms": float(np.sqrt(np.mean(rel ** 2))), "max": float(np.max(np.abs(rel)))}
+
+
 def size_classes(radii, K: int) -> np.ndarray:
     """Class of each droplet among ``K`` classes of equal covered area (quantiles of ``a²``-weighted
     radius), 0 the smallest."""
